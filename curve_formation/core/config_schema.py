@@ -1,0 +1,175 @@
+"""Schema of an experiment YAML file (pydantic): keys, types, ranges and defaults.
+
+Every model forbids unknown keys, so a misspelt key is refused with its path. Units: metres,
+seconds, radians, m/s and rad/s throughout (cases 1-3 of the paper are in abstract units).
+"""
+
+import math
+from typing import Literal, Optional
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+
+Pair = tuple[float, float]
+
+
+class Strict(BaseModel):
+    """Base: unknown keys are errors; values are not silently coerced from strings."""
+
+    model_config = ConfigDict(extra='forbid', strict=False, populate_by_name=True)
+
+
+class RandomStart(Strict):
+    """Uniform random start in a box, uniform random headings, from a fixed seed."""
+
+    seed: int = 0
+    center: Pair = Field(description='centre of the box (m)')
+    half_width: Pair = Field(description='half side lengths of the box (m)')
+
+    @field_validator('half_width')
+    @classmethod
+    def _positive(cls, value):
+        if min(value) <= 0:
+            raise ValueError('half widths must be > 0')
+        return value
+
+
+class Initial(Strict):
+    """Initial poses: exactly one of `random` or `poses` ([x, y, theta] per agent)."""
+
+    random: Optional[RandomStart] = None
+    poses: Optional[list[tuple[float, float, float]]] = None
+
+    @model_validator(mode='after')
+    def _one_of(self):
+        if (self.random is None) == (self.poses is None):
+            raise ValueError('give exactly one of `random` or `poses`')
+        return self
+
+
+class Agents(Strict):
+    count: int = Field(ge=1, description='number of agents n; agent 1 is the leader')
+    spacing: Literal['uniform_s', 'arc_length'] = 'uniform_s'
+    initial: Initial
+
+
+class EdgeSpec(Strict):
+    """`to` receives from `from` with weight `weight` (a_{to,from})."""
+
+    source: int = Field(alias='from', ge=1)
+    target: int = Field(alias='to', ge=1)
+    weight: float = Field(1.0, gt=0)
+
+
+class GraphSpec(Strict):
+    leader: int = Field(1, ge=1)
+    edges: list[EdgeSpec]
+
+
+class ControllerSpec(Strict):
+    law: Literal['paper'] = 'paper'
+    k1: float = Field(gt=0, description='gain on the target error (1/s)')
+    k2: float = Field(ge=0, description='estimator gain')
+    offset: float = Field(description='offset l of the control point ahead of the axle (m)')
+    rate_hz: Optional[float] = Field(
+        None, gt=0, description='control rate with zero-order hold; null = continuous')
+
+    @field_validator('offset')
+    @classmethod
+    def _nonzero(cls, value):
+        if value == 0 or not math.isfinite(value):
+            raise ValueError('the offset l must be finite and non-zero')
+        return value
+
+
+class DisturbanceSpec(Strict):
+    """Constant input disturbance d_i = [d_v, d_w], the same for all agents or per agent."""
+
+    value: Optional[Pair] = None
+    per_agent: Optional[list[Pair]] = None
+    injected: Literal['on_robot', 'on_pc'] = Field(
+        'on_robot', description='on_robot: added after the wheel limits (physical); on_pc: '
+        'added to the command before the limits, as in the arena experiment')
+
+    @model_validator(mode='after')
+    def _one_of(self):
+        if self.value is not None and self.per_agent is not None:
+            raise ValueError('give at most one of `value` or `per_agent`')
+        return self
+
+
+class LimitsSpec(Strict):
+    wheel_base: float = Field(gt=0, description='distance between the wheels (m)')
+    max_wheel_speed: float = Field(gt=0, description='max linear speed of each wheel (m/s)')
+    max_angular_rate: Optional[float] = Field(None, gt=0, description='max |w| (rad/s)')
+
+
+class CurveSpec(Strict):
+    """One desired curve and the time it becomes active.
+
+    Source: exactly one of `x` and `y` (expressions in s), `bezier` (control points) or
+    `points` (ordered sampled points). Basis: `fourier` with `harmonics`, or `polynomial` with
+    `order`.
+    """
+
+    start: float = Field(0.0, ge=0, description='time this curve becomes active (s)')
+    basis: Literal['fourier', 'polynomial']
+    harmonics: Optional[int] = Field(None, ge=1)
+    order: Optional[int] = Field(None, ge=1)
+    x: Optional[str] = None
+    y: Optional[str] = None
+    bezier: Optional[list[Pair]] = None
+    points: Optional[list[Pair]] = None
+    samples: int = Field(400, ge=3, description='samples taken from x/y or bezier for the fit')
+
+    @model_validator(mode='after')
+    def _consistent(self):
+        size_key = 'harmonics' if self.basis == 'fourier' else 'order'
+        other = 'order' if self.basis == 'fourier' else 'harmonics'
+        if getattr(self, size_key) is None:
+            raise ValueError(f'basis {self.basis} needs `{size_key}`')
+        if getattr(self, other) is not None:
+            raise ValueError(f'`{other}` does not apply to basis {self.basis}')
+        sources = [name for name, given in (('x/y', self.x is not None or self.y is not None),
+                                            ('bezier', self.bezier is not None),
+                                            ('points', self.points is not None)) if given]
+        if len(sources) != 1:
+            raise ValueError(f'give exactly one curve source (x and y, bezier, or points), '
+                             f'got {sources or "none"}')
+        if sources == ['x/y'] and (self.x is None or self.y is None):
+            raise ValueError('an expression curve needs both `x` and `y`')
+        return self
+
+    @property
+    def size(self):
+        """K for Fourier, p for polynomial."""
+        return self.harmonics if self.basis == 'fourier' else self.order
+
+
+class SimulationSpec(Strict):
+    duration: float = Field(gt=0, description='simulated time (s)')
+    dt: float = Field(0.001, gt=0, description='integration step (s)')
+    record_dt: float = Field(0.01, gt=0, description='recording interval (s)')
+
+
+class ArenaSpec(Strict):
+    size: Pair = Field(description='arena width and height (m), origin at a corner')
+
+
+class MetricsSpec(Strict):
+    tolerance: float = Field(1e-3, gt=0, description='settling tolerance, relative to the '
+                             'size (bounding-box diagonal) of the active curve')
+
+
+class ExperimentSpec(Strict):
+    name: str
+    description: str = ''
+    agents: Agents
+    graph: GraphSpec
+    controller: ControllerSpec
+    disturbance: DisturbanceSpec = DisturbanceSpec()
+    limits: Optional[LimitsSpec] = None
+    curves: list[CurveSpec] = Field(min_length=1)
+    simulation: SimulationSpec
+    arena: Optional[ArenaSpec] = None
+    metrics: MetricsSpec = MetricsSpec()

@@ -1,0 +1,203 @@
+"""Load an experiment YAML into checked, ready-to-run objects.
+
+Every problem is raised as :class:`ConfigError` naming the file, the key and what was expected.
+"""
+
+from dataclasses import dataclass
+import math
+from pathlib import Path
+
+import numpy as np
+from pydantic import ValidationError
+import yaml
+
+from curve_formation.core import curve_sources
+from curve_formation.core.assignment import agent_parameters, AssignmentError, check_assumptions
+from curve_formation.core.config_schema import ExperimentSpec
+from curve_formation.core.control import Gains, NO_LIMITS, WheelLimits
+from curve_formation.core.curves import CurveError, fit_curve, make_basis
+from curve_formation.core.expressions import ExpressionError
+from curve_formation.core.graph import DirectedGraph, Edge, GraphError
+
+
+class ConfigError(ValueError):
+    """An experiment file that cannot be used; the message names file, key and expectation."""
+
+    def __init__(self, source, key, message):
+        self.source, self.key = str(source), key
+        super().__init__(f'{source}: {key}: {message}' if key else f'{source}: {message}')
+
+
+@dataclass(frozen=True)
+class Phase:
+    """One curve of the schedule: active from `start` (s), fitted, with its agents' targets."""
+
+    index: int
+    start: float
+    fit: object          # curves.Fit
+    s: np.ndarray        # (n,) agent parameters
+    targets: np.ndarray  # (n, 2) G(s_i) xi, arena frame (m)
+    g_bar: np.ndarray    # (2n, 2H)
+
+    @property
+    def curve(self):
+        return self.fit.curve
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """A checked experiment: graph, gains, limits, curve schedule, start poses."""
+
+    spec: ExperimentSpec
+    source: str
+    graph: DirectedGraph
+    gains: Gains
+    limits: WheelLimits
+    disturbance: np.ndarray   # (n, 2) [d_v, d_w]
+    initial_poses: np.ndarray  # (n, 3)
+    phases: tuple
+
+    @property
+    def n(self):
+        return self.graph.n
+
+    @property
+    def name(self):
+        return self.spec.name
+
+    def phase_at(self, t):
+        """The phase active at time t (s)."""
+        active = [p for p in self.phases if p.start <= t]
+        return active[-1] if active else self.phases[0]
+
+
+def _format_location(loc):
+    parts = []
+    for item in loc:
+        if isinstance(item, int):
+            parts.append(f'[{item}]')
+        else:
+            parts.append(('.' if parts else '') + str(item))
+    return ''.join(parts) or '(top level)'
+
+
+def load_experiment(path):
+    """Read, validate and build an experiment from a YAML file path."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ConfigError(path, '', f'cannot read the file ({exc.strerror})') from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(path, '', f'not valid YAML: {exc}') from None
+    return build_experiment(data, path)
+
+
+def build_experiment(data, source='<experiment>'):
+    """Validate a parsed YAML mapping and build the experiment; `source` names it in errors."""
+    if not isinstance(data, dict):
+        raise ConfigError(source, '', f'expected a mapping of keys at the top level, got '
+                          f'{type(data).__name__}')
+    try:
+        spec = ExperimentSpec.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        more = f' (and {exc.error_count() - 1} more problems)' if exc.error_count() > 1 else ''
+        got = f' (got {err["input"]!r})' if err['type'] != 'missing' and not isinstance(
+            err['input'], dict) else ''
+        raise ConfigError(source, _format_location(err['loc']), err['msg'] + got + more) from None
+    return _build(spec, str(source))
+
+
+def _build(spec, source):
+    n = spec.agents.count
+    try:
+        graph = DirectedGraph(n, [Edge(e.source, e.target, e.weight) for e in spec.graph.edges],
+                              leader=spec.graph.leader)
+        graph.certificate()
+    except GraphError as exc:
+        raise ConfigError(source, 'graph', str(exc)) from None
+    if spec.graph.leader != 1:
+        raise ConfigError(source, 'graph.leader', 'the leader must be agent 1 (the paper\'s '
+                          f'numbering), got {spec.graph.leader}')
+    phases = []
+    for k, curve_spec in enumerate(spec.curves):
+        key = f'curves[{k}]'
+        if k == 0 and curve_spec.start != 0:
+            raise ConfigError(source, f'{key}.start', 'the first curve must start at 0')
+        if k > 0 and curve_spec.start <= spec.curves[k - 1].start:
+            raise ConfigError(source, f'{key}.start', f'switch times must increase, got '
+                              f'{curve_spec.start} after {spec.curves[k - 1].start}')
+        phases.append(_build_phase(k, curve_spec, n, spec.agents.spacing, source, key))
+    return Experiment(spec=spec, source=source, graph=graph,
+                      gains=Gains(spec.controller.k1, spec.controller.k2, spec.controller.offset),
+                      limits=_limits(spec), disturbance=_disturbance(spec, source),
+                      initial_poses=_initial_poses(spec, source), phases=tuple(phases))
+
+
+def _build_phase(index, curve_spec, n, spacing, source, key):
+    try:
+        basis = make_basis(curve_spec.basis, curve_spec.size)
+        closed = basis.closed
+        if curve_spec.x is not None:
+            s, pts = curve_sources.expression_samples(curve_spec.x, curve_spec.y,
+                                                      curve_spec.samples, closed)
+        elif curve_spec.bezier is not None:
+            s, pts = curve_sources.bezier_samples(curve_spec.bezier, curve_spec.samples)
+        else:
+            s, pts = curve_sources.point_samples(curve_spec.points, closed)
+        fit = fit_curve(basis, s, pts)
+    except (CurveError, ExpressionError) as exc:
+        raise ConfigError(source, key, str(exc)) from None
+    try:
+        s_agents = agent_parameters(fit.curve, n, spacing)
+        g_bar = check_assumptions(basis, s_agents)
+    except (AssignmentError, CurveError) as exc:
+        raise ConfigError(source, key, str(exc)) from None
+    return Phase(index, curve_spec.start, fit, s_agents, fit.curve.points(s_agents), g_bar)
+
+
+def _limits(spec):
+    if spec.limits is None:
+        return NO_LIMITS
+    rate = spec.limits.max_angular_rate
+    return WheelLimits(spec.limits.wheel_base, spec.limits.max_wheel_speed,
+                       math.inf if rate is None else rate)
+
+
+def _disturbance(spec, source):
+    n = spec.agents.count
+    dist = spec.disturbance
+    if dist.per_agent is not None:
+        if len(dist.per_agent) != n:
+            raise ConfigError(source, 'disturbance.per_agent', f'expected {n} [d_v, d_w] pairs '
+                              f'(one per agent), got {len(dist.per_agent)}')
+        return np.array(dist.per_agent, dtype=float)
+    return np.tile(np.array(dist.value if dist.value is not None else (0.0, 0.0)), (n, 1))
+
+
+def _initial_poses(spec, source):
+    n = spec.agents.count
+    initial = spec.agents.initial
+    if initial.poses is not None:
+        if len(initial.poses) != n:
+            raise ConfigError(source, 'agents.initial.poses', f'expected {n} [x, y, theta] '
+                              f'poses (one per agent), got {len(initial.poses)}')
+        poses = np.array(initial.poses, dtype=float)
+    else:
+        rng = np.random.default_rng(initial.random.seed)
+        center = np.array(initial.random.center)
+        half = np.array(initial.random.half_width)
+        poses = np.column_stack([rng.uniform(center - half, center + half, size=(n, 2)),
+                                 rng.uniform(-math.pi, math.pi, size=n)])
+    if spec.arena is not None:
+        width, height = spec.arena.size
+        outside = np.flatnonzero((poses[:, 0] < 0) | (poses[:, 0] > width)
+                                 | (poses[:, 1] < 0) | (poses[:, 1] > height))
+        if outside.size:
+            raise ConfigError(source, 'agents.initial', f'agent {outside[0] + 1} starts at '
+                              f'{poses[outside[0], :2].tolist()}, outside the arena '
+                              f'[0, {width}] x [0, {height}] m')
+    return poses

@@ -1,0 +1,137 @@
+"""Directed communication graph, its Laplacian and the paper's Theorem 1 certificate.
+
+Agents are numbered 1..n as in the paper and in the robots' namespaces; arrays are indexed
+0..n-1. An edge (source -> target, weight a) means the target receives from the source:
+a_{target, source} = a > 0. The leader receives from nobody and must reach every agent.
+"""
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+
+class GraphError(ValueError):
+    """A graph that the controller cannot use."""
+
+
+@dataclass(frozen=True)
+class Edge:
+    """Agent `target` receives agent `source`'s state with weight `weight` (> 0)."""
+
+    source: int
+    target: int
+    weight: float = 1.0
+
+
+@dataclass(frozen=True)
+class Certificate:
+    """Theorem 1: q = (L+B)^-1 1, p = (L+B)^-T 1, P = diag(p/q), Q = P(L+B) + (L+B)^T P."""
+
+    P: np.ndarray  # noqa: N815 - the paper's names
+    Q: np.ndarray  # noqa: N815
+    min_eig_P: float  # noqa: N815
+    min_eig_Q: float  # noqa: N815
+
+
+class DirectedGraph:
+    """Weighted directed graph over agents 1..n with agent `leader` as root."""
+
+    def __init__(self, n, edges, leader=1):
+        self.n = int(n)
+        if self.n < 1:
+            raise GraphError(f'a formation needs at least one agent, got n = {n}')
+        self.leader = int(leader)
+        self.edges = tuple(Edge(int(e.source), int(e.target), float(e.weight)) for e in edges)
+        self.adjacency = np.zeros((self.n, self.n))
+        for edge in self.edges:
+            for end in (edge.source, edge.target):
+                if not 1 <= end <= self.n:
+                    raise GraphError(f'edge {edge.source} -> {edge.target} names agent {end}, '
+                                     f'but agents are numbered 1..{self.n}')
+            if edge.source == edge.target:
+                raise GraphError(f'edge {edge.source} -> {edge.target} is a self-loop')
+            if not (edge.weight > 0 and np.isfinite(edge.weight)):
+                raise GraphError(f'edge {edge.source} -> {edge.target} has weight '
+                                 f'{edge.weight}; weights must be finite and > 0')
+            if self.adjacency[edge.target - 1, edge.source - 1]:
+                raise GraphError(f'edge {edge.source} -> {edge.target} is given twice')
+            self.adjacency[edge.target - 1, edge.source - 1] = edge.weight
+        self._check_rooted()
+
+    def _check_rooted(self):
+        if not 1 <= self.leader <= self.n:
+            raise GraphError(f'leader {self.leader} is not one of the agents 1..{self.n}')
+        receives = [edge for edge in self.edges if edge.target == self.leader]
+        if receives:
+            raise GraphError(f'the leader (agent {self.leader}) must receive from nobody, but '
+                             f'edge {receives[0].source} -> {self.leader} exists')
+        roots = [i + 1 for i in range(self.n) if not self.adjacency[i].any()]
+        if len(roots) > 1:
+            raise GraphError(f'agents {roots} receive from nobody: only the leader '
+                             f'(agent {self.leader}) may; every other agent needs an in-edge')
+        unreached = sorted(set(range(1, self.n + 1)) - self.reachable_from(self.leader))
+        if unreached:
+            raise GraphError(f'the graph has no spanning tree rooted at the leader '
+                             f'(agent {self.leader}): agents {unreached} cannot be reached')
+
+    def reachable_from(self, root):
+        """Agents (1-based) that information from `root` reaches along the edges."""
+        seen, queue = {root}, deque([root])
+        while queue:
+            source = queue.popleft()
+            for target in np.flatnonzero(self.adjacency[:, source - 1]) + 1:
+                if int(target) not in seen:
+                    seen.add(int(target))
+                    queue.append(int(target))
+        return seen
+
+    def in_neighbours(self, agent):
+        """[(source, weight)] that agent (1-based) receives from, sorted by source."""
+        row = self.adjacency[agent - 1]
+        return [(int(j) + 1, float(row[j])) for j in np.flatnonzero(row)]
+
+    def out_neighbours(self, agent):
+        """Agents (1-based) that receive from `agent`."""
+        return [int(i) + 1 for i in np.flatnonzero(self.adjacency[:, agent - 1])]
+
+    @property
+    def laplacian(self):
+        """L with l_ii = sum_j a_ij and l_ij = -a_ij: (n, n). The leader's row is zero."""
+        return np.diag(self.adjacency.sum(axis=1)) - self.adjacency
+
+    @property
+    def pinning(self):
+        """B = diag(1 for the leader, 0 otherwise): (n, n), the paper's Lambda."""
+        b = np.zeros((self.n, self.n))
+        b[self.leader - 1, self.leader - 1] = 1.0
+        return b
+
+    @property
+    def feedback_matrix(self):
+        """L + B: the stacked feedback is (L + B) e for target errors e (n, 2)."""
+        return self.laplacian + self.pinning
+
+    def certificate(self):
+        """Theorem 1's P and Q, checked positive definite."""
+        m = self.feedback_matrix
+        q = np.linalg.solve(m, np.ones(self.n))
+        p = np.linalg.solve(m.T, np.ones(self.n))
+        if np.any(q <= 0) or np.any(p <= 0):
+            raise GraphError('Theorem 1 does not apply: (L+B)^-1 1 or (L+B)^-T 1 has a '
+                             'non-positive entry')
+        big_p = np.diag(p / q)
+        big_q = big_p @ m + m.T @ big_p
+        cert = Certificate(big_p, big_q, float(np.linalg.eigvalsh(big_p).min()),
+                           float(np.linalg.eigvalsh(big_q).min()))
+        if cert.min_eig_P <= 0 or cert.min_eig_Q <= 0:
+            raise GraphError(f'Theorem 1 certificate is not positive definite '
+                             f'(min eig P = {cert.min_eig_P:.3g}, Q = {cert.min_eig_Q:.3g})')
+        return cert
+
+    def edge_arrays(self):
+        """(targets, sources, weights) as 0-based int arrays and a float array, for kernels."""
+        targets = np.array([e.target - 1 for e in self.edges], dtype=np.int64)
+        sources = np.array([e.source - 1 for e in self.edges], dtype=np.int64)
+        weights = np.array([e.weight for e in self.edges], dtype=float)
+        return targets, sources, weights

@@ -1,0 +1,219 @@
+"""Batch simulator: n unicycles with constant input disturbance under the formation law.
+
+Two control modes:
+- continuous: the law is evaluated at every RK4 stage and the estimator is integrated with the
+  robots (the paper's setting);
+- zero-order hold at `rate_hz`: the law is evaluated once per control period from the latest
+  poses, its estimator advanced by one Euler step, and the command held while the robots are
+  integrated exactly over each fine step dt, which is what the ROS controller nodes do.
+
+The stepping loop is compiled with numba; it calls the same per-agent functions as the ROS
+controller (core.control), and its cost is linear in agents plus edges.
+"""
+
+from dataclasses import dataclass
+import math
+
+import numba
+import numpy as np
+
+from curve_formation.core import control
+
+
+_agent_input = numba.njit(cache=True)(control.agent_input)
+_saturate = numba.njit(cache=True)(control.saturate)
+
+CONTINUOUS = None
+
+
+@numba.njit(cache=True)
+def _controls(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, dist, on_pc,
+              wheel_base, vmax, wmax, err, fb, motion, cmd, ddhat):
+    """Evaluate the law for all agents: fills err, fb, cmd (sent), motion (actual), ddhat."""
+    n = poses.shape[0]
+    for i in range(n):
+        err[i, 0] = poses[i, 0] + offset * math.cos(poses[i, 2]) - targets[i, 0]
+        err[i, 1] = poses[i, 1] + offset * math.sin(poses[i, 2]) - targets[i, 1]
+        fb[i, 0] = 0.0
+        fb[i, 1] = 0.0
+    fb[leader, 0] = err[leader, 0]
+    fb[leader, 1] = err[leader, 1]
+    for k in range(tgt.shape[0]):
+        i = tgt[k]
+        j = src[k]
+        fb[i, 0] += wts[k] * (err[i, 0] - err[j, 0])
+        fb[i, 1] += wts[k] * (err[i, 1] - err[j, 1])
+    for i in range(n):
+        v, w, ddv, ddw = _agent_input(fb[i, 0], fb[i, 1], err[i, 0], err[i, 1], poses[i, 2],
+                                      dhat[i, 0], dhat[i, 1], k1, k2, offset)
+        ddhat[i, 0] = ddv
+        ddhat[i, 1] = ddw
+        if on_pc:
+            v, w = _saturate(v + dist[i, 0], w + dist[i, 1], wheel_base, vmax, wmax)
+            motion[i, 0] = v
+            motion[i, 1] = w
+        else:
+            v, w = _saturate(v, w, wheel_base, vmax, wmax)
+            motion[i, 0] = v + dist[i, 0]
+            motion[i, 1] = w + dist[i, 1]
+        cmd[i, 0] = v
+        cmd[i, 1] = w
+
+
+@numba.njit(cache=True)
+def _arc_step(poses, motion, dt):
+    """Exact unicycle motion over dt with constant (v, w) per agent."""
+    for i in range(poses.shape[0]):
+        v = motion[i, 0]
+        w = motion[i, 1]
+        th = poses[i, 2]
+        if abs(w * dt) < 1e-9:
+            poses[i, 0] += v * dt * math.cos(th + 0.5 * w * dt)
+            poses[i, 1] += v * dt * math.sin(th + 0.5 * w * dt)
+        else:
+            poses[i, 0] += v / w * (math.sin(th + w * dt) - math.sin(th))
+            poses[i, 1] -= v / w * (math.cos(th + w * dt) - math.cos(th))
+        poses[i, 2] = th + w * dt
+
+
+@numba.njit(cache=True)
+def _run(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, dist, on_pc,
+         wheel_base, vmax, wmax, dt, step0, steps, control_every, record_every,
+         motion, cmd, rec_poses, rec_dhat, rec_cmd):
+    """Advance poses (n, 3) and dhat (n, 2) in place by `steps` fine steps from `step0`.
+
+    motion and cmd (n, 2) hold the zero-order-hold command across calls.
+    """
+    n = poses.shape[0]
+    err = np.zeros((n, 2))
+    fb = np.zeros((n, 2))
+    ddhat = np.zeros((n, 2))
+    if control_every > 0:
+        dt_control = control_every * dt
+        for step in range(step0, step0 + steps):
+            if step % control_every == 0:
+                _controls(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, dist,
+                          on_pc, wheel_base, vmax, wmax, err, fb, motion, cmd, ddhat)
+                dhat += dt_control * ddhat
+            if step % record_every == 0:
+                r = step // record_every
+                rec_poses[r] = poses
+                rec_dhat[r] = dhat
+                rec_cmd[r] = cmd
+            _arc_step(poses, motion, dt)
+        return
+    # Continuous control: RK4 on (poses, dhat) with the law evaluated at every stage.
+    kp = np.zeros((4, n, 3))
+    kd = np.zeros((4, n, 2))
+    p_stage = np.zeros((n, 3))
+    d_stage = np.zeros((n, 2))
+    for step in range(step0, step0 + steps):
+        for stage in range(4):
+            if stage == 0:
+                p_stage[:] = poses
+                d_stage[:] = dhat
+            else:
+                h = dt if stage == 3 else 0.5 * dt
+                p_stage[:] = poses + h * kp[stage - 1]
+                d_stage[:] = dhat + h * kd[stage - 1]
+            _controls(p_stage, d_stage, targets, tgt, src, wts, leader, k1, k2, offset, dist,
+                      on_pc, wheel_base, vmax, wmax, err, fb, motion, cmd, ddhat)
+            if stage == 0 and step % record_every == 0:
+                r = step // record_every
+                rec_poses[r] = poses
+                rec_dhat[r] = dhat
+                rec_cmd[r] = cmd
+            for i in range(n):
+                kp[stage, i, 0] = motion[i, 0] * math.cos(p_stage[i, 2])
+                kp[stage, i, 1] = motion[i, 0] * math.sin(p_stage[i, 2])
+                kp[stage, i, 2] = motion[i, 1]
+            kd[stage] = ddhat
+        poses += dt / 6.0 * (kp[0] + 2.0 * kp[1] + 2.0 * kp[2] + kp[3])
+        dhat += dt / 6.0 * (kd[0] + 2.0 * kd[1] + 2.0 * kd[2] + kd[3])
+
+
+@dataclass
+class SimResult:
+    """Recorded time series.
+
+    t: (R,) s.  poses: (R, n, 3) x, y, theta (arena frame).  dhat: (R, n, 2) estimates.
+    commands: (R, n, 2) (v, w) sent to the robots (after limits; with an on_pc disturbance it
+    includes d).  phase: (R,) index of the active curve.  targets: (P, n, 2) per phase.
+    """
+
+    experiment: object
+    rate_hz: object
+    t: np.ndarray
+    poses: np.ndarray
+    dhat: np.ndarray
+    commands: np.ndarray
+    phase: np.ndarray
+    targets: np.ndarray
+
+    @property
+    def offset_points(self):
+        """(R, n, 2) offset control points xb."""
+        l_off = self.experiment.gains.offset
+        th = self.poses[..., 2]
+        return self.poses[..., :2] + l_off * np.stack([np.cos(th), np.sin(th)], axis=-1)
+
+    @property
+    def errors(self):
+        """(R, n, 2) target errors e_i = xb_i - G(s_i) xi of the active curve."""
+        return self.offset_points - self.targets[self.phase]
+
+    @property
+    def error_norm(self):
+        """(R,) ||xb_e||, the norm of all agents' stacked errors."""
+        return np.linalg.norm(self.errors.reshape(len(self.t), -1), axis=1)
+
+
+def simulate(experiment, rate_hz='config', duration=None, dt=None, record_dt=None,
+             disturbance=None, gains=None, limits=None, initial_poses=None):
+    """Simulate an Experiment; keyword arguments override the file's settings.
+
+    rate_hz: 'config' (the file's controller.rate_hz), None (continuous) or a rate (Hz).
+    Returns a SimResult.
+    """
+    spec = experiment.spec
+    rate_hz = spec.controller.rate_hz if rate_hz == 'config' else rate_hz
+    duration = spec.simulation.duration if duration is None else duration
+    dt = spec.simulation.dt if dt is None else dt
+    record_dt = spec.simulation.record_dt if record_dt is None else record_dt
+    gains = experiment.gains if gains is None else gains
+    limits = experiment.limits if limits is None else limits
+    dist = experiment.disturbance if disturbance is None else np.asarray(disturbance, float)
+    dist = np.broadcast_to(dist, (experiment.n, 2)).astype(float)
+    poses = np.array(experiment.initial_poses if initial_poses is None else initial_poses,
+                     dtype=float)
+    record_every = _ratio(record_dt, dt, 'record_dt')
+    control_every = 0 if rate_hz is None else _ratio(1.0 / rate_hz, dt, 'control period')
+    total = int(round(duration / dt))
+    n_rec = (total - 1) // record_every + 1
+    rec_poses = np.zeros((n_rec, experiment.n, 3))
+    rec_dhat = np.zeros((n_rec, experiment.n, 2))
+    rec_cmd = np.zeros((n_rec, experiment.n, 2))
+    dhat = np.zeros((experiment.n, 2))
+    motion = np.zeros((experiment.n, 2))
+    cmd = np.zeros((experiment.n, 2))
+    tgt, src, wts = experiment.graph.edge_arrays()
+    starts = [int(round(p.start / dt)) for p in experiment.phases] + [total]
+    for phase, (a, b) in zip(experiment.phases, zip(starts[:-1], starts[1:])):
+        if a >= total:
+            break
+        _run(poses, dhat, np.ascontiguousarray(phase.targets), tgt, src, wts,
+             experiment.graph.leader - 1, gains.k1, gains.k2, gains.offset, dist,
+             experiment.spec.disturbance.injected == 'on_pc', limits.wheel_base,
+             limits.max_wheel_speed, limits.max_angular_rate, dt, a, min(b, total) - a,
+             control_every, record_every, motion, cmd, rec_poses, rec_dhat, rec_cmd)
+    t = np.arange(n_rec) * record_every * dt
+    phase_index = np.searchsorted(np.array(starts[1:-1]) * dt, t, side='right')
+    return SimResult(experiment, rate_hz, t, rec_poses, rec_dhat, rec_cmd, phase_index,
+                     np.stack([p.targets for p in experiment.phases]))
+
+
+def _ratio(interval, dt, what):
+    steps = interval / dt
+    if abs(steps - round(steps)) > 1e-6 * max(1.0, steps) or round(steps) < 1:
+        raise ValueError(f'{what} ({interval} s) must be a whole multiple of dt ({dt} s)')
+    return int(round(steps))

@@ -1,0 +1,34 @@
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = 'curve_formation'
+
+# One console script per node, named for what it does, plus the command-line tool.
+NODES = {
+    'curve_server': 'curve_formation.nodes.curve_server:main',
+    'formation_controller': 'curve_formation.nodes.formation_controller:main',
+    'fake_robot': 'curve_formation.nodes.fake_robot:main',
+}
+
+setup(
+    name=PACKAGE,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'benchmarks']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
+        ('share/' + PACKAGE, ['package.xml']),
+        ('share/' + PACKAGE + '/config', glob('config/*.yaml')),
+    ],
+    install_requires=['setuptools', 'numpy', 'scipy', 'numba', 'matplotlib', 'PyYAML',
+                      'pydantic>=2'],
+    zip_safe=True,
+    maintainer='curve_formation maintainers',
+    maintainer_email='curve-formation@example.org',
+    description='Formation control of nonholonomic robots along parametric curves.',
+    license='Apache-2.0',
+    entry_points={
+        'console_scripts': [f'{name} = {target}' for name, target in NODES.items()]
+        + ['curve-formation = curve_formation.cli:main'],
+    },
+)
