@@ -2,6 +2,7 @@ from glob import glob
 
 from setuptools import find_packages, setup
 
+
 PACKAGE = 'curve_formation'
 
 # One console script per node, named for what it does, plus the command-line tool.

@@ -12,9 +12,9 @@ from pydantic import ValidationError
 import yaml
 
 from curve_formation.core import curve_sources
-from curve_formation.core.assignment import agent_parameters, AssignmentError, check_assumptions
+from curve_formation.core.assignment import AssignmentError, agent_parameters, check_assumptions
 from curve_formation.core.config_schema import ExperimentSpec
-from curve_formation.core.control import Gains, NO_LIMITS, WheelLimits
+from curve_formation.core.control import NO_LIMITS, Gains, WheelLimits
 from curve_formation.core.curves import CurveError, fit_curve, make_basis
 from curve_formation.core.expressions import ExpressionError
 from curve_formation.core.graph import DirectedGraph, Edge, GraphError
@@ -120,7 +120,7 @@ def _build(spec, source):
     except GraphError as exc:
         raise ConfigError(source, 'graph', str(exc)) from None
     if spec.graph.leader != 1:
-        raise ConfigError(source, 'graph.leader', 'the leader must be agent 1 (the paper\'s '
+        raise ConfigError(source, 'graph.leader', "the leader must be agent 1 (the paper's "
                           f'numbering), got {spec.graph.leader}')
     phases = []
     for k, curve_spec in enumerate(spec.curves):

@@ -17,13 +17,15 @@ import math
 import numba
 import numpy as np
 
-from curve_formation.core import control
+from curve_formation.core import control, metrics
 
 
 _agent_input = numba.njit(cache=True)(control.agent_input)
 _saturate = numba.njit(cache=True)(control.saturate)
 
 CONTINUOUS = None
+# Largest heading change (rad) of one RK4 substep in continuous mode.
+MAX_TURN_PER_SUBSTEP = 0.05
 
 
 @numba.njit(cache=True)
@@ -102,34 +104,44 @@ def _run(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, dist, on_p
                 rec_cmd[r] = cmd
             _arc_step(poses, motion, dt)
         return
-    # Continuous control: RK4 on (poses, dhat) with the law evaluated at every stage.
+    # Continuous control: RK4 on (poses, dhat) with the law evaluated at every stage. The
+    # heading turns at up to k1 |e| / l (1000 rad/s at the paper's start), so each step is
+    # split into substeps that turn at most MAX_TURN_PER_SUBSTEP.
     kp = np.zeros((4, n, 3))
     kd = np.zeros((4, n, 2))
     p_stage = np.zeros((n, 3))
     d_stage = np.zeros((n, 2))
     for step in range(step0, step0 + steps):
-        for stage in range(4):
-            if stage == 0:
-                p_stage[:] = poses
-                d_stage[:] = dhat
-            else:
-                h = dt if stage == 3 else 0.5 * dt
-                p_stage[:] = poses + h * kp[stage - 1]
-                d_stage[:] = dhat + h * kd[stage - 1]
-            _controls(p_stage, d_stage, targets, tgt, src, wts, leader, k1, k2, offset, dist,
-                      on_pc, wheel_base, vmax, wmax, err, fb, motion, cmd, ddhat)
-            if stage == 0 and step % record_every == 0:
-                r = step // record_every
-                rec_poses[r] = poses
-                rec_dhat[r] = dhat
-                rec_cmd[r] = cmd
-            for i in range(n):
-                kp[stage, i, 0] = motion[i, 0] * math.cos(p_stage[i, 2])
-                kp[stage, i, 1] = motion[i, 0] * math.sin(p_stage[i, 2])
-                kp[stage, i, 2] = motion[i, 1]
-            kd[stage] = ddhat
-        poses += dt / 6.0 * (kp[0] + 2.0 * kp[1] + 2.0 * kp[2] + kp[3])
-        dhat += dt / 6.0 * (kd[0] + 2.0 * kd[1] + 2.0 * kd[2] + kd[3])
+        _controls(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, dist,
+                  on_pc, wheel_base, vmax, wmax, err, fb, motion, cmd, ddhat)
+        if step % record_every == 0:
+            r = step // record_every
+            rec_poses[r] = poses
+            rec_dhat[r] = dhat
+            rec_cmd[r] = cmd
+        fastest = 0.0
+        for i in range(n):
+            fastest = max(fastest, abs(motion[i, 1]))
+        substeps = max(1, int(math.ceil(fastest * dt / MAX_TURN_PER_SUBSTEP)))
+        h = dt / substeps
+        for _ in range(substeps):
+            for stage in range(4):
+                if stage == 0:
+                    p_stage[:] = poses
+                    d_stage[:] = dhat
+                else:
+                    frac = h if stage == 3 else 0.5 * h
+                    p_stage[:] = poses + frac * kp[stage - 1]
+                    d_stage[:] = dhat + frac * kd[stage - 1]
+                _controls(p_stage, d_stage, targets, tgt, src, wts, leader, k1, k2, offset,
+                          dist, on_pc, wheel_base, vmax, wmax, err, fb, motion, cmd, ddhat)
+                for i in range(n):
+                    kp[stage, i, 0] = motion[i, 0] * math.cos(p_stage[i, 2])
+                    kp[stage, i, 1] = motion[i, 0] * math.sin(p_stage[i, 2])
+                    kp[stage, i, 2] = motion[i, 1]
+                kd[stage] = ddhat
+            poses += h / 6.0 * (kp[0] + 2.0 * kp[1] + 2.0 * kp[2] + kp[3])
+            dhat += h / 6.0 * (kd[0] + 2.0 * kd[1] + 2.0 * kd[2] + kd[3])
 
 
 @dataclass
@@ -138,7 +150,7 @@ class SimResult:
 
     t: (R,) s.  poses: (R, n, 3) x, y, theta (arena frame).  dhat: (R, n, 2) estimates.
     commands: (R, n, 2) (v, w) sent to the robots (after limits; with an on_pc disturbance it
-    includes d).  phase: (R,) index of the active curve.  targets: (P, n, 2) per phase.
+    includes d).  phase: (R,) index of the active curve.
     """
 
     experiment: object
@@ -148,24 +160,16 @@ class SimResult:
     dhat: np.ndarray
     commands: np.ndarray
     phase: np.ndarray
-    targets: np.ndarray
-
-    @property
-    def offset_points(self):
-        """(R, n, 2) offset control points xb."""
-        l_off = self.experiment.gains.offset
-        th = self.poses[..., 2]
-        return self.poses[..., :2] + l_off * np.stack([np.cos(th), np.sin(th)], axis=-1)
 
     @property
     def errors(self):
         """(R, n, 2) target errors e_i = xb_i - G(s_i) xi of the active curve."""
-        return self.offset_points - self.targets[self.phase]
+        return metrics.target_errors(self.poses, self.phase, self.experiment)
 
     @property
     def error_norm(self):
         """(R,) ||xb_e||, the norm of all agents' stacked errors."""
-        return np.linalg.norm(self.errors.reshape(len(self.t), -1), axis=1)
+        return metrics.error_norm(self.errors)
 
 
 def simulate(experiment, rate_hz='config', duration=None, dt=None, record_dt=None,
@@ -198,7 +202,7 @@ def simulate(experiment, rate_hz='config', duration=None, dt=None, record_dt=Non
     cmd = np.zeros((experiment.n, 2))
     tgt, src, wts = experiment.graph.edge_arrays()
     starts = [int(round(p.start / dt)) for p in experiment.phases] + [total]
-    for phase, (a, b) in zip(experiment.phases, zip(starts[:-1], starts[1:])):
+    for phase, a, b in zip(experiment.phases, starts[:-1], starts[1:], strict=True):
         if a >= total:
             break
         _run(poses, dhat, np.ascontiguousarray(phase.targets), tgt, src, wts,
@@ -208,8 +212,7 @@ def simulate(experiment, rate_hz='config', duration=None, dt=None, record_dt=Non
              control_every, record_every, motion, cmd, rec_poses, rec_dhat, rec_cmd)
     t = np.arange(n_rec) * record_every * dt
     phase_index = np.searchsorted(np.array(starts[1:-1]) * dt, t, side='right')
-    return SimResult(experiment, rate_hz, t, rec_poses, rec_dhat, rec_cmd, phase_index,
-                     np.stack([p.targets for p in experiment.phases]))
+    return SimResult(experiment, rate_hz, t, rec_poses, rec_dhat, rec_cmd, phase_index)
 
 
 def _ratio(interval, dt, what):

@@ -1,0 +1,152 @@
+"""Metrics of a formation run, from recorded time series alone.
+
+Inputs are plain arrays so that a batch simulation, a ROS run and a bag are measured the same
+way: t (R,) s, poses (R, n, 3), dhat (R, n, 2) or None, commands (R, n, 2) or None, phase (R,)
+index of the active curve, and the experiment (curves, gains, graph, disturbance).
+"""
+
+import numpy as np
+
+
+def offset_points(poses, offset):
+    """(R, n, 2) control points xb = x + l [cos theta, sin theta]."""
+    th = poses[..., 2]
+    return poses[..., :2] + offset * np.stack([np.cos(th), np.sin(th)], axis=-1)
+
+
+def target_errors(poses, phase, experiment):
+    """(R, n, 2) e_i = xb_i - G(s_i) xi of the active curve."""
+    targets = np.stack([p.targets for p in experiment.phases])
+    return offset_points(poses, experiment.gains.offset) - targets[phase]
+
+
+def error_norm(errors):
+    """(R,) ||xb_e|| over all agents."""
+    return np.linalg.norm(errors.reshape(len(errors), -1), axis=1)
+
+
+def lyapunov(errors, dhat, experiment, disturbance=None):
+    """(R,) V = xe^T (P kron I2) xe + dtilde^T (P kron I2) dtilde, dtilde = dhat - d / k2.
+
+    With k2 = 0 the estimate is off and V is the error term alone.
+    """
+    weights = np.diag(experiment.graph.certificate().P)
+    value = np.einsum('i,rij,rij->r', weights, errors, errors)
+    k2 = experiment.gains.k2
+    if k2 > 0 and dhat is not None:
+        d = experiment.disturbance if disturbance is None else disturbance
+        tilde = dhat - np.asarray(d) / k2
+        value = value + np.einsum('i,rij,rij->r', weights, tilde, tilde)
+    return value
+
+
+def settle_time(t, norm, tolerance, start, end):
+    """Time after `start` (s) from which norm stays below tolerance until `end`, else None.
+
+    Only samples in [start, end) count; None also when the window has no sample.
+    """
+    window = (t >= start) & (t < end)
+    if not window.any():
+        return None
+    above = np.flatnonzero(norm[window] >= tolerance)
+    times = t[window]
+    if above.size == 0:
+        return float(times[0] - start)
+    if above[-1] == len(times) - 1:
+        return None
+    return float(times[above[-1] + 1] - start)
+
+
+def orientation_rates(t, poses, window=1.0):
+    """(n,) mean heading rates (rad/s) over the last `window` seconds."""
+    last = t >= t[-1] - window
+    heading = np.unwrap(poses[last, :, 2], axis=0)
+    span = t[last][-1] - t[last][0]
+    return (heading[-1] - heading[0]) / span if span > 0 else np.zeros(poses.shape[1])
+
+
+def arc_coordinates(curve, points, count=4000):
+    """Arc-length coordinate (units of c) of the nearest curve point to each of points (m, 2)."""
+    s_table, length = curve.arc_length_table(count)
+    dense = curve.points(s_table)
+    nearest = np.argmin(np.linalg.norm(points[:, None, :] - dense[None], axis=2), axis=1)
+    return length[nearest], length[-1]
+
+
+def spacing_uniformity(curve, points):
+    """Gaps in arc length between consecutive agents along the curve.
+
+    Returns {'cv': std/mean of the gaps, 'min_over_max': smallest/largest gap}; closed curves
+    include the gap that wraps around.
+    """
+    coords, total = arc_coordinates(curve, points)
+    order = np.sort(coords)
+    gaps = np.diff(np.append(order, order[0] + total) if curve.basis.closed else order)
+    if len(gaps) == 0 or gaps.max() <= 0:
+        return {'cv': float('nan'), 'min_over_max': float('nan')}
+    return {'cv': float(gaps.std() / gaps.mean()),
+            'min_over_max': float(gaps.min() / gaps.max())}
+
+
+def peak_speeds(commands, wheel_base):
+    """Peak |v|, |w| and, with a wheel base, peak wheel speed of the sent commands."""
+    if commands is None or len(commands) == 0:
+        return {}
+    v, w = commands[..., 0], commands[..., 1]
+    out = {'peak_v': float(np.abs(v).max()), 'peak_w': float(np.abs(w).max())}
+    if wheel_base:
+        out['peak_wheel_speed'] = float((np.abs(v) + 0.5 * wheel_base * np.abs(w)).max())
+    return out
+
+
+def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance=None):
+    """All metrics of a run as a JSON-ready dict (one entry per curve phase)."""
+    tolerance = experiment.spec.metrics.tolerance if tolerance is None else tolerance
+    errors = target_errors(poses, phase, experiment)
+    norm = error_norm(errors)
+    ends = [p.start for p in experiment.phases[1:]] + [float('inf')]
+    phases = []
+    for p, end in zip(experiment.phases, ends, strict=True):
+        window = (t >= p.start) & (t < end)
+        if not window.any():
+            continue
+        size = p.curve.size()
+        last = np.flatnonzero(window)[-1]
+        agent_err = np.linalg.norm(errors[last], axis=1)
+        settle = settle_time(t, norm, tolerance * size, p.start, end)
+        phases.append({
+            'index': p.index, 'start': p.start, 'curve_size': size,
+            'basis': p.curve.basis.describe(), 'fit_rms_residual': p.fit.rms_residual,
+            'tolerance': tolerance * size, 'settled': settle is not None,
+            'settle_time': settle, 'initial_error_norm': float(norm[window][0]),
+            'final_error_norm': float(norm[last]),
+            'final_max_agent_error': float(agent_err.max()),
+            'spacing': spacing_uniformity(p.curve, offset_points(
+                poses[last], experiment.gains.offset)),
+            'target_spacing': spacing_uniformity(p.curve, p.targets),
+        })
+    out = {
+        'experiment': experiment.name, 'agents': experiment.n,
+        'duration': float(t[-1]), 'phases': phases,
+        'final_error_norm': float(norm[-1]),
+        'final_orientation_rates_max': float(np.abs(orientation_rates(t, poses)).max()),
+        'lyapunov_initial': float(lyapunov(errors[:1], None if dhat is None else dhat[:1],
+                                           experiment)[0]),
+        'lyapunov_final': float(lyapunov(errors[-1:], None if dhat is None else dhat[-1:],
+                                         experiment)[0]),
+        'all_settled': all(p['settled'] for p in phases),
+    }
+    if dhat is not None and experiment.gains.k2 > 0:
+        target = experiment.disturbance / experiment.gains.k2
+        out['final_estimate_error_max'] = float(np.linalg.norm(dhat[-1] - target, axis=1).max())
+    out.update(peak_speeds(commands, experiment.limits.wheel_base))
+    return out
+
+
+def result_metrics(result, tolerance=None):
+    """run_metrics for a simulator.SimResult."""
+    out = run_metrics(result.experiment, result.t, result.poses, result.phase, result.dhat,
+                      result.commands, tolerance)
+    out['control'] = ('continuous' if result.rate_hz is None
+                      else f'zero-order hold at {result.rate_hz:g} Hz')
+    return out

@@ -1,0 +1,23 @@
+"""Shared fixtures: experiment dictionaries to break on purpose."""
+
+from pathlib import Path
+import sys
+
+import pytest
+import yaml
+
+
+sys.path.insert(0, str(Path(__file__).parent))
+
+CONFIG_DIR = Path(__file__).resolve().parent.parent / 'config'
+
+
+@pytest.fixture
+def closed_curve_dict():
+    """The shipped closed-curve experiment as a plain dict (a fresh copy per test)."""
+    return yaml.safe_load((CONFIG_DIR / 'closed_curve.yaml').read_text())
+
+
+@pytest.fixture
+def arena_dict():
+    return yaml.safe_load((CONFIG_DIR / 'mona_arena.yaml').read_text())

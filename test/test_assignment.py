@@ -1,0 +1,66 @@
+import numpy as np
+import pytest
+
+from curve_formation.core.assignment import (
+    AssignmentError,
+    agent_parameters,
+    check_assumptions,
+    uniform_parameters,
+)
+from curve_formation.core.curve_sources import expression_samples
+from curve_formation.core.curves import FourierBasis, PolynomialBasis, fit_curve
+
+
+def ellipse():
+    s, pts = expression_samples('4*cos(2*pi*s)', 'sin(2*pi*s)', 200, closed=True)
+    return fit_curve(FourierBasis(3), s, pts).curve
+
+
+def test_uniform_parameters_closed_and_open():
+    np.testing.assert_allclose(uniform_parameters(4, closed=True), [0, .25, .5, .75])
+    np.testing.assert_allclose(uniform_parameters(3, closed=False), [0, .5, 1])
+
+
+def test_arc_length_spacing_gives_equal_arc_gaps():
+    curve = ellipse()
+    s = agent_parameters(curve, 5, 'arc_length')
+    table_s, length = curve.arc_length_table()
+    arc = np.interp(s, table_s, length)
+    gaps = np.diff(np.append(arc, length[-1]))
+    np.testing.assert_allclose(gaps, length[-1] / 5, rtol=1e-3)
+    # Uniform in s is not uniform in arc length on an ellipse.
+    arc_s = np.interp(uniform_parameters(5, True), table_s, length)
+    assert np.ptp(np.diff(np.append(arc_s, length[-1]))) > 0.1
+
+
+def test_more_agents_than_basis_functions_is_refused():
+    with pytest.raises(AssignmentError, match='Assumption 2 .* n = 8 .* H = 7'):
+        check_assumptions(FourierBasis(3), uniform_parameters(8, True))
+
+
+def test_duplicate_parameters_are_refused():
+    with pytest.raises(AssignmentError, match='share the curve parameter'):
+        check_assumptions(PolynomialBasis(6), np.array([0.0, 0.5, 0.5]))
+    # On a closed curve s = 0 and s = 1 are the same point.
+    with pytest.raises(AssignmentError, match='share the curve parameter'):
+        check_assumptions(FourierBasis(3), np.array([0.0, 0.5, 1.0]))
+
+
+class DegenerateBasis(PolynomialBasis):
+    """A basis whose last function repeats the first: G_bar can never have full rank."""
+
+    def phi(self, s):
+        out = super().phi(s)
+        out[..., -1] = out[..., 0]
+        return out
+
+
+def test_rank_deficient_stacked_basis_is_refused():
+    with pytest.raises(AssignmentError, match='Assumption 1 .* rank'):
+        check_assumptions(DegenerateBasis(3), np.array([0.0, 0.3, 0.6, 1.0]))
+
+
+def test_valid_parameters_return_the_stacked_basis():
+    g_bar = check_assumptions(FourierBasis(6), uniform_parameters(6, True))
+    assert g_bar.shape == (12, 26)
+    np.testing.assert_allclose(g_bar @ np.linalg.pinv(g_bar), np.eye(12), atol=1e-10)

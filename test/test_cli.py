@@ -1,0 +1,26 @@
+import json
+
+from curve_formation.cli import main
+
+
+def test_sim_writes_metrics_and_figures(tmp_path):
+    out = tmp_path / 'open'
+    assert main(['sim', 'open_curve', '--out', str(out)]) == 0
+    data = json.loads((out / 'metrics.json').read_text())
+    assert data['experiment'] == 'open_curve'
+    assert data['control'] == 'continuous'
+    assert data['phases'][0]['initial_error_norm'] > data['final_error_norm']
+    for name in ('paths.png', 'error_norm.png', 'orientations.png', 'lyapunov.png'):
+        png = (out / name).read_bytes()
+        assert png[:8] == b'\x89PNG\r\n\x1a\n' and len(png) > 10_000
+
+
+def test_sim_rate_option_switches_to_zero_order_hold(tmp_path):
+    assert main(['sim', 'open_curve', '--rate', '20', '--out', str(tmp_path)]) == 0
+    assert json.loads((tmp_path / 'metrics.json').read_text())['control'] == (
+        'zero-order hold at 20 Hz')
+
+
+def test_unknown_experiment_is_a_clear_error(tmp_path, capsys):
+    assert main(['sim', 'no_such_case', '--out', str(tmp_path)]) == 2
+    assert 'neither a file nor a shipped experiment' in capsys.readouterr().err

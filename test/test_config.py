@@ -1,0 +1,107 @@
+"""Bad experiment files are refused with the file, the key and what was expected."""
+
+import copy
+import subprocess
+import sys
+
+from conftest import CONFIG_DIR
+import pytest
+import yaml
+
+from curve_formation.core.experiment import ConfigError, build_experiment, load_experiment
+
+
+@pytest.mark.parametrize('name', sorted(p.stem for p in CONFIG_DIR.glob('*.yaml')))
+def test_shipped_experiments_load(name):
+    experiment = load_experiment(CONFIG_DIR / f'{name}.yaml')
+    assert experiment.n == experiment.spec.agents.count
+    for phase in experiment.phases:
+        assert phase.fit.rms_residual < 1e-9
+
+
+def set_path(data, path, value):
+    node = data
+    for key in path[:-1]:
+        node = node[key]
+    if value is DELETE:
+        del node[path[-1]]
+    else:
+        node[path[-1]] = value
+
+
+DELETE = object()
+
+BROKEN = [
+    # (what, path, value, key in the message, words in the message)
+    ('misspelt key', ('controller', 'k_1'), 1.0, 'controller.k_1', 'Extra inputs'),
+    ('negative gain', ('controller', 'k1'), -1.0, 'controller.k1', 'greater than 0'),
+    ('gain as text', ('controller', 'k2'), 'fast', 'controller.k2', 'valid number'),
+    ('zero offset', ('controller', 'offset'), 0.0, 'controller.offset', 'non-zero'),
+    ('missing duration', ('simulation', 'duration'), DELETE, 'simulation.duration', 'required'),
+    ('unknown law', ('controller', 'law'), 'magic', 'controller.law', "'paper'"),
+    ('edge to missing agent', ('graph', 'edges', 0, 'to'), 9, 'graph', 'numbered 1..6'),
+    ('no spanning tree', ('graph', 'edges'), [{'from': 1, 'to': 2}, {'from': 3, 'to': 4},
+                                              {'from': 4, 'to': 3}, {'from': 4, 'to': 5},
+                                              {'from': 5, 'to': 6}], 'graph',
+     'no spanning tree'),
+    ('two leaders', ('graph', 'edges'), [{'from': 1, 'to': 2}, {'from': 2, 'to': 3}],
+     'graph', 'receive from nobody'),
+    ('too few harmonics', ('curves', 0, 'harmonics'), 2, 'curves[0]', 'Assumption 2'),
+    ('bad expression', ('curves', 0, 'x'), 'cos(2*pi*s', 'curves[0]', 'cannot parse'),
+    ('forbidden expression', ('curves', 0, 'x'), 'open("f")', 'curves[0]', "'open'"),
+    ('order on a fourier basis', ('curves', 0, 'order'), 3, 'curves[0]', 'does not apply'),
+    ('two curve sources', ('curves', 0, 'bezier'), [[0, 0], [1, 1]], 'curves[0]',
+     'exactly one curve source'),
+    ('wrong pose count', ('agents', 'initial'), {'poses': [[0, 0, 0]]},
+     'agents.initial.poses', 'expected 6'),
+    ('wrong disturbance shape', ('disturbance', 'value'), [1, 2, 3], 'disturbance.value',
+     'at most 2 items'),
+]
+
+
+@pytest.mark.parametrize('what, path, value, key, words', BROKEN, ids=[b[0] for b in BROKEN])
+def test_broken_experiment_is_refused_clearly(closed_curve_dict, what, path, value, key,
+                                              words):
+    data = copy.deepcopy(closed_curve_dict)
+    set_path(data, path, value)
+    with pytest.raises(ConfigError) as info:
+        build_experiment(data, 'exp.yaml')
+    message = str(info.value)
+    assert message.startswith(f'exp.yaml: {key}'), message
+    assert words in message, message
+
+
+def test_switch_times_must_increase(arena_dict):
+    arena_dict['curves'][1]['start'] = 0.0
+    with pytest.raises(ConfigError, match=r'curves\[1\]\.start: switch times must increase'):
+        build_experiment(arena_dict, 'arena.yaml')
+
+
+def test_initial_poses_outside_the_arena(arena_dict):
+    arena_dict['agents']['initial'] = {'poses': [[0.5, 0.4, 0.0]] * 8 + [[2.5, 0.4, 0.0]]}
+    with pytest.raises(ConfigError, match=r'agents.initial: agent 9 starts at .* outside'):
+        build_experiment(arena_dict, 'arena.yaml')
+
+
+def test_not_a_mapping():
+    with pytest.raises(ConfigError, match='top level'):
+        build_experiment([1, 2], 'list.yaml')
+
+
+def test_cli_reports_one_line_and_exit_2(tmp_path, closed_curve_dict):
+    closed_curve_dict['controller']['k1'] = -2
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text(yaml.safe_dump(closed_curve_dict))
+    proc = subprocess.run([sys.executable, '-m', 'curve_formation.cli', 'sim', str(bad),
+                           '--out', str(tmp_path / 'out')], capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert 'Traceback' not in proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f'error: {bad}: controller.k1:'), lines
+
+
+def test_invalid_yaml_names_the_file(tmp_path):
+    bad = tmp_path / 'broken.yaml'
+    bad.write_text('name: [unclosed\n')
+    with pytest.raises(ConfigError, match='broken.yaml: not valid YAML'):
+        load_experiment(bad)

@@ -1,0 +1,87 @@
+import math
+
+import numpy as np
+import pytest
+from test_graph import random_rooted_graph
+
+from curve_formation.core.assignment import check_assumptions, uniform_parameters
+from curve_formation.core.control import (
+    Gains,
+    agent_input,
+    follower_feedback,
+    leader_feedback,
+    saturate,
+    stacked_paper_input,
+    wheel_speeds,
+)
+from curve_formation.core.curves import FourierBasis, PolynomialBasis
+
+
+def local_arena_input(poses, dhat, targets, graph, gains):
+    """ub_i from each agent's own and in-neighbours' errors only, mapped back by R_i."""
+    xb = poses[:, :2] + gains.offset * np.column_stack([np.cos(poses[:, 2]),
+                                                        np.sin(poses[:, 2])])
+    errors = xb - targets
+    out = np.zeros_like(errors)
+    for i in range(graph.n):
+        ex, ey = errors[i]
+        if i + 1 == graph.leader:
+            fx, fy = leader_feedback(ex, ey)
+        else:
+            nbrs = graph.in_neighbours(i + 1)
+            fx, fy = follower_feedback(ex, ey, [errors[j - 1] for j, _ in nbrs],
+                                       [w for _, w in nbrs])
+        v, w, _, _ = agent_input(fx, fy, ex, ey, poses[i, 2], dhat[i, 0], dhat[i, 1],
+                                 gains.k1, gains.k2, gains.offset)
+        th = poses[i, 2]
+        r = np.array([[math.cos(th), -gains.offset * math.sin(th)],
+                      [math.sin(th), gains.offset * math.cos(th)]])
+        out[i] = r @ [v, w]
+    return out
+
+
+@pytest.mark.parametrize('seed', range(25))
+def test_local_law_equals_paper_pseudo_inverse_form(seed):
+    rng = np.random.default_rng(seed)
+    basis = FourierBasis(int(rng.integers(2, 9))) if seed % 2 else PolynomialBasis(
+        int(rng.integers(2, 9)))
+    n = int(rng.integers(2, basis.H + 1))
+    graph = random_rooted_graph(rng, n)
+    s = uniform_parameters(n, basis.closed)
+    g_bar = check_assumptions(basis, s)
+    xi = rng.normal(size=2 * basis.H)
+    targets = (g_bar @ xi).reshape(n, 2)
+    poses = np.column_stack([rng.normal(size=(n, 2)) * 3, rng.uniform(-4, 4, n)])
+    dhat = rng.normal(size=(n, 2))
+    gains = Gains(k1=float(rng.uniform(0.1, 3)), k2=float(rng.uniform(0, 2)),
+                  offset=float(rng.choice([-1, 1]) * rng.uniform(0.005, 0.3)))
+    paper = stacked_paper_input(poses, dhat, g_bar, xi, graph.laplacian, graph.leader - 1,
+                                gains)
+    local = local_arena_input(poses, dhat, targets, graph, gains)
+    np.testing.assert_allclose(local, paper, rtol=1e-9, atol=1e-9)
+
+
+def test_estimator_rate_is_k2_r_transpose_e():
+    th, l_off, k2 = 0.7, 0.05, 0.8
+    e = np.array([0.3, -0.2])
+    _, _, ddv, ddw = agent_input(0, 0, e[0], e[1], th, 0, 0, 1.0, k2, l_off)
+    r = np.array([[math.cos(th), -l_off * math.sin(th)], [math.sin(th), l_off * math.cos(th)]])
+    np.testing.assert_allclose([ddv, ddw], k2 * r.T @ e)
+
+
+@pytest.mark.parametrize('v, w', [(0.1, 0.0), (-0.3, 2.0), (0.01, -40.0), (0.0, 5.0),
+                                  (0.02, 0.1), (-1e-3, 1e-3)])
+def test_saturation_respects_wheel_limits_and_keeps_curvature(v, w):
+    base, vmax = 0.08, 0.0225
+    sv, sw = saturate(v, w, base, vmax, math.inf)
+    right, left = wheel_speeds(sv, sw, base)
+    assert max(abs(right), abs(left)) <= vmax * (1 + 1e-12)
+    assert sv * w == pytest.approx(sw * v, abs=1e-15)  # same curvature (or both zero)
+    if max(abs(x) for x in wheel_speeds(v, w, base)) <= vmax:
+        assert (sv, sw) == (v, w)
+
+
+def test_angular_rate_bound():
+    sv, sw = saturate(0.1, 10.0, 0.0, math.inf, 2.0)
+    assert sw == pytest.approx(2.0)
+    assert sv == pytest.approx(0.02)

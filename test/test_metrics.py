@@ -1,0 +1,44 @@
+import numpy as np
+import pytest
+
+from curve_formation.core import metrics
+from curve_formation.core.curve_sources import expression_samples
+from curve_formation.core.curves import FourierBasis, fit_curve
+
+
+def test_settle_time_is_last_entry_below_tolerance():
+    t = np.arange(10.0)
+    norm = np.array([5, 3, 0.5, 2, 0.4, 0.3, 0.2, 0.1, 0.1, 0.1])
+    assert metrics.settle_time(t, norm, 1.0, 0.0, np.inf) == 4.0
+    assert metrics.settle_time(t, norm, 1.0, 2.0, np.inf) == 2.0   # relative to start
+    assert metrics.settle_time(t, norm, 0.05, 0.0, np.inf) is None  # never below
+    assert metrics.settle_time(t, norm, 10.0, 0.0, np.inf) == 0.0
+    assert metrics.settle_time(t, norm, 1.0, 0.0, 4.0) is None      # window ends above
+
+
+def circle():
+    s, pts = expression_samples('cos(2*pi*s)', 'sin(2*pi*s)', 100, closed=True)
+    return fit_curve(FourierBasis(1), s, pts).curve
+
+
+def test_spacing_uniformity():
+    curve = circle()
+    even = curve.points(np.arange(6) / 6)
+    assert metrics.spacing_uniformity(curve, even)['cv'] == pytest.approx(0, abs=1e-3)
+    bunched = curve.points(np.array([0, 0.05, 0.1, 0.5]))
+    result = metrics.spacing_uniformity(curve, bunched)
+    assert result['cv'] > 0.5 and result['min_over_max'] == pytest.approx(0.1, abs=0.01)
+
+
+def test_orientation_rates():
+    t = np.linspace(0, 5, 501)
+    poses = np.zeros((501, 2, 3))
+    poses[:, 1, 2] = np.mod(0.7 * t, 2 * np.pi)   # wraps, still 0.7 rad/s
+    np.testing.assert_allclose(metrics.orientation_rates(t, poses), [0, 0.7], atol=1e-9)
+
+
+def test_peak_wheel_speed():
+    commands = np.array([[[0.01, 0.2], [-0.02, 0.0]]])
+    out = metrics.peak_speeds(commands, 0.1)
+    assert out['peak_wheel_speed'] == pytest.approx(0.02)
+    assert out['peak_w'] == pytest.approx(0.2)
