@@ -96,7 +96,9 @@ def _run(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, dist, on_p
             if step % control_every == 0:
                 _controls(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, dist,
                           on_pc, wheel_base, vmax, wmax, err, fb, motion, cmd, ddhat)
-                dhat += dt_control * ddhat
+                for i in range(n):
+                    dhat[i, 0] += dt_control * ddhat[i, 0]
+                    dhat[i, 1] += dt_control * ddhat[i, 1]
             if step % record_every == 0:
                 r = step // record_every
                 rec_poses[r] = poses
@@ -126,22 +128,27 @@ def _run(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, dist, on_p
         h = dt / substeps
         for _ in range(substeps):
             for stage in range(4):
-                if stage == 0:
-                    p_stage[:] = poses
-                    d_stage[:] = dhat
-                else:
-                    frac = h if stage == 3 else 0.5 * h
-                    p_stage[:] = poses + frac * kp[stage - 1]
-                    d_stage[:] = dhat + frac * kd[stage - 1]
+                frac = 0.0 if stage == 0 else (h if stage == 3 else 0.5 * h)
+                for i in range(n):
+                    for c in range(3):
+                        p_stage[i, c] = poses[i, c] + frac * kp[stage - 1, i, c]
+                    for c in range(2):
+                        d_stage[i, c] = dhat[i, c] + frac * kd[stage - 1, i, c]
                 _controls(p_stage, d_stage, targets, tgt, src, wts, leader, k1, k2, offset,
                           dist, on_pc, wheel_base, vmax, wmax, err, fb, motion, cmd, ddhat)
                 for i in range(n):
                     kp[stage, i, 0] = motion[i, 0] * math.cos(p_stage[i, 2])
                     kp[stage, i, 1] = motion[i, 0] * math.sin(p_stage[i, 2])
                     kp[stage, i, 2] = motion[i, 1]
-                kd[stage] = ddhat
-            poses += h / 6.0 * (kp[0] + 2.0 * kp[1] + 2.0 * kp[2] + kp[3])
-            dhat += h / 6.0 * (kd[0] + 2.0 * kd[1] + 2.0 * kd[2] + kd[3])
+                    kd[stage, i, 0] = ddhat[i, 0]
+                    kd[stage, i, 1] = ddhat[i, 1]
+            for i in range(n):
+                for c in range(3):
+                    poses[i, c] += h / 6.0 * (kp[0, i, c] + 2.0 * kp[1, i, c]
+                                              + 2.0 * kp[2, i, c] + kp[3, i, c])
+                for c in range(2):
+                    dhat[i, c] += h / 6.0 * (kd[0, i, c] + 2.0 * kd[1, i, c]
+                                             + 2.0 * kd[2, i, c] + kd[3, i, c])
 
 
 @dataclass

@@ -1,0 +1,94 @@
+"""Batch simulator speed: wall time per paper case and scaling in the number of agents.
+
+Run: scripts/bench simulation_speed   (or python benchmarks/simulation_speed.py [--quick])
+
+Prints a table per part. Compilation is done (and cached) before anything is timed; each
+figure is the best of `--repeat` runs. Goal (issue): the 150 s shape-change case at
+dt = 1 ms well under a second; cost linear in n.
+"""
+
+import argparse
+import time
+
+from curve_formation.core.experiment import build_experiment, load_experiment
+from curve_formation.core.simulator import simulate
+from curve_formation.paths import resolve_config
+
+
+CASES = ('closed_curve', 'open_curve', 'shape_change', 'mona_arena')
+
+
+def best_time(func, repeat):
+    best = float('inf')
+    for _ in range(repeat):
+        start = time.perf_counter()
+        func()
+        best = min(best, time.perf_counter() - start)
+    return best
+
+
+def scaled_experiment(n, seed=0):
+    """n agents on a wavy closed curve, Fourier K = n // 2 (so n <= H), chain + skip edges."""
+    edges = [{'from': i, 'to': i + 1} for i in range(1, n)]
+    edges += [{'from': i, 'to': i + 2} for i in range(1, n - 1, 3)]
+    return build_experiment({
+        'name': f'scale_{n}',
+        'agents': {'count': n, 'initial': {'random': {'seed': seed, 'center': [0, 0],
+                                                      'half_width': [12, 12]}}},
+        'graph': {'edges': edges},
+        'controller': {'k1': 1.0, 'k2': 1.0, 'offset': 0.01, 'rate_hz': 10.0},
+        'disturbance': {'value': [1.0, 1.0]},
+        'limits': {'wheel_base': 0.1, 'max_wheel_speed': 5.0},
+        'curves': [{'basis': 'fourier', 'harmonics': max(1, n // 2),
+                    'samples': max(400, 3 * n + 3),
+                    'x': '(8 + sin(6*pi*s)) * cos(2*pi*s)',
+                    'y': '(8 + cos(4*pi*s)) * sin(2*pi*s)'}],
+        'simulation': {'duration': 10.0, 'dt': 0.001, 'record_dt': 0.1},
+    }, f'<scale {n}>')
+
+
+def paper_cases(repeat):
+    print('Paper cases (dt = 1 ms; continuous = substepped RK4, 10 Hz = zero-order hold)')
+    print(f'{"case":14s} {"sim s":>6s} {"mode":>11s} {"wall s":>8s} {"steps/s":>11s} '
+          f'{"x real time":>11s}')
+    for name in CASES:
+        experiment = load_experiment(resolve_config(name))
+        spec = experiment.spec.simulation
+        steps = int(round(spec.duration / spec.dt))
+        for label, rate in (('continuous', None), ('10 Hz', 10.0)):
+            simulate(experiment, rate_hz=rate, duration=0.01)   # compile outside the timing
+            wall = best_time(lambda e=experiment, r=rate: simulate(e, rate_hz=r), repeat)
+            print(f'{name:14s} {spec.duration:6.0f} {label:>11s} {wall:8.3f} '
+                  f'{steps / wall:11.3e} {spec.duration / wall:11.0f}')
+
+
+def scaling(sizes, repeat):
+    print('\nScaling in n (10 s simulated at dt = 1 ms, 10 Hz zero-order hold, ~1.3 n edges)')
+    print(f'{"n":>6s} {"H":>6s} {"wall s":>8s} {"steps/s":>10s} {"agent-steps/s":>14s} '
+          f'{"us per agent-step":>18s}')
+    base = None
+    for n in sizes:
+        experiment = scaled_experiment(n)
+        simulate(experiment, duration=0.01)
+        wall = best_time(lambda e=experiment: simulate(e), repeat)
+        steps = 10_000
+        per_agent = wall / (steps * n) * 1e6
+        base = base or per_agent
+        print(f'{n:6d} {experiment.phases[0].curve.basis.H:6d} {wall:8.3f} '
+              f'{steps / wall:10.3e} {steps * n / wall:14.3e} {per_agent:18.3f}')
+    print(f'cost per agent-step at the largest n is {per_agent / base:.2f}x that at n = '
+          f'{sizes[0]} (1.00 = linear)')
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    parser.add_argument('--quick', action='store_true', help='fewer sizes, one repeat')
+    parser.add_argument('--repeat', type=int, default=3)
+    args = parser.parse_args()
+    repeat = 1 if args.quick else args.repeat
+    paper_cases(repeat)
+    scaling([9, 50, 100] if args.quick else [9, 25, 50, 100, 250, 500, 1000], repeat)
+
+
+if __name__ == '__main__':
+    main()

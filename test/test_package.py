@@ -1,0 +1,79 @@
+"""The package builds with colcon as ament_python and runs as `ros2 run` would find it."""
+
+import json
+import os
+from pathlib import Path
+import shutil
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+
+import pytest
+
+
+ROOT = Path(__file__).resolve().parent.parent
+NODES = ('curve_server', 'formation_controller', 'fake_robot')
+
+
+def test_package_xml_is_format_3_with_the_message_dependencies():
+    root = ET.parse(ROOT / 'package.xml').getroot()
+    assert root.get('format') == '3'
+    assert root.findtext('name') == 'curve_formation'
+    assert root.find('export/build_type').text == 'ament_python'
+    deps = {e.text for e in root.findall('exec_depend')}
+    assert {'rclpy', 'geometry_msgs', 'std_msgs', 'nav_msgs', 'sensor_msgs',
+            'visualization_msgs', 'diagnostic_msgs'} <= deps
+
+
+@pytest.fixture(scope='module')
+def colcon_install(tmp_path_factory):
+    """colcon build of a copy of the tracked sources; returns the install prefix."""
+    if shutil.which('colcon') is None:
+        pytest.fail('colcon is not installed: run the tests through scripts/test')
+    ws = tmp_path_factory.mktemp('ws')
+    files = subprocess.run(['git', 'ls-files', '--cached', '--others', '--exclude-standard'],
+                           cwd=ROOT, capture_output=True, text=True, check=True).stdout.split()
+    for name in files:
+        if (ROOT / name).is_file():
+            (ws / 'src' / 'curve_formation' / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(ROOT / name, ws / 'src' / 'curve_formation' / name)
+    proc = subprocess.run(['colcon', 'build', '--base-paths', 'src'], cwd=ws,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    return ws / 'install' / 'curve_formation'
+
+
+def installed_env(prefix):
+    env = dict(os.environ)
+    site = next(prefix.glob('lib/python3*/site-packages'))
+    env['PYTHONPATH'] = f'{site}{os.pathsep}{env.get("PYTHONPATH", "")}'
+    env['AMENT_PREFIX_PATH'] = f'{prefix}{os.pathsep}{env.get("AMENT_PREFIX_PATH", "")}'
+    return env
+
+
+def find_executable(prefix, name):
+    """What `ros2 run curve_formation NAME` does: ament index -> prefix/lib/<pkg>/NAME."""
+    code = ('from ament_index_python.packages import get_package_prefix; '
+            'print(get_package_prefix("curve_formation"))')
+    found = subprocess.run([sys.executable, '-c', code], env=installed_env(prefix),
+                           capture_output=True, text=True, check=True).stdout.strip()
+    assert Path(found) == prefix
+    return Path(found) / 'lib' / 'curve_formation' / name
+
+
+def test_colcon_installs_every_node_and_the_index_entry(colcon_install):
+    assert (colcon_install / 'share/ament_index/resource_index/packages/curve_formation').exists()
+    assert (colcon_install / 'share/curve_formation/package.xml').exists()
+    assert sorted(p.name for p in (colcon_install / 'share/curve_formation/config').glob(
+        '*.yaml')) == sorted(p.name for p in (ROOT / 'config').glob('*.yaml'))
+    for node in NODES + ('curve-formation',):
+        assert os.access(find_executable(colcon_install, node), os.X_OK), node
+
+
+def test_installed_command_runs_a_shipped_experiment(colcon_install, tmp_path):
+    exe = find_executable(colcon_install, 'curve-formation')
+    proc = subprocess.run([str(exe), 'sim', 'open_curve', '--out', str(tmp_path)],
+                          env=installed_env(colcon_install), capture_output=True, text=True,
+                          timeout=300, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads((tmp_path / 'metrics.json').read_text())['experiment'] == 'open_curve'
