@@ -2,13 +2,13 @@ import numpy as np
 import pytest
 
 from curve_formation.core.assignment import (
-    AssignmentError,
     agent_parameters,
+    AssignmentError,
     check_assumptions,
     uniform_parameters,
 )
 from curve_formation.core.curve_sources import expression_samples
-from curve_formation.core.curves import FourierBasis, PolynomialBasis, fit_curve
+from curve_formation.core.curves import fit_curve, FourierBasis, PolynomialBasis
 
 
 def ellipse():

@@ -8,7 +8,7 @@ from conftest import CONFIG_DIR
 import pytest
 import yaml
 
-from curve_formation.core.experiment import ConfigError, build_experiment, load_experiment
+from curve_formation.core.experiment import build_experiment, ConfigError, load_experiment
 
 
 @pytest.mark.parametrize('name', sorted(p.stem for p in CONFIG_DIR.glob('*.yaml')))

@@ -6,9 +6,9 @@ from test_graph import random_rooted_graph
 
 from curve_formation.core.assignment import check_assumptions, uniform_parameters
 from curve_formation.core.control import (
-    Gains,
     agent_input,
     follower_feedback,
+    Gains,
     leader_feedback,
     saturate,
     stacked_paper_input,

@@ -6,7 +6,7 @@ from curve_formation.core.curve_sources import (
     chord_length_parameters,
     expression_samples,
 )
-from curve_formation.core.curves import CurveError, FourierBasis, PolynomialBasis, fit_curve
+from curve_formation.core.curves import CurveError, fit_curve, FourierBasis, PolynomialBasis
 
 
 def paper_fourier_g(s, harmonics):

@@ -3,7 +3,7 @@ import pytest
 
 from curve_formation.core import metrics
 from curve_formation.core.curve_sources import expression_samples
-from curve_formation.core.curves import FourierBasis, fit_curve
+from curve_formation.core.curves import fit_curve, FourierBasis
 
 
 def test_settle_time_is_last_entry_below_tolerance():

@@ -25,7 +25,7 @@ def test_lyapunov_never_increases_along_continuous_trajectories(case):
     """V' = -xe^T (Q kron I2) xe <= 0 (Proposition 1): continuous law, no wheel limits."""
     result = simulate(case, rate_hz=None, limits=NO_LIMITS, duration=min(
         30.0, case.spec.simulation.duration))
-    v = metrics.lyapunov(result.errors, result.dhat, case)
+    v = result.lyapunov
     for k in range(len(case.phases)):
         window = v[result.phase == k]
         if len(window) < 2:
@@ -82,7 +82,7 @@ def test_paper_settings_stall_with_agents_circling():
     assert norm[np.searchsorted(result.t, 5.0)] < 0.15 * norm[0]   # fast approach ...
     assert 0.1 < data['final_error_norm'] < 1.0                    # ... then a stall
     assert data['final_orientation_rates_max'] > 0.1                # robots keep turning
-    v = metrics.lyapunov(result.errors, result.dhat, case)
+    v = result.lyapunov
     assert np.all(np.diff(v) <= 1e-9 * v[0])                         # while V still decreases
 
 
@@ -119,3 +119,13 @@ def test_records_are_consistent():
     wheel = np.abs(result.commands[..., 0]) + 0.5 * case.limits.wheel_base * np.abs(
         result.commands[..., 1])
     assert wheel.max() <= case.limits.max_wheel_speed * (1 + 1e-9)
+
+
+def test_metrics_use_the_settings_the_run_used():
+    """Overriding l must move the measured offset point too (it once used the file's l)."""
+    case = load_experiment(resolve_config('closed_curve'))
+    result = simulate(case, rate_hz=None, disturbance=[0, 0], limits=NO_LIMITS, duration=30.0,
+                      gains=dataclasses.replace(case.gains, offset=0.5, k2=0.0))
+    assert result.error_norm[-1] < 1e-4 * result.error_norm[0]
+    data = metrics.result_metrics(result)
+    assert data['all_settled'] and data['final_error_norm'] < 1e-3

@@ -12,9 +12,9 @@ from pydantic import ValidationError
 import yaml
 
 from curve_formation.core import curve_sources
-from curve_formation.core.assignment import AssignmentError, agent_parameters, check_assumptions
+from curve_formation.core.assignment import agent_parameters, AssignmentError, check_assumptions
 from curve_formation.core.config_schema import ExperimentSpec
-from curve_formation.core.control import NO_LIMITS, Gains, WheelLimits
+from curve_formation.core.control import Gains, NO_LIMITS, WheelLimits
 from curve_formation.core.curves import CurveError, fit_curve, make_basis
 from curve_formation.core.expressions import ExpressionError
 from curve_formation.core.graph import DirectedGraph, Edge, GraphError

@@ -14,10 +14,11 @@ def offset_points(poses, offset):
     return poses[..., :2] + offset * np.stack([np.cos(th), np.sin(th)], axis=-1)
 
 
-def target_errors(poses, phase, experiment):
-    """(R, n, 2) e_i = xb_i - G(s_i) xi of the active curve."""
+def target_errors(poses, phase, experiment, gains=None):
+    """(R, n, 2) e_i = xb_i - G(s_i) xi of the active curve (offset l from gains)."""
+    gains = experiment.gains if gains is None else gains
     targets = np.stack([p.targets for p in experiment.phases])
-    return offset_points(poses, experiment.gains.offset) - targets[phase]
+    return offset_points(poses, gains.offset) - targets[phase]
 
 
 def error_norm(errors):
@@ -25,14 +26,14 @@ def error_norm(errors):
     return np.linalg.norm(errors.reshape(len(errors), -1), axis=1)
 
 
-def lyapunov(errors, dhat, experiment, disturbance=None):
+def lyapunov(errors, dhat, experiment, disturbance=None, gains=None):
     """(R,) V = xe^T (P kron I2) xe + dtilde^T (P kron I2) dtilde, dtilde = dhat - d / k2.
 
     With k2 = 0 the estimate is off and V is the error term alone.
     """
     weights = np.diag(experiment.graph.certificate().P)
     value = np.einsum('i,rij,rij->r', weights, errors, errors)
-    k2 = experiment.gains.k2
+    k2 = (experiment.gains if gains is None else gains).k2
     if k2 > 0 and dhat is not None:
         d = experiment.disturbance if disturbance is None else disturbance
         tilde = dhat - np.asarray(d) / k2
@@ -99,10 +100,17 @@ def peak_speeds(commands, wheel_base):
     return out
 
 
-def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance=None):
-    """All metrics of a run as a JSON-ready dict (one entry per curve phase)."""
+def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance=None,
+                gains=None, disturbance=None, limits=None):
+    """All metrics of a run as a JSON-ready dict (one entry per curve phase).
+
+    gains, disturbance and limits default to the experiment's; pass the ones the run used.
+    """
     tolerance = experiment.spec.metrics.tolerance if tolerance is None else tolerance
-    errors = target_errors(poses, phase, experiment)
+    gains = experiment.gains if gains is None else gains
+    disturbance = experiment.disturbance if disturbance is None else disturbance
+    limits = experiment.limits if limits is None else limits
+    errors = target_errors(poses, phase, experiment, gains)
     norm = error_norm(errors)
     ends = [p.start for p in experiment.phases[1:]] + [float('inf')]
     phases = []
@@ -121,8 +129,7 @@ def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance
             'settle_time': settle, 'initial_error_norm': float(norm[window][0]),
             'final_error_norm': float(norm[last]),
             'final_max_agent_error': float(agent_err.max()),
-            'spacing': spacing_uniformity(p.curve, offset_points(
-                poses[last], experiment.gains.offset)),
+            'spacing': spacing_uniformity(p.curve, offset_points(poses[last], gains.offset)),
             'target_spacing': spacing_uniformity(p.curve, p.targets),
         })
     out = {
@@ -131,22 +138,23 @@ def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance
         'final_error_norm': float(norm[-1]),
         'final_orientation_rates_max': float(np.abs(orientation_rates(t, poses)).max()),
         'lyapunov_initial': float(lyapunov(errors[:1], None if dhat is None else dhat[:1],
-                                           experiment)[0]),
+                                           experiment, disturbance, gains)[0]),
         'lyapunov_final': float(lyapunov(errors[-1:], None if dhat is None else dhat[-1:],
-                                         experiment)[0]),
+                                         experiment, disturbance, gains)[0]),
         'all_settled': all(p['settled'] for p in phases),
     }
-    if dhat is not None and experiment.gains.k2 > 0:
-        target = experiment.disturbance / experiment.gains.k2
+    if dhat is not None and gains.k2 > 0:
+        target = np.asarray(disturbance) / gains.k2
         out['final_estimate_error_max'] = float(np.linalg.norm(dhat[-1] - target, axis=1).max())
-    out.update(peak_speeds(commands, experiment.limits.wheel_base))
+    out.update(peak_speeds(commands, limits.wheel_base))
     return out
 
 
 def result_metrics(result, tolerance=None):
     """run_metrics for a simulator.SimResult."""
     out = run_metrics(result.experiment, result.t, result.poses, result.phase, result.dhat,
-                      result.commands, tolerance)
+                      result.commands, tolerance, result.gains, result.disturbance,
+                      result.limits)
     out['control'] = ('continuous' if result.rate_hz is None
                       else f'zero-order hold at {result.rate_hz:g} Hz')
     return out

@@ -17,11 +17,12 @@ import math
 import numba
 import numpy as np
 
-from curve_formation.core import control, metrics
+from curve_formation.core import control, dynamics, metrics
 
 
 _agent_input = numba.njit(cache=True)(control.agent_input)
 _saturate = numba.njit(cache=True)(control.saturate)
+_arc = numba.njit(cache=True)(dynamics.arc_step)
 
 CONTINUOUS = None
 # Largest heading change (rad) of one RK4 substep in continuous mode.
@@ -29,9 +30,13 @@ MAX_TURN_PER_SUBSTEP = 0.05
 
 
 @numba.njit(cache=True)
-def _controls(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, dist, on_pc,
+def _controls(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, d_pc, d_robot,
               wheel_base, vmax, wmax, err, fb, motion, cmd, ddhat):
-    """Evaluate the law for all agents: fills err, fb, cmd (sent), motion (actual), ddhat."""
+    """Evaluate the law for all agents: fills err, fb, cmd (sent), motion (actual), ddhat.
+
+    d_pc (n, 2) is added to the command before the wheel limits (injected on the PC),
+    d_robot (n, 2) after them (physical).
+    """
     n = poses.shape[0]
     for i in range(n):
         err[i, 0] = poses[i, 0] + offset * math.cos(poses[i, 2]) - targets[i, 0]
@@ -50,14 +55,9 @@ def _controls(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, dist,
                                       dhat[i, 0], dhat[i, 1], k1, k2, offset)
         ddhat[i, 0] = ddv
         ddhat[i, 1] = ddw
-        if on_pc:
-            v, w = _saturate(v + dist[i, 0], w + dist[i, 1], wheel_base, vmax, wmax)
-            motion[i, 0] = v
-            motion[i, 1] = w
-        else:
-            v, w = _saturate(v, w, wheel_base, vmax, wmax)
-            motion[i, 0] = v + dist[i, 0]
-            motion[i, 1] = w + dist[i, 1]
+        v, w = _saturate(v + d_pc[i, 0], w + d_pc[i, 1], wheel_base, vmax, wmax)
+        motion[i, 0] = v + d_robot[i, 0]
+        motion[i, 1] = w + d_robot[i, 1]
         cmd[i, 0] = v
         cmd[i, 1] = w
 
@@ -66,20 +66,12 @@ def _controls(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, dist,
 def _arc_step(poses, motion, dt):
     """Exact unicycle motion over dt with constant (v, w) per agent."""
     for i in range(poses.shape[0]):
-        v = motion[i, 0]
-        w = motion[i, 1]
-        th = poses[i, 2]
-        if abs(w * dt) < 1e-9:
-            poses[i, 0] += v * dt * math.cos(th + 0.5 * w * dt)
-            poses[i, 1] += v * dt * math.sin(th + 0.5 * w * dt)
-        else:
-            poses[i, 0] += v / w * (math.sin(th + w * dt) - math.sin(th))
-            poses[i, 1] -= v / w * (math.cos(th + w * dt) - math.cos(th))
-        poses[i, 2] = th + w * dt
+        poses[i, 0], poses[i, 1], poses[i, 2] = _arc(poses[i, 0], poses[i, 1], poses[i, 2],
+                                                     motion[i, 0], motion[i, 1], dt)
 
 
 @numba.njit(cache=True)
-def _run(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, dist, on_pc,
+def _run(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, d_pc, d_robot,
          wheel_base, vmax, wmax, dt, step0, steps, control_every, record_every,
          motion, cmd, rec_poses, rec_dhat, rec_cmd):
     """Advance poses (n, 3) and dhat (n, 2) in place by `steps` fine steps from `step0`.
@@ -94,8 +86,8 @@ def _run(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, dist, on_p
         dt_control = control_every * dt
         for step in range(step0, step0 + steps):
             if step % control_every == 0:
-                _controls(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, dist,
-                          on_pc, wheel_base, vmax, wmax, err, fb, motion, cmd, ddhat)
+                _controls(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, d_pc,
+                          d_robot, wheel_base, vmax, wmax, err, fb, motion, cmd, ddhat)
                 for i in range(n):
                     dhat[i, 0] += dt_control * ddhat[i, 0]
                     dhat[i, 1] += dt_control * ddhat[i, 1]
@@ -114,8 +106,8 @@ def _run(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, dist, on_p
     p_stage = np.zeros((n, 3))
     d_stage = np.zeros((n, 2))
     for step in range(step0, step0 + steps):
-        _controls(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, dist,
-                  on_pc, wheel_base, vmax, wmax, err, fb, motion, cmd, ddhat)
+        _controls(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, d_pc,
+                  d_robot, wheel_base, vmax, wmax, err, fb, motion, cmd, ddhat)
         if step % record_every == 0:
             r = step // record_every
             rec_poses[r] = poses
@@ -135,7 +127,7 @@ def _run(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, dist, on_p
                     for c in range(2):
                         d_stage[i, c] = dhat[i, c] + frac * kd[stage - 1, i, c]
                 _controls(p_stage, d_stage, targets, tgt, src, wts, leader, k1, k2, offset,
-                          dist, on_pc, wheel_base, vmax, wmax, err, fb, motion, cmd, ddhat)
+                          d_pc, d_robot, wheel_base, vmax, wmax, err, fb, motion, cmd, ddhat)
                 for i in range(n):
                     kp[stage, i, 0] = motion[i, 0] * math.cos(p_stage[i, 2])
                     kp[stage, i, 1] = motion[i, 0] * math.sin(p_stage[i, 2])
@@ -157,11 +149,15 @@ class SimResult:
 
     t: (R,) s.  poses: (R, n, 3) x, y, theta (arena frame).  dhat: (R, n, 2) estimates.
     commands: (R, n, 2) (v, w) sent to the robots (after limits; with an on_pc disturbance it
-    includes d).  phase: (R,) index of the active curve.
+    includes d).  phase: (R,) index of the active curve.  gains, limits, disturbance (n, 2):
+    the settings the run used (the experiment's unless overridden).
     """
 
     experiment: object
     rate_hz: object
+    gains: object
+    limits: object
+    disturbance: np.ndarray
     t: np.ndarray
     poses: np.ndarray
     dhat: np.ndarray
@@ -171,12 +167,18 @@ class SimResult:
     @property
     def errors(self):
         """(R, n, 2) target errors e_i = xb_i - G(s_i) xi of the active curve."""
-        return metrics.target_errors(self.poses, self.phase, self.experiment)
+        return metrics.target_errors(self.poses, self.phase, self.experiment, self.gains)
 
     @property
     def error_norm(self):
         """(R,) ||xb_e||, the norm of all agents' stacked errors."""
         return metrics.error_norm(self.errors)
+
+    @property
+    def lyapunov(self):
+        """(R,) the paper's Lyapunov function V with the run's gains and disturbance."""
+        return metrics.lyapunov(self.errors, self.dhat, self.experiment, self.disturbance,
+                                self.gains)
 
 
 def simulate(experiment, rate_hz='config', duration=None, dt=None, record_dt=None,
@@ -195,6 +197,8 @@ def simulate(experiment, rate_hz='config', duration=None, dt=None, record_dt=Non
     limits = experiment.limits if limits is None else limits
     dist = experiment.disturbance if disturbance is None else np.asarray(disturbance, float)
     dist = np.broadcast_to(dist, (experiment.n, 2)).astype(float)
+    on_pc = experiment.spec.disturbance.injected == 'on_pc'
+    d_pc, d_robot = (dist, np.zeros_like(dist)) if on_pc else (np.zeros_like(dist), dist)
     poses = np.array(experiment.initial_poses if initial_poses is None else initial_poses,
                      dtype=float)
     record_every = _ratio(record_dt, dt, 'record_dt')
@@ -213,13 +217,14 @@ def simulate(experiment, rate_hz='config', duration=None, dt=None, record_dt=Non
         if a >= total:
             break
         _run(poses, dhat, np.ascontiguousarray(phase.targets), tgt, src, wts,
-             experiment.graph.leader - 1, gains.k1, gains.k2, gains.offset, dist,
-             experiment.spec.disturbance.injected == 'on_pc', limits.wheel_base,
+             experiment.graph.leader - 1, gains.k1, gains.k2, gains.offset, d_pc, d_robot,
+             limits.wheel_base,
              limits.max_wheel_speed, limits.max_angular_rate, dt, a, min(b, total) - a,
              control_every, record_every, motion, cmd, rec_poses, rec_dhat, rec_cmd)
     t = np.arange(n_rec) * record_every * dt
     phase_index = np.searchsorted(np.array(starts[1:-1]) * dt, t, side='right')
-    return SimResult(experiment, rate_hz, t, rec_poses, rec_dhat, rec_cmd, phase_index)
+    return SimResult(experiment, rate_hz, gains, limits, dist, t, rec_poses, rec_dhat, rec_cmd,
+                     phase_index)
 
 
 def _ratio(interval, dt, what):

@@ -1,0 +1,167 @@
+"""One robot's controller, free of ROS: what a formation_controller node runs each tick.
+
+Inputs arrive as plain numbers with stamps in seconds (any common clock): the active curve,
+the robot's own pose (arena frame, m and rad) and its in-neighbours' target errors. Each tick
+either computes a command with the paper's local law, or stops the robot (zero velocity)
+and says why: no curve yet, own pose stale, a neighbour missing, stale or on another curve.
+While stopped the disturbance estimate is frozen, so it does not wind up.
+"""
+
+from dataclasses import dataclass, field
+import math
+from typing import Optional
+
+from curve_formation.core.assignment import agent_parameters, check_assumptions
+from curve_formation.core.control import (
+    agent_input,
+    follower_feedback,
+    Gains,
+    leader_feedback,
+    NO_LIMITS,
+    offset_point,
+    saturate,
+    WheelLimits,
+)
+
+
+def is_stale(stamp, now, timeout):
+    """True when an input stamped `stamp` (s, None if never received) is older than timeout."""
+    return stamp is None or now - stamp > timeout
+
+
+def all_finite(*values):
+    return all(math.isfinite(v) for v in values)
+
+
+@dataclass(frozen=True)
+class AgentConfig:
+    """Static settings of one agent (index 1-based; agent 1 is the leader)."""
+
+    index: int
+    agent_count: int
+    neighbours: tuple = ()          # ((j, a_ij), ...) in-neighbours, empty for the leader
+    gains: Gains = Gains(1.0, 1.0, 0.01)
+    limits: WheelLimits = NO_LIMITS
+    rate_hz: float = 10.0
+    pose_timeout: float = 0.5       # s
+    neighbour_timeout: float = 0.5  # s
+    spacing: str = 'uniform_s'
+    fixed_s: Optional[float] = None  # overrides the spacing rule when given
+    pc_disturbance: tuple = (0.0, 0.0)  # added to the command before the limits (m/s, rad/s)
+
+    @property
+    def is_leader(self):
+        return self.index == 1
+
+
+@dataclass
+class Tick:
+    """Outcome of one control step. v, w (m/s, rad/s) are what to send; 0, 0 when stopped."""
+
+    v: float = 0.0
+    w: float = 0.0
+    stopped: Optional[str] = None
+    error: Optional[tuple] = None     # own e_i (m), published for out-neighbours
+    error_stamp: Optional[float] = None
+    curve_id: Optional[int] = None
+    dhat: tuple = (0.0, 0.0)
+    feedback: Optional[tuple] = None
+
+
+@dataclass
+class _Neighbour:
+    error: tuple = (0.0, 0.0)
+    curve_id: Optional[int] = None
+    stamp: Optional[float] = None
+
+
+@dataclass
+class AgentController:
+    """Local law of one agent with its estimator; feed it inputs, call tick() at rate_hz."""
+
+    config: AgentConfig
+    dhat: list = field(default_factory=lambda: [0.0, 0.0])
+
+    def __post_init__(self):
+        self.curve = None
+        self.curve_id = None
+        self.s = None
+        self.target = None
+        self.pose = None
+        self.pose_stamp = None
+        self.neighbours = {j: _Neighbour() for j, _ in self.config.neighbours}
+        self.rejected = 0
+
+    def set_curve(self, curve, curve_id):
+        """Adopt a new curve; raises ValueError (AssignmentError) if it breaks the assumptions."""
+        n = self.config.agent_count
+        s_all = agent_parameters(curve, n, self.config.spacing)
+        if self.config.fixed_s is not None:
+            s_all[self.config.index - 1] = self.config.fixed_s
+        check_assumptions(curve.basis, s_all)
+        self.curve, self.curve_id = curve, int(curve_id)
+        self.s = float(s_all[self.config.index - 1])
+        self.target = tuple(curve.points([self.s])[0])
+
+    def on_pose(self, x, y, theta, stamp):
+        """Own pose (arena frame). Returns False (and ignores it) if not finite."""
+        if not all_finite(x, y, theta, stamp):
+            self.rejected += 1
+            return False
+        self.pose, self.pose_stamp = (x, y, theta), stamp
+        return True
+
+    def on_neighbour(self, j, ex, ey, curve_id, stamp):
+        """In-neighbour j's error e_j (m) w.r.t. curve_id. False if unknown j or not finite."""
+        if j not in self.neighbours or not all_finite(ex, ey, stamp):
+            self.rejected += 1
+            return False
+        self.neighbours[j] = _Neighbour((ex, ey), int(curve_id), stamp)
+        return True
+
+    def own_error(self):
+        """e_i = xb_i - G(s_i) xi (m) from the latest pose, or None."""
+        if self.pose is None or self.target is None:
+            return None
+        bx, by = offset_point(*self.pose, self.config.gains.offset)
+        return bx - self.target[0], by - self.target[1]
+
+    def tick(self, now):
+        """One control step at time `now` (s)."""
+        cfg = self.config
+        if self.curve is None:
+            return self._stop('no curve received yet')
+        if is_stale(self.pose_stamp, now, cfg.pose_timeout):
+            return self._stop('no pose received yet' if self.pose_stamp is None else
+                              f'own pose stale ({now - self.pose_stamp:.2f} s old)')
+        ex, ey = self.own_error()
+        base = Tick(error=(ex, ey), error_stamp=self.pose_stamp, curve_id=self.curve_id)
+        if cfg.is_leader:
+            fx, fy = leader_feedback(ex, ey)
+        else:
+            for j, nb in self.neighbours.items():
+                if nb.stamp is None:
+                    return self._stop(f'no state from neighbour {j} yet', base)
+                if is_stale(nb.stamp, now, cfg.neighbour_timeout):
+                    return self._stop(f'neighbour {j} stale ({now - nb.stamp:.2f} s old)', base)
+                if nb.curve_id != self.curve_id:
+                    return self._stop(f'neighbour {j} is on curve {nb.curve_id}, this robot on '
+                                      f'{self.curve_id}', base)
+            fx, fy = follower_feedback(ex, ey, [nb.error for nb in self.neighbours.values()],
+                                       [w for _, w in cfg.neighbours])
+        gains = cfg.gains
+        v, w, ddv, ddw = agent_input(fx, fy, ex, ey, self.pose[2], self.dhat[0], self.dhat[1],
+                                     gains.k1, gains.k2, gains.offset)
+        period = 1.0 / cfg.rate_hz
+        self.dhat[0] += period * ddv
+        self.dhat[1] += period * ddw
+        v, w = saturate(v + cfg.pc_disturbance[0], w + cfg.pc_disturbance[1],
+                        cfg.limits.wheel_base, cfg.limits.max_wheel_speed,
+                        cfg.limits.max_angular_rate)
+        base.v, base.w, base.dhat, base.feedback = v, w, tuple(self.dhat), (fx, fy)
+        return base
+
+    def _stop(self, reason, base=None):
+        tick = base or Tick()
+        tick.v, tick.w, tick.stopped, tick.dhat = 0.0, 0.0, reason, tuple(self.dhat)
+        return tick

@@ -1,0 +1,26 @@
+"""QoS profiles, chosen for the data they carry."""
+
+from rclpy.qos import (
+                       DurabilityPolicy,
+                       HistoryPolicy,
+                       qos_profile_sensor_data,
+                       QoSProfile,
+                       ReliabilityPolicy,
+)
+
+
+# Poses and images: latest wins, drops are fine.
+SENSOR = qos_profile_sensor_data
+# Velocity commands: reliable, only the newest matters.
+COMMAND = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                     reliability=ReliabilityPolicy.RELIABLE)
+# A neighbour's state: reliable and shallow; stale values are rejected by stamp anyway.
+STATE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2,
+                   reliability=ReliabilityPolicy.RELIABLE)
+# The curve and its visualisation: latched, so a late joiner gets the current one.
+LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                     reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# Diagnostics and the e-stop: reliable, a few deep.
+EVENTS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5,
+                    reliability=ReliabilityPolicy.RELIABLE)
