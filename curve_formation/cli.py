@@ -66,6 +66,14 @@ def _cmd_demo(args):
     print(f'wrote {out}/ (one folder per experiment: metrics.json, figures)')
 
 
+def _cmd_run(args):
+    from curve_formation.runner import run_experiment
+    result = run_experiment(args.config, args.out, args.duration, args.single_process,
+                            with_robots=not args.no_sim, rate_hz=args.rate)
+    print(_summary_line(result['experiment'], result))
+    print(f'wrote {args.out}/metrics.json, figures, params/ and logs/')
+
+
 def build_parser():
     parser = argparse.ArgumentParser(prog='curve-formation', description=__doc__.split('\n')[0])
     sub = parser.add_subparsers(dest='command', required=True)
@@ -76,6 +84,16 @@ def build_parser():
     mode.add_argument('--rate', type=float, help='zero-order-hold control rate (Hz)')
     mode.add_argument('--continuous', action='store_true', help='continuous control')
     sim.set_defaults(func=_cmd_sim)
+    run = sub.add_parser('run', help='run the experiment as a ROS 2 node graph')
+    run.add_argument('config', help='experiment YAML path or shipped name')
+    run.add_argument('--out', default='out/run', help='output folder')
+    run.add_argument('--duration', type=float, help="seconds to run (default: the file's)")
+    run.add_argument('--rate', type=float, help="control rate (Hz; default: the file's or 10)")
+    run.add_argument('--single-process', action='store_true',
+                     help='all nodes in one process and executor')
+    run.add_argument('--no-sim', action='store_true',
+                     help='no fake robots: drive the real robots that publish /robot_<i>/pose')
+    run.set_defaults(func=_cmd_run)
     demo = sub.add_parser('demo', help='the headless demo: all paper cases')
     demo.add_argument('--out', default='out/demo')
     demo.set_defaults(func=_cmd_demo)

@@ -51,7 +51,8 @@ class AgentConfig:
 
     @property
     def is_leader(self):
-        return self.index == 1
+        """The leader is the agent that receives from nobody."""
+        return not self.neighbours
 
 
 @dataclass

@@ -1,0 +1,123 @@
+"""curve_server: publishes the desired curve of an experiment, switching on its schedule.
+
+Publishes /formation/curve (Float64MultiArray, latched: late joiners get the current curve),
+/formation/curve_path (nav_msgs/Path) and /formation/markers (MarkerArray: the curve and each
+agent's target point) for RViz. Accepts a newly observed curve as ordered sampled points on
+/formation/observed_curve (PolygonStamped), fits it and publishes it as the next curve.
+Curve ids count up from 0 in the order curves are published.
+"""
+
+from geometry_msgs.msg import Point, PolygonStamped, PoseStamped
+from nav_msgs.msg import Path
+import numpy as np
+from rclpy.node import Node
+from std_msgs.msg import ColorRGBA, Float64MultiArray
+from visualization_msgs.msg import Marker, MarkerArray
+
+from curve_formation.core.assignment import agent_parameters, AssignmentError, check_assumptions
+from curve_formation.core.curve_sources import point_samples
+from curve_formation.core.curves import CurveError, fit_curve, make_basis
+from curve_formation.core.experiment import ConfigError, load_experiment
+from curve_formation.nodes import messages, qos, topics
+from curve_formation.nodes.params import declare_parameters, Param, ParameterError
+from curve_formation.nodes.runtime import now_seconds, run_node
+from curve_formation.paths import resolve_config
+
+
+PARAMETERS = (
+    Param('experiment', 'string', None, 'experiment YAML (path or shipped name) whose curve '
+          'schedule is served'),
+    Param('path_samples', 'int', 200, 'points in the published Path and curve marker', low=3),
+    Param('observed_basis', 'string', 'fourier', 'basis for observed curves',
+          choices=('fourier', 'polynomial')),
+    Param('observed_size', 'int', 8, 'harmonics K (fourier) or order p (polynomial) for '
+          'observed curves', low=1),
+    Param('frame_id', 'string', 'arena', 'frame of the published curve'),
+)
+
+
+class CurveServer(Node):
+    """Publishes the experiment's curves on schedule and fits observed ones."""
+
+    def __init__(self, **kwargs):
+        super().__init__('curve_server', **kwargs)
+        self.params = declare_parameters(self, PARAMETERS)
+        try:
+            self.experiment = load_experiment(resolve_config(self.params.experiment))
+        except (ConfigError, FileNotFoundError) as exc:
+            raise ParameterError(f"parameter 'experiment': {exc}") from None
+        self.curve_pub = self.create_publisher(Float64MultiArray, topics.CURVE, qos.LATCHED)
+        self.path_pub = self.create_publisher(Path, topics.CURVE_PATH, qos.LATCHED)
+        self.marker_pub = self.create_publisher(MarkerArray, topics.CURVE_MARKERS, qos.LATCHED)
+        self.create_subscription(PolygonStamped, topics.OBSERVED_CURVE, self._on_observed,
+                                 qos.EVENTS)
+        self.next_id = 0
+        self.next_phase = 0
+        self.start = now_seconds(self)
+        self._on_timer()
+        self.create_timer(0.01, self._on_timer)
+
+    def _on_timer(self):
+        phases = self.experiment.phases
+        elapsed = now_seconds(self) - self.start
+        while self.next_phase < len(phases) and phases[self.next_phase].start <= elapsed:
+            phase = phases[self.next_phase]
+            self.next_phase += 1
+            self.publish_curve(phase.curve, phase.targets)
+
+    def publish_curve(self, curve, targets):
+        curve_id = self.next_id
+        self.next_id += 1
+        self.curve_pub.publish(messages.curve_to_msg(curve, curve_id))
+        stamp = self.get_clock().now().to_msg()
+        _, pts = curve.sample(self.params.path_samples)
+        if curve.basis.closed:
+            pts = np.vstack([pts, pts[:1]])
+        path = Path()
+        path.header.stamp, path.header.frame_id = stamp, self.params.frame_id
+        for x, y in pts:
+            pose = PoseStamped()
+            pose.header = path.header
+            pose.pose.position.x, pose.pose.position.y = float(x), float(y)
+            pose.pose.orientation.w = 1.0
+            path.poses.append(pose)
+        self.path_pub.publish(path)
+        self.marker_pub.publish(self._markers(pts, targets, stamp))
+        self.get_logger().info(f'published curve {curve_id} ({curve.basis.describe()})')
+
+    def _markers(self, pts, targets, stamp):
+        line = Marker(ns='curve', id=0, type=Marker.LINE_STRIP, action=Marker.ADD)
+        line.scale.x = 0.005 * max(1.0, float(np.ptp(pts, axis=0).max()))
+        line.color = ColorRGBA(r=0.1, g=0.1, b=0.1, a=1.0)
+        line.points = [Point(x=float(x), y=float(y)) for x, y in pts]
+        dots = Marker(ns='targets', id=1, type=Marker.SPHERE_LIST, action=Marker.ADD)
+        dots.scale.x = dots.scale.y = dots.scale.z = 3 * line.scale.x
+        dots.color = ColorRGBA(r=0.9, g=0.2, b=0.1, a=1.0)
+        dots.points = [Point(x=float(x), y=float(y)) for x, y in targets]
+        for marker in (line, dots):
+            marker.header.stamp, marker.header.frame_id = stamp, self.params.frame_id
+            marker.pose.orientation.w = 1.0
+        return MarkerArray(markers=[line, dots])
+
+    def _on_observed(self, msg):
+        points = np.array([[p.x, p.y] for p in msg.polygon.points], dtype=float)
+        try:
+            basis = make_basis(self.params.observed_basis, self.params.observed_size)
+            fit = fit_curve(basis, *point_samples(points, basis.closed))
+            n = self.experiment.n
+            s = agent_parameters(fit.curve, n, self.experiment.spec.agents.spacing)
+            check_assumptions(basis, s)
+        except (CurveError, AssignmentError) as exc:
+            self.get_logger().error(f'observed curve refused ({len(points)} points): {exc}')
+            return
+        self.get_logger().info(f'observed curve fitted from {len(points)} points, rms '
+                               f'residual {fit.rms_residual:.3g}')
+        self.publish_curve(fit.curve, fit.curve.points(s))
+
+
+def main(args=None):
+    return run_node(CurveServer, args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,89 @@
+"""fake_robot: a Mona stand-in for tests and demos, in namespace /robot_<i>.
+
+Integrates the unicycle exactly from the latest cmd_vel plus its constant (physical) input
+disturbance at `rate_hz`, and publishes pose (PoseStamped, arena frame). A zero command means
+motors off: the robot stands still (the disturbance acts on a driven input only). Options:
+Gaussian pose noise and a fixed command latency.
+"""
+
+from collections import deque
+import math
+
+from geometry_msgs.msg import PoseStamped, Twist
+import numpy as np
+from rclpy.node import Node
+
+from curve_formation.core.dynamics import arc_step
+from curve_formation.nodes import messages, qos, topics
+from curve_formation.nodes.params import declare_parameters, Param, ParameterError
+from curve_formation.nodes.runtime import now_seconds, run_node
+
+
+PARAMETERS = (
+    Param('index', 'int', 1, 'robot number i (for logs)', low=1),
+    Param('initial_pose', 'double[]', [0.0, 0.0, 0.0], 'start pose [x, y, theta] (m, rad)'),
+    Param('rate_hz', 'double', 100.0, 'integration and pose publishing rate (Hz)',
+          positive=True),
+    Param('disturbance', 'double[]', [0.0, 0.0], 'constant input disturbance [d_v, d_w] '
+          '(m/s, rad/s) added to a non-zero command'),
+    Param('pose_noise', 'double[]', [0.0, 0.0], 'std of Gaussian noise on the published '
+          'position (m) and heading (rad)'),
+    Param('command_latency', 'double', 0.0, 'delay before a command takes effect (s)',
+          low=0.0),
+    Param('seed', 'int', 0, 'seed of the pose noise'),
+    Param('frame_id', 'string', 'arena', 'frame of the published pose'),
+)
+
+
+class FakeRobot(Node):
+    """Unicycle integrated from cmd_vel; pure maths in core.dynamics.arc_step."""
+
+    def __init__(self, **kwargs):
+        super().__init__('fake_robot', **kwargs)
+        p = self.params = declare_parameters(self, PARAMETERS)
+        for name, size in (('initial_pose', 3), ('disturbance', 2), ('pose_noise', 2)):
+            if len(getattr(p, name)) != size:
+                raise ParameterError(f'parameter {name!r} must have {size} values, got '
+                                     f'{getattr(p, name)}')
+        self.pose = list(p.initial_pose)
+        self.command = (0.0, 0.0)
+        self.pending = deque()
+        self.rng = np.random.default_rng(p.seed)
+        self.last_time = None
+        self.pose_pub = self.create_publisher(PoseStamped, topics.POSE, qos.SENSOR)
+        self.create_subscription(Twist, topics.CMD_VEL, self._on_cmd, qos.COMMAND)
+        self.create_timer(1.0 / p.rate_hz, self._on_timer)
+
+    def _on_cmd(self, msg):
+        v, w = messages.twist_from_msg(msg)
+        if not (math.isfinite(v) and math.isfinite(w)):
+            self.get_logger().warning('non-finite cmd_vel ignored', throttle_duration_sec=1.0)
+            return
+        self.pending.append((now_seconds(self) + self.params.command_latency, v, w))
+
+    def _on_timer(self):
+        now = now_seconds(self)
+        while self.pending and self.pending[0][0] <= now:
+            _, v, w = self.pending.popleft()
+            self.command = (v, w)
+        if self.last_time is not None:
+            v, w = self.command
+            if v != 0.0 or w != 0.0:
+                d = self.params.disturbance
+                self.pose = list(arc_step(*self.pose, v + d[0], w + d[1], now - self.last_time))
+        self.last_time = now
+        noise = self.params.pose_noise
+        x, y, th = self.pose
+        if noise[0] > 0 or noise[1] > 0:
+            x += self.rng.normal(0, noise[0])
+            y += self.rng.normal(0, noise[0])
+            th += self.rng.normal(0, noise[1])
+        self.pose_pub.publish(messages.pose_to_msg(x, y, th, now, self.params.frame_id))
+
+
+def main(args=None):
+    return run_node(FakeRobot, args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,177 @@
+"""formation_controller: one robot's leader/follower law, in namespace /robot_<i>.
+
+Subscribes: pose (own, PoseStamped, arena frame), /robot_<j>/formation_state of each
+in-neighbour j, /formation/curve. Publishes at `rate_hz`: cmd_vel (Twist), and on every pose
+its formation_state (target error e_i for out-neighbours), disturbance_estimate, and
+/diagnostics. Any missing or stale input gives a zero Twist and a warning, never a stale
+command. All the maths is core.agent.AgentController.
+"""
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PointStamped, PoseStamped, Twist, Vector3Stamped
+from rclpy.node import Node
+from std_msgs.msg import Float64MultiArray
+
+from curve_formation.core.agent import AgentConfig, AgentController
+from curve_formation.core.assignment import AssignmentError, SPACINGS
+from curve_formation.core.control import Gains, WheelLimits
+from curve_formation.nodes import messages, qos, topics
+from curve_formation.nodes.params import declare_parameters, Param, ParameterError
+from curve_formation.nodes.runtime import now_seconds, run_node
+
+
+PARAMETERS = (
+    Param('index', 'int', None, "this robot's agent number i (1 = leader)", low=1),
+    Param('agent_count', 'int', None, 'number of agents n in the formation', low=1),
+    Param('role', 'string', 'follower', 'leader (receives from nobody) or follower',
+          choices=('leader', 'follower')),
+    Param('in_neighbours', 'int[]', [], 'agents j this robot receives from (empty for the '
+          'leader)'),
+    Param('weights', 'double[]', [], 'edge weights a_ij, one per in-neighbour (empty = all 1)'),
+    Param('k1', 'double', 1.0, 'gain on the target error (1/s)', positive=True),
+    Param('k2', 'double', 1.0, 'disturbance estimator gain', low=0.0),
+    Param('offset', 'double', 0.01, 'offset l of the control point ahead of the axle (m), '
+          'non-zero'),
+    Param('rate_hz', 'double', 10.0, 'control rate (Hz)', positive=True),
+    Param('wheel_base', 'double', 0.0, 'distance between the wheels (m); 0 = no wheel limit',
+          low=0.0),
+    Param('max_wheel_speed', 'double', 0.0, 'max linear speed of each wheel (m/s); 0 = '
+          'unlimited', low=0.0),
+    Param('max_angular_rate', 'double', 0.0, 'max |w| (rad/s); 0 = unlimited', low=0.0),
+    Param('spacing', 'string', 'uniform_s', 'how s_i is derived from each curve',
+          choices=SPACINGS),
+    Param('s', 'double', -1.0, 'fixed curve parameter s_i in [0, 1]; negative = derive from '
+          '`spacing`', high=1.0),
+    Param('pose_timeout', 'double', 0.5, 'own pose older than this stops the robot (s)',
+          positive=True),
+    Param('neighbour_timeout', 'double', 0.5, 'neighbour state older than this stops the '
+          'robot (s)', positive=True),
+    Param('pc_disturbance', 'double[]', [0.0, 0.0], 'disturbance [d_v, d_w] added to the '
+          "command before the wheel limits (the paper's arena experiment); normally zero"),
+    Param('frame_id', 'string', 'arena', 'frame of poses and errors'),
+)
+
+
+def agent_config(p):
+    """AgentConfig from validated parameters; ParameterError on inconsistent ones."""
+    if p.offset == 0:
+        raise ParameterError("parameter 'offset' must be non-zero")
+    if p.index > p.agent_count:
+        raise ParameterError(f"parameter 'index' ({p.index}) exceeds 'agent_count' "
+                             f'({p.agent_count})')
+    weights = p.weights or [1.0] * len(p.in_neighbours)
+    if len(weights) != len(p.in_neighbours):
+        raise ParameterError(f"parameter 'weights' has {len(weights)} entries but "
+                             f"'in_neighbours' has {len(p.in_neighbours)}")
+    if any(w <= 0 for w in weights):
+        raise ParameterError(f"parameter 'weights' must all be > 0, got {weights}")
+    bad = [j for j in p.in_neighbours if not 1 <= j <= p.agent_count or j == p.index]
+    if bad or len(set(p.in_neighbours)) != len(p.in_neighbours):
+        raise ParameterError(f"parameter 'in_neighbours' {p.in_neighbours} must be distinct "
+                             f'agents 1..{p.agent_count} other than this one ({p.index})')
+    if (p.role == 'leader') != (not p.in_neighbours):
+        raise ParameterError(f"parameter 'role' is {p.role!r} but 'in_neighbours' is "
+                             f'{p.in_neighbours}: the leader receives from nobody, a follower '
+                             'from at least one agent')
+    if len(p.pc_disturbance) != 2:
+        raise ParameterError("parameter 'pc_disturbance' must be [d_v, d_w]")
+    inf = float('inf')
+    return AgentConfig(
+        index=p.index, agent_count=p.agent_count,
+        neighbours=tuple(zip(p.in_neighbours, weights, strict=True)),
+        gains=Gains(p.k1, p.k2, p.offset),
+        limits=WheelLimits(p.wheel_base, p.max_wheel_speed or inf, p.max_angular_rate or inf),
+        rate_hz=p.rate_hz, pose_timeout=p.pose_timeout, neighbour_timeout=p.neighbour_timeout,
+        spacing=p.spacing, fixed_s=p.s if p.s >= 0 else None,
+        pc_disturbance=tuple(p.pc_disturbance))
+
+
+class FormationController(Node):
+    """Thin ROS layer over core.agent.AgentController."""
+
+    def __init__(self, **kwargs):
+        super().__init__('formation_controller', **kwargs)
+        self.params = declare_parameters(self, PARAMETERS)
+        self.config = agent_config(self.params)
+        self.controller = AgentController(self.config)
+        self._last_reason = None
+        self.cmd_pub = self.create_publisher(Twist, topics.CMD_VEL, qos.COMMAND)
+        self.state_pub = self.create_publisher(PointStamped, topics.STATE, qos.STATE)
+        self.estimate_pub = self.create_publisher(Vector3Stamped, topics.ESTIMATE, qos.STATE)
+        self.diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.EVENTS)
+        self.create_subscription(PoseStamped, topics.POSE, self._on_pose, qos.SENSOR)
+        self.create_subscription(Float64MultiArray, topics.CURVE, self._on_curve, qos.LATCHED)
+        for j, _ in self.config.neighbours:
+            self.create_subscription(PointStamped, topics.robot_topic(j, topics.STATE),
+                                     lambda msg, j=j: self._on_neighbour(j, msg), qos.STATE)
+        self.create_timer(1.0 / self.config.rate_hz, self._on_timer)
+        self.create_timer(1.0, self._publish_diagnostics)
+        role = 'leader' if self.config.is_leader else (
+            f'follower of {[j for j, _ in self.config.neighbours]}')
+        self.get_logger().info(f'agent {self.config.index}/{self.config.agent_count}, {role}, '
+                               f'{self.config.rate_hz:g} Hz')
+
+    def _on_curve(self, msg):
+        try:
+            curve, curve_id = messages.curve_from_msg(msg)
+            self.controller.set_curve(curve, curve_id)
+        except (messages.MessageError, AssignmentError, ValueError) as exc:
+            self.get_logger().error(f'curve refused, keeping the previous one: {exc}')
+            return
+        self.get_logger().info(f'curve {curve_id} ({curve.basis.describe()}), '
+                               f's_i = {self.controller.s:.4f}')
+
+    def _on_pose(self, msg):
+        if not self.controller.on_pose(*messages.pose_from_msg(msg)):
+            self.get_logger().warning('non-finite pose rejected', throttle_duration_sec=1.0)
+            return
+        error = self.controller.own_error()
+        if error is not None:
+            self.state_pub.publish(messages.state_to_msg(
+                error, self.controller.curve_id, self.controller.pose_stamp,
+                self.params.frame_id))
+
+    def _on_neighbour(self, j, msg):
+        if not self.controller.on_neighbour(j, *messages.state_from_msg(msg)):
+            self.get_logger().warning(f'non-finite state from neighbour {j} rejected',
+                                      throttle_duration_sec=1.0)
+
+    def _on_timer(self):
+        now = now_seconds(self)
+        tick = self.controller.tick(now)
+        self.cmd_pub.publish(messages.twist_to_msg(tick.v, tick.w))
+        self.estimate_pub.publish(messages.estimate_to_msg(tick.dhat, now))
+        if tick.stopped != self._last_reason:
+            if tick.stopped:
+                self.get_logger().warning(f'stopped: {tick.stopped}')
+            elif self._last_reason is not None:
+                self.get_logger().info('driving')
+            self._last_reason = tick.stopped
+            self._publish_diagnostics()
+
+    def _publish_diagnostics(self):
+        c = self.controller
+        status = DiagnosticStatus(
+            level=DiagnosticStatus.WARN if self._last_reason else DiagnosticStatus.OK,
+            name=f'{self.get_fully_qualified_name()}',
+            message=f'stopped: {self._last_reason}' if self._last_reason else 'driving',
+            hardware_id=f'robot_{self.config.index}',
+            values=[KeyValue(key='curve_id', value=str(c.curve_id)),
+                    KeyValue(key='s', value=f'{c.s}'),
+                    KeyValue(key='dhat', value=f'{c.dhat[0]:.6g} {c.dhat[1]:.6g}'),
+                    KeyValue(key='rejected_inputs', value=str(c.rejected))])
+        msg = DiagnosticArray(status=[status])
+        msg.header.stamp = self.get_clock().now().to_msg()
+        self.diag_pub.publish(msg)
+
+    def on_shutdown(self):
+        """Leave the robot stopped."""
+        self.cmd_pub.publish(Twist())
+
+
+def main(args=None):
+    return run_node(FormationController, args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,97 @@
+"""Monitor: samples every robot's pose, command and estimate, as the runner's observer.
+
+t = 0 is when the first curve arrives. Rows are sampled at `record_hz` from the latest values
+(NaN until a value is seen). Not a console script: the runner and tests create it in-process.
+"""
+
+from dataclasses import dataclass, field
+import math
+
+from geometry_msgs.msg import PoseStamped, Twist, Vector3Stamped
+import numpy as np
+from rclpy.node import Node
+from std_msgs.msg import Float64MultiArray
+
+from curve_formation.nodes import messages, qos, topics
+from curve_formation.nodes.runtime import now_seconds
+
+
+@dataclass
+class Recording:
+    """What the monitor sampled: t (s since the first curve), poses (R, n, 3), ..."""
+
+    t: list = field(default_factory=list)
+    poses: list = field(default_factory=list)
+    commands: list = field(default_factory=list)
+    dhat: list = field(default_factory=list)
+    curve_id: list = field(default_factory=list)
+
+    def arrays(self):
+        return {name: np.array(getattr(self, name)) for name in
+                ('t', 'poses', 'commands', 'dhat', 'curve_id')}
+
+
+class Monitor(Node):
+    """Subscribes to all robots' topics and keeps a Recording."""
+
+    def __init__(self, n, record_hz=20.0, **kwargs):
+        super().__init__('formation_monitor', **kwargs)
+        self.n = n
+        self.poses = np.full((n, 3), np.nan)
+        self.pose_stamps = np.full(n, np.nan)
+        self.commands = np.full((n, 2), np.nan)
+        self.command_times = np.full(n, np.nan)
+        self.dhat = np.full((n, 2), np.nan)
+        self.curve_id = None
+        self.t0 = None
+        self.recording = Recording()
+        for i in range(1, n + 1):
+            self.create_subscription(PoseStamped, topics.robot_topic(i, topics.POSE),
+                                     lambda m, i=i: self._on_pose(i, m), qos.SENSOR)
+            self.create_subscription(Twist, topics.robot_topic(i, topics.CMD_VEL),
+                                     lambda m, i=i: self._on_cmd(i, m), qos.COMMAND)
+            self.create_subscription(Vector3Stamped, topics.robot_topic(i, topics.ESTIMATE),
+                                     lambda m, i=i: self._on_estimate(i, m), qos.STATE)
+        self.create_subscription(Float64MultiArray, topics.CURVE, self._on_curve, qos.LATCHED)
+        self.create_timer(1.0 / record_hz, self._sample)
+
+    def _on_pose(self, i, msg):
+        x, y, th, stamp = messages.pose_from_msg(msg)
+        self.poses[i - 1] = (x, y, th)
+        self.pose_stamps[i - 1] = stamp
+
+    def _on_cmd(self, i, msg):
+        self.commands[i - 1] = messages.twist_from_msg(msg)
+        self.command_times[i - 1] = now_seconds(self)
+
+    def _on_estimate(self, i, msg):
+        self.dhat[i - 1] = (msg.vector.x, msg.vector.y)
+
+    def _on_curve(self, msg):
+        _, self.curve_id = messages.curve_from_msg(msg)
+        if self.t0 is None:
+            self.t0 = now_seconds(self)
+
+    def ready(self):
+        """Every robot's pose and every controller's command has been seen."""
+        return not self.missing()
+
+    def missing(self):
+        return ([f'/robot_{i + 1}/pose' for i in np.flatnonzero(np.isnan(self.pose_stamps))]
+                + [f'/robot_{i + 1}/cmd_vel'
+                   for i in np.flatnonzero(np.isnan(self.command_times))])
+
+    def _sample(self):
+        if self.t0 is None:
+            return
+        rec = self.recording
+        rec.t.append(now_seconds(self) - self.t0)
+        rec.poses.append(self.poses.copy())
+        rec.commands.append(self.commands.copy())
+        rec.dhat.append(self.dhat.copy())
+        rec.curve_id.append(self.curve_id)
+
+    def command_age(self, i):
+        """Seconds since robot i's last cmd_vel (inf if none)."""
+        t = self.command_times[i - 1]
+        return math.inf if np.isnan(t) else now_seconds(self) - t

@@ -1,0 +1,127 @@
+"""Declare and validate a node's parameters in one place, from a table of Param entries.
+
+Each Param has a default, a description and optional bounds; the table is also what the README's
+parameter tables are generated from (`curve-formation params-doc`), so they cannot drift apart.
+"""
+
+from dataclasses import dataclass
+import math
+from types import SimpleNamespace
+from typing import Optional
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.exceptions import (
+    InvalidParameterTypeException,
+    InvalidParameterValueException,
+    ParameterUninitializedException,
+)
+from rclpy.parameter import Parameter
+
+
+class ParameterError(ValueError):
+    """A parameter value refused at start; the message names the parameter."""
+
+
+_ARRAY_TYPES = {'double[]': Parameter.Type.DOUBLE_ARRAY, 'int[]': Parameter.Type.INTEGER_ARRAY,
+                'string[]': Parameter.Type.STRING_ARRAY}
+
+
+@dataclass(frozen=True)
+class Param:
+    """One parameter: name, default (None = required), description, bounds and choices.
+
+    kind: 'double', 'int', 'bool', 'string' or an array kind ('double[]', 'int[]').
+    low/high: inclusive bounds; positive: must be > 0; choices: allowed strings.
+    """
+
+    name: str
+    kind: str
+    default: object
+    description: str
+    low: Optional[float] = None
+    high: Optional[float] = None
+    positive: bool = False
+    choices: tuple = ()
+    read_only: bool = True
+
+    def descriptor(self):
+        desc = ParameterDescriptor(description=self.description, read_only=self.read_only)
+        if self.choices:
+            desc.additional_constraints = f'one of {", ".join(self.choices)}'
+        if self.low is not None or self.high is not None:
+            low = -math.inf if self.low is None else self.low
+            high = math.inf if self.high is None else self.high
+            if self.kind == 'int':
+                desc.integer_range = [IntegerRange(from_value=int(max(low, -2**62)),
+                                                   to_value=int(min(high, 2**62)), step=0)]
+            elif self.kind == 'double':
+                desc.floating_point_range = [FloatingPointRange(from_value=float(low),
+                                                                to_value=float(high), step=0.0)]
+        return desc
+
+    def doc_default(self):
+        if self.default is None:
+            return '(required)'
+        return repr(self.default)
+
+
+def declare_parameters(node, table):
+    """Declare every Param of table on node; returns a namespace of validated values.
+
+    Raises ParameterError naming the parameter on a missing, mistyped or out-of-range value.
+    """
+    values = {}
+    for p in table:
+        default = p.default
+        if default is None or (isinstance(default, list) and not default):
+            default = _ARRAY_TYPES.get(p.kind) or _scalar_type(p.kind)
+        try:
+            node.declare_parameter(p.name, default, p.descriptor())
+            value = node.get_parameter(p.name).value
+        except ParameterUninitializedException:
+            if p.default is None:
+                raise ParameterError(
+                    f'parameter {p.name!r} is required: {p.description}') from None
+            value = list(p.default)
+        except InvalidParameterTypeException as exc:
+            raise ParameterError(f'parameter {p.name!r} has the wrong type, expected {p.kind} '
+                                 f'({p.description}): {exc}') from None
+        except InvalidParameterValueException as exc:
+            raise ParameterError(f'parameter {p.name!r} is out of range: {exc}') from None
+        values[p.name] = _validate(p, value)
+    return SimpleNamespace(**values)
+
+
+def _scalar_type(kind):
+    return {'double': Parameter.Type.DOUBLE, 'int': Parameter.Type.INTEGER,
+            'bool': Parameter.Type.BOOL, 'string': Parameter.Type.STRING}[kind]
+
+
+def _validate(p, value):
+    items = list(value) if p.kind.endswith('[]') else [value]
+    for item in items:
+        if isinstance(item, float) and not math.isfinite(item):
+            raise ParameterError(f'parameter {p.name!r} must be finite, got {value!r}')
+        if p.positive and not item > 0:
+            raise ParameterError(f'parameter {p.name!r} must be > 0, got {value!r} '
+                                 f'({p.description})')
+        if p.choices and item not in p.choices:
+            raise ParameterError(f'parameter {p.name!r} must be one of {list(p.choices)}, got '
+                                 f'{value!r}')
+    return list(value) if p.kind.endswith('[]') else value
+
+
+def markdown_table(table):
+    """The table as Markdown rows: name, type, default, description."""
+    rows = ['| parameter | type | default | meaning |', '| --- | --- | --- | --- |']
+    for p in table:
+        bounds = ''
+        if p.positive:
+            bounds = ' (> 0)'
+        elif p.low is not None or p.high is not None:
+            bounds = f' ([{p.low if p.low is not None else "-inf"}, '
+            bounds += f'{p.high if p.high is not None else "inf"}])'
+        choices = f' One of: {", ".join(p.choices)}.' if p.choices else ''
+        rows.append(f'| `{p.name}` | {p.kind} | `{p.doc_default()}` | {p.description}{bounds}.'
+                    f'{choices} |')
+    return '\n'.join(rows)

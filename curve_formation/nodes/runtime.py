@@ -1,0 +1,49 @@
+"""Running a node as a console script: init, spin, clean shutdown, clear start-up errors."""
+
+import signal
+import sys
+
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.signals import SignalHandlerOptions
+
+from curve_formation.nodes.params import ParameterError
+
+
+def now_seconds(node):
+    """The node's clock (sim time when use_sim_time is set) in seconds."""
+    return node.get_clock().now().nanoseconds * 1e-9
+
+
+def run_node(node_factory, args=None):
+    """Create the node, spin it until Ctrl-C or shutdown, then shut it down cleanly.
+
+    A ParameterError at start ends the process with one line on stderr and exit status 2.
+    A node may define on_shutdown() (e.g. to send a last zero command); it runs before the
+    node is destroyed, which is why rclpy's own SIGINT handler (it would shut the context
+    down first) is replaced: SIGINT and SIGTERM both raise KeyboardInterrupt here.
+    """
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    signal.signal(signal.SIGTERM, _interrupt)
+    node = None
+    status = 0
+    try:
+        node = node_factory()
+        rclpy.spin(node)
+    except ParameterError as exc:
+        print(f'error: {exc}', file=sys.stderr)
+        status = 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            hook = getattr(node, 'on_shutdown', None)
+            if hook is not None and rclpy.ok():
+                hook()
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return status
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt(f'signal {signum}')

@@ -1,0 +1,300 @@
+"""`curve-formation run`: one experiment YAML -> a ROS 2 node graph, run, measured.
+
+Writes one parameters file per node into OUT/params/ (usable by hand with `ros2 run ...
+--ros-args -r __ns:=/robot_3 --params-file OUT/params/robot_3.formation_controller.yaml`),
+starts every node as its own process (or all in one executor with single_process), waits until
+every robot's pose and every controller's cmd_vel is seen, then starts the curve server (t = 0).
+A monitor node in this process samples poses, commands and estimates; at the end (or on
+Ctrl-C) all nodes are stopped with SIGINT and metrics and figures are written.
+"""
+
+from dataclasses import dataclass
+import json
+import os
+from pathlib import Path
+import random
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import yaml
+
+from curve_formation.core import metrics, plots
+from curve_formation.core.experiment import load_experiment
+from curve_formation.paths import resolve_config
+
+
+DEFAULT_RATE_HZ = 10.0
+READY_TIMEOUT = 90.0   # s; nine Python processes start in ~10 s on two cores
+
+
+@dataclass(frozen=True)
+class NodeLaunch:
+    """One node to start: its module, namespace, name and parameters."""
+
+    module: str
+    namespace: str
+    name: str
+    parameters: dict
+
+    @property
+    def key(self):
+        return f'{self.namespace.strip("/") + "." if self.namespace != "/" else ""}{self.name}'
+
+
+def node_launches(experiment, experiment_path, with_robots=True, rate_hz=None,
+                  pose_noise=(0.0, 0.0), command_latency=0.0):
+    """The node graph of an experiment: curve server, controllers and (optionally) fake robots."""
+    spec = experiment.spec
+    rate = rate_hz or spec.controller.rate_hz or DEFAULT_RATE_HZ
+    on_pc = spec.disturbance.injected == 'on_pc'
+    limits = experiment.limits
+    launches = [NodeLaunch('curve_formation.nodes.curve_server', '/', 'curve_server',
+                           {'experiment': str(Path(experiment_path).resolve())})]
+    for i in range(1, experiment.n + 1):
+        ns = f'/robot_{i}'
+        nbrs = experiment.graph.in_neighbours(i)
+        d = [float(v) for v in experiment.disturbance[i - 1]]
+        controller = {
+            'index': i, 'agent_count': experiment.n,
+            'role': 'follower' if nbrs else 'leader',
+            'k1': experiment.gains.k1, 'k2': experiment.gains.k2,
+            'offset': experiment.gains.offset, 'rate_hz': float(rate),
+            'wheel_base': float(limits.wheel_base),
+            'max_wheel_speed': _finite_or_zero(limits.max_wheel_speed),
+            'max_angular_rate': _finite_or_zero(limits.max_angular_rate),
+            'spacing': spec.agents.spacing,
+            'pc_disturbance': d if on_pc else [0.0, 0.0],
+        }
+        if nbrs:
+            controller['in_neighbours'] = [j for j, _ in nbrs]
+            controller['weights'] = [w for _, w in nbrs]
+        launches.append(NodeLaunch('curve_formation.nodes.formation_controller', ns,
+                                   'formation_controller', controller))
+        if with_robots:
+            launches.append(NodeLaunch('curve_formation.nodes.fake_robot', ns, 'fake_robot', {
+                'index': i,
+                'initial_pose': [float(v) for v in experiment.initial_poses[i - 1]],
+                'disturbance': [0.0, 0.0] if on_pc else d, 'seed': i,
+                'pose_noise': [float(v) for v in pose_noise],
+                'command_latency': float(command_latency)}))
+    return launches
+
+
+def _finite_or_zero(value):
+    return float(value) if np.isfinite(value) else 0.0
+
+
+def write_params_files(launches, folder):
+    """One ROS 2 parameters file per node; returns {key: path}."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = {}
+    for launch in launches:
+        fqn = (launch.namespace.rstrip('/') + '/' + launch.name)
+        path = folder / f'{launch.key}.yaml'
+        path.write_text(yaml.safe_dump({fqn: {'ros__parameters': launch.parameters}},
+                                       sort_keys=False))
+        paths[launch.key] = path
+    return paths
+
+
+def private_domain_id():
+    """ROS_DOMAIN_ID from the environment, else a random one in 1..101 for this run."""
+    given = os.environ.get('ROS_DOMAIN_ID')
+    return int(given) if given else random.SystemRandom().randint(1, 101)
+
+
+class Run:
+    """A running node graph: start(), spin_until(...), stop(). Use as a context manager."""
+
+    def __init__(self, experiment_path, out_dir, single_process=False, with_robots=True,
+                 rate_hz=None, record_hz=20.0, pose_noise=(0.0, 0.0), command_latency=0.0,
+                 log=print):
+        self.experiment_path = resolve_config(experiment_path)
+        self.experiment = load_experiment(self.experiment_path)
+        self.out = Path(out_dir)
+        self.single_process = single_process
+        self.log = log
+        self.launches = node_launches(self.experiment, self.experiment_path, with_robots,
+                                      rate_hz, pose_noise, command_latency)
+        self.param_files = write_params_files(self.launches, self.out / 'params')
+        self.domain_id = private_domain_id()
+        self.record_hz = record_hz
+        self.processes = {}
+        self.in_process_nodes = []
+
+    # -- lifecycle -------------------------------------------------------------------------
+    def __enter__(self):
+        self.start()
+        return self
+
+    def __exit__(self, *exc):
+        self.stop()
+
+    def start(self):
+        os.environ['ROS_DOMAIN_ID'] = str(self.domain_id)
+        os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
+
+        from curve_formation.nodes.monitor import Monitor
+        self.rclpy = rclpy
+        self.context = Context()
+        rclpy.init(context=self.context)
+        self.monitor = Monitor(self.experiment.n, self.record_hz, context=self.context)
+        self.executor = (MultiThreadedExecutor(num_threads=2, context=self.context)
+                         if self.single_process else SingleThreadedExecutor(context=self.context))
+        self.executor.add_node(self.monitor)
+        self.log(f'ROS_DOMAIN_ID={self.domain_id}; parameters in {self.out / "params"}')
+        robots = [launch for launch in self.launches if launch.name != 'curve_server']
+        for launch in robots:
+            self._start_node(launch)
+        self._wait_ready()
+        self._start_node(self.launches[0])
+        self.spin_until(lambda: self.monitor.t0 is not None, 30.0, 'the first curve')
+        self.log('curve server started: t = 0')
+
+    def _start_node(self, launch):
+        if self.single_process:
+            node = _node_class(launch.module)(
+                context=self.context, namespace=launch.namespace,
+                parameter_overrides=_overrides(launch.parameters))
+            self.in_process_nodes.append(node)
+            self.executor.add_node(node)
+            return
+        logs = self.out / 'logs'
+        logs.mkdir(parents=True, exist_ok=True)
+        env = dict(os.environ, ROS_DOMAIN_ID=str(self.domain_id), PYTHONUNBUFFERED='1')
+        cmd = [sys.executable, '-m', launch.module, '--ros-args', '-r',
+               f'__ns:={launch.namespace}', '--params-file', str(self.param_files[launch.key])]
+        with open(logs / f'{launch.key}.log', 'w') as log_file:
+            self.processes[launch.key] = subprocess.Popen(
+                cmd, env=env, stdout=log_file, stderr=subprocess.STDOUT,
+                start_new_session=True)
+
+    def _wait_ready(self):
+        def ready():
+            self.check_processes()
+            return self.monitor.ready()
+        try:
+            self.spin_until(ready, READY_TIMEOUT, "every robot's pose and cmd_vel")
+        except TimeoutError as exc:
+            raise TimeoutError(f'{exc}; missing: {self.monitor.missing()}') from None
+
+    def spin_until(self, predicate, timeout, what='a condition'):
+        """Spin the monitor (and in-process nodes) until predicate() or timeout (s)."""
+        deadline = time.monotonic() + timeout
+        while not predicate():
+            if time.monotonic() > deadline:
+                raise TimeoutError(f'timed out after {timeout:g} s waiting for {what}')
+            self.executor.spin_once(timeout_sec=0.02)
+
+    def spin_for(self, seconds):
+        end = time.monotonic() + seconds
+        self.spin_until(lambda: time.monotonic() >= end or self.check_processes(), seconds + 5)
+
+    def check_processes(self):
+        """Raise if a node process ended on its own; returns False otherwise."""
+        for key, proc in self.processes.items():
+            if proc.poll() is not None:
+                tail = (self.out / 'logs' / f'{key}.log').read_text()[-2000:]
+                raise RuntimeError(f'node {key} exited with status {proc.returncode}:\n{tail}')
+        return False
+
+    def kill(self, key, sig=signal.SIGKILL):
+        """Kill one node process (fault injection); it is forgotten by check_processes."""
+        proc = self.processes.pop(key)
+        proc.send_signal(sig)
+        proc.wait(10)
+        return proc.returncode
+
+    def restart(self, key):
+        self._start_node(next(launch for launch in self.launches if launch.key == key))
+
+    def stop(self):
+        """SIGINT every node (they send a last zero command), then kill what lingers."""
+        for proc in self.processes.values():
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGINT)
+        for proc in self.processes.values():
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(5)
+        self.processes = {}
+        if getattr(self, 'context', None) is None:
+            return
+        for node in self.in_process_nodes:
+            hook = getattr(node, 'on_shutdown', None)
+            if hook is not None:
+                hook()
+        self.executor.shutdown(timeout_sec=1.0)
+        for node in self.in_process_nodes + [self.monitor]:
+            node.destroy_node()
+        self.rclpy.try_shutdown(context=self.context)
+        self.context = None
+
+    # -- results ---------------------------------------------------------------------------
+    def recording(self):
+        return self.monitor.recording.arrays()
+
+    def write_results(self, label='ROS run'):
+        """metrics.json, figures and trajectory.npz from what the monitor recorded."""
+        data = self.recording()
+        if len(data['t']) < 2:
+            raise RuntimeError('nothing was recorded')
+        phase = phases_of(data['curve_id'], len(self.experiment.phases))
+        result = metrics.run_metrics(self.experiment, data['t'], data['poses'], phase,
+                                     data['dhat'], data['commands'])
+        result['control'] = f'ROS nodes at {self.launches[1].parameters["rate_hz"]:g} Hz'
+        result['mode'] = 'single process' if self.single_process else 'one process per node'
+        self.out.mkdir(parents=True, exist_ok=True)
+        (self.out / 'metrics.json').write_text(json.dumps(result, indent=2) + '\n')
+        plots.run_figures(self.out, self.experiment, data['t'], data['poses'], phase,
+                          data['dhat'], label=label)
+        np.savez_compressed(self.out / 'trajectory.npz', phase=phase, **data)
+        return result
+
+
+def phases_of(curve_ids, phase_count):
+    """Phase index per sample from the curve id seen (ids count up with the schedule)."""
+    return np.clip(np.asarray(curve_ids, dtype=int), 0, phase_count - 1)
+
+
+NODE_CLASSES = {'curve_formation.nodes.curve_server': 'CurveServer',
+                'curve_formation.nodes.formation_controller': 'FormationController',
+                'curve_formation.nodes.fake_robot': 'FakeRobot'}
+
+
+def _node_class(module):
+    import importlib
+    return getattr(importlib.import_module(module), NODE_CLASSES[module])
+
+
+def _overrides(parameters):
+    from rclpy.parameter import Parameter
+    return [Parameter(name, value=value) for name, value in parameters.items()]
+
+
+def run_experiment(config, out_dir, duration=None, single_process=False, with_robots=True,
+                   rate_hz=None, log=print):
+    """Run an experiment's node graph for `duration` s (default: the file's) and measure it."""
+    run = Run(config, out_dir, single_process, with_robots, rate_hz, log=log)
+    duration = run.experiment.spec.simulation.duration if duration is None else duration
+    interrupted = False
+    try:
+        run.start()
+        run.spin_for(duration)
+    except KeyboardInterrupt:
+        interrupted = True
+        log('interrupted: stopping every node')
+    finally:
+        run.stop()
+    result = run.write_results()
+    result['interrupted'] = interrupted
+    return result
