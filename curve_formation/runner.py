@@ -51,8 +51,10 @@ def node_launches(experiment, experiment_path, with_robots=True, rate_hz=None,
     rate = rate_hz or spec.controller.rate_hz or DEFAULT_RATE_HZ
     on_pc = spec.disturbance.injected == 'on_pc'
     limits = experiment.limits
+    # The curve server waits for the n controllers and the runner's monitor.
     launches = [NodeLaunch('curve_formation.nodes.curve_server', '/', 'curve_server',
-                           {'experiment': str(Path(experiment_path).resolve())})]
+                           {'experiment': str(Path(experiment_path).resolve()),
+                            'wait_for_subscribers': experiment.n + 1})]
     for i in range(1, experiment.n + 1):
         ns = f'/robot_{i}'
         nbrs = experiment.graph.in_neighbours(i)

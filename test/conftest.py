@@ -21,3 +21,15 @@ def closed_curve_dict():
 @pytest.fixture
 def arena_dict():
     return yaml.safe_load((CONFIG_DIR / 'mona_arena.yaml').read_text())
+
+DATA_DIR = Path(__file__).resolve().parent / 'data'
+
+
+@pytest.fixture
+def ros_domain(monkeypatch):
+    """A private ROS_DOMAIN_ID for this test, DDS discovery on this machine only."""
+    import random
+    domain = random.SystemRandom().randint(1, 101)
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(domain))
+    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    return domain

@@ -33,6 +33,9 @@ PARAMETERS = (
     Param('observed_size', 'int', 8, 'harmonics K (fourier) or order p (polynomial) for '
           'observed curves', low=1),
     Param('frame_id', 'string', 'arena', 'frame of the published curve'),
+    Param('wait_for_subscribers', 'int', 0, 'start the schedule (t = 0) only once this many '
+          'subscriptions to /formation/curve are matched, so all robots start together',
+          low=0),
 )
 
 
@@ -53,11 +56,15 @@ class CurveServer(Node):
                                  qos.EVENTS)
         self.next_id = 0
         self.next_phase = 0
-        self.start = now_seconds(self)
+        self.start = None
         self._on_timer()
         self.create_timer(0.01, self._on_timer)
 
     def _on_timer(self):
+        if self.start is None:
+            if self.curve_pub.get_subscription_count() < self.params.wait_for_subscribers:
+                return
+            self.start = now_seconds(self)
         phases = self.experiment.phases
         elapsed = now_seconds(self) - self.start
         while self.next_phase < len(phases) and phases[self.next_phase].start <= elapsed:

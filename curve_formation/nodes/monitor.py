@@ -7,7 +7,7 @@ t = 0 is when the first curve arrives. Rows are sampled at `record_hz` from the 
 from dataclasses import dataclass, field
 import math
 
-from geometry_msgs.msg import PoseStamped, Twist, Vector3Stamped
+from geometry_msgs.msg import PointStamped, PoseStamped, Twist, Vector3Stamped
 import numpy as np
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
@@ -44,6 +44,8 @@ class Monitor(Node):
         self.dhat = np.full((n, 2), np.nan)
         self.curve_id = None
         self.t0 = None
+        self.curve_times = {}      # curve id -> time the monitor received it (s)
+        self.adopted = {}          # (robot, curve id) -> first state on that curve (s)
         self.recording = Recording()
         for i in range(1, n + 1):
             self.create_subscription(PoseStamped, topics.robot_topic(i, topics.POSE),
@@ -52,6 +54,8 @@ class Monitor(Node):
                                      lambda m, i=i: self._on_cmd(i, m), qos.COMMAND)
             self.create_subscription(Vector3Stamped, topics.robot_topic(i, topics.ESTIMATE),
                                      lambda m, i=i: self._on_estimate(i, m), qos.STATE)
+            self.create_subscription(PointStamped, topics.robot_topic(i, topics.STATE),
+                                     lambda m, i=i: self._on_state(i, m), qos.STATE)
         self.create_subscription(Float64MultiArray, topics.CURVE, self._on_curve, qos.LATCHED)
         self.create_timer(1.0 / record_hz, self._sample)
 
@@ -67,8 +71,13 @@ class Monitor(Node):
     def _on_estimate(self, i, msg):
         self.dhat[i - 1] = (msg.vector.x, msg.vector.y)
 
+    def _on_state(self, i, msg):
+        curve_id = messages.state_from_msg(msg)[2]
+        self.adopted.setdefault((i, curve_id), now_seconds(self))
+
     def _on_curve(self, msg):
         _, self.curve_id = messages.curve_from_msg(msg)
+        self.curve_times.setdefault(self.curve_id, now_seconds(self))
         if self.t0 is None:
             self.t0 = now_seconds(self)
 

@@ -1,0 +1,114 @@
+"""End to end over Fast DDS: every node in its own process, observed by the runner's monitor."""
+
+import json
+import signal
+
+import numpy as np
+import pytest
+
+from conftest import DATA_DIR
+from curve_formation.core import metrics
+from curve_formation.core.simulator import simulate
+from curve_formation.runner import phases_of, Run, run_experiment
+
+
+pytestmark = pytest.mark.ros
+
+
+def ros_error_norm(run, data):
+    phase = phases_of(data['curve_id'], len(run.experiment.phases))
+    return metrics.error_norm(metrics.target_errors(data['poses'], phase, run.experiment))
+
+
+def quiet(*_):
+    pass
+
+
+# The batch simulator ticks every controller at the same instant; the nodes tick at the same
+# rate but unsynchronised. The ROS error norm must lie in the envelope of simulations with
+# random tick phases, widened by ENVELOPE_MARGIN for what the simulator does not model:
+# timer jitter under load on two cores, poses up to 10 ms old, commands picked up on the fake
+# robot's 100 Hz timer, DDS latency.
+ENVELOPE_MARGIN = 1.5
+
+
+def simulated_envelope(experiment, t, duration, runs=12, seed=0):
+    """(low, high) of the error norm at times t over runs with random tick phases."""
+    rng = np.random.default_rng(seed)
+    norms = [np.interp(t, res.t, res.error_norm) for res in (
+        simulate(experiment, duration=duration, record_dt=0.01,
+                 tick_phases=rng.uniform(0, 1, experiment.n)) for _ in range(runs))]
+    return np.min(norms, axis=0), np.max(norms, axis=0)
+
+
+def assert_within_envelope(t, ros, low, high, window):
+    below = ros[window] / low[window]
+    above = ros[window] / high[window]
+    assert below.min() > 1 / ENVELOPE_MARGIN and above.max() < ENVELOPE_MARGIN, (
+        f'ROS/sim-envelope ratios {below.min():.3f} .. {above.max():.3f} '
+        f'(at t = {t[window][np.argmax(above)]:.1f} s)')
+
+
+def test_closed_curve_matches_the_batch_simulator_and_converges(ros_domain, tmp_path):
+    """Six robots, 13 processes: the ROS run behaves as the batch simulator predicts."""
+    with Run(DATA_DIR / 'fast_closed.yaml', tmp_path, log=quiet) as run:
+        run.spin_for(25.0)
+        data = run.recording()
+    ros = ros_error_norm(run, data)
+    low, high = simulated_envelope(run.experiment, data['t'], 26.0)
+    assert_within_envelope(data['t'], ros, low, high, data['t'] > 0.5)
+    sim = simulate(run.experiment, duration=26.0, record_dt=0.01)
+    tolerance = 1e-3 * run.experiment.phases[0].curve.size()
+    assert ros[-1] < tolerance < ros[0] / 100
+    ros_settle = metrics.settle_time(data['t'], ros, tolerance, 0, np.inf)
+    sim_settle = metrics.settle_time(sim.t, sim.error_norm, tolerance, 0, np.inf)
+    assert ros_settle == pytest.approx(sim_settle, abs=3.0)
+    # Every command that crossed DDS respected the configured turn-rate bound.
+    assert np.nanmax(np.abs(data['commands'][..., 1])) <= 10.0 + 1e-9
+
+
+def test_curve_switch_is_picked_up_within_one_control_period(ros_domain, tmp_path):
+    with Run(DATA_DIR / 'fast_switch.yaml', tmp_path, log=quiet) as run:
+        run.spin_for(28.0)
+        data = run.recording()
+        monitor = run.monitor
+    switch = monitor.curve_times[1]
+    delays = [monitor.adopted[(i, 1)] - switch for i in range(1, 10)]
+    period = 1.0 / 10.0
+    assert max(delays) < period, delays
+    ros = ros_error_norm(run, data)
+    t = data['t']
+    before, after = ros[t < 12.0][-1], ros[t > 12.0][0]
+    assert after > 100 * before
+    low, high = simulated_envelope(run.experiment, t, 29.0)
+    assert_within_envelope(t, ros, low, high, (t > 12.5) & (t < 27.5))
+
+
+def test_followers_of_a_silent_neighbour_stop_within_the_timeout(ros_domain, tmp_path):
+    with Run(DATA_DIR / 'fast_closed.yaml', tmp_path, log=quiet) as run:
+        run.spin_for(3.0)
+        moving = np.abs(run.monitor.commands).sum(axis=1) > 0
+        assert moving[[0, 2, 3]].all()
+        run.kill('robot_2.formation_controller', signal.SIGKILL)
+        start = run.monitor.get_clock().now().nanoseconds * 1e-9
+        # Out-neighbours of 2 are 3 and 4: zero commands within timeout + one period.
+        run.spin_until(lambda: np.all(run.monitor.commands[[2, 3]] == 0.0), 0.5 + 0.1 + 0.3,
+                       'robots 3 and 4 to stop')
+        stopped_after = run.monitor.get_clock().now().nanoseconds * 1e-9 - start
+        run.spin_for(1.0)
+        assert np.all(run.monitor.commands[[2, 3]] == 0.0)        # and they stay stopped
+        assert np.abs(run.monitor.commands[0]).sum() > 0           # the leader drives on
+    assert stopped_after < 0.9
+    log = (tmp_path / 'logs' / 'robot_3.formation_controller.log').read_text()
+    assert 'neighbour 2 stale' in log
+
+
+def test_runner_writes_params_metrics_and_figures_single_process(ros_domain, tmp_path):
+    result = run_experiment(DATA_DIR / 'fast_closed.yaml', tmp_path, duration=8.0,
+                            single_process=True, log=quiet)
+    assert result['mode'] == 'single process'
+    saved = json.loads((tmp_path / 'metrics.json').read_text())
+    assert saved['phases'][0]['final_error_norm'] < saved['phases'][0]['initial_error_norm'] / 5
+    assert (tmp_path / 'paths.png').stat().st_size > 10_000
+    params = sorted(p.name for p in (tmp_path / 'params').glob('*.yaml'))
+    assert 'robot_6.formation_controller.yaml' in params and 'curve_server.yaml' in params
