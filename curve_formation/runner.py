@@ -141,15 +141,15 @@ class Run:
         os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
         import rclpy
         from rclpy.context import Context
-        from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
+        from rclpy.executors import SingleThreadedExecutor
 
         from curve_formation.nodes.monitor import Monitor
         self.rclpy = rclpy
         self.context = Context()
         rclpy.init(context=self.context)
         self.monitor = Monitor(self.experiment.n, self.record_hz, context=self.context)
-        self.executor = (MultiThreadedExecutor(num_threads=2, context=self.context)
-                         if self.single_process else SingleThreadedExecutor(context=self.context))
+        # Python callbacks share the GIL: more executor threads would not run them faster.
+        self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.monitor)
         self.log(f'ROS_DOMAIN_ID={self.domain_id}; parameters in {self.out / "params"}')
         robots = [launch for launch in self.launches if launch.name != 'curve_server']

@@ -1,0 +1,149 @@
+"""The per-robot controller that the ROS node runs: same law as the simulator, safe inputs."""
+
+import math
+
+from conftest import DATA_DIR
+import numpy as np
+import pytest
+
+from curve_formation.core.agent import AgentConfig, AgentController, is_stale
+from curve_formation.core.control import Gains, WheelLimits
+from curve_formation.core.dynamics import arc_step
+from curve_formation.core.experiment import load_experiment
+from curve_formation.core.simulator import simulate
+from curve_formation.paths import resolve_config
+
+
+def controllers_for(experiment, rate_hz):
+    out = []
+    for i in range(1, experiment.n + 1):
+        cfg = AgentConfig(index=i, agent_count=experiment.n,
+                          neighbours=tuple(experiment.graph.in_neighbours(i)),
+                          gains=experiment.gains, limits=experiment.limits, rate_hz=rate_hz,
+                          spacing=experiment.spec.agents.spacing)
+        ctrl = AgentController(cfg)
+        ctrl.set_curve(experiment.phases[0].curve, 0)
+        out.append(ctrl)
+    return out
+
+
+@pytest.mark.parametrize('name', ['mona_arena', str(DATA_DIR / 'fast_closed.yaml')])
+def test_node_controllers_reproduce_the_simulator_exactly(name):
+    """n AgentControllers ticked together at 10 Hz with exact unicycle steps == simulate()."""
+    experiment = load_experiment(resolve_config(name))
+    rate, dt, duration = 10.0, 0.001, 5.0
+    ctrls = controllers_for(experiment, rate)
+    on_pc = experiment.spec.disturbance.injected == 'on_pc'
+    if on_pc:
+        ctrls = [AgentController(AgentConfig(**{**c.config.__dict__, 'pc_disturbance': tuple(
+            experiment.disturbance[c.config.index - 1])})) for c in ctrls]
+        for c in ctrls:
+            c.set_curve(experiment.phases[0].curve, 0)
+    poses = experiment.initial_poses.copy()
+    motion = np.zeros((experiment.n, 2))
+    steps_per_tick = int(round(1 / (rate * dt)))
+    for step in range(int(round(duration / dt))):
+        if step % steps_per_tick == 0:
+            now = step * dt
+            for c, pose in zip(ctrls, poses, strict=True):
+                c.on_pose(*pose, now)
+            errors = {c.config.index: c.own_error() for c in ctrls}
+            for c in ctrls:
+                for j, _ in c.config.neighbours:
+                    c.on_neighbour(j, *errors[j], 0, now)
+            for k, c in enumerate(ctrls):
+                tick = c.tick(now)
+                assert tick.stopped is None
+                d = (0.0, 0.0) if on_pc else experiment.disturbance[k]
+                motion[k] = (tick.v + d[0], tick.w + d[1])
+        for k in range(experiment.n):
+            poses[k] = arc_step(*poses[k], *motion[k], dt)
+    sim = simulate(experiment, rate_hz=rate, duration=duration + dt, dt=dt)
+    np.testing.assert_allclose(poses, sim.poses[-1], atol=1e-9)
+    # The simulator records after its tick at t = 5 s; the last tick here was at 4.9 s.
+    np.testing.assert_allclose([c.dhat for c in ctrls], sim.dhat[-2], atol=1e-9)
+
+
+def config(**kw):
+    base = dict(index=2, agent_count=3, neighbours=((1, 1.0),), gains=Gains(1.0, 0.5, 0.1),
+                pose_timeout=0.5, neighbour_timeout=0.5)
+    base.update(kw)
+    return AgentConfig(**base)
+
+
+def circle():
+    from curve_formation.core.curve_sources import expression_samples
+    from curve_formation.core.curves import fit_curve, FourierBasis
+    s, pts = expression_samples('cos(2*pi*s)', 'sin(2*pi*s)', 100, closed=True)
+    return fit_curve(FourierBasis(2), s, pts).curve
+
+
+def ready(cfg=None):
+    ctrl = AgentController(cfg or config())
+    ctrl.set_curve(circle(), 0)
+    ctrl.on_pose(0.0, 0.0, 0.0, 10.0)
+    ctrl.on_neighbour(1, 0.2, 0.0, 0, 10.0)
+    return ctrl
+
+
+def test_is_stale():
+    assert is_stale(None, 5.0, 1.0)
+    assert is_stale(3.9, 5.0, 1.0)
+    assert not is_stale(4.0, 5.0, 1.0)
+
+
+@pytest.mark.parametrize('mutate, reason', [
+    (lambda c: setattr(c, 'curve', None), 'no curve'),
+    (lambda c: c.on_pose(0.0, 0.0, 0.0, 9.0), 'own pose stale'),
+    (lambda c: c.on_neighbour(1, 0.2, 0.0, 0, 9.0), 'neighbour 1 stale'),
+    (lambda c: c.on_neighbour(1, 0.2, 0.0, 7, 10.0), 'neighbour 1 is on curve 7'),
+])
+def test_any_stale_or_inconsistent_input_stops_the_robot(mutate, reason):
+    ctrl = ready()
+    assert ctrl.tick(10.1).stopped is None
+    dhat = list(ctrl.dhat)
+    mutate(ctrl)
+    tick = ctrl.tick(10.4)
+    assert (tick.v, tick.w) == (0.0, 0.0)
+    assert reason in tick.stopped
+    assert list(ctrl.dhat) == dhat          # no wind-up while stopped
+
+
+def test_missing_neighbour_stops_until_it_reports():
+    ctrl = AgentController(config())
+    ctrl.set_curve(circle(), 0)
+    ctrl.on_pose(0.0, 0.0, 0.0, 10.0)
+    assert 'no state from neighbour 1' in ctrl.tick(10.0).stopped
+    ctrl.on_neighbour(1, 0.0, 0.0, 0, 10.0)
+    assert ctrl.tick(10.0).stopped is None
+
+
+def test_non_finite_and_unknown_inputs_are_rejected():
+    ctrl = ready()
+    assert not ctrl.on_pose(math.nan, 0.0, 0.0, 10.0)
+    assert not ctrl.on_neighbour(1, math.inf, 0.0, 0, 10.0)
+    assert not ctrl.on_neighbour(3, 0.0, 0.0, 0, 10.0)   # not an in-neighbour
+    assert ctrl.rejected == 3
+    assert ctrl.tick(10.1).stopped is None               # the last good values still serve
+
+
+def test_commands_respect_wheel_limits_with_pc_disturbance():
+    limits = WheelLimits(0.08, 0.0225)
+    ctrl = ready(config(limits=limits, pc_disturbance=(0.5, 0.5)))
+    tick = ctrl.tick(10.1)
+    assert abs(tick.v) + 0.04 * abs(tick.w) <= 0.0225 + 1e-12
+
+
+def test_leader_uses_its_own_error_only():
+    ctrl = AgentController(AgentConfig(index=1, agent_count=3, gains=Gains(1.0, 0.0, 0.1)))
+    ctrl.set_curve(circle(), 0)
+    ctrl.on_pose(0.0, 0.0, 0.0, 1.0)
+    tick = ctrl.tick(1.0)
+    assert tick.feedback == pytest.approx(tick.error)
+
+
+def test_a_curve_breaking_the_assumptions_is_refused():
+    ctrl = AgentController(config(agent_count=9))   # 9 agents > H = 5
+    with pytest.raises(ValueError, match='Assumption 2'):
+        ctrl.set_curve(circle(), 0)
+    assert ctrl.curve is None

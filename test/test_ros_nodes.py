@@ -1,0 +1,163 @@
+"""Nodes in-process with a private Context and executor, spin loops bounded by deadlines."""
+
+import subprocess
+import sys
+import time
+
+from geometry_msgs.msg import PointStamped, Twist
+import numpy as np
+import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from std_msgs.msg import Float64MultiArray
+
+from curve_formation.core.curve_sources import expression_samples
+from curve_formation.core.curves import fit_curve, FourierBasis
+from curve_formation.nodes import messages, qos, topics
+from curve_formation.nodes.curve_server import CurveServer
+from curve_formation.nodes.formation_controller import FormationController
+from curve_formation.nodes.params import ParameterError
+
+
+pytestmark = pytest.mark.ros
+
+
+@pytest.fixture
+def ros(ros_domain):
+    """(context, executor, spin_until) on a private context; everything torn down after."""
+    context = Context()
+    rclpy.init(context=context)
+    executor = SingleThreadedExecutor(context=context)
+    nodes = []
+
+    def add(node):
+        nodes.append(node)
+        executor.add_node(node)
+        return node
+
+    def spin_until(predicate, timeout=10.0):
+        deadline = time.monotonic() + timeout
+        while not predicate():
+            assert time.monotonic() < deadline, 'timed out'
+            executor.spin_once(timeout_sec=0.02)
+
+    yield context, add, spin_until
+    executor.shutdown()
+    for node in nodes:
+        node.destroy_node()
+    rclpy.try_shutdown(context=context)
+
+
+def overrides(**values):
+    return [Parameter(k, value=v) for k, v in values.items()]
+
+
+def circle_curve():
+    s, pts = expression_samples('cos(2*pi*s)', 'sin(2*pi*s)', 100, closed=True)
+    return fit_curve(FourierBasis(2), s, pts).curve
+
+
+class Probe:
+    """A helper node: publishes poses/states/curves and records cmd_vel of one robot."""
+
+    def __init__(self, context, robot):
+        self.node = rclpy.create_node('probe', context=context)
+        self.pose_pub = self.node.create_publisher(
+            messages.PoseStamped, topics.robot_topic(robot, topics.POSE), qos.SENSOR)
+        self.curve_pub = self.node.create_publisher(Float64MultiArray, topics.CURVE,
+                                                    qos.LATCHED)
+        self.state_pubs = {}
+        self.commands = []
+        self.node.create_subscription(Twist, topics.robot_topic(robot, topics.CMD_VEL),
+                                      lambda m: self.commands.append(
+                                          (time.monotonic(), m.linear.x, m.angular.z)),
+                                      qos.COMMAND)
+
+    def now(self):
+        return self.node.get_clock().now().nanoseconds * 1e-9
+
+    def state(self, j, error, curve_id=0):
+        if j not in self.state_pubs:
+            self.state_pubs[j] = self.node.create_publisher(
+                PointStamped, topics.robot_topic(j, topics.STATE), qos.STATE)
+        self.state_pubs[j].publish(messages.state_to_msg(error, curve_id, self.now()))
+
+
+def test_late_starting_controller_still_receives_the_current_curve(ros, tmp_path):
+    context, add, spin_until = ros
+    server = add(CurveServer(context=context, parameter_overrides=overrides(
+        experiment='closed_curve')))
+    spin_until(lambda: server.next_id == 1)
+    time.sleep(0.5)   # the curve is long published when the controller starts
+    ctrl = add(FormationController(context=context, namespace='/robot_1', parameter_overrides=(
+        overrides(index=1, agent_count=6, role='leader'))))
+    spin_until(lambda: ctrl.controller.curve is not None)
+    np.testing.assert_allclose(ctrl.controller.target, server.experiment.phases[0].targets[0])
+
+
+def test_follower_drives_only_while_its_inputs_are_fresh(ros):
+    context, add, spin_until = ros
+    ctrl = add(FormationController(context=context, namespace='/robot_2', parameter_overrides=(
+        overrides(index=2, agent_count=3, in_neighbours=[1], weights=[1.0],
+                  neighbour_timeout=0.3, pose_timeout=0.3, k2=0.0))))
+    probe = Probe(context, 2)
+    add(probe.node)
+    probe.curve_pub.publish(messages.curve_to_msg(circle_curve(), 0))
+    spin_until(lambda: ctrl.controller.curve is not None)
+
+    def feed(seconds, neighbour=True):
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            probe.pose_pub.publish(messages.pose_to_msg(0.0, 0.0, 0.0, probe.now()))
+            if neighbour:
+                probe.state(1, (0.1, 0.0))
+            spin_until(lambda: True)
+            for _ in range(5):
+                ctrl.executor.spin_once(timeout_sec=0.01)
+
+    feed(1.0)
+    assert probe.commands and probe.commands[-1][1:] != (0.0, 0.0)
+    assert ctrl.controller.tick(probe.now()).stopped is None
+    silent_from = time.monotonic()
+    feed(1.0, neighbour=False)
+    zero_since = next(t for t, v, w in probe.commands if t > silent_from and (v, w) == (0, 0))
+    assert zero_since - silent_from < 0.3 + 0.1 + 0.1
+    assert all((v, w) == (0, 0) for t, v, w in probe.commands if t > zero_since)
+    assert 'neighbour 1 stale' in ctrl._last_reason
+
+
+def test_nan_inputs_are_rejected_not_forwarded(ros):
+    context, add, spin_until = ros
+    ctrl = add(FormationController(context=context, namespace='/robot_1', parameter_overrides=(
+        overrides(index=1, agent_count=3, role='leader'))))
+    assert not ctrl.controller.on_pose(float('nan'), 0.0, 0.0, 1.0)
+    assert ctrl.controller.pose is None and ctrl.controller.rejected == 1
+
+
+@pytest.mark.parametrize('params, name', [
+    ({'index': 1, 'agent_count': 3, 'role': 'leader', 'k1': -1.0}, 'k1'),
+    ({'agent_count': 3}, 'index'),
+    ({'index': 2, 'agent_count': 3, 'in_neighbours': [1], 'weights': [1.0, 2.0]}, 'weights'),
+    ({'index': 2, 'agent_count': 3, 'in_neighbours': [7]}, 'in_neighbours'),
+    ({'index': 1, 'agent_count': 3, 'role': 'leader', 'spacing': 'random'}, 'spacing'),
+    ({'index': 1, 'agent_count': 3, 'role': 'follower'}, 'role'),
+    ({'index': 1, 'agent_count': 3, 'role': 'leader', 'offset': 0.0}, 'offset'),
+    ({'index': 1, 'agent_count': 3, 'role': 'leader', 'k2': 'fast'}, 'k2'),
+])
+def test_bad_parameters_are_refused_naming_the_parameter(ros, params, name):
+    context, _, _ = ros
+    with pytest.raises(ParameterError, match=f"'{name}'"):
+        FormationController(context=context, namespace='/robot_1',
+                            parameter_overrides=overrides(**params))
+
+
+def test_console_script_exits_2_with_one_line(ros_domain):
+    proc = subprocess.run([sys.executable, '-m', 'curve_formation.nodes.formation_controller',
+                           '--ros-args', '-p', 'index:=1', '-p', 'agent_count:=3',
+                           '-p', 'role:=leader', '-p', 'k1:=-2.0'],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines()[-1].startswith("error: parameter 'k1'")
+    assert 'Traceback' not in proc.stderr
