@@ -11,6 +11,7 @@ import sys
 
 import numpy as np
 
+from curve_formation.bag import BagError
 from curve_formation.core.experiment import ConfigError, load_experiment
 from curve_formation.paths import resolve_config
 
@@ -69,7 +70,7 @@ def _cmd_demo(args):
 def _cmd_run(args):
     from curve_formation.runner import run_experiment
     result = run_experiment(args.config, args.out, args.duration, args.single_process,
-                            with_robots=not args.no_sim, rate_hz=args.rate)
+                            with_robots=not args.no_sim, rate_hz=args.rate, bag_path=args.bag)
     print(_summary_line(result['experiment'], result))
     print(f'wrote {args.out}/metrics.json, figures, params/ and logs/')
 
@@ -91,6 +92,7 @@ def build_parser():
     run.add_argument('--rate', type=float, help="control rate (Hz; default: the file's or 10)")
     run.add_argument('--single-process', action='store_true',
                      help='all nodes in one process and executor')
+    run.add_argument('--bag', help='record a ROS 2 bag (sqlite3) at this new path')
     run.add_argument('--no-sim', action='store_true',
                      help='no fake robots: drive the real robots that publish /robot_<i>/pose')
     run.set_defaults(func=_cmd_run)
@@ -107,7 +109,7 @@ def main(argv=None):
     except ConfigError as exc:
         print(f'error: {exc}', file=sys.stderr)
         return 2
-    except FileNotFoundError as exc:
+    except (FileNotFoundError, BagError) as exc:
         print(f'error: {exc}', file=sys.stderr)
         return 2
     return 0

@@ -114,7 +114,7 @@ class Run:
 
     def __init__(self, experiment_path, out_dir, single_process=False, with_robots=True,
                  rate_hz=None, record_hz=20.0, pose_noise=(0.0, 0.0), command_latency=0.0,
-                 log=print):
+                 bag_path=None, log=print):
         self.experiment_path = resolve_config(experiment_path)
         self.experiment = load_experiment(self.experiment_path)
         self.out = Path(out_dir)
@@ -127,6 +127,10 @@ class Run:
         self.record_hz = record_hz
         self.processes = {}
         self.in_process_nodes = []
+        self.bag_writer = None
+        if bag_path is not None:
+            from curve_formation.bag import BagWriter
+            self.bag_writer = BagWriter(bag_path)   # refuses an existing path before any start
 
     # -- lifecycle -------------------------------------------------------------------------
     def __enter__(self):
@@ -142,15 +146,24 @@ class Run:
         import rclpy
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
+        from rclpy.signals import SignalHandlerOptions
 
         from curve_formation.nodes.monitor import Monitor
         self.rclpy = rclpy
         self.context = Context()
-        rclpy.init(context=self.context)
+        # Ctrl-C stays a KeyboardInterrupt, so stop() can close the bag and stop the nodes.
+        rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
         self.monitor = Monitor(self.experiment.n, self.record_hz, context=self.context)
         # Python callbacks share the GIL: more executor threads would not run them faster.
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.monitor)
+        if self.bag_writer is not None:
+            from curve_formation.nodes.recorder import formation_topics, Recorder
+            self.bag_writer.__enter__()
+            self.recorder = Recorder(self.bag_writer, formation_topics(self.experiment.n),
+                                     context=self.context)
+            self.executor.add_node(self.recorder)
+            self.log(f'recording {self.bag_writer.path}')
         self.log(f'ROS_DOMAIN_ID={self.domain_id}; parameters in {self.out / "params"}')
         robots = [launch for launch in self.launches if launch.name != 'curve_server']
         for launch in robots:
@@ -176,7 +189,7 @@ class Run:
         with open(logs / f'{launch.key}.log', 'w') as log_file:
             self.processes[launch.key] = subprocess.Popen(
                 cmd, env=env, stdout=log_file, stderr=subprocess.STDOUT,
-                start_new_session=True)
+                start_new_session=True, preexec_fn=_stop_with_parent)
 
     def _wait_ready(self):
         def ready():
@@ -218,7 +231,17 @@ class Run:
         self._start_node(next(launch for launch in self.launches if launch.key == key))
 
     def stop(self):
-        """SIGINT every node (they send a last zero command), then kill what lingers."""
+        """SIGINT every node (they send a last zero command), then kill what lingers.
+
+        The bag, if any, is closed last, after the nodes' final messages were recorded.
+        """
+        try:
+            self._stop_nodes()
+        finally:
+            if self.bag_writer is not None:
+                self.bag_writer.close()
+
+    def _stop_nodes(self):
         for proc in self.processes.values():
             if proc.poll() is None:
                 proc.send_signal(signal.SIGINT)
@@ -231,13 +254,17 @@ class Run:
         self.processes = {}
         if getattr(self, 'context', None) is None:
             return
+        end = time.monotonic() + 0.3   # record the nodes' last zero commands
+        while time.monotonic() < end:
+            self.executor.spin_once(timeout_sec=0.02)
         for node in self.in_process_nodes:
             hook = getattr(node, 'on_shutdown', None)
             if hook is not None:
                 hook()
         self.executor.shutdown(timeout_sec=1.0)
-        for node in self.in_process_nodes + [self.monitor]:
-            node.destroy_node()
+        for node in self.in_process_nodes + [self.monitor, getattr(self, 'recorder', None)]:
+            if node is not None:
+                node.destroy_node()
         self.rclpy.try_shutdown(context=self.context)
         self.context = None
 
@@ -284,9 +311,18 @@ def _overrides(parameters):
 
 
 def run_experiment(config, out_dir, duration=None, single_process=False, with_robots=True,
-                   rate_hz=None, log=print):
-    """Run an experiment's node graph for `duration` s (default: the file's) and measure it."""
-    run = Run(config, out_dir, single_process, with_robots, rate_hz, log=log)
+                   rate_hz=None, bag_path=None, log=print):
+    """Run an experiment's node graph for `duration` s (default: the file's) and measure it.
+
+    SIGTERM is handled like Ctrl-C: every node is stopped and the bag closed.
+    """
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+    try:
+        run = Run(config, out_dir, single_process, with_robots, rate_hz, bag_path=bag_path,
+                  log=log)
+    except BaseException:
+        signal.signal(signal.SIGTERM, previous)
+        raise
     duration = run.experiment.spec.simulation.duration if duration is None else duration
     interrupted = False
     try:
@@ -297,6 +333,22 @@ def run_experiment(config, out_dir, duration=None, single_process=False, with_ro
         log('interrupted: stopping every node')
     finally:
         run.stop()
+        signal.signal(signal.SIGTERM, previous)
     result = run.write_results()
     result['interrupted'] = interrupted
+    if bag_path is not None:
+        result['bag'] = {'path': str(bag_path), 'messages': run.bag_writer.count}
     return result
+
+
+def _stop_with_parent():
+    """In a node process: receive SIGINT when the runner dies, even if it is killed hard."""
+    try:
+        import ctypes
+        ctypes.CDLL('libc.so.6', use_errno=True).prctl(1, signal.SIGINT)  # PR_SET_PDEATHSIG
+    except OSError:
+        pass
+
+
+def _raise_interrupt(signum, frame):
+    raise KeyboardInterrupt(f'signal {signum}')

@@ -2,10 +2,10 @@
 
 import math
 
-from conftest import DATA_DIR
 import numpy as np
 import pytest
 
+from conftest import DATA_DIR
 from curve_formation.core.agent import AgentConfig, AgentController, is_stale
 from curve_formation.core.control import Gains, WheelLimits
 from curve_formation.core.dynamics import arc_step

@@ -4,10 +4,10 @@ import copy
 import subprocess
 import sys
 
-from conftest import CONFIG_DIR
 import pytest
 import yaml
 
+from conftest import CONFIG_DIR
 from curve_formation.core.experiment import build_experiment, ConfigError, load_experiment
 
 

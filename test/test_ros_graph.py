@@ -3,10 +3,10 @@
 import json
 import signal
 
-from conftest import DATA_DIR
 import numpy as np
 import pytest
 
+from conftest import DATA_DIR
 from curve_formation.core import metrics
 from curve_formation.core.simulator import simulate
 from curve_formation.runner import phases_of, Run, run_experiment

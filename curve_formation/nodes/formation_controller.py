@@ -9,6 +9,7 @@ command. All the maths is core.agent.AgentController.
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PointStamped, PoseStamped, Twist, Vector3Stamped
+from rclpy.duration import Duration
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
 
@@ -165,8 +166,9 @@ class FormationController(Node):
         self.diag_pub.publish(msg)
 
     def on_shutdown(self):
-        """Leave the robot stopped."""
+        """Leave the robot stopped: send a zero command and wait until it is acknowledged."""
         self.cmd_pub.publish(Twist())
+        self.cmd_pub.wait_for_all_acked(Duration(seconds=1.0))
 
 
 def main(args=None):
