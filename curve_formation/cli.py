@@ -56,15 +56,31 @@ def _cmd_sim(args):
     print(f'wrote {args.out}/metrics.json and figures')
 
 
+PAPER_CASES = ('closed_curve', 'open_curve', 'shape_change', 'mona_arena')
+DEMO_RUN = 'arena_demo'
+
+
 def _cmd_demo(args):
+    """Batch-simulate the paper's cases, then run the arena demo as ROS nodes with a bag."""
+    from curve_formation.runner import run_experiment
     out = Path(args.out)
-    summary = {}
-    for name in ('closed_curve', 'open_curve', 'shape_change', 'mona_arena'):
-        data = simulate_to_dir(name, out / name)
-        summary[name] = data
-        print(_summary_line(name, data))
+    if out.exists() and any(out.iterdir()):
+        raise FileExistsError(f'{out}: output folder is not empty; give a new one')
+    summary = {'paper_cases_batch_simulation': {}}
+    print("1/2 batch simulation of the paper's cases with the paper's law and settings")
+    for name in PAPER_CASES:
+        data = simulate_to_dir(name, out / 'paper_cases' / name)
+        summary['paper_cases_batch_simulation'][name] = data
+        print('    ' + _summary_line(name, data))
+    print(f'2/2 ROS 2 run of {DEMO_RUN}: 9 fake robots, 9 controllers, curve server, '
+          f'one process each ({args.duration:g} s)')
+    result = run_experiment(DEMO_RUN, out / DEMO_RUN, duration=args.duration,
+                            bag_path=out / DEMO_RUN / 'bag', log=lambda m: print('    ' + m))
+    summary[DEMO_RUN] = result
+    print('    ' + _summary_line(DEMO_RUN, result))
     _write_json(out / 'summary.json', summary)
-    print(f'wrote {out}/ (one folder per experiment: metrics.json, figures)')
+    print(f'wrote {out}/: summary.json; paper_cases/<case>/ and {DEMO_RUN}/ with '
+          f'metrics.json and figures; {DEMO_RUN}/bag (ROS 2 bag, sqlite3)')
 
 
 def _cmd_run(args):
@@ -96,8 +112,10 @@ def build_parser():
     run.add_argument('--no-sim', action='store_true',
                      help='no fake robots: drive the real robots that publish /robot_<i>/pose')
     run.set_defaults(func=_cmd_run)
-    demo = sub.add_parser('demo', help='the headless demo: all paper cases')
+    demo = sub.add_parser('demo', help='the headless demo: paper cases simulated, then a ROS '
+                          'run with fake robots recorded to a bag')
     demo.add_argument('--out', default='out/demo')
+    demo.add_argument('--duration', type=float, default=90.0, help='ROS run length (s)')
     demo.set_defaults(func=_cmd_demo)
     return parser
 
@@ -109,7 +127,7 @@ def main(argv=None):
     except ConfigError as exc:
         print(f'error: {exc}', file=sys.stderr)
         return 2
-    except (FileNotFoundError, BagError) as exc:
+    except (FileNotFoundError, FileExistsError, BagError) as exc:
         print(f'error: {exc}', file=sys.stderr)
         return 2
     return 0
