@@ -45,6 +45,24 @@ def _summary_line(name, data):
             f'settling per curve: {settle}')
 
 
+def _cmd_check(args):
+    report = load_experiment(resolve_config(args.config)).report()
+    if args.json:
+        print(json.dumps(report, indent=2))
+        return
+    print(f'{report["experiment"]}: {report["agents"]} agents, leader {report["leader"]}, '
+          f'{len(report["edges"])} edges; rooted spanning tree: yes')
+    t1 = report['theorem1']
+    print(f'Theorem 1: P, Q positive definite (min eig {t1["min_eig_P"]:.3g}, '
+          f'{t1["min_eig_Q"]:.3g}); slowest mode of L+B: '
+          f'{report["slowest_mode_of_L_plus_B"]:.3g}')
+    for k, c in enumerate(report['curves']):
+        print(f'curve {k} from t = {c["start"]:g} s: {c["basis"]}, fit rms residual '
+              f'{c["fit_rms_residual"]:.2g} over {c["samples"]} samples, rank G_bar '
+              f'{c["rank_G_bar"]}, n <= H: {c["n_le_H"]}')
+        print('    s_i = ' + ', '.join(f'{v:.4f}' for v in c['s']))
+
+
 def _cmd_sim(args):
     rate = 'config'
     if args.continuous:
@@ -94,6 +112,10 @@ def _cmd_run(args):
 def build_parser():
     parser = argparse.ArgumentParser(prog='curve-formation', description=__doc__.split('\n')[0])
     sub = parser.add_subparsers(dest='command', required=True)
+    check = sub.add_parser('check', help='validate an experiment and report what was checked')
+    check.add_argument('config', help='experiment YAML path or shipped name')
+    check.add_argument('--json', action='store_true', help='print the report as JSON')
+    check.set_defaults(func=_cmd_check)
     sim = sub.add_parser('sim', help='batch-simulate an experiment')
     sim.add_argument('config', help='experiment YAML path or shipped name (e.g. closed_curve)')
     sim.add_argument('--out', required=True, help='output folder')

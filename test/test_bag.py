@@ -75,7 +75,7 @@ def test_interrupted_run_leaves_a_closed_valid_bag(tmp_path, ros_env, sig):
     for i in range(1, 7):
         msgtype, count = summary[f'/robot_{i}/cmd_vel']
         assert msgtype == 'geometry_msgs/msg/Twist' and count >= 40   # >= 4 s at 10 Hz
-        assert summary[f'/robot_{i}/pose'][1] >= 400                  # >= 4 s at 100 Hz
+        assert summary[f'/robot_{i}/pose'][1] >= 100                  # >= 4 s at 30 Hz
     last = {}
     for topic, _, _, msg in read_messages(tmp_path / 'bag', [f'/robot_{i}/cmd_vel'
                                                             for i in range(1, 7)]):

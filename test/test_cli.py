@@ -24,3 +24,11 @@ def test_sim_rate_option_switches_to_zero_order_hold(tmp_path):
 def test_unknown_experiment_is_a_clear_error(tmp_path, capsys):
     assert main(['sim', 'no_such_case', '--out', str(tmp_path)]) == 2
     assert 'neither a file nor a shipped experiment' in capsys.readouterr().err
+
+
+def test_check_reports_certificate_assumptions_and_fit(capsys):
+    assert main(['check', 'shape_change', '--json']) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report['theorem1']['min_eig_P'] > 0 and report['theorem1']['min_eig_Q'] > 0
+    assert [c['rank_G_bar'] for c in report['curves']] == [18, 18]
+    assert all(c['n_le_H'] and c['fit_rms_residual'] < 1e-9 for c in report['curves'])

@@ -77,3 +77,44 @@ def test_installed_command_runs_a_shipped_experiment(colcon_install, tmp_path):
                           timeout=300, cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     assert json.loads((tmp_path / 'metrics.json').read_text())['experiment'] == 'open_curve'
+
+
+@pytest.mark.ros
+def test_installed_node_publishes_over_dds(colcon_install, ros_domain):
+    """`ros2 run curve_formation fake_robot` equivalent: the colcon-installed executable."""
+    import signal
+    import time
+
+    from geometry_msgs.msg import PoseStamped
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+
+    from curve_formation.nodes import messages, qos
+
+    exe = find_executable(colcon_install, 'fake_robot')
+    proc = subprocess.Popen([str(exe), '--ros-args', '-r', '__ns:=/robot_7',
+                             '-p', 'initial_pose:=[1.0, 2.0, 0.5]'],
+                            env=installed_env(colcon_install), stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    context = Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node('probe', context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    poses = []
+    node.create_subscription(PoseStamped, '/robot_7/pose',
+                             lambda m: poses.append(messages.pose_from_msg(m)), qos.SENSOR)
+    try:
+        deadline = time.monotonic() + 60
+        while not poses and time.monotonic() < deadline and proc.poll() is None:
+            executor.spin_once(timeout_sec=0.1)
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+        proc.send_signal(signal.SIGINT)
+        out = proc.communicate(timeout=20)[0]
+    assert poses, out
+    assert poses[0][:3] == pytest.approx((1.0, 2.0, 0.5))
+    assert proc.returncode == 0, out

@@ -27,8 +27,8 @@ def quiet(*_):
 # The batch simulator ticks every controller at the same instant; the nodes tick at the same
 # rate but unsynchronised. The ROS error norm must lie in the envelope of simulations with
 # random tick phases, widened by ENVELOPE_MARGIN for what the simulator does not model:
-# timer jitter under load on two cores, poses up to 10 ms old, commands picked up on the fake
-# robot's 100 Hz timer, DDS latency.
+# timer jitter under load on two cores, poses up to 33 ms old (30 Hz, as a camera), DDS
+# latency.
 ENVELOPE_MARGIN = 1.5
 
 

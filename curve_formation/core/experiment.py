@@ -65,6 +65,27 @@ class Experiment:
     def name(self):
         return self.spec.name
 
+    def report(self):
+        """What was checked, as a JSON-ready dict: graph, Theorem 1, Assumptions 1-2, fits."""
+        cert = self.graph.certificate()
+        return {
+            'experiment': self.name, 'source': self.source, 'agents': self.n,
+            'leader': self.graph.leader,
+            'edges': [[e.source, e.target, e.weight] for e in self.graph.edges],
+            'rooted_spanning_tree': True,
+            'theorem1': {'P_diagonal': np.diag(cert.P).tolist(),
+                         'min_eig_P': cert.min_eig_P, 'min_eig_Q': cert.min_eig_Q},
+            'slowest_mode_of_L_plus_B': float(np.linalg.eigvals(
+                self.graph.feedback_matrix).real.min()),
+            'gains': {'k1': self.gains.k1, 'k2': self.gains.k2, 'offset': self.gains.offset},
+            'curves': [{'start': p.start, 'basis': p.curve.basis.describe(),
+                        'fit_rms_residual': p.fit.rms_residual,
+                        'fit_max_residual': p.fit.max_residual, 'samples': p.fit.samples,
+                        'size': p.curve.size(), 'rank_G_bar': int(np.linalg.matrix_rank(
+                            p.g_bar)), 'n_le_H': self.n <= p.curve.basis.H,
+                        's': p.s.tolist()} for p in self.phases],
+        }
+
     def phase_at(self, t):
         """The phase active at time t (s)."""
         active = [p for p in self.phases if p.start <= t]

@@ -132,8 +132,10 @@ def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance
             'spacing': spacing_uniformity(p.curve, offset_points(poses[last], gains.offset)),
             'target_spacing': spacing_uniformity(p.curve, p.targets),
         })
+    cert = experiment.graph.certificate()
     out = {
         'experiment': experiment.name, 'agents': experiment.n,
+        'theorem1_min_eig': {'P': cert.min_eig_P, 'Q': cert.min_eig_Q},
         'duration': float(t[-1]), 'phases': phases,
         'final_error_norm': float(norm[-1]),
         'final_orientation_rates_max': float(np.abs(orientation_rates(t, poses)).max()),

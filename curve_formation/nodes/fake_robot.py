@@ -1,9 +1,11 @@
 """fake_robot: a Mona stand-in for tests and demos, in namespace /robot_<i>.
 
-Integrates the unicycle exactly from the latest cmd_vel plus its constant (physical) input
-disturbance at `rate_hz`, and publishes pose (PoseStamped, arena frame). A zero command means
-motors off: the robot stands still (the disturbance acts on a driven input only). Options:
-Gaussian pose noise and a fixed command latency.
+Moves as a unicycle under the latest cmd_vel plus its constant (physical) input disturbance and
+publishes pose (PoseStamped, arena frame) at `rate_hz`, like an overhead camera. Commands are
+piecewise constant, so the motion is integrated exactly up to each command change and each
+publication: no integration step. A zero command means motors off: the robot stands still
+(the disturbance acts on a driven input only). Options: Gaussian pose noise and a fixed
+command latency.
 """
 
 from collections import deque
@@ -22,7 +24,7 @@ from curve_formation.nodes.runtime import now_seconds, run_node
 PARAMETERS = (
     Param('index', 'int', 1, 'robot number i (for logs)', low=1),
     Param('initial_pose', 'double[]', [0.0, 0.0, 0.0], 'start pose [x, y, theta] (m, rad)'),
-    Param('rate_hz', 'double', 100.0, 'integration and pose publishing rate (Hz)',
+    Param('rate_hz', 'double', 30.0, 'pose publishing rate (Hz), as an overhead camera',
           positive=True),
     Param('disturbance', 'double[]', [0.0, 0.0], 'constant input disturbance [d_v, d_w] '
           '(m/s, rad/s) added to a non-zero command'),
@@ -59,19 +61,31 @@ class FakeRobot(Node):
         if not (math.isfinite(v) and math.isfinite(w)):
             self.get_logger().warning('non-finite cmd_vel ignored', throttle_duration_sec=1.0)
             return
-        self.pending.append((now_seconds(self) + self.params.command_latency, v, w))
+        now = now_seconds(self)
+        self.pending.append((now + self.params.command_latency, v, w))
+        self._advance(now)
+
+    def _advance(self, now):
+        """Move exactly up to `now`, switching commands at their due times."""
+        if self.last_time is None:
+            self.last_time = now
+        while self.pending and self.pending[0][0] <= now:
+            due, v, w = self.pending.popleft()
+            self._move(max(due, self.last_time))
+            self.command = (v, w)
+        self._move(now)
+
+    def _move(self, until):
+        dt = until - self.last_time
+        v, w = self.command
+        if dt > 0 and (v != 0.0 or w != 0.0):
+            d = self.params.disturbance
+            self.pose = list(arc_step(*self.pose, v + d[0], w + d[1], dt))
+        self.last_time = max(self.last_time, until)
 
     def _on_timer(self):
         now = now_seconds(self)
-        while self.pending and self.pending[0][0] <= now:
-            _, v, w = self.pending.popleft()
-            self.command = (v, w)
-        if self.last_time is not None:
-            v, w = self.command
-            if v != 0.0 or w != 0.0:
-                d = self.params.disturbance
-                self.pose = list(arc_step(*self.pose, v + d[0], w + d[1], now - self.last_time))
-        self.last_time = now
+        self._advance(now)
         noise = self.params.pose_noise
         x, y, th = self.pose
         if noise[0] > 0 or noise[1] > 0:

@@ -2,9 +2,10 @@
 
 Subscribes: pose (own, PoseStamped, arena frame), /robot_<j>/formation_state of each
 in-neighbour j, /formation/curve. Publishes at `rate_hz`: cmd_vel (Twist), and on every pose
-its formation_state (target error e_i for out-neighbours), disturbance_estimate, and
-/diagnostics. Any missing or stale input gives a zero Twist and a warning, never a stale
-command. All the maths is core.agent.AgentController.
+its formation_state (target error e_i for out-neighbours), and every tick its
+disturbance_estimate (stamped with the pose that tick used) and /diagnostics. Any missing or
+stale input gives a zero Twist and a warning, never a stale command. All the maths is
+core.agent.AgentController.
 """
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -141,7 +142,9 @@ class FormationController(Node):
         now = now_seconds(self)
         tick = self.controller.tick(now)
         self.cmd_pub.publish(messages.twist_to_msg(tick.v, tick.w))
-        self.estimate_pub.publish(messages.estimate_to_msg(tick.dhat, now))
+        # Stamped with the pose this tick used, so pose-to-command latency can be measured.
+        used = tick.error_stamp if tick.error_stamp is not None else now
+        self.estimate_pub.publish(messages.estimate_to_msg(tick.dhat, used))
         if tick.stopped != self._last_reason:
             if tick.stopped:
                 self.get_logger().warning(f'stopped: {tick.stopped}')

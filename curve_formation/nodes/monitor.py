@@ -45,6 +45,8 @@ class Monitor(Node):
         self.curve_id = None
         self.t0 = None
         self.curve_times = {}      # curve id -> time the monitor received it (s)
+        self.command_arrivals = [[] for _ in range(n)]   # per robot, receive times (s)
+        self.tick_latencies = [[] for _ in range(n)]     # estimate arrival - pose stamp (s)
         self.adopted = {}          # (robot, curve id) -> first state on that curve (s)
         self.recording = Recording()
         for i in range(1, n + 1):
@@ -67,9 +69,13 @@ class Monitor(Node):
     def _on_cmd(self, i, msg):
         self.commands[i - 1] = messages.twist_from_msg(msg)
         self.command_times[i - 1] = now_seconds(self)
+        self.command_arrivals[i - 1].append(self.command_times[i - 1])
 
     def _on_estimate(self, i, msg):
         self.dhat[i - 1] = (msg.vector.x, msg.vector.y)
+        if self.t0 is not None:
+            self.tick_latencies[i - 1].append(
+                now_seconds(self) - messages.stamp_to_seconds(msg.header.stamp))
 
     def _on_state(self, i, msg):
         curve_id = messages.state_from_msg(msg)[2]

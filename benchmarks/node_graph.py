@@ -1,0 +1,105 @@
+"""ROS node graph timing: N fake robots + N controllers, one process each or all in one.
+
+Run: scripts/bench node_graph [--sizes 9 25 50] [--seconds 15]
+
+For each N and mode it prints: cmd_vel rate per robot (Hz, mean over robots), period jitter
+(|inter-arrival - 100 ms| at the monitor, p50/p99 over all robots), pose-to-command latency
+(arrival of a tick's output minus the stamp of the pose it used, p50/p99) and CPU per robot
+(% of one core, all node processes, or the single process, divided by N). Goal (issue): 9
+robots at 10 Hz with p99 jitter under 5 ms; the largest N that holds 10 Hz.
+"""
+
+import argparse
+import os
+from pathlib import Path
+import tempfile
+
+import numpy as np
+import yaml
+
+from curve_formation.runner import Run
+
+
+def experiment_file(n, folder):
+    """n agents on a closed curve at 10 Hz, chain + skip edges, converging settings."""
+    edges = [{'from': i, 'to': i + 1} for i in range(1, n)]
+    edges += [{'from': i, 'to': i + 2} for i in range(1, n - 1, 3)]
+    path = Path(folder) / f'bench_{n}.yaml'
+    path.write_text(yaml.safe_dump({
+        'name': f'bench_{n}',
+        'agents': {'count': n, 'initial': {'random': {'seed': 1, 'center': [0, 0],
+                                                      'half_width': [10, 10]}}},
+        'graph': {'edges': edges},
+        'controller': {'k1': 1.0, 'k2': 0.0, 'offset': 0.3, 'rate_hz': 10.0},
+        'limits': {'wheel_base': 0.1, 'max_wheel_speed': 100.0, 'max_angular_rate': 10.0},
+        'curves': [{'basis': 'fourier', 'harmonics': max(2, n // 2),
+                    'samples': max(400, 3 * n + 3),
+                    'x': '(8 + sin(6*pi*s)) * cos(2*pi*s)',
+                    'y': '(8 + cos(4*pi*s)) * sin(2*pi*s)'}],
+        'simulation': {'duration': 60.0},
+    }))
+    return path
+
+
+def cpu_seconds(pids):
+    """User + system CPU seconds of the given processes (Linux /proc)."""
+    tick = os.sysconf('SC_CLK_TCK')
+    total = 0.0
+    for pid in pids:
+        try:
+            fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+            total += (int(fields[11]) + int(fields[12])) / tick
+        except (FileNotFoundError, ProcessLookupError):
+            pass
+    return total
+
+
+def measure(n, single_process, seconds, folder):
+    path = experiment_file(n, folder)
+    out = Path(folder) / f'run_{n}_{"single" if single_process else "multi"}'
+    with Run(path, out, single_process=single_process, log=lambda *_: None) as run:
+        run.spin_for(2.0)   # let every controller start driving
+        monitor = run.monitor
+        for lst in monitor.command_arrivals + monitor.tick_latencies:
+            lst.clear()
+        pids = [p.pid for p in run.processes.values()] or [os.getpid()]
+        cpu0, wall0 = cpu_seconds(pids), monitor.get_clock().now().nanoseconds * 1e-9
+        run.spin_for(seconds)
+        cpu1, wall1 = cpu_seconds(pids), monitor.get_clock().now().nanoseconds * 1e-9
+        arrivals = [np.array(a) for a in monitor.command_arrivals]
+        latencies = np.concatenate([np.array(v) for v in monitor.tick_latencies])
+    elapsed = wall1 - wall0
+    rates = [len(a) / elapsed for a in arrivals]
+    jitter = np.concatenate([np.abs(np.diff(a) - 0.1) for a in arrivals if len(a) > 1])
+    return {'n': n, 'mode': 'single' if single_process else 'multi',
+            'rate_mean': float(np.mean(rates)), 'rate_min': float(np.min(rates)),
+            'jitter_p50_ms': 1e3 * float(np.percentile(jitter, 50)),
+            'jitter_p99_ms': 1e3 * float(np.percentile(jitter, 99)),
+            'latency_p50_ms': 1e3 * float(np.percentile(latencies, 50)),
+            'latency_p99_ms': 1e3 * float(np.percentile(latencies, 99)),
+            'cpu_per_robot_pct': 100 * (cpu1 - cpu0) / elapsed / n}
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    parser.add_argument('--sizes', type=int, nargs='+', default=[9, 25, 50])
+    parser.add_argument('--seconds', type=float, default=15.0)
+    parser.add_argument('--modes', nargs='+', default=['multi', 'single'],
+                        choices=['multi', 'single'])
+    args = parser.parse_args()
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    print(f'{"N":>4s} {"mode":>6s} {"Hz mean":>8s} {"Hz min":>7s} {"jit p50":>8s} '
+          f'{"jit p99":>8s} {"lat p50":>8s} {"lat p99":>8s} {"CPU/robot":>9s}   (ms, % core)')
+    with tempfile.TemporaryDirectory() as folder:
+        for n in args.sizes:
+            for mode in args.modes:
+                r = measure(n, mode == 'single', args.seconds, folder)
+                holds = 'holds 10 Hz' if r['rate_min'] > 9.5 else 'below 10 Hz'
+                print(f'{r["n"]:4d} {r["mode"]:>6s} {r["rate_mean"]:8.2f} {r["rate_min"]:7.2f} '
+                      f'{r["jitter_p50_ms"]:8.2f} {r["jitter_p99_ms"]:8.2f} '
+                      f'{r["latency_p50_ms"]:8.2f} {r["latency_p99_ms"]:8.2f} '
+                      f'{r["cpu_per_robot_pct"]:8.1f}%   {holds}', flush=True)
+
+
+if __name__ == '__main__':
+    main()
