@@ -109,6 +109,11 @@ def _cmd_run(args):
     print(f'wrote {args.out}/metrics.json, figures, params/ and logs/')
 
 
+def _cmd_nodes_doc(args):
+    from curve_formation.nodes.docs import nodes_markdown
+    print(nodes_markdown())
+
+
 def build_parser():
     parser = argparse.ArgumentParser(prog='curve-formation', description=__doc__.split('\n')[0])
     sub = parser.add_subparsers(dest='command', required=True)
@@ -134,6 +139,9 @@ def build_parser():
     run.add_argument('--no-sim', action='store_true',
                      help='no fake robots: drive the real robots that publish /robot_<i>/pose')
     run.set_defaults(func=_cmd_run)
+    nodes_doc = sub.add_parser('nodes-doc', help="print the README's node reference "
+                               '(parameters, topics, QoS) from the code')
+    nodes_doc.set_defaults(func=_cmd_nodes_doc)
     demo = sub.add_parser('demo', help='the headless demo: paper cases simulated, then a ROS '
                           'run with fake robots recorded to a bag')
     demo.add_argument('--out', default='out/demo')

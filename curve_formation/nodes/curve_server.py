@@ -39,6 +39,16 @@ PARAMETERS = (
 )
 
 
+TOPICS = (
+    ('pub', topics.CURVE, 'std_msgs/Float64MultiArray', 'LATCHED',
+     'coefficients xi; layout labels: basis kind and size, curve id'),
+    ('pub', topics.CURVE_PATH, 'nav_msgs/Path', 'LATCHED', 'the curve, sampled, for RViz'),
+    ('pub', topics.CURVE_MARKERS, 'visualization_msgs/MarkerArray', 'LATCHED',
+     "curve line and each agent's target point"),
+    ('sub', topics.OBSERVED_CURVE, 'geometry_msgs/PolygonStamped', 'EVENTS',
+     'a newly observed curve as ordered points, fitted and published as the next curve'),
+)
+
 class CurveServer(Node):
     """Publishes the experiment's curves on schedule and fits observed ones."""
 

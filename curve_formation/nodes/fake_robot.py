@@ -37,6 +37,11 @@ PARAMETERS = (
 )
 
 
+TOPICS = (
+    ('sub', topics.CMD_VEL, 'geometry_msgs/Twist', 'COMMAND', 'velocity command'),
+    ('pub', topics.POSE, 'geometry_msgs/PoseStamped', 'SENSOR', 'pose at rate_hz'),
+)
+
 class FakeRobot(Node):
     """Unicycle integrated from cmd_vel; pure maths in core.dynamics.arc_step."""
 

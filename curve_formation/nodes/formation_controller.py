@@ -88,6 +88,20 @@ def agent_config(p):
         pc_disturbance=tuple(p.pc_disturbance))
 
 
+TOPICS = (
+    ('sub', topics.POSE, 'geometry_msgs/PoseStamped', 'SENSOR', 'own pose, arena frame'),
+    ('sub', '/robot_<j>/' + topics.STATE, 'geometry_msgs/PointStamped', 'STATE',
+     "each in-neighbour's target error (x, y) and curve id (z)"),
+    ('sub', topics.CURVE, 'std_msgs/Float64MultiArray', 'LATCHED', 'the active curve'),
+    ('pub', topics.CMD_VEL, 'geometry_msgs/Twist', 'COMMAND', 'velocity command at rate_hz'),
+    ('pub', topics.STATE, 'geometry_msgs/PointStamped', 'STATE',
+     'own target error e_i on every pose, for out-neighbours'),
+    ('pub', topics.ESTIMATE, 'geometry_msgs/Vector3Stamped', 'STATE',
+     'disturbance estimate (x = d_v, y = d_w) every tick, stamped with the pose used'),
+    ('pub', topics.DIAGNOSTICS, 'diagnostic_msgs/DiagnosticArray', 'EVENTS',
+     'driving or why stopped; curve id, s_i, estimate, rejected inputs'),
+)
+
 class FormationController(Node):
     """Thin ROS layer over core.agent.AgentController."""
 

@@ -122,6 +122,6 @@ def markdown_table(table):
             bounds = f' ([{p.low if p.low is not None else "-inf"}, '
             bounds += f'{p.high if p.high is not None else "inf"}])'
         choices = f' One of: {", ".join(p.choices)}.' if p.choices else ''
-        rows.append(f'| `{p.name}` | {p.kind} | `{p.doc_default()}` | {p.description}{bounds}.'
-                    f'{choices} |')
+        text = f'{p.description}{bounds}.{choices}'.replace('|', '\\|')
+        rows.append(f'| `{p.name}` | {p.kind} | `{p.doc_default()}` | {text} |')
     return '\n'.join(rows)
