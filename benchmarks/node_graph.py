@@ -93,7 +93,11 @@ def main():
     with tempfile.TemporaryDirectory() as folder:
         for n in args.sizes:
             for mode in args.modes:
-                r = measure(n, mode == 'single', args.seconds, folder)
+                try:
+                    r = measure(n, mode == 'single', args.seconds, folder)
+                except (TimeoutError, RuntimeError) as exc:
+                    print(f'{n:4d} {mode:>6s} failed: {str(exc).splitlines()[0]}', flush=True)
+                    continue
                 holds = 'holds 10 Hz' if r['rate_min'] > 9.5 else 'below 10 Hz'
                 print(f'{r["n"]:4d} {r["mode"]:>6s} {r["rate_mean"]:8.2f} {r["rate_min"]:7.2f} '
                       f'{r["jitter_p50_ms"]:8.2f} {r["jitter_p99_ms"]:8.2f} '

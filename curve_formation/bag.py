@@ -72,6 +72,10 @@ class BagWriter:
         if time.monotonic() - self._last_commit >= self.commit_period:
             self.commit()
 
+    def set_custom(self, key, value):
+        """Store a string in the bag's metadata (custom_data), written on close."""
+        self._writer.set_custom_data(key, str(value))
+
     def commit(self):
         """Make everything written so far durable (survives a hard kill)."""
         self._writer.storage.conn.commit()
@@ -82,29 +86,50 @@ class BagWriter:
             self._writer.close()
 
 
-def read_messages(path, topics=None):
-    """Yield (topic, msgtype, stamp_ns, message) from a bag, deserialized with rosbags."""
+def _open_error(path, exc):
+    return BagError(f'{path}: not a readable ROS 2 bag ({type(exc).__name__}: {exc}); a bag '
+                    'from a run killed hard needs `ros2 bag reindex` first')
+
+
+def read_raw(path, topics=None):
+    """Yield (connection, stamp_ns, cdr_bytes) in time order; BagError if unreadable."""
     path = Path(path)
     if not path.exists():
         raise BagError(f'{path}: no such bag')
     try:
         with Reader(path) as reader:
             conns = [c for c in reader.connections if topics is None or c.topic in topics]
-            for conn, stamp, raw in reader.messages(connections=conns):
-                yield conn.topic, conn.msgtype, stamp, TYPESTORE.deserialize_cdr(raw,
-                                                                                 conn.msgtype)
+            yield from reader.messages(connections=conns)
     except BagError:
         raise
     except Exception as exc:  # noqa: BLE001 - rosbags raises many kinds for a broken bag
-        raise BagError(f'{path}: not a readable ROS 2 bag ({type(exc).__name__}: {exc}); a '
-                       'bag from a killed run needs `ros2 bag reindex` first') from None
+        raise _open_error(path, exc) from None
+
+
+def read_messages(path, topics=None):
+    """Yield (topic, msgtype, stamp_ns, message) from a bag, deserialized with rosbags."""
+    for conn, stamp, raw in read_raw(path, topics):
+        try:
+            msg = TYPESTORE.deserialize_cdr(raw, conn.msgtype)
+        except Exception as exc:  # noqa: BLE001
+            raise BagError(f'{path}: a {conn.msgtype} message on {conn.topic} at {stamp} ns '
+                           f'cannot be decoded ({exc})') from None
+        yield conn.topic, conn.msgtype, stamp, msg
+
+
+def bag_info(path):
+    """({topic: (msgtype, count)}, custom metadata dict) of a bag."""
+    path = Path(path)
+    if not path.exists():
+        raise BagError(f'{path}: no such bag')
+    try:
+        with Reader(path) as reader:
+            topics = {c.topic: (c.msgtype, c.msgcount) for c in reader.connections}
+            return topics, dict(reader.storage.metadata.custom or {})
+    except Exception as exc:  # noqa: BLE001
+        raise _open_error(path, exc) from None
 
 
 def bag_summary(path):
     """{topic: (msgtype, count)} from a bag's metadata."""
-    try:
-        with Reader(Path(path)) as reader:
-            return {c.topic: (c.msgtype, c.msgcount) for c in reader.connections}
-    except Exception as exc:  # noqa: BLE001
-        raise BagError(f'{path}: not a readable ROS 2 bag ({type(exc).__name__}: {exc})') \
-            from None
+    return bag_info(path)[0]

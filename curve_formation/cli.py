@@ -109,6 +109,31 @@ def _cmd_run(args):
     print(f'wrote {args.out}/metrics.json, figures, params/ and logs/')
 
 
+def _cmd_analyze(args):
+    from curve_formation.analysis import analyze_bag
+    result = analyze_bag(args.bag, args.out, args.experiment, args.compare)
+    print(_summary_line(result['experiment'], result))
+    print(f'wrote {args.out}/metrics.json and figures')
+
+
+def _cmd_replay(args):
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+
+    from curve_formation.replay import replay
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    node = rclpy.create_node('bag_replay')
+    try:
+        sent = replay(node, args.bag, args.rate, args.topics, args.loop, args.start,
+                      clock=not args.no_clock, wait_for_subscribers=args.wait)
+        print(f'replayed {sent} messages')
+    except KeyboardInterrupt:
+        print('replay interrupted')
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
 def _cmd_nodes_doc(args):
     from curve_formation.nodes.docs import nodes_markdown
     print(nodes_markdown())
@@ -139,6 +164,22 @@ def build_parser():
     run.add_argument('--no-sim', action='store_true',
                      help='no fake robots: drive the real robots that publish /robot_<i>/pose')
     run.set_defaults(func=_cmd_run)
+    analyze = sub.add_parser('analyze', help='metrics and figures from a recorded bag')
+    analyze.add_argument('bag', help='bag folder')
+    analyze.add_argument('--out', required=True, help='output folder')
+    analyze.add_argument('--experiment', help='experiment YAML, if the bag does not carry it')
+    analyze.add_argument('--compare', help='a second bag to overlay (e.g. real vs simulated)')
+    analyze.set_defaults(func=_cmd_analyze)
+    rep = sub.add_parser('replay', help='publish a bag with its original timing and types')
+    rep.add_argument('bag', help='bag folder')
+    rep.add_argument('--rate', type=float, default=1.0, help='speed factor (2 = twice as fast)')
+    rep.add_argument('--topics', nargs='+', help='only these topics')
+    rep.add_argument('--loop', action='store_true', help='start again at the end')
+    rep.add_argument('--start', type=float, default=0.0, help='skip this many seconds')
+    rep.add_argument('--no-clock', action='store_true', help='do not publish /clock')
+    rep.add_argument('--wait', type=float, default=5.0,
+                     help='seconds to wait for subscribers before starting')
+    rep.set_defaults(func=_cmd_replay)
     nodes_doc = sub.add_parser('nodes-doc', help="print the README's node reference "
                                '(parameters, topics, QoS) from the code')
     nodes_doc.set_defaults(func=_cmd_nodes_doc)

@@ -21,12 +21,15 @@ import time
 import numpy as np
 import yaml
 
+from curve_formation.analysis import EXPERIMENT_KEY
 from curve_formation.core import metrics, plots
 from curve_formation.core.experiment import load_experiment
 from curve_formation.paths import resolve_config
 
 
 DEFAULT_RATE_HZ = 10.0
+# Keys of the bag metadata (custom_data) that make a bag self-describing.
+PARAMETERS_KEY = 'curve_formation.parameters'
 READY_TIMEOUT = 90.0   # s; nine Python processes start in ~10 s on two cores
 
 
@@ -160,6 +163,9 @@ class Run:
         if self.bag_writer is not None:
             from curve_formation.nodes.recorder import formation_topics, Recorder
             self.bag_writer.__enter__()
+            self.bag_writer.set_custom(EXPERIMENT_KEY, self.experiment_path.read_text())
+            self.bag_writer.set_custom(PARAMETERS_KEY, '\n'.join(
+                path.read_text() for path in self.param_files.values()))
             self.recorder = Recorder(self.bag_writer, formation_topics(self.experiment.n),
                                      context=self.context)
             self.executor.add_node(self.recorder)
@@ -170,7 +176,7 @@ class Run:
             self._start_node(launch)
         self._wait_ready()
         self._start_node(self.launches[0])
-        self.spin_until(lambda: self.monitor.t0 is not None, 30.0, 'the first curve')
+        self.spin_until(lambda: self.monitor.t0 is not None, READY_TIMEOUT, 'the first curve')
         self.log('curve server started: t = 0')
 
     def _start_node(self, launch):

@@ -23,7 +23,7 @@ def test_readme_node_reference_is_the_generated_one():
 
 
 @pytest.mark.ros
-@pytest.mark.parametrize('name, module', docs.NODES)
+@pytest.mark.parametrize('name, module', [n for n in docs.NODES if n[0] != 'formation_recorder'])
 def test_nodes_create_the_documented_topics(ros_domain, name, module):
     context = Context()
     rclpy.init(context=context)

@@ -12,7 +12,7 @@ import pytest
 
 
 ROOT = Path(__file__).resolve().parent.parent
-NODES = ('curve_server', 'formation_controller', 'fake_robot')
+NODES = ('curve_server', 'formation_controller', 'fake_robot', 'formation_recorder')
 
 
 def test_package_xml_is_format_3_with_the_message_dependencies():

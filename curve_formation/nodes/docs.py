@@ -1,12 +1,13 @@
 """README tables of every node's parameters, topics and QoS, generated from the node modules."""
 
-from curve_formation.nodes import curve_server, fake_robot, formation_controller, qos
+from curve_formation.nodes import curve_server, fake_robot, formation_controller, qos, recorder
 from curve_formation.nodes.params import markdown_table
 
 
 NODES = (('formation_controller', formation_controller),
          ('curve_server', curve_server),
-         ('fake_robot', fake_robot))
+         ('fake_robot', fake_robot),
+         ('formation_recorder', recorder))
 
 QOS_TEXT = {
     'SENSOR': 'sensor data (best effort, keep last 5)',

@@ -12,14 +12,18 @@ import math
 
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PointStamped, PoseStamped, Twist, Vector3Stamped
-import numpy as np
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-from curve_formation.core.curves import Curve, make_basis
+from curve_formation.core.curve_codec import (
+    CodecError,
+    decode_curve,
+    encode_curve,
+    quaternion_from_yaw,
+    yaw_from_quaternion,
+)
 
 
-class MessageError(ValueError):
-    """A message that cannot be converted (malformed layout, NaN, ...)."""
+MessageError = CodecError
 
 
 def stamp_to_seconds(stamp):
@@ -32,41 +36,24 @@ def seconds_to_stamp(seconds):
 
 
 def curve_to_msg(curve, curve_id):
-    basis = curve.basis
-    size = basis.K if basis.kind == 'fourier' else basis.p
+    dims, data = encode_curve(curve, curve_id)
     msg = Float64MultiArray()
-    msg.layout.dim = [
-        MultiArrayDimension(label='xi', size=2 * basis.H, stride=2 * basis.H),
-        MultiArrayDimension(label=f'basis={basis.kind}', size=int(size), stride=0),
-        MultiArrayDimension(label=f'curve_id={int(curve_id)}', size=0, stride=0),
-    ]
-    msg.data = [float(v) for v in curve.xi]
+    msg.layout.dim = [MultiArrayDimension(label=label, size=size, stride=stride)
+                      for label, size, stride in dims]
+    msg.data = data
     return msg
 
 
 def curve_from_msg(msg):
     """(Curve, curve_id) from a curve message; MessageError if malformed."""
-    labels = {d.label.split('=')[0]: d for d in msg.layout.dim}
-    try:
-        kind = labels['basis'].label.split('=', 1)[1]
-        curve_id = int(labels['curve_id'].label.split('=', 1)[1])
-        basis = make_basis(kind, labels['basis'].size)
-    except (KeyError, IndexError, ValueError) as exc:
-        raise MessageError(f'curve message layout not understood: {exc}') from None
-    xi = np.array(msg.data, dtype=float)
-    if len(xi) != 2 * basis.H:
-        raise MessageError(f'curve message has {len(xi)} coefficients, {basis.describe()} '
-                           f'needs {2 * basis.H}')
-    if not np.all(np.isfinite(xi)):
-        raise MessageError('curve message has NaN or infinite coefficients')
-    return Curve(basis, xi), curve_id
+    return decode_curve([(d.label, d.size) for d in msg.layout.dim], msg.data)
 
 
 def pose_from_msg(msg):
     """(x, y, theta, stamp_s) from a PoseStamped (planar: heading from the quaternion)."""
     q = msg.pose.orientation
-    theta = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
-    return msg.pose.position.x, msg.pose.position.y, theta, stamp_to_seconds(msg.header.stamp)
+    return (msg.pose.position.x, msg.pose.position.y, yaw_from_quaternion(q.x, q.y, q.z, q.w),
+            stamp_to_seconds(msg.header.stamp))
 
 
 def pose_to_msg(x, y, theta, stamp_s, frame_id='arena'):
@@ -74,8 +61,7 @@ def pose_to_msg(x, y, theta, stamp_s, frame_id='arena'):
     msg.header.stamp = seconds_to_stamp(stamp_s)
     msg.header.frame_id = frame_id
     msg.pose.position.x, msg.pose.position.y = float(x), float(y)
-    msg.pose.orientation.z = math.sin(theta / 2.0)
-    msg.pose.orientation.w = math.cos(theta / 2.0)
+    _, _, msg.pose.orientation.z, msg.pose.orientation.w = quaternion_from_yaw(theta)
     return msg
 
 

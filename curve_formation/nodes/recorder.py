@@ -1,7 +1,8 @@
-"""Recorder: subscribes to the formation's topics raw and writes them to a ROS 2 bag.
+"""formation_recorder: records the formation's topics, as received, into a ROS 2 bag.
 
-Not a console script on its own: `curve-formation run ... --bag PATH` (and the demo) run it
-beside the monitor. The bag is closed on Ctrl-C, SIGTERM and at the end of the run.
+`curve-formation run ... --bag PATH` (and the demo) run it beside the monitor; started on its
+own it records a run whose nodes were started by hand. The bag is closed on Ctrl-C, SIGTERM
+and at the end of the run; killed hard, it loses at most the last second.
 """
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -9,10 +10,13 @@ from geometry_msgs.msg import PointStamped, PoseStamped, Twist, Vector3Stamped
 from nav_msgs.msg import Path
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Image
 from std_msgs.msg import Float64MultiArray
 
 from curve_formation import bag
 from curve_formation.nodes import qos, topics
+from curve_formation.nodes.params import declare_parameters, Param, ParameterError
+from curve_formation.nodes.runtime import run_node
 
 
 def formation_topics(n):
@@ -63,3 +67,49 @@ class Recorder(Node):
     def _on_message(self, topic, data):
         self.received[topic] += 1
         self.writer.write(topic, self.get_clock().now().nanoseconds, data)
+
+
+PARAMETERS = (
+    Param('bag', 'string', None, 'path of the new bag (refused if it exists)'),
+    Param('agent_count', 'int', None, 'number of robots n whose topics are recorded', low=1),
+    Param('image_topics', 'string[]', [], 'sensor_msgs/Image topics to record as well'),
+)
+
+TOPICS = (
+    ('sub', '/robot_<i>/{pose,cmd_vel,formation_state,disturbance_estimate}', 'various', 'SENSOR',
+     "every robot's topics, with their own QoS, queue depth 500"),
+    ('sub', '/formation/curve, /formation/curve_path, /diagnostics', 'various', 'LATCHED',
+     'the curve, its path and diagnostics'),
+)
+
+
+class RecorderNode(Recorder):
+    """The recorder as a console script: opens the bag itself and closes it on shutdown."""
+
+    def __init__(self, **kwargs):
+        # Parameters must be read before the bag exists, so a bootstrap node reads them.
+        probe = Node('formation_recorder_parameters', **kwargs)
+        try:
+            p = declare_parameters(probe, PARAMETERS)
+        finally:
+            probe.destroy_node()
+        try:
+            writer = bag.BagWriter(p.bag)
+        except bag.BagError as exc:
+            raise ParameterError(f"parameter 'bag': {exc}") from None
+        writer.__enter__()
+        extra = [(t, Image, qos.SENSOR) for t in p.image_topics]
+        super().__init__(writer, formation_topics(p.agent_count) + extra, **kwargs)
+        self.get_logger().info(f'recording {len(self.received)} topics to {p.bag}')
+
+    def on_shutdown(self):
+        self.writer.close()
+        self.get_logger().info(f'bag closed: {self.writer.count} messages')
+
+
+def main(args=None):
+    return run_node(RecorderNode, args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

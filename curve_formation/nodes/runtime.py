@@ -4,10 +4,13 @@ import signal
 import sys
 
 import rclpy
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 
 from curve_formation.nodes.params import ParameterError
+
+
+SIGNAL_CHECK_PERIOD = 0.2   # s, longest wait before a signal is noticed
 
 
 def now_seconds(node):
@@ -29,7 +32,12 @@ def run_node(node_factory, args=None):
     status = 0
     try:
         node = node_factory()
-        rclpy.spin(node)
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        # A bounded wait returns to Python regularly, so SIGINT/SIGTERM are handled even when
+        # no timer fires (e.g. on sim time after /clock stopped).
+        while rclpy.ok():
+            executor.spin_once(timeout_sec=SIGNAL_CHECK_PERIOD)
     except ParameterError as exc:
         print(f'error: {exc}', file=sys.stderr)
         status = 2
