@@ -134,6 +134,35 @@ def _cmd_replay(args):
         rclpy.try_shutdown()
 
 
+def _cmd_estop(args):
+    import time
+
+    import rclpy
+    from std_msgs.msg import Bool
+
+    from curve_formation.nodes import qos, topics
+    rclpy.init()
+    node = rclpy.create_node('estop')
+    try:
+        pub = node.create_publisher(Bool, topics.ESTOP, qos.LATCHED)
+        pub.publish(Bool(data=args.state == 'on'))
+        deadline = time.monotonic() + args.wait
+        while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        pub.wait_for_all_acked()
+        # Latched: stay up so that controllers starting now also get it, until Ctrl-C.
+        print(f'e-stop {args.state} ({pub.get_subscription_count()} controllers acknowledged);'
+              ' Ctrl-C to quit')
+        if args.hold:
+            while True:
+                time.sleep(1.0)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
 def _cmd_nodes_doc(args):
     from curve_formation.nodes.docs import nodes_markdown
     print(nodes_markdown())
@@ -180,6 +209,14 @@ def build_parser():
     rep.add_argument('--wait', type=float, default=5.0,
                      help='seconds to wait for subscribers before starting')
     rep.set_defaults(func=_cmd_replay)
+    estop = sub.add_parser('estop', help='engage (on) or release (off) the e-stop of every '
+                           'robot on this ROS_DOMAIN_ID')
+    estop.add_argument('state', choices=['on', 'off'])
+    estop.add_argument('--wait', type=float, default=2.0,
+                       help='seconds to wait for controllers to be reached')
+    estop.add_argument('--hold', action='store_true',
+                       help='stay up so late-starting controllers get it too')
+    estop.set_defaults(func=_cmd_estop)
     nodes_doc = sub.add_parser('nodes-doc', help="print the README's node reference "
                                '(parameters, topics, QoS) from the code')
     nodes_doc.set_defaults(func=_cmd_nodes_doc)

@@ -48,8 +48,12 @@ class NodeLaunch:
 
 
 def node_launches(experiment, experiment_path, with_robots=True, rate_hz=None,
-                  pose_noise=(0.0, 0.0), command_latency=0.0):
-    """The node graph of an experiment: curve server, controllers and (optionally) fake robots."""
+                  pose_noise=(0.0, 0.0), command_latency=0.0, faults=None):
+    """The node graph of an experiment: curve server, controllers and (optionally) fake robots.
+
+    faults: fault injection, {'pose_drop': p, 'state_drop': p} (probabilities).
+    """
+    faults = faults or {}
     spec = experiment.spec
     rate = rate_hz or spec.controller.rate_hz or DEFAULT_RATE_HZ
     on_pc = spec.disturbance.injected == 'on_pc'
@@ -72,10 +76,20 @@ def node_launches(experiment, experiment_path, with_robots=True, rate_hz=None,
             'max_angular_rate': _finite_or_zero(limits.max_angular_rate),
             'spacing': spec.agents.spacing,
             'pc_disturbance': d if on_pc else [0.0, 0.0],
+            'pose_timeout': spec.safety.pose_timeout,
+            'neighbour_timeout': spec.safety.neighbour_timeout,
+            'leader_timeout': spec.safety.leader_timeout,
+            'geofence': _geofence(spec),
+            'fault_state_drop': float(faults.get('state_drop', 0.0)),
+            'max_linear_accel': float(spec.limits.max_linear_accel or 0.0) if spec.limits else 0.0,
+            'max_angular_accel': (float(spec.limits.max_angular_accel or 0.0) if spec.limits
+                                  else 0.0),
         }
         if nbrs:
             controller['in_neighbours'] = [j for j, _ in nbrs]
             controller['weights'] = [w for _, w in nbrs]
+        # An empty list has no ROS parameter type: leave it out and let the default apply.
+        controller = {k: v for k, v in controller.items() if v != []}
         launches.append(NodeLaunch('curve_formation.nodes.formation_controller', ns,
                                    'formation_controller', controller))
         if with_robots:
@@ -84,8 +98,18 @@ def node_launches(experiment, experiment_path, with_robots=True, rate_hz=None,
                 'initial_pose': [float(v) for v in experiment.initial_poses[i - 1]],
                 'disturbance': [0.0, 0.0] if on_pc else d, 'seed': i,
                 'pose_noise': [float(v) for v in pose_noise],
-                'command_latency': float(command_latency)}))
+                'command_latency': float(command_latency),
+                'fault_pose_drop': float(faults.get('pose_drop', 0.0))}))
     return launches
+
+
+def _geofence(spec):
+    """[xmin, ymin, xmax, ymax]: the arena grown by the safety margin; [] without an arena."""
+    if spec.arena is None:
+        return []
+    m = spec.safety.geofence_margin
+    width, height = spec.arena.size
+    return [-m, -m, width + m, height + m]
 
 
 def _finite_or_zero(value):
@@ -117,14 +141,14 @@ class Run:
 
     def __init__(self, experiment_path, out_dir, single_process=False, with_robots=True,
                  rate_hz=None, record_hz=20.0, pose_noise=(0.0, 0.0), command_latency=0.0,
-                 bag_path=None, log=print):
+                 bag_path=None, faults=None, log=print):
         self.experiment_path = resolve_config(experiment_path)
         self.experiment = load_experiment(self.experiment_path)
         self.out = Path(out_dir)
         self.single_process = single_process
         self.log = log
         self.launches = node_launches(self.experiment, self.experiment_path, with_robots,
-                                      rate_hz, pose_noise, command_latency)
+                                      rate_hz, pose_noise, command_latency, faults)
         self.param_files = write_params_files(self.launches, self.out / 'params')
         self.domain_id = private_domain_id()
         self.record_hz = record_hz

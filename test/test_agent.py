@@ -47,10 +47,13 @@ def test_node_controllers_reproduce_the_simulator_exactly(name):
             now = step * dt
             for c, pose in zip(ctrls, poses, strict=True):
                 c.on_pose(*pose, now)
-            errors = {c.config.index: c.own_error() for c in ctrls}
-            for c in ctrls:
-                for j, _ in c.config.neighbours:
-                    c.on_neighbour(j, *errors[j], 0, now)
+            # Neighbour states cross the graph instantly here, leader news included.
+            for _ in range(experiment.n):
+                states = {c.config.index: c.state() for c in ctrls}
+                for c in ctrls:
+                    for j, _ in c.config.neighbours:
+                        st = states[j]
+                        c.on_neighbour(j, *st.error, st.curve_id, st.stamp, st.leader_stamp)
             for k, c in enumerate(ctrls):
                 tick = c.tick(now)
                 assert tick.stopped is None
@@ -82,7 +85,7 @@ def ready(cfg=None):
     ctrl = AgentController(cfg or config())
     ctrl.set_curve(circle(), 0)
     ctrl.on_pose(0.0, 0.0, 0.0, 10.0)
-    ctrl.on_neighbour(1, 0.2, 0.0, 0, 10.0)
+    ctrl.on_neighbour(1, 0.2, 0.0, 0, 10.0, 10.0)
     return ctrl
 
 
@@ -97,9 +100,11 @@ def test_is_stale():
     (lambda c: c.on_pose(0.0, 0.0, 0.0, 9.0), 'own pose stale'),
     (lambda c: c.on_neighbour(1, 0.2, 0.0, 0, 9.0), 'neighbour 1 stale'),
     (lambda c: c.on_neighbour(1, 0.2, 0.0, 7, 10.0), 'neighbour 1 is on curve 7'),
+    (lambda c: c.set_estop(True), 'e-stop'),
+    (lambda c: c.on_pose(5.0, 0.0, 0.0, 10.0), 'outside the geofence'),
 ])
 def test_any_stale_or_inconsistent_input_stops_the_robot(mutate, reason):
-    ctrl = ready()
+    ctrl = ready(config(geofence=(-2.0, -2.0, 2.0, 2.0)))
     assert ctrl.tick(10.1).stopped is None
     dhat = list(ctrl.dhat)
     mutate(ctrl)
@@ -113,6 +118,8 @@ def test_missing_neighbour_stops_until_it_reports():
     ctrl = AgentController(config())
     ctrl.set_curve(circle(), 0)
     ctrl.on_pose(0.0, 0.0, 0.0, 10.0)
+    assert 'no news from the leader' in ctrl.tick(10.0).stopped
+    ctrl.leader_stamp = 10.0
     assert 'no state from neighbour 1' in ctrl.tick(10.0).stopped
     ctrl.on_neighbour(1, 0.0, 0.0, 0, 10.0)
     assert ctrl.tick(10.0).stopped is None
@@ -147,3 +154,47 @@ def test_a_curve_breaking_the_assumptions_is_refused():
     with pytest.raises(ValueError, match='Assumption 2'):
         ctrl.set_curve(circle(), 0)
     assert ctrl.curve is None
+
+
+def test_leader_news_propagates_and_its_loss_stops_followers_without_deadlock():
+    """Chain 1 -> 2 -> 3 plus a follower cycle 3 -> 2.
+
+    News of the leader flows down; when it stops, everyone stops; when it is back, everyone
+    drives again (no stop locks itself in through the cycle).
+    """
+    graph = {1: (), 2: ((1, 1.0), (3, 1.0)), 3: ((2, 1.0),)}
+    ctrls = {i: AgentController(config(index=i, neighbours=nbrs, leader_timeout=1.0))
+             for i, nbrs in graph.items()}
+    for c in ctrls.values():
+        c.set_curve(circle(), 0)
+
+    def exchange(now, leader_alive=True):
+        for i, c in ctrls.items():
+            if i != 1 or leader_alive:
+                c.on_pose(0.1 * i, 0.0, 0.0, now)
+        for _ in range(3):
+            for c in ctrls.values():
+                for j, _ in c.config.neighbours:
+                    st = ctrls[j].state()
+                    if j != 1 or leader_alive:
+                        c.on_neighbour(j, *st.error, st.curve_id, st.stamp, st.leader_stamp)
+        return {i: c.tick(now).stopped for i, c in ctrls.items()}
+
+    assert exchange(0.0) == {1: None, 2: None, 3: None}
+    for now in (0.5, 1.0, 1.6):
+        stopped = exchange(now, leader_alive=False)
+    assert 'no news from the leader' in stopped[3]   # 3 hears of 1 only through 2
+    assert stopped[2] is not None
+    assert exchange(2.0) == {1: None, 2: None, 3: None}
+
+
+def test_acceleration_limit_ramps_up_but_stops_at_once():
+    ctrl = ready(config(max_linear_accel=0.5, max_angular_accel=1.0, gains=Gains(5.0, 0.0, 0.1)))
+    first = ctrl.tick(10.0)
+    assert abs(first.v) <= 0.05 + 1e-12 and abs(first.w) <= 0.1 + 1e-12   # 10 Hz ticks
+    second = ctrl.tick(10.1)
+    assert abs(second.v - first.v) <= 0.05 + 1e-12
+    ctrl.set_estop(True)
+    assert (ctrl.tick(10.2).v, ctrl.tick(10.2).w) == (0.0, 0.0)
+    ctrl.set_estop(False)
+    assert abs(ctrl.tick(10.3).v) <= 0.05 + 1e-12    # resumes from rest, smoothly

@@ -4,15 +4,17 @@ import subprocess
 import sys
 import time
 
-from geometry_msgs.msg import PointStamped, Twist
+from geometry_msgs.msg import Twist
 import numpy as np
 import pytest
 import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
+from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
+from curve_formation.core.agent import State
 from curve_formation.core.curve_sources import expression_samples
 from curve_formation.core.curves import fit_curve, FourierBasis
 from curve_formation.nodes import messages, qos, topics
@@ -81,8 +83,9 @@ class Probe:
     def state(self, j, error, curve_id=0):
         if j not in self.state_pubs:
             self.state_pubs[j] = self.node.create_publisher(
-                PointStamped, topics.robot_topic(j, topics.STATE), qos.STATE)
-        self.state_pubs[j].publish(messages.state_to_msg(error, curve_id, self.now()))
+                JointState, topics.robot_topic(j, topics.STATE), qos.STATE)
+        now = self.now()
+        self.state_pubs[j].publish(messages.state_to_msg(State(error, curve_id, now, now)))
 
 
 def test_late_starting_controller_still_receives_the_current_curve(ros, tmp_path):

@@ -1,10 +1,17 @@
 """One robot's controller, free of ROS: what a formation_controller node runs each tick.
 
 Inputs arrive as plain numbers with stamps in seconds (any common clock): the active curve,
-the robot's own pose (arena frame, m and rad) and its in-neighbours' target errors. Each tick
-either computes a command with the paper's local law, or stops the robot (zero velocity)
-and says why: no curve yet, own pose stale, a neighbour missing, stale or on another curve.
-While stopped the disturbance estimate is frozen, so it does not wind up.
+the robot's own pose (arena frame, m and rad), its in-neighbours' target errors and the e-stop.
+Each tick either computes a command with the paper's local law, or stops the robot (zero
+velocity, at once: stopping is never rate-limited) and says why: e-stop, no curve yet, own
+pose stale, outside the geofence, no news from the leader, a neighbour missing, stale or on
+another curve. While stopped the disturbance estimate is frozen, so it does not wind up, and
+with an acceleration limit the robot ramps up again from rest.
+
+Leader heartbeat: the leader's state carries its pose stamp; every follower forwards the newest
+leader stamp it has received from any in-neighbour. Since the leader reaches every agent, each
+agent learns within a few hops when the leader is gone (and stops after `leader_timeout`), and
+learns again when it is back: no stop can lock itself in through a cycle of followers.
 """
 
 from dataclasses import dataclass, field
@@ -16,7 +23,9 @@ from curve_formation.core.control import (
     agent_input,
     follower_feedback,
     Gains,
+    inside_fence,
     leader_feedback,
+    limit_acceleration,
     NO_LIMITS,
     offset_point,
     saturate,
@@ -45,6 +54,10 @@ class AgentConfig:
     rate_hz: float = 10.0
     pose_timeout: float = 0.5       # s
     neighbour_timeout: float = 0.5  # s
+    leader_timeout: float = 1.0     # s without news from the leader (followers)
+    geofence: Optional[tuple] = None  # (xmin, ymin, xmax, ymax), arena frame (m)
+    max_linear_accel: float = math.inf   # m/s^2
+    max_angular_accel: float = math.inf  # rad/s^2
     spacing: str = 'uniform_s'
     fixed_s: Optional[float] = None  # overrides the spacing rule when given
     pc_disturbance: tuple = (0.0, 0.0)  # added to the command before the limits (m/s, rad/s)
@@ -67,6 +80,20 @@ class Tick:
     curve_id: Optional[int] = None
     dhat: tuple = (0.0, 0.0)
     feedback: Optional[tuple] = None
+
+
+@dataclass(frozen=True)
+class State:
+    """What an agent tells its out-neighbours.
+
+    error e_i (m), curve id, pose stamp (s), and the newest leader stamp it knows (s, None
+    before any news).
+    """
+
+    error: tuple
+    curve_id: int
+    stamp: float
+    leader_stamp: Optional[float]
 
 
 @dataclass
@@ -92,6 +119,9 @@ class AgentController:
         self.pose_stamp = None
         self.neighbours = {j: _Neighbour() for j, _ in self.config.neighbours}
         self.rejected = 0
+        self.leader_stamp = None
+        self.estop = False
+        self.last_command = (0.0, 0.0)
 
     def set_curve(self, curve, curve_id):
         """Adopt a new curve; raises ValueError (AssignmentError) if it breaks the assumptions."""
@@ -110,15 +140,36 @@ class AgentController:
             self.rejected += 1
             return False
         self.pose, self.pose_stamp = (x, y, theta), stamp
+        if self.config.is_leader:
+            self.leader_stamp = stamp
         return True
 
-    def on_neighbour(self, j, ex, ey, curve_id, stamp):
-        """In-neighbour j's error e_j (m) w.r.t. curve_id. False if unknown j or not finite."""
-        if j not in self.neighbours or not all_finite(ex, ey, stamp):
+    def on_neighbour(self, j, ex, ey, curve_id, stamp, leader_stamp=None):
+        """In-neighbour j's error e_j (m) w.r.t. curve_id, and the newest leader stamp it knows.
+
+        Returns False (and ignores the message) if j is not an in-neighbour or a value is not
+        finite.
+        """
+        values = (ex, ey, stamp) + (() if leader_stamp is None else (leader_stamp,))
+        if j not in self.neighbours or not all_finite(*values):
             self.rejected += 1
             return False
         self.neighbours[j] = _Neighbour((ex, ey), int(curve_id), stamp)
+        if leader_stamp is not None and (self.leader_stamp is None
+                                         or leader_stamp > self.leader_stamp):
+            self.leader_stamp = leader_stamp
         return True
+
+    def set_estop(self, engaged):
+        """Engage (True) or release (False) the e-stop."""
+        self.estop = bool(engaged)
+
+    def state(self):
+        """This agent's State for its out-neighbours, or None before it has pose and curve."""
+        error = self.own_error()
+        if error is None:
+            return None
+        return State(error, self.curve_id, self.pose_stamp, self.leader_stamp)
 
     def own_error(self):
         """e_i = xb_i - G(s_i) xi (m) from the latest pose, or None."""
@@ -130,16 +181,25 @@ class AgentController:
     def tick(self, now):
         """One control step at time `now` (s)."""
         cfg = self.config
+        if self.estop:
+            return self._stop('e-stop engaged')
         if self.curve is None:
             return self._stop('no curve received yet')
         if is_stale(self.pose_stamp, now, cfg.pose_timeout):
             return self._stop('no pose received yet' if self.pose_stamp is None else
                               f'own pose stale ({now - self.pose_stamp:.2f} s old)')
+        if not inside_fence(self.pose[0], self.pose[1], cfg.geofence):
+            return self._stop(f'outside the geofence at ({self.pose[0]:.3f}, '
+                              f'{self.pose[1]:.3f}) m')
         ex, ey = self.own_error()
         base = Tick(error=(ex, ey), error_stamp=self.pose_stamp, curve_id=self.curve_id)
         if cfg.is_leader:
             fx, fy = leader_feedback(ex, ey)
         else:
+            if is_stale(self.leader_stamp, now, cfg.leader_timeout):
+                return self._stop('no news from the leader yet' if self.leader_stamp is None
+                                  else f'no news from the leader for '
+                                  f'{now - self.leader_stamp:.2f} s', base)
             for j, nb in self.neighbours.items():
                 if nb.stamp is None:
                     return self._stop(f'no state from neighbour {j} yet', base)
@@ -156,13 +216,18 @@ class AgentController:
         period = 1.0 / cfg.rate_hz
         self.dhat[0] += period * ddv
         self.dhat[1] += period * ddw
-        v, w = saturate(v + cfg.pc_disturbance[0], w + cfg.pc_disturbance[1],
-                        cfg.limits.wheel_base, cfg.limits.max_wheel_speed,
+        v, w = limit_acceleration(v + cfg.pc_disturbance[0], w + cfg.pc_disturbance[1],
+                                  *self.last_command, period, cfg.max_linear_accel,
+                                  cfg.max_angular_accel)
+        # The wheel limits come last: whatever the ramp, no wheel exceeds its speed limit.
+        v, w = saturate(v, w, cfg.limits.wheel_base, cfg.limits.max_wheel_speed,
                         cfg.limits.max_angular_rate)
+        self.last_command = (v, w)
         base.v, base.w, base.dhat, base.feedback = v, w, tuple(self.dhat), (fx, fy)
         return base
 
     def _stop(self, reason, base=None):
         tick = base or Tick()
         tick.v, tick.w, tick.stopped, tick.dhat = 0.0, 0.0, reason, tuple(self.dhat)
+        self.last_command = (0.0, 0.0)
         return tick

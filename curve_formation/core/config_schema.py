@@ -102,6 +102,18 @@ class LimitsSpec(Strict):
     wheel_base: float = Field(gt=0, description='distance between the wheels (m)')
     max_wheel_speed: float = Field(gt=0, description='max linear speed of each wheel (m/s)')
     max_angular_rate: Optional[float] = Field(None, gt=0, description='max |w| (rad/s)')
+    max_linear_accel: Optional[float] = Field(None, gt=0, description='max dv/dt (m/s^2)')
+    max_angular_accel: Optional[float] = Field(None, gt=0, description='max dw/dt (rad/s^2)')
+
+
+class SafetySpec(Strict):
+    """Watchdog timeouts of every controller (s) and the geofence margin (m)."""
+
+    pose_timeout: float = Field(0.5, gt=0)
+    neighbour_timeout: float = Field(0.5, gt=0)
+    leader_timeout: float = Field(1.0, gt=0)
+    geofence_margin: float = Field(0.05, ge=0, description='a robot further than this outside '
+                                   'the arena is stopped')
 
 
 class CurveSpec(Strict):
@@ -172,4 +184,5 @@ class ExperimentSpec(Strict):
     curves: list[CurveSpec] = Field(min_length=1)
     simulation: SimulationSpec
     arena: Optional[ArenaSpec] = None
+    safety: SafetySpec = SafetySpec()
     metrics: MetricsSpec = MetricsSpec()

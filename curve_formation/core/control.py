@@ -78,6 +78,25 @@ def saturate(v, w, wheel_base, max_wheel_speed, max_angular_rate):
     return v * scale, w * scale
 
 
+def limit_acceleration(v, w, prev_v, prev_w, dt, max_linear_accel, max_angular_accel):
+    """Clamp the change from the previous command to the acceleration limits over dt (s).
+
+    Limits in m/s^2 and rad/s^2; 0 or infinity means unlimited. Returns (v, w).
+    """
+    if max_linear_accel > 0.0 and max_linear_accel < math.inf:
+        step = max_linear_accel * dt
+        v = min(max(v, prev_v - step), prev_v + step)
+    if max_angular_accel > 0.0 and max_angular_accel < math.inf:
+        step = max_angular_accel * dt
+        w = min(max(w, prev_w - step), prev_w + step)
+    return v, w
+
+
+def inside_fence(x, y, fence):
+    """True when (x, y) lies in fence = (xmin, ymin, xmax, ymax), or when fence is None."""
+    return fence is None or (fence[0] <= x <= fence[2] and fence[1] <= y <= fence[3])
+
+
 def leader_feedback(ex, ey):
     """The leader's feedback term: its own error (m)."""
     return ex, ey

@@ -4,8 +4,9 @@ Moves as a unicycle under the latest cmd_vel plus its constant (physical) input 
 publishes pose (PoseStamped, arena frame) at `rate_hz`, like an overhead camera. Commands are
 piecewise constant, so the motion is integrated exactly up to each command change and each
 publication: no integration step. A zero command means motors off: the robot stands still
-(the disturbance acts on a driven input only). Options: Gaussian pose noise and a fixed
-command latency.
+(the disturbance acts on a driven input only), and so does a command older than
+`command_timeout` (a robot-side watchdog, as a driver should have). Options: Gaussian pose
+noise, a fixed command latency, and dropped poses (fault injection).
 """
 
 from collections import deque
@@ -15,6 +16,7 @@ from geometry_msgs.msg import PoseStamped, Twist
 import numpy as np
 from rclpy.node import Node
 
+from curve_formation.core.agent import is_stale
 from curve_formation.core.dynamics import arc_step
 from curve_formation.nodes import messages, qos, topics
 from curve_formation.nodes.params import declare_parameters, Param, ParameterError
@@ -32,7 +34,11 @@ PARAMETERS = (
           'position (m) and heading (rad)'),
     Param('command_latency', 'double', 0.0, 'delay before a command takes effect (s)',
           low=0.0),
-    Param('seed', 'int', 0, 'seed of the pose noise'),
+    Param('command_timeout', 'double', 1.0, 'motors off when the last command is older than '
+          'this (s); 0 = keep the last command forever', low=0.0),
+    Param('fault_pose_drop', 'double', 0.0, 'fault injection: probability of not publishing '
+          'a pose', low=0.0, high=1.0),
+    Param('seed', 'int', 0, 'seed of the pose noise and drops'),
     Param('frame_id', 'string', 'arena', 'frame of the published pose'),
 )
 
@@ -57,6 +63,7 @@ class FakeRobot(Node):
         self.pending = deque()
         self.rng = np.random.default_rng(p.seed)
         self.last_time = None
+        self.last_command_time = None
         self.pose_pub = self.create_publisher(PoseStamped, topics.POSE, qos.SENSOR)
         self.create_subscription(Twist, topics.CMD_VEL, self._on_cmd, qos.COMMAND)
         self.create_timer(1.0 / p.rate_hz, self._on_timer)
@@ -69,6 +76,7 @@ class FakeRobot(Node):
         now = now_seconds(self)
         self.pending.append((now + self.params.command_latency, v, w))
         self._advance(now)
+        self.last_command_time = now
 
     def _advance(self, now):
         """Move exactly up to `now`, switching commands at their due times."""
@@ -91,6 +99,13 @@ class FakeRobot(Node):
     def _on_timer(self):
         now = now_seconds(self)
         self._advance(now)
+        timeout = self.params.command_timeout
+        if (timeout > 0 and self.command != (0.0, 0.0)
+                and is_stale(self.last_command_time, now, timeout + self.params.command_latency)):
+            self.command = (0.0, 0.0)
+            self.get_logger().warning(f'no command for {timeout:g} s: motors off')
+        if self.rng.random() < self.params.fault_pose_drop:
+            return
         noise = self.params.pose_noise
         x, y, th = self.pose
         if noise[0] > 0 or noise[1] > 0:

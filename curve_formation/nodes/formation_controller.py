@@ -9,10 +9,12 @@ core.agent.AgentController.
 """
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import PointStamped, PoseStamped, Twist, Vector3Stamped
+from geometry_msgs.msg import PoseStamped, Twist, Vector3Stamped
+import numpy as np
 from rclpy.duration import Duration
 from rclpy.node import Node
-from std_msgs.msg import Float64MultiArray
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool, Float64MultiArray
 
 from curve_formation.core.agent import AgentConfig, AgentController
 from curve_formation.core.assignment import AssignmentError, SPACINGS
@@ -48,6 +50,16 @@ PARAMETERS = (
           positive=True),
     Param('neighbour_timeout', 'double', 0.5, 'neighbour state older than this stops the '
           'robot (s)', positive=True),
+    Param('leader_timeout', 'double', 1.0, 'no news from the leader (through the neighbours) '
+          'for this long stops a follower (s)', positive=True),
+    Param('geofence', 'double[]', [], '[xmin, ymin, xmax, ymax] (m): outside it the robot is '
+          'stopped; empty = no fence'),
+    Param('max_linear_accel', 'double', 0.0, 'max change of v (m/s^2); 0 = unlimited',
+          low=0.0),
+    Param('max_angular_accel', 'double', 0.0, 'max change of w (rad/s^2); 0 = unlimited',
+          low=0.0),
+    Param('fault_state_drop', 'double', 0.0, 'fault injection: probability of not publishing '
+          'a formation_state message', low=0.0, high=1.0),
     Param('pc_disturbance', 'double[]', [0.0, 0.0], 'disturbance [d_v, d_w] added to the '
           "command before the wheel limits (the paper's arena experiment); normally zero"),
     Param('frame_id', 'string', 'arena', 'frame of poses and errors'),
@@ -77,6 +89,10 @@ def agent_config(p):
                              'from at least one agent')
     if len(p.pc_disturbance) != 2:
         raise ParameterError("parameter 'pc_disturbance' must be [d_v, d_w]")
+    fence = p.geofence or None
+    if fence is not None and (len(fence) != 4 or fence[0] >= fence[2] or fence[1] >= fence[3]):
+        raise ParameterError(f"parameter 'geofence' must be [xmin, ymin, xmax, ymax] with "
+                             f'xmin < xmax and ymin < ymax, got {p.geofence}')
     inf = float('inf')
     return AgentConfig(
         index=p.index, agent_count=p.agent_count,
@@ -85,22 +101,27 @@ def agent_config(p):
         limits=WheelLimits(p.wheel_base, p.max_wheel_speed or inf, p.max_angular_rate or inf),
         rate_hz=p.rate_hz, pose_timeout=p.pose_timeout, neighbour_timeout=p.neighbour_timeout,
         spacing=p.spacing, fixed_s=p.s if p.s >= 0 else None,
-        pc_disturbance=tuple(p.pc_disturbance))
+        pc_disturbance=tuple(p.pc_disturbance), leader_timeout=p.leader_timeout,
+        geofence=None if fence is None else tuple(fence),
+        max_linear_accel=p.max_linear_accel or inf, max_angular_accel=p.max_angular_accel or inf)
 
 
 TOPICS = (
     ('sub', topics.POSE, 'geometry_msgs/PoseStamped', 'SENSOR', 'own pose, arena frame'),
-    ('sub', '/robot_<j>/' + topics.STATE, 'geometry_msgs/PointStamped', 'STATE',
-     "each in-neighbour's target error (x, y) and curve id (z)"),
+    ('sub', '/robot_<j>/' + topics.STATE, 'sensor_msgs/JointState', 'STATE',
+     "each in-neighbour's state: e_x, e_y, curve_id, leader_stamp"),
     ('sub', topics.CURVE, 'std_msgs/Float64MultiArray', 'LATCHED', 'the active curve'),
+    ('sub', topics.ESTOP, 'std_msgs/Bool', 'LATCHED',
+     'true stops every robot at once, false releases'),
     ('pub', topics.CMD_VEL, 'geometry_msgs/Twist', 'COMMAND', 'velocity command at rate_hz'),
-    ('pub', topics.STATE, 'geometry_msgs/PointStamped', 'STATE',
-     'own target error e_i on every pose, for out-neighbours'),
+    ('pub', topics.STATE, 'sensor_msgs/JointState', 'STATE',
+     'own state on every pose, for out-neighbours (names e_x, e_y, curve_id, leader_stamp)'),
     ('pub', topics.ESTIMATE, 'geometry_msgs/Vector3Stamped', 'STATE',
      'disturbance estimate (x = d_v, y = d_w) every tick, stamped with the pose used'),
     ('pub', topics.DIAGNOSTICS, 'diagnostic_msgs/DiagnosticArray', 'EVENTS',
      'driving or why stopped; curve id, s_i, estimate, rejected inputs'),
 )
+
 
 class FormationController(Node):
     """Thin ROS layer over core.agent.AgentController."""
@@ -112,13 +133,15 @@ class FormationController(Node):
         self.controller = AgentController(self.config)
         self._last_reason = None
         self.cmd_pub = self.create_publisher(Twist, topics.CMD_VEL, qos.COMMAND)
-        self.state_pub = self.create_publisher(PointStamped, topics.STATE, qos.STATE)
+        self.state_pub = self.create_publisher(JointState, topics.STATE, qos.STATE)
+        self.rng = np.random.default_rng()
         self.estimate_pub = self.create_publisher(Vector3Stamped, topics.ESTIMATE, qos.STATE)
         self.diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.EVENTS)
         self.create_subscription(PoseStamped, topics.POSE, self._on_pose, qos.SENSOR)
         self.create_subscription(Float64MultiArray, topics.CURVE, self._on_curve, qos.LATCHED)
+        self.create_subscription(Bool, topics.ESTOP, self._on_estop, qos.LATCHED)
         for j, _ in self.config.neighbours:
-            self.create_subscription(PointStamped, topics.robot_topic(j, topics.STATE),
+            self.create_subscription(JointState, topics.robot_topic(j, topics.STATE),
                                      lambda msg, j=j: self._on_neighbour(j, msg), qos.STATE)
         self.create_timer(1.0 / self.config.rate_hz, self._on_timer)
         self.create_timer(1.0, self._publish_diagnostics)
@@ -141,16 +164,24 @@ class FormationController(Node):
         if not self.controller.on_pose(*messages.pose_from_msg(msg)):
             self.get_logger().warning('non-finite pose rejected', throttle_duration_sec=1.0)
             return
-        error = self.controller.own_error()
-        if error is not None:
-            self.state_pub.publish(messages.state_to_msg(
-                error, self.controller.curve_id, self.controller.pose_stamp,
-                self.params.frame_id))
+        state = self.controller.state()
+        if state is not None and self.rng.random() >= self.params.fault_state_drop:
+            self.state_pub.publish(messages.state_to_msg(state, self.params.frame_id))
 
     def _on_neighbour(self, j, msg):
-        if not self.controller.on_neighbour(j, *messages.state_from_msg(msg)):
+        try:
+            accepted = self.controller.on_neighbour(j, *messages.state_from_msg(msg))
+        except messages.MessageError as exc:
+            accepted = False
+            self.get_logger().warning(f'state from neighbour {j}: {exc}',
+                                      throttle_duration_sec=1.0)
+        if not accepted:
             self.get_logger().warning(f'non-finite state from neighbour {j} rejected',
                                       throttle_duration_sec=1.0)
+
+    def _on_estop(self, msg):
+        self.controller.set_estop(msg.data)
+        self.get_logger().warning('e-stop engaged' if msg.data else 'e-stop released')
 
     def _on_timer(self):
         now = now_seconds(self)

@@ -3,15 +3,17 @@
 Curve message (std_msgs/Float64MultiArray on /formation/curve): data = xi (2H values, the
 paper's layout); layout.dim[0] = ('xi', 2H, 2H), dim[1] = ('basis=<fourier|polynomial>', H, 0),
 dim[2] = ('curve_id=<k>', 0, 0).
-Neighbour state (geometry_msgs/PointStamped on /robot_<i>/formation_state): point.x, point.y =
-the robot's target error e_i (m, arena frame), point.z = the curve id it refers to; header.stamp
-= stamp of the pose it was computed from.
+Neighbour state (sensor_msgs/JointState on /robot_<i>/formation_state, used as a labelled
+vector with a header): names STATE_FIELDS, positions their values: e_x, e_y (m, arena frame),
+the curve id, and the newest leader stamp the robot knows (s, -1 before any); header.stamp =
+stamp of the pose the error was computed from.
 """
 
 import math
 
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import PointStamped, PoseStamped, Twist, Vector3Stamped
+from geometry_msgs.msg import PoseStamped, Twist, Vector3Stamped
+from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from curve_formation.core.curve_codec import (
@@ -75,18 +77,29 @@ def twist_from_msg(msg):
     return msg.linear.x, msg.angular.z
 
 
-def state_to_msg(error, curve_id, stamp_s, frame_id='arena'):
-    msg = PointStamped()
-    msg.header.stamp = seconds_to_stamp(stamp_s)
+STATE_FIELDS = ('e_x', 'e_y', 'curve_id', 'leader_stamp')
+
+
+def state_to_msg(state, frame_id='arena'):
+    """JointState carrying a core.agent.State."""
+    msg = JointState()
+    msg.header.stamp = seconds_to_stamp(state.stamp)
     msg.header.frame_id = frame_id
-    msg.point.x, msg.point.y, msg.point.z = float(error[0]), float(error[1]), float(curve_id)
+    msg.name = list(STATE_FIELDS)
+    leader = -1.0 if state.leader_stamp is None else float(state.leader_stamp)
+    msg.position = [float(state.error[0]), float(state.error[1]), float(state.curve_id), leader]
     return msg
 
 
 def state_from_msg(msg):
-    """(ex, ey, curve_id, stamp_s) from a neighbour's state message."""
-    return (msg.point.x, msg.point.y, int(round(msg.point.z)),
-            stamp_to_seconds(msg.header.stamp))
+    """(ex, ey, curve_id, stamp_s, leader_stamp_s or None); MessageError if malformed."""
+    values = dict(zip(msg.name, msg.position, strict=False))
+    missing = [f for f in STATE_FIELDS if f not in values]
+    if missing:
+        raise MessageError(f'formation state lacks {missing}')
+    leader = values['leader_stamp']
+    return (values['e_x'], values['e_y'], int(round(values['curve_id'])),
+            stamp_to_seconds(msg.header.stamp), None if leader < 0 else leader)
 
 
 def estimate_to_msg(dhat, stamp_s):

@@ -7,9 +7,10 @@ t = 0 is when the first curve arrives. Rows are sampled at `record_hz` from the 
 from dataclasses import dataclass, field
 import math
 
-from geometry_msgs.msg import PointStamped, PoseStamped, Twist, Vector3Stamped
+from geometry_msgs.msg import PoseStamped, Twist, Vector3Stamped
 import numpy as np
 from rclpy.node import Node
+from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from curve_formation.nodes import messages, qos, topics
@@ -56,7 +57,7 @@ class Monitor(Node):
                                      lambda m, i=i: self._on_cmd(i, m), qos.COMMAND)
             self.create_subscription(Vector3Stamped, topics.robot_topic(i, topics.ESTIMATE),
                                      lambda m, i=i: self._on_estimate(i, m), qos.STATE)
-            self.create_subscription(PointStamped, topics.robot_topic(i, topics.STATE),
+            self.create_subscription(JointState, topics.robot_topic(i, topics.STATE),
                                      lambda m, i=i: self._on_state(i, m), qos.STATE)
         self.create_subscription(Float64MultiArray, topics.CURVE, self._on_curve, qos.LATCHED)
         self.create_timer(1.0 / record_hz, self._sample)

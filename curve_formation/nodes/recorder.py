@@ -6,12 +6,12 @@ and at the end of the run; killed hard, it loses at most the last second.
 """
 
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import PointStamped, PoseStamped, Twist, Vector3Stamped
+from geometry_msgs.msg import PoseStamped, Twist, Vector3Stamped
 from nav_msgs.msg import Path
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import Image
-from std_msgs.msg import Float64MultiArray
+from sensor_msgs.msg import Image, JointState
+from std_msgs.msg import Bool, Float64MultiArray
 
 from curve_formation import bag
 from curve_formation.nodes import qos, topics
@@ -22,12 +22,13 @@ from curve_formation.nodes.runtime import run_node
 def formation_topics(n):
     """[(topic, message class, QoSProfile)] of an n-robot formation."""
     out = [(topics.CURVE, Float64MultiArray, qos.LATCHED),
+           (topics.ESTOP, Bool, qos.LATCHED),
            (topics.CURVE_PATH, Path, qos.LATCHED),
            (topics.DIAGNOSTICS, DiagnosticArray, qos.EVENTS)]
     for i in range(1, n + 1):
         out += [(topics.robot_topic(i, topics.POSE), PoseStamped, qos.SENSOR),
                 (topics.robot_topic(i, topics.CMD_VEL), Twist, qos.COMMAND),
-                (topics.robot_topic(i, topics.STATE), PointStamped, qos.STATE),
+                (topics.robot_topic(i, topics.STATE), JointState, qos.STATE),
                 (topics.robot_topic(i, topics.ESTIMATE), Vector3Stamped, qos.STATE)]
     return out
 
@@ -78,8 +79,8 @@ PARAMETERS = (
 TOPICS = (
     ('sub', '/robot_<i>/{pose,cmd_vel,formation_state,disturbance_estimate}', 'various', 'SENSOR',
      "every robot's topics, with their own QoS, queue depth 500"),
-    ('sub', '/formation/curve, /formation/curve_path, /diagnostics', 'various', 'LATCHED',
-     'the curve, its path and diagnostics'),
+    ('sub', '/formation/{curve,curve_path,estop}, /diagnostics', 'various', 'LATCHED',
+     'the curve, its path, the e-stop and diagnostics'),
 )
 
 

@@ -2,6 +2,7 @@
 
 CURVE = '/formation/curve'
 OBSERVED_CURVE = '/formation/observed_curve'
+ESTOP = '/formation/estop'
 CURVE_PATH = '/formation/curve_path'
 CURVE_MARKERS = '/formation/markers'
 POSE = 'pose'
