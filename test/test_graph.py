@@ -57,3 +57,8 @@ def test_unreachable_cycle_is_refused_as_no_spanning_tree():
 
 def test_chain_is_accepted():
     assert DirectedGraph(5, chain(5)).reachable_from(1) == {1, 2, 3, 4, 5}
+
+
+def test_hops_from_leader():
+    g = DirectedGraph(5, [Edge(1, 2), Edge(2, 3), Edge(1, 3), Edge(3, 4), Edge(4, 5), Edge(5, 2)])
+    assert g.hops_from_leader().tolist() == [0, 1, 1, 2, 3]

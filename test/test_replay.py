@@ -106,11 +106,10 @@ def test_replayed_poses_give_the_recorded_commands(recorded, tmp_path, ros_domai
 
     The replayed controllers tick at 10 Hz of bag time but at their own phase, so a command is
     computed from a pose up to one tick (0.1 s) apart from the recording's. Each replayed
-    command is compared with the recorded ones within 0.1 s of it; it must lie within their
-    range widened by 5 % of the peak command. The first 2 s are left out: there the robots run
-    at ~10 m/s with the turn command saturated at +-10 rad/s, flipping sign from one tick to
-    the next, so a command depends on the tick's phase, not on a timing tolerance (measured:
-    17 of 360 outside from 0 s, 6 of 300 from 1 s, 0 of 240 from 2 s).
+    command must lie within the range of the recorded commands less than two ticks (0.2 s)
+    from it, widened by 10 % of the peak command: where a robot rides its wheel limit, (v, w)
+    are scaled together and w changes by up to 0.25 rad/s between neighbouring ticks
+    (measured). The first 2 s, while the controllers start one after the other, are left out.
     """
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
@@ -155,10 +154,10 @@ def test_replayed_poses_give_the_recorded_commands(recorded, tmp_path, ros_domai
         replayed = np.array([c for c in got[i] if c[0] > 1e9 and (c[1], c[2]) != (0.0, 0.0)])
         assert len(replayed) > 30, f'robot {i}: only {len(replayed)} replayed commands'
         for t, v, w in replayed[replayed[:, 0] >= first_motion + 2.0]:
-            near = moving[np.abs(moving[:, 0] - t) <= 0.1]
+            near = moving[np.abs(moving[:, 0] - t) <= 0.2]
             if len(near) == 0:
                 continue
-            lo, hi = near[:, 1:].min(axis=0) - 0.05 * peak, near[:, 1:].max(axis=0) + 0.05 * peak
+            lo, hi = near[:, 1:].min(axis=0) - 0.1 * peak, near[:, 1:].max(axis=0) + 0.1 * peak
             assert np.all((lo <= (v, w)) & ((v, w) <= hi)), (i, t, (v, w), lo, hi)
             compared += 1
     assert compared > 150   # about 40 ticks per robot from 2 s to 6 s

@@ -11,6 +11,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 
 Pair = tuple[float, float]
+MAX_FIT_ENTRIES = 50_000_000   # samples x basis functions of one fit (400 MB of float64)
 
 
 class Strict(BaseModel):
@@ -48,7 +49,8 @@ class Initial(Strict):
 
 
 class Agents(Strict):
-    count: int = Field(ge=1, description='number of agents n; agent 1 is the leader')
+    count: int = Field(ge=1, le=10_000, description='number of agents n; agent 1 is the '
+                       'leader (the graph is held as a dense n x n matrix)')
     spacing: Literal['uniform_s', 'arc_length'] = 'uniform_s'
     initial: Initial
 
@@ -126,13 +128,15 @@ class CurveSpec(Strict):
 
     start: float = Field(0.0, ge=0, description='time this curve becomes active (s)')
     basis: Literal['fourier', 'polynomial']
-    harmonics: Optional[int] = Field(None, ge=1)
-    order: Optional[int] = Field(None, ge=1)
+    harmonics: Optional[int] = Field(None, ge=1, le=5_000)
+    order: Optional[int] = Field(None, ge=1, le=30, description='beyond ~30 a monomial basis '
+                                 'is numerically singular')
     x: Optional[str] = None
     y: Optional[str] = None
     bezier: Optional[list[Pair]] = None
     points: Optional[list[Pair]] = None
-    samples: int = Field(400, ge=3, description='samples taken from x/y or bezier for the fit')
+    samples: int = Field(400, ge=3, le=1_000_000,
+                         description='samples taken from x/y or bezier for the fit')
 
     @model_validator(mode='after')
     def _consistent(self):
@@ -150,6 +154,10 @@ class CurveSpec(Strict):
                              f'got {sources or "none"}')
         if sources == ['x/y'] and (self.x is None or self.y is None):
             raise ValueError('an expression curve needs both `x` and `y`')
+        h = 2 * self.size + 1 if self.basis == 'fourier' else self.size + 1
+        if self.samples * h > MAX_FIT_ENTRIES:
+            raise ValueError(f'samples x basis functions = {self.samples * h} exceeds '
+                             f'{MAX_FIT_ENTRIES} (the fit matrix would not fit in memory)')
         return self
 
     @property

@@ -86,6 +86,18 @@ class DirectedGraph:
                     queue.append(int(target))
         return seen
 
+    def hops_from_leader(self):
+        """(n,) number of edges on the shortest path from the leader to each agent."""
+        hops = {self.leader: 0}
+        queue = deque([self.leader])
+        while queue:
+            source = queue.popleft()
+            for target in self.out_neighbours(source):
+                if target not in hops:
+                    hops[target] = hops[source] + 1
+                    queue.append(target)
+        return np.array([hops[i] for i in range(1, self.n + 1)])
+
     def in_neighbours(self, agent):
         """[(source, weight)] that agent (1-based) receives from, sorted by source."""
         row = self.adjacency[agent - 1]

@@ -73,11 +73,11 @@ def _arc_step(poses, motion, dt):
 @numba.njit(cache=True)
 def _run(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, d_pc, d_robot,
          wheel_base, vmax, wmax, dt, step0, steps, control_every, record_every,
-         motion, cmd, tick_offsets, rec_poses, rec_dhat, rec_cmd):
+         motion, cmd, tick_offsets, start_steps, rec_poses, rec_dhat, rec_cmd):
     """Advance poses (n, 3) and dhat (n, 2) in place by `steps` fine steps from `step0`.
 
     motion and cmd (n, 2) hold the zero-order-hold command across calls; agent i ticks at
-    the steps where (step - tick_offsets[i]) % control_every == 0.
+    the steps where (step - tick_offsets[i]) % control_every == 0, from step start_steps[i] on.
     """
     n = poses.shape[0]
     err = np.zeros((n, 2))
@@ -96,6 +96,8 @@ def _run(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, d_pc, d_ro
                 _controls(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, d_pc,
                           d_robot, wheel_base, vmax, wmax, err, fb, new_motion, new_cmd, ddhat)
                 for i in range(n):
+                    if step < start_steps[i]:
+                        continue   # not started yet: motors off, estimator idle
                     if (step - tick_offsets[i]) % control_every == 0:
                         motion[i, 0] = new_motion[i, 0]
                         motion[i, 1] = new_motion[i, 1]
@@ -194,12 +196,15 @@ class SimResult:
 
 
 def simulate(experiment, rate_hz='config', duration=None, dt=None, record_dt=None,
-             disturbance=None, gains=None, limits=None, initial_poses=None, tick_phases=None):
+             disturbance=None, gains=None, limits=None, initial_poses=None, tick_phases=None,
+             start_delays=None):
     """Simulate an Experiment; keyword arguments override the file's settings.
 
     rate_hz: 'config' (the file's controller.rate_hz), None (continuous) or a rate (Hz).
     tick_phases: (n,) fractions in [0, 1) of a control period by which each agent's ticks lag
     (unsynchronised controllers, as the ROS nodes run); default all 0 (synchronous).
+    start_delays: (n,) s before each agent's controller starts (zero-order hold only), as
+    followers wait for news of the leader; default all 0.
     Returns a SimResult.
     """
     spec = experiment.spec
@@ -219,6 +224,8 @@ def simulate(experiment, rate_hz='config', duration=None, dt=None, record_dt=Non
     control_every = 0 if rate_hz is None else _ratio(1.0 / rate_hz, dt, 'control period')
     phases = np.zeros(experiment.n) if tick_phases is None else np.asarray(tick_phases, float)
     tick_offsets = np.floor(phases * max(control_every, 1)).astype(np.int64)
+    delays = np.zeros(experiment.n) if start_delays is None else np.asarray(start_delays, float)
+    start_steps = np.round(delays / dt).astype(np.int64)
     total = int(round(duration / dt))
     n_rec = (total - 1) // record_every + 1
     rec_poses = np.zeros((n_rec, experiment.n, 3))
@@ -236,8 +243,8 @@ def simulate(experiment, rate_hz='config', duration=None, dt=None, record_dt=Non
              experiment.graph.leader - 1, gains.k1, gains.k2, gains.offset, d_pc, d_robot,
              limits.wheel_base,
              limits.max_wheel_speed, limits.max_angular_rate, dt, a, min(b, total) - a,
-             control_every, record_every, motion, cmd, tick_offsets, rec_poses, rec_dhat,
-             rec_cmd)
+             control_every, record_every, motion, cmd, tick_offsets, start_steps, rec_poses,
+             rec_dhat, rec_cmd)
     t = np.arange(n_rec) * record_every * dt
     phase_index = np.searchsorted(np.array(starts[1:-1]) * dt, t, side='right')
     return SimResult(experiment, rate_hz, gains, limits, dist, t, rec_poses, rec_dhat, rec_cmd,
