@@ -31,6 +31,7 @@ DEFAULT_RATE_HZ = 10.0
 # Keys of the bag metadata (custom_data) that make a bag self-describing.
 PARAMETERS_KEY = 'curve_formation.parameters'
 READY_TIMEOUT = 90.0   # s; nine Python processes start in ~10 s on two cores
+STOP_TIMEOUT = 10.0    # s for every node to exit after SIGINT before it is killed
 
 
 @dataclass(frozen=True)
@@ -275,9 +276,10 @@ class Run:
         for proc in self.processes.values():
             if proc.poll() is None:
                 proc.send_signal(signal.SIGINT)
+        deadline = time.monotonic() + STOP_TIMEOUT   # one deadline for all nodes together
         for proc in self.processes.values():
             try:
-                proc.wait(10)
+                proc.wait(max(0.1, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait(5)

@@ -104,3 +104,21 @@ def test_hard_killed_run_loses_at_most_the_last_second(tmp_path, ros_env):
                          capture_output=True).returncode == 0:
         assert time.monotonic() < deadline, 'node processes outlived the killed runner'
         time.sleep(0.2)
+
+
+@pytest.mark.ros
+def test_run_started_with_sigint_ignored_still_stops_promptly(tmp_path, ros_env):
+    """As from a background job of a non-interactive shell: SIGINT is inherited ignored."""
+    proc = subprocess.Popen(
+        [sys.executable, '-m', 'curve_formation.cli', 'run', str(DATA_DIR / 'fast_closed.yaml'),
+         '--out', str(tmp_path / 'run'), '--duration', '3'],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=ros_env,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+    start = time.monotonic()
+    out, _ = proc.communicate(timeout=120)
+    assert proc.returncode == 0, out
+    # Start-up takes ~10 s; the stop must not wait out a timeout per node (19 x 10 s before).
+    assert time.monotonic() - start < 60
+    logs = (tmp_path / 'run' / 'logs' / 'robot_1.formation_controller.log').read_text()
+    assert 'Traceback' not in logs
+    assert (tmp_path / 'run' / 'metrics.json').exists()

@@ -27,6 +27,8 @@ def run_node(node_factory, args=None):
     down first) is replaced: SIGINT and SIGTERM both raise KeyboardInterrupt here.
     """
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    # Installed explicitly: a process started from a background job inherits SIGINT ignored.
+    signal.signal(signal.SIGINT, _interrupt)
     signal.signal(signal.SIGTERM, _interrupt)
     node = None
     status = 0
