@@ -164,3 +164,34 @@ def test_console_script_exits_2_with_one_line(ros_domain):
     assert proc.returncode == 2
     assert proc.stderr.strip().splitlines()[-1].startswith("error: parameter 'k1'")
     assert 'Traceback' not in proc.stderr
+
+
+def test_curve_server_fits_and_publishes_an_observed_curve(ros):
+    from geometry_msgs.msg import Point32, PolygonStamped
+    context, add, spin_until = ros
+    server = add(CurveServer(context=context, parameter_overrides=overrides(
+        experiment='closed_curve', observed_basis='fourier', observed_size=6)))
+    spin_until(lambda: server.next_id == 1)
+    probe = add(rclpy.create_node('observer', context=context))
+    received = []
+    probe.create_subscription(Float64MultiArray, topics.CURVE,
+                              lambda m: received.append(messages.curve_from_msg(m)), qos.LATCHED)
+    pub = probe.create_publisher(PolygonStamped, topics.OBSERVED_CURVE, qos.EVENTS)
+    s = np.linspace(0, 1, 90, endpoint=False)
+    msg = PolygonStamped()
+    msg.polygon.points = [Point32(x=float(3 + 2 * np.cos(2 * np.pi * v)),
+                                  y=float(1 + np.sin(2 * np.pi * v))) for v in s]
+    spin_until(lambda: pub.get_subscription_count() > 0)
+    pub.publish(msg)
+    spin_until(lambda: any(cid == 1 for _, cid in received))
+    curve = next(c for c, cid in received if cid == 1)
+    pts = curve.points(np.linspace(0, 1, 7))
+    # Observed points are parameterised by chord length; an ellipse in that parameter is not a
+    # finite Fourier series, so K = 6 leaves a small residual (measured 0.012, 0.3 % of size).
+    assert np.abs((pts[:, 0] - 3) ** 2 / 4 + (pts[:, 1] - 1) ** 2 - 1).max() < 0.02
+    # Too few points for the basis: refused, the current curve stays.
+    msg.polygon.points = msg.polygon.points[:5]
+    pub.publish(msg)
+    deadline = time.monotonic() + 1.0
+    spin_until(lambda: time.monotonic() > deadline)
+    assert server.next_id == 2
