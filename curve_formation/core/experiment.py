@@ -86,10 +86,6 @@ class Experiment:
                         's': p.s.tolist()} for p in self.phases],
         }
 
-    def phase_at(self, t):
-        """The phase active at time t (s)."""
-        active = [p for p in self.phases if p.start <= t]
-        return active[-1] if active else self.phases[0]
 
 
 def _format_location(loc):

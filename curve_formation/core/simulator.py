@@ -24,7 +24,6 @@ _agent_input = numba.njit(cache=True)(control.agent_input)
 _saturate = numba.njit(cache=True)(control.saturate)
 _arc = numba.njit(cache=True)(dynamics.arc_step)
 
-CONTINUOUS = None
 # Largest heading change (rad) of one RK4 substep in continuous mode.
 MAX_TURN_PER_SUBSTEP = 0.05
 

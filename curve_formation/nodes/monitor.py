@@ -5,7 +5,6 @@ t = 0 is when the first curve arrives. Rows are sampled at `record_hz` from the 
 """
 
 from dataclasses import dataclass, field
-import math
 
 from geometry_msgs.msg import PoseStamped, Twist, Vector3Stamped
 import numpy as np
@@ -106,8 +105,3 @@ class Monitor(Node):
         rec.commands.append(self.commands.copy())
         rec.dhat.append(self.dhat.copy())
         rec.curve_id.append(self.curve_id)
-
-    def command_age(self, i):
-        """Seconds since robot i's last cmd_vel (inf if none)."""
-        t = self.command_times[i - 1]
-        return math.inf if np.isnan(t) else now_seconds(self) - t
