@@ -56,7 +56,7 @@ def node_launches(experiment, experiment_path, with_robots=True, rate_hz=None,
     """
     faults = faults or {}
     spec = experiment.spec
-    rate = rate_hz or spec.controller.rate_hz or DEFAULT_RATE_HZ
+    rate = control_rate(experiment, rate_hz)
     on_pc = spec.disturbance.injected == 'on_pc'
     limits = experiment.limits
     # The curve server waits for the n controllers and the runner's monitor.
@@ -104,6 +104,11 @@ def node_launches(experiment, experiment_path, with_robots=True, rate_hz=None,
     return launches
 
 
+def control_rate(experiment, rate_hz=None):
+    """Controllers' rate (Hz): the override, else the file's, else DEFAULT_RATE_HZ."""
+    return float(rate_hz or experiment.spec.controller.rate_hz or DEFAULT_RATE_HZ)
+
+
 def _geofence(spec):
     """[xmin, ymin, xmax, ymax]: the arena grown by the safety margin; [] without an arena."""
     if spec.arena is None:
@@ -148,6 +153,7 @@ class Run:
         self.out = Path(out_dir)
         self.single_process = single_process
         self.log = log
+        self.rate_hz = control_rate(self.experiment, rate_hz)
         self.launches = node_launches(self.experiment, self.experiment_path, with_robots,
                                       rate_hz, pose_noise, command_latency, faults)
         self.param_files = write_params_files(self.launches, self.out / 'params')
@@ -312,7 +318,7 @@ class Run:
         phase = phases_of(data['curve_id'], len(self.experiment.phases))
         result = metrics.run_metrics(self.experiment, data['t'], data['poses'], phase,
                                      data['dhat'], data['commands'])
-        result['control'] = f'ROS nodes at {self.launches[1].parameters["rate_hz"]:g} Hz'
+        result['control'] = f'ROS nodes at {self.rate_hz:g} Hz'
         result['mode'] = 'single process' if self.single_process else 'one process per node'
         self.out.mkdir(parents=True, exist_ok=True)
         (self.out / 'metrics.json').write_text(json.dumps(result, indent=2) + '\n')

@@ -8,6 +8,7 @@ from rclpy.context import Context
 from rclpy.parameter import Parameter
 
 from curve_formation.nodes import docs
+from curve_formation.runner import NODE_CLASSES
 
 
 README = Path(__file__).resolve().parent.parent / 'README.md'
@@ -30,8 +31,7 @@ def test_nodes_create_the_documented_topics(ros_domain, name, module):
     params = {'formation_controller': dict(index=2, agent_count=3, in_neighbours=[1]),
               'curve_server': dict(experiment='closed_curve'),
               'fake_robot': {}}[name]
-    cls = getattr(module, {'formation_controller': 'FormationController',
-                           'curve_server': 'CurveServer', 'fake_robot': 'FakeRobot'}[name])
+    cls = getattr(module, NODE_CLASSES[module.__name__])
     node = cls(context=context, namespace='/robot_2',
                parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
     try:
