@@ -5,6 +5,7 @@ Bad input ends with one line `error: FILE: KEY: ...` and exit status 2, never a 
 """
 
 import argparse
+import dataclasses
 import json
 from pathlib import Path
 import sys
@@ -21,13 +22,21 @@ def _write_json(path, data):
     path.write_text(json.dumps(data, indent=2, default=float) + '\n')
 
 
-def simulate_to_dir(config, out_dir, rate='config'):
-    """Batch-simulate one experiment; write metrics.json and figures into out_dir."""
+def simulate_to_dir(config, out_dir, rate='config', law=None, heading=None):
+    """Batch-simulate one experiment; write metrics.json and figures into out_dir.
+
+    law ('paper', 'adaptive', 'observer') and heading ('paper', 'sampled') override the file's.
+    """
     from curve_formation.core import metrics, plots
     from curve_formation.core.simulator import simulate
 
     experiment = load_experiment(resolve_config(config))
-    result = simulate(experiment, rate_hz=rate)
+    gains = experiment.gains
+    if law is not None:
+        gains = dataclasses.replace(gains, law=law)
+    if heading is not None:
+        gains = dataclasses.replace(gains, sampled_heading=heading == 'sampled')
+    result = simulate(experiment, rate_hz=rate, gains=gains)
     out = Path(out_dir)
     data = metrics.result_metrics(result)
     _write_json(out / 'metrics.json', data)
@@ -41,7 +50,7 @@ def simulate_to_dir(config, out_dir, rate='config'):
 def _summary_line(name, data):
     settle = ', '.join('not settled' if p['settle_time'] is None else f'{p["settle_time"]:.1f} s'
                        for p in data['phases'])
-    return (f'{name:14s} final ||e|| = {data["final_error_norm"]:.3g}, '
+    return (f'{name:24s} final ||e|| = {data["final_error_norm"]:.3g}, '
             f'settling per curve: {settle}')
 
 
@@ -69,7 +78,7 @@ def _cmd_sim(args):
         rate = None
     elif args.rate is not None:
         rate = args.rate
-    data = simulate_to_dir(args.config, args.out, rate)
+    data = simulate_to_dir(args.config, args.out, rate, args.law, args.heading)
     print(_summary_line(data['experiment'], data))
     print(f'wrote {args.out}/metrics.json and figures')
 
@@ -85,11 +94,13 @@ def _cmd_demo(args):
     if out.exists() and any(out.iterdir()):
         raise FileExistsError(f'{out}: output folder is not empty; give a new one')
     summary = {'paper_cases_batch_simulation': {}}
-    print("1/2 batch simulation of the paper's cases with the paper's law and settings")
+    print("1/2 batch simulation of the paper's cases, with the paper's law and with ours")
     for name in PAPER_CASES:
-        data = simulate_to_dir(name, out / 'paper_cases' / name)
-        summary['paper_cases_batch_simulation'][name] = data
-        print('    ' + _summary_line(name, data))
+        for law, heading in (('paper', 'paper'), ('observer', 'sampled')):
+            data = simulate_to_dir(name, out / 'paper_cases' / name / law, law=law,
+                                   heading=heading)
+            summary['paper_cases_batch_simulation'].setdefault(name, {})[law] = data
+            print('    ' + _summary_line(f'{name} ({law})', data))
     print(f'2/2 ROS 2 run of {DEMO_RUN}: 9 fake robots, 9 controllers, curve server, '
           f'one process each ({args.duration:g} s)')
     result = run_experiment(DEMO_RUN, out / DEMO_RUN, duration=args.duration,
@@ -178,6 +189,10 @@ def build_parser():
     sim = sub.add_parser('sim', help='batch-simulate an experiment')
     sim.add_argument('config', help='experiment YAML path or shipped name (e.g. closed_curve)')
     sim.add_argument('--out', required=True, help='output folder')
+    sim.add_argument('--law', choices=('paper', 'adaptive', 'observer'),
+                     help="override controller.law (paper: the paper's reference law)")
+    sim.add_argument('--heading', choices=('paper', 'sampled'),
+                     help='override controller.heading')
     mode = sim.add_mutually_exclusive_group()
     mode.add_argument('--rate', type=float, help='zero-order-hold control rate (Hz)')
     mode.add_argument('--continuous', action='store_true', help='continuous control')

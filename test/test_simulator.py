@@ -21,10 +21,23 @@ def case(request):
     return load_experiment(resolve_config(request.param))
 
 
-def test_lyapunov_never_increases_along_continuous_trajectories(case):
-    """V' = -xe^T (Q kron I2) xe <= 0 (Proposition 1): continuous law, no wheel limits."""
+LAWS = {
+    'paper': lambda g: g.paper_law(),
+    'adaptive': lambda g: dataclasses.replace(g.paper_law(), law='adaptive',
+                                              adaptation=(3.0, 1.0 / g.offset ** 2)),
+    'observer': lambda g: dataclasses.replace(g, law='observer'),
+}
+
+
+@pytest.mark.parametrize('law', LAWS)
+def test_lyapunov_never_increases_along_continuous_trajectories(case, law):
+    """V' <= 0 for each law's V (docs/control-laws.md): continuous law, no wheel limits.
+
+    paper: V' = -k1 xe^T (Q kron I2) xe (Proposition 1); adaptive: the same V with the
+    estimate weighted by Gamma^-1; observer: the cascade function W.
+    """
     result = simulate(case, rate_hz=None, limits=NO_LIMITS, duration=min(
-        30.0, case.spec.simulation.duration))
+        30.0, case.spec.simulation.duration), gains=LAWS[law](case.gains))
     v = result.lyapunov
     for k in range(len(case.phases)):
         window = v[result.phase == k]
@@ -75,7 +88,7 @@ def test_error_jumps_at_a_curve_switch():
 def test_paper_settings_stall_with_agents_circling():
     """Reference behaviour of the paper's law (paper-notes.md): reproduced, not hidden."""
     case = load_experiment(resolve_config('closed_curve'))
-    result = simulate(case, rate_hz=None, duration=60.0)
+    result = simulate(case, rate_hz=None, duration=60.0, gains=case.gains.paper_law())
     data = metrics.result_metrics(result)
     assert not data['all_settled']
     norm = result.error_norm
@@ -91,8 +104,8 @@ def test_zero_order_hold_at_10hz_needs_a_bounded_turn_rate():
     anywhere (measured: ||e|| 25.6 -> 19 after 60 s); bounding |w| to 10 rad/s converges.
     """
     case = load_experiment(resolve_config('closed_curve'))
-    kw = dict(rate_hz=10.0, disturbance=[0, 0], gains=dataclasses.replace(case.gains, k2=0.0),
-              duration=60.0)
+    kw = dict(rate_hz=10.0, disturbance=[0, 0], gains=dataclasses.replace(
+        case.gains.paper_law(), k2=0.0), duration=60.0)
     free = simulate(case, limits=NO_LIMITS, **kw).error_norm
     assert not np.isfinite(free[-1]) or free[-1] > 0.5 * free[0]
     bounded = simulate(case, limits=dataclasses.replace(NO_LIMITS, max_angular_rate=10.0),

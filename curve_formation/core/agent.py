@@ -21,12 +21,15 @@ from typing import Optional
 from curve_formation.core.assignment import agent_parameters, check_assumptions
 from curve_formation.core.control import (
     agent_input,
+    body_velocity,
     follower_feedback,
     Gains,
     inside_fence,
     leader_feedback,
     limit_acceleration,
     NO_LIMITS,
+    observer_input,
+    observer_step,
     offset_point,
     saturate,
     WheelLimits,
@@ -122,6 +125,10 @@ class AgentController:
         self.leader_stamp = None
         self.estop = False
         self.last_command = (0.0, 0.0)
+        # Observer law: the pose and stamp of the previous command's tick, and that command
+        # where the disturbance enters (before a PC-injected disturbance, else as sent).
+        self.anchor = None
+        self.reference = (0.0, 0.0)
 
     def set_curve(self, curve, curve_id):
         """Adopt a new curve; raises ValueError (AssignmentError) if it breaks the assumptions."""
@@ -211,23 +218,52 @@ class AgentController:
             fx, fy = follower_feedback(ex, ey, [nb.error for nb in self.neighbours.values()],
                                        [w for _, w in cfg.neighbours])
         gains = cfg.gains
-        v, w, ddv, ddw = agent_input(fx, fy, ex, ey, self.pose[2], self.dhat[0], self.dhat[1],
-                                     gains.k1, gains.k2, gains.offset)
         period = 1.0 / cfg.rate_hz
-        self.dhat[0] += period * ddv
-        self.dhat[1] += period * ddw
+        hold = gains.hold_period(cfg.rate_hz)
+        if gains.law == 'observer':
+            self._observe()
+            v, w = observer_input(fx, fy, self.pose[2], self.dhat[0], self.dhat[1], gains.k1,
+                                  gains.k2, gains.offset, hold, cfg.limits.wheel_base,
+                                  cfg.limits.max_wheel_speed, cfg.limits.max_angular_rate)
+        else:
+            v, w, ddv, ddw = agent_input(fx, fy, ex, ey, self.pose[2], self.dhat[0],
+                                         self.dhat[1], gains.k1, gains.k2, gains.offset,
+                                         *gains.estimator_gains(), hold)
+            self.dhat[0] += period * ddv
+            self.dhat[1] += period * ddw
+        law_command = (v, w)
         v, w = limit_acceleration(v + cfg.pc_disturbance[0], w + cfg.pc_disturbance[1],
                                   *self.last_command, period, cfg.max_linear_accel,
                                   cfg.max_angular_accel)
         # The wheel limits come last: whatever the ramp, no wheel exceeds its speed limit.
         v, w = saturate(v, w, cfg.limits.wheel_base, cfg.limits.max_wheel_speed,
                         cfg.limits.max_angular_rate)
+        self.anchor = (self.pose, self.pose_stamp)
+        self.reference = law_command if any(cfg.pc_disturbance) else (v, w)
         self.last_command = (v, w)
         base.v, base.w, base.dhat, base.feedback = v, w, tuple(self.dhat), (fx, fy)
         return base
 
+    def _observe(self):
+        """Observer law: move dhat towards (motion measured since the last tick - command) / k2.
+
+        The motion is the constant (v, w) that carries the previous tick's pose to the current
+        one over the difference of their stamps; without a newer pose nothing is updated.
+        """
+        if self.anchor is None:
+            return
+        (x0, y0, th0), stamp0 = self.anchor
+        elapsed = self.pose_stamp - stamp0
+        if elapsed <= 0.0:
+            return
+        measured = body_velocity(x0, y0, th0, *self.pose, elapsed)
+        blend = 1.0 - math.exp(-self.config.gains.observer_rate * elapsed)
+        self.dhat[:] = observer_step(*self.dhat, *measured, *self.reference,
+                                     self.config.gains.k2, blend)
+
     def _stop(self, reason, base=None):
         tick = base or Tick()
+        self.anchor = None
         tick.v, tick.w, tick.stopped, tick.dhat = 0.0, 0.0, reason, tuple(self.dhat)
         self.last_command = (0.0, 0.0)
         return tick

@@ -69,12 +69,35 @@ class GraphSpec(Strict):
 
 
 class ControllerSpec(Strict):
-    law: Literal['paper'] = 'paper'
+    law: Literal['paper', 'adaptive', 'observer'] = Field(
+        'paper', description="disturbance estimator: 'paper' (the paper's adaptive law), "
+        "'adaptive' (per-channel gains `adaptation`), 'observer' (from the measured motion)")
+    adaptation: Pair = Field((1.0, 1.0), description='law adaptive: multipliers (gamma_v, '
+                             "gamma_w) of the paper's estimator rate per channel")
+    heading: Literal['paper', 'sampled'] = Field(
+        'paper', description="'sampled': with rate_hz, each command turns the heading as the "
+        "continuous law would over one period, so it cannot overshoot; 'paper': holds the "
+        'continuous-time turn rate')
+    observer_rate: float = Field(5.0, gt=0, description='law observer: bandwidth of the '
+                                 'disturbance observer (1/s)')
     k1: float = Field(gt=0, description='gain on the target error (1/s)')
     k2: float = Field(ge=0, description='estimator gain')
     offset: float = Field(description='offset l of the control point ahead of the axle (m)')
     rate_hz: Optional[float] = Field(
         None, gt=0, description='control rate with zero-order hold; null = continuous')
+
+    @field_validator('adaptation')
+    @classmethod
+    def _positive_gains(cls, value):
+        if min(value) <= 0 or not all(math.isfinite(g) for g in value):
+            raise ValueError('adaptation gains must be finite and > 0')
+        return value
+
+    @model_validator(mode='after')
+    def _observer_needs_k2(self):
+        if self.law == 'observer' and self.k2 <= 0:
+            raise ValueError('law observer needs k2 > 0 (it estimates d / k2, as the paper)')
+        return self
 
     @field_validator('offset')
     @classmethod

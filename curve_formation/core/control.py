@@ -8,19 +8,53 @@ The per-agent functions below use only scalar math so that the same source runs 
 controller node (plain Python) and inside the batch simulator's compiled kernel (numba).
 """
 
+import dataclasses
 from dataclasses import dataclass
 import math
 
 import numpy as np
 
 
+# Disturbance estimators, by name in the experiment YAML (`controller.law`) and by code in the
+# compiled simulator.
+LAWS = {'paper': 0, 'adaptive': 1, 'observer': 2}
+
+
 @dataclass(frozen=True)
 class Gains:
-    """k1 (1/s) on the target error, k2 on the estimate, offset l (m) of the control point."""
+    """The law and its gains.
+
+    k1 (1/s) on the target error, k2 on the estimate, offset l (m) of the control point.
+    law: 'paper' (dhat' = k2 R^T e), 'adaptive' (the same with per-channel gains
+    `adaptation` = (gamma_v, gamma_w) multiplying each channel's rate) or 'observer' (dhat
+    tracks the measured body velocity minus the command, over k2, at `observer_rate` (1/s)).
+    sampled_heading: under a zero-order hold, turn as the continuous law would over one
+    period (sampled_feedback) instead of holding its instantaneous turn rate.
+    """
 
     k1: float
     k2: float
     offset: float
+    law: str = 'paper'
+    adaptation: tuple = (1.0, 1.0)
+    observer_rate: float = 5.0
+    sampled_heading: bool = False
+
+    @property
+    def law_code(self):
+        return LAWS[self.law]
+
+    def paper_law(self):
+        """These gains with the paper's reference law (its estimator, its heading command)."""
+        return dataclasses.replace(self, law='paper', sampled_heading=False)
+
+    def hold_period(self, rate_hz):
+        """The `period` argument of agent_input at this control rate (None = continuous)."""
+        return 1.0 / rate_hz if self.sampled_heading and rate_hz else 0.0
+
+    def estimator_gains(self):
+        """(gamma_v, gamma_w): per-channel multipliers of the paper's estimator rate."""
+        return self.adaptation if self.law == 'adaptive' else (1.0, 1.0)
 
 
 @dataclass(frozen=True)
@@ -43,23 +77,102 @@ def offset_point(x, y, theta, offset):
     return x + offset * math.cos(theta), y + offset * math.sin(theta)
 
 
-def agent_input(fx, fy, ex, ey, theta, dhat_v, dhat_w, k1, k2, offset):
-    """One agent's command and estimator rate.
+def agent_input(fx, fy, ex, ey, theta, dhat_v, dhat_w, k1, k2, offset, gamma_v=1.0,
+                gamma_w=1.0, period=0.0):
+    """One agent's command and adaptive estimator rate.
 
     Args:
         fx, fy: feedback term: e_i for the leader, sum_j a_ij (e_i - e_j) for a follower (m).
         ex, ey: own target error e_i = xb_i - G(s_i) xi (m), arena frame.
         theta: heading (rad).
         dhat_v, dhat_w: disturbance estimate.
+        gamma_v, gamma_w: per-channel adaptation gains (1, 1 is the paper's estimator).
+        period: control period (s) of a zero-order hold for the sampled heading (see
+            sampled_feedback); 0 gives the paper's continuous-time u = R^-1 ub.
     Returns:
         (v, w, ddhat_v, ddhat_w): u = R^-1 ub with ub = -k1 f - k2 R dhat, and the estimator
-        rate dhat' = k2 R^T e.
+        rate dhat' = k2 Gamma R^T e.
     """
     c = math.cos(theta)
     s = math.sin(theta)
-    v = -k1 * (c * fx + s * fy) - k2 * dhat_v
-    w = -k1 * (-s * fx + c * fy) / offset - k2 * dhat_w
-    return v, w, k2 * (c * ex + s * ey), k2 * offset * (-s * ex + c * ey)
+    if period > 0.0:
+        v, w = sampled_feedback(-k1 * (c * fx + s * fy), -k1 * (-s * fx + c * fy), offset,
+                                period)
+    else:
+        v = -k1 * (c * fx + s * fy)
+        w = -k1 * (-s * fx + c * fy) / offset
+    v -= k2 * dhat_v
+    w -= k2 * dhat_w
+    return (v, w, gamma_v * k2 * (c * ex + s * ey),
+            gamma_w * k2 * offset * (-s * ex + c * ey))
+
+
+def sampled_feedback(along, across, offset, period):
+    """The feedback part of u = R^-1 ub for a command held over `period` (s).
+
+    along, across: ub (m/s) in the body frame. In continuous time the paper's law turns the
+    heading so that the angle a between heading and ub obeys a' = -(|ub| / l) sin a. With
+    l = 0.01 and a 0.1 s hold that loop overshoots (|ub| T / l >> 2). Here w is the turn that
+    the continuous law would make over the period, from the closed form
+    tan(a(T) / 2) = tan(a(0) / 2) exp(-|ub| T / l), so it never overshoots, and v = |ub| cos a
+    at the mid-period heading. As period -> 0 both tend to the paper's (along, across / l).
+    Returns (v, w) (m/s, rad/s).
+    """
+    speed = math.hypot(along, across)
+    if speed == 0.0:
+        return 0.0, 0.0
+    angle = math.atan2(across, along)
+    if offset < 0.0:   # a negative offset faces the robot away from ub
+        angle = math.atan2(math.sin(angle + math.pi), math.cos(angle + math.pi))
+    decay = math.exp(-speed * period / abs(offset))
+    end = 2.0 * math.atan2(math.sin(0.5 * angle) * decay, math.cos(0.5 * angle))
+    turned = angle - end
+    v = speed * math.cos(angle - 0.5 * turned)
+    if offset < 0.0:
+        v = -v
+    return v, turned / period
+
+
+def observer_input(fx, fy, theta, dhat_v, dhat_w, k1, k2, offset, period, wheel_base,
+                   max_wheel_speed, max_angular_rate):
+    """The observer law's command (m/s, rad/s): feedback within the wheel limits, minus k2 dhat.
+
+    The feedback part of agent_input (fx, fy, period as there) is saturated before the
+    compensation is subtracted, so that a command saturated by the limits is never mistaken
+    for a disturbance: at dhat = d / k2 the robot moves exactly as the saturated feedback asks.
+    """
+    v, w, _, _ = agent_input(fx, fy, 0.0, 0.0, theta, 0.0, 0.0, k1, k2, offset, 1.0, 1.0,
+                             period)
+    v, w = saturate(v, w, wheel_base, max_wheel_speed, max_angular_rate)
+    return v - k2 * dhat_v, w - k2 * dhat_w
+
+
+def observer_step(dhat_v, dhat_w, measured_v, measured_w, ref_v, ref_w, k2, blend):
+    """One update of the disturbance observer: move dhat towards (measured - ref) / k2.
+
+    measured: body velocity (m/s, rad/s) over the last control period; ref: the command the
+    law sent for it (before any disturbance injected on the PC); blend in [0, 1]: the share
+    of the way moved, 1 - exp(-observer_rate * period). k2 = 0 turns the estimator off, as
+    with the other laws. Returns the new (dhat_v, dhat_w).
+    """
+    if k2 == 0.0:
+        return dhat_v, dhat_w
+    return (dhat_v + blend * ((measured_v - ref_v) / k2 - dhat_v),
+            dhat_w + blend * ((measured_w - ref_w) / k2 - dhat_w))
+
+
+def body_velocity(x0, y0, theta0, x1, y1, theta1, dt):
+    """Constant (v, w) (m/s, rad/s) that moves a unicycle from pose 0 to pose 1 in dt (s).
+
+    Exact for an arc (the inverse of dynamics.arc_step); the heading change must be below
+    pi over dt. The sign of v follows the chord's direction relative to the mean heading.
+    """
+    turn = math.atan2(math.sin(theta1 - theta0), math.cos(theta1 - theta0))
+    mid = theta0 + 0.5 * turn
+    along = (x1 - x0) * math.cos(mid) + (y1 - y0) * math.sin(mid)
+    half = 0.5 * turn
+    chord_per_arc = math.sin(half) / half if abs(half) > 1e-4 else 1.0 - half * half / 6.0
+    return along / (dt * chord_per_arc), turn / dt
 
 
 def saturate(v, w, wheel_base, max_wheel_speed, max_angular_rate):

@@ -9,11 +9,13 @@ import math
 
 
 def arc_step(x, y, theta, v, w, dt):
-    """Exact pose after dt (s) at constant body velocities v (m/s) and w (rad/s)."""
-    if abs(w * dt) < 1e-9:
-        mid = theta + 0.5 * w * dt
-        return x + v * dt * math.cos(mid), y + v * dt * math.sin(mid), theta + w * dt
-    turned = theta + w * dt
-    radius = v / w
-    return (x + radius * (math.sin(turned) - math.sin(theta)),
-            y - radius * (math.cos(turned) - math.cos(theta)), turned)
+    """Exact pose after dt (s) at constant body velocities v (m/s) and w (rad/s).
+
+    The chord of the arc, v dt sin(h) / h with h = w dt / 2, points along the mid-period
+    heading; this form stays accurate as w -> 0, where v / w times a sine difference does not.
+    """
+    half = 0.5 * w * dt
+    chord = v * dt * (math.sin(half) / half if abs(half) > 1e-4
+                      else 1.0 - half * half / 6.0)
+    mid = theta + half
+    return x + chord * math.cos(mid), y + chord * math.sin(mid), theta + w * dt

@@ -77,7 +77,8 @@ class Experiment:
                          'min_eig_P': cert.min_eig_P, 'min_eig_Q': cert.min_eig_Q},
             'slowest_mode_of_L_plus_B': float(np.linalg.eigvals(
                 self.graph.feedback_matrix).real.min()),
-            'gains': {'k1': self.gains.k1, 'k2': self.gains.k2, 'offset': self.gains.offset},
+            'gains': {'law': self.gains.law, 'k1': self.gains.k1, 'k2': self.gains.k2,
+                      'offset': self.gains.offset},
             'curves': [{'start': p.start, 'basis': p.curve.basis.describe(),
                         'fit_rms_residual': p.fit.rms_residual,
                         'fit_max_residual': p.fit.max_residual, 'samples': p.fit.samples,
@@ -149,7 +150,7 @@ def _build(spec, source):
                               f'{curve_spec.start} after {spec.curves[k - 1].start}')
         phases.append(_build_phase(k, curve_spec, n, spec.agents.spacing, source, key))
     return Experiment(spec=spec, source=source, graph=graph,
-                      gains=Gains(spec.controller.k1, spec.controller.k2, spec.controller.offset),
+                      gains=_gains(spec.controller),
                       limits=_limits(spec), disturbance=_disturbance(spec, source),
                       initial_poses=_initial_poses(spec, source), phases=tuple(phases))
 
@@ -195,6 +196,23 @@ def _disturbance(spec, source):
     return np.tile(np.array(dist.value if dist.value is not None else (0.0, 0.0)), (n, 1))
 
 
+def random_poses(n, center, half_width, seed):
+    """(n, 3) poses uniform in the box center +- half_width (m), headings uniform (rad)."""
+    rng = np.random.default_rng(seed)
+    center = np.asarray(center, float)
+    half = np.asarray(half_width, float)
+    return np.column_stack([rng.uniform(center - half, center + half, size=(n, 2)),
+                            rng.uniform(-math.pi, math.pi, size=n)])
+
+
+def seeded_start(experiment, seed):
+    """The experiment's random start box drawn with another seed (ValueError if it has none)."""
+    box = experiment.spec.agents.initial.random
+    if box is None:
+        raise ValueError(f'{experiment.source}: agents.initial: no random start box to reseed')
+    return random_poses(experiment.n, box.center, box.half_width, seed)
+
+
 def _initial_poses(spec, source):
     n = spec.agents.count
     initial = spec.agents.initial
@@ -204,11 +222,8 @@ def _initial_poses(spec, source):
                               f'poses (one per agent), got {len(initial.poses)}')
         poses = np.array(initial.poses, dtype=float)
     else:
-        rng = np.random.default_rng(initial.random.seed)
-        center = np.array(initial.random.center)
-        half = np.array(initial.random.half_width)
-        poses = np.column_stack([rng.uniform(center - half, center + half, size=(n, 2)),
-                                 rng.uniform(-math.pi, math.pi, size=n)])
+        poses = random_poses(n, initial.random.center, initial.random.half_width,
+                             initial.random.seed)
     if spec.arena is not None:
         width, height = spec.arena.size
         outside = np.flatnonzero((poses[:, 0] < 0) | (poses[:, 0] > width)
@@ -218,3 +233,10 @@ def _initial_poses(spec, source):
                               f'{poses[outside[0], :2].tolist()}, outside the arena '
                               f'[0, {width}] x [0, {height}] m')
     return poses
+
+
+def _gains(controller):
+    return Gains(controller.k1, controller.k2, controller.offset, law=controller.law,
+                 adaptation=tuple(controller.adaptation),
+                 observer_rate=controller.observer_rate,
+                 sampled_heading=controller.heading == 'sampled')

@@ -27,17 +27,28 @@ def error_norm(errors):
 
 
 def lyapunov(errors, dhat, experiment, disturbance=None, gains=None):
-    """(R,) V = xe^T (P kron I2) xe + dtilde^T (P kron I2) dtilde, dtilde = dhat - d / k2.
+    """(R,) the Lyapunov function of the run's law (docs/control-laws.md).
 
-    With k2 = 0 the estimate is off and V is the error term alone.
+    paper, adaptive: V = xe^T (P kron I2) xe + sum_i p_i dtilde_i^T Gamma^-1 dtilde_i with
+    dtilde = dhat - d / k2 and Gamma the per-channel adaptation gains (identity for paper).
+    observer: W = xe^T (P kron I2) xe + c |k2 dtilde|^2 with
+    c = 2 p_max^2 max(1, l^2) / (k1 q_min lambda), q_min the smallest eigenvalue of Q.
+    With k2 = 0 the estimate is off and each is the error term alone.
     """
-    weights = np.diag(experiment.graph.certificate().P)
+    gains = experiment.gains if gains is None else gains
+    certificate = experiment.graph.certificate()
+    weights = np.diag(certificate.P)
     value = np.einsum('i,rij,rij->r', weights, errors, errors)
-    k2 = (experiment.gains if gains is None else gains).k2
-    if k2 > 0 and dhat is not None:
+    if gains.k2 > 0 and dhat is not None:
         d = experiment.disturbance if disturbance is None else disturbance
-        tilde = dhat - np.asarray(d) / k2
-        value = value + np.einsum('i,rij,rij->r', weights, tilde, tilde)
+        tilde = dhat - np.asarray(d) / gains.k2
+        if gains.law == 'observer':
+            c = (2 * weights.max() ** 2 * max(1.0, gains.offset ** 2)
+                 / (gains.k1 * certificate.min_eig_Q * gains.observer_rate))
+            value = value + c * gains.k2 ** 2 * np.einsum('rij,rij->r', tilde, tilde)
+        else:
+            scaled = tilde / np.asarray(gains.estimator_gains())
+            value = value + np.einsum('i,rij,rij->r', weights, tilde, scaled)
     return value
 
 

@@ -4,8 +4,11 @@ Two control modes:
 - continuous: the law is evaluated at every RK4 stage and the estimator is integrated with the
   robots (the paper's setting);
 - zero-order hold at `rate_hz`: the law is evaluated once per control period from the latest
-  poses, its estimator advanced by one Euler step, and the command held while the robots are
-  integrated exactly over each fine step dt, which is what the ROS controller nodes do.
+  poses, its estimator advanced by one Euler step (the observer: by one filter step from the
+  motion over the period just ended), and the command held while the robots are integrated
+  exactly over each fine step dt, which is what the ROS controller nodes do.
+
+Laws (core.control.LAWS): paper, adaptive (per-channel estimator gains), observer.
 
 The stepping loop is compiled with numba; it calls the same per-agent functions as the ROS
 controller (core.control), and its cost is linear in agents plus edges.
@@ -13,6 +16,7 @@ controller (core.control), and its cost is linear in agents plus edges.
 
 from dataclasses import dataclass
 import math
+import types
 
 import numba
 import numpy as np
@@ -20,21 +24,36 @@ import numpy as np
 from curve_formation.core import control, dynamics, metrics
 
 
-_agent_input = numba.njit(cache=True)(control.agent_input)
+def _jit(function, **callees):
+    """numba-compile a core function, with the core functions it calls compiled as well."""
+    scope = dict(function.__globals__, **callees)
+    copy = types.FunctionType(function.__code__, scope, function.__name__,
+                              function.__defaults__)
+    return numba.njit(cache=True)(copy)
+
+
+_agent_input = _jit(control.agent_input,
+                    sampled_feedback=numba.njit(cache=True)(control.sampled_feedback))
 _saturate = numba.njit(cache=True)(control.saturate)
+_observer_input = _jit(control.observer_input, agent_input=_agent_input, saturate=_saturate)
 _arc = numba.njit(cache=True)(dynamics.arc_step)
+_observer_step = numba.njit(cache=True)(control.observer_step)
+OBSERVER = control.LAWS['observer']
 
 # Largest heading change (rad) of one RK4 substep in continuous mode.
 MAX_TURN_PER_SUBSTEP = 0.05
 
 
 @numba.njit(cache=True)
-def _controls(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, d_pc, d_robot,
-              wheel_base, vmax, wmax, err, fb, motion, cmd, ddhat):
-    """Evaluate the law for all agents: fills err, fb, cmd (sent), motion (actual), ddhat.
+def _controls(poses, dhat, targets, tgt, src, wts, leader, law, k1, k2, offset, gamma_v, gamma_w,
+              period, observer_rate, on_pc, d_pc, d_robot, wheel_base, vmax, wmax, err, fb,
+              motion, cmd, ref, ddhat):
+    """Evaluate the law for all agents: fills err, fb, cmd (sent), motion (actual), ref, ddhat.
 
     d_pc (n, 2) is added to the command before the wheel limits (injected on the PC),
-    d_robot (n, 2) after them (physical).
+    d_robot (n, 2) after them (physical). ref is what the observer compares the motion with:
+    the law's command where the disturbance enters (before the limits when on_pc, after them
+    otherwise); ddhat the continuous-time estimator rate.
     """
     n = poses.shape[0]
     for i in range(n):
@@ -51,14 +70,28 @@ def _controls(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, d_pc,
         fb[i, 1] += wts[k] * (err[i, 1] - err[j, 1])
     for i in range(n):
         v, w, ddv, ddw = _agent_input(fb[i, 0], fb[i, 1], err[i, 0], err[i, 1], poses[i, 2],
-                                      dhat[i, 0], dhat[i, 1], k1, k2, offset)
-        ddhat[i, 0] = ddv
-        ddhat[i, 1] = ddw
+                                      dhat[i, 0], dhat[i, 1], k1, k2, offset, gamma_v, gamma_w,
+                                      period)
+        if law == OBSERVER:
+            v, w = _observer_input(fb[i, 0], fb[i, 1], poses[i, 2], dhat[i, 0], dhat[i, 1], k1,
+                                   k2, offset, period, wheel_base, vmax, wmax)
+        if on_pc:
+            ref[i, 0], ref[i, 1] = v, w
+        else:
+            ref[i, 0], ref[i, 1] = _saturate(v, w, wheel_base, vmax, wmax)
         v, w = _saturate(v + d_pc[i, 0], w + d_pc[i, 1], wheel_base, vmax, wmax)
         motion[i, 0] = v + d_robot[i, 0]
         motion[i, 1] = w + d_robot[i, 1]
         cmd[i, 0] = v
         cmd[i, 1] = w
+        if law == OBSERVER:
+            ddv = 0.0
+            ddw = 0.0
+            if k2 != 0.0:   # k2 = 0: estimator off
+                ddv = observer_rate * ((motion[i, 0] - ref[i, 0]) / k2 - dhat[i, 0])
+                ddw = observer_rate * ((motion[i, 1] - ref[i, 1]) / k2 - dhat[i, 1])
+        ddhat[i, 0] = ddv
+        ddhat[i, 1] = ddw
 
 
 @numba.njit(cache=True)
@@ -70,13 +103,16 @@ def _arc_step(poses, motion, dt):
 
 
 @numba.njit(cache=True)
-def _run(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, d_pc, d_robot,
-         wheel_base, vmax, wmax, dt, step0, steps, control_every, record_every,
-         motion, cmd, tick_offsets, start_steps, rec_poses, rec_dhat, rec_cmd):
+def _run(poses, dhat, targets, tgt, src, wts, leader, law, k1, k2, offset, gamma_v, gamma_w,
+         period, observer_rate, on_pc, d_pc, d_robot, wheel_base, vmax, wmax, dt, step0, steps,
+         control_every, record_every, motion, cmd, ref, tick_offsets, start_steps, rec_poses,
+         rec_dhat, rec_cmd):
     """Advance poses (n, 3) and dhat (n, 2) in place by `steps` fine steps from `step0`.
 
-    motion and cmd (n, 2) hold the zero-order-hold command across calls; agent i ticks at
-    the steps where (step - tick_offsets[i]) % control_every == 0, from step start_steps[i] on.
+    motion, cmd and ref (n, 2) hold the zero-order-hold command across calls; agent i ticks
+    at the steps where (step - tick_offsets[i]) % control_every == 0, from step start_steps[i]
+    on. With the observer, a tick first updates dhat from the motion over the period just
+    ended (exact here: the held motion is what the pose difference would measure).
     """
     n = poses.shape[0]
     err = np.zeros((n, 2))
@@ -84,16 +120,23 @@ def _run(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, d_pc, d_ro
     ddhat = np.zeros((n, 2))
     if control_every > 0:
         dt_control = control_every * dt
+        blend = 1.0 - math.exp(-observer_rate * dt_control)
         new_motion = np.zeros((n, 2))
         new_cmd = np.zeros((n, 2))
+        new_ref = np.zeros((n, 2))
         for step in range(step0, step0 + steps):
             ticking = False
             for i in range(n):
                 if (step - tick_offsets[i]) % control_every == 0:
                     ticking = True
+                    if law == OBSERVER and step >= start_steps[i]:
+                        dhat[i, 0], dhat[i, 1] = _observer_step(
+                            dhat[i, 0], dhat[i, 1], motion[i, 0], motion[i, 1], ref[i, 0],
+                            ref[i, 1], k2, blend)
             if ticking:
-                _controls(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, d_pc,
-                          d_robot, wheel_base, vmax, wmax, err, fb, new_motion, new_cmd, ddhat)
+                _controls(poses, dhat, targets, tgt, src, wts, leader, law, k1, k2, offset,
+                          gamma_v, gamma_w, period, observer_rate, on_pc, d_pc, d_robot,
+                          wheel_base, vmax, wmax, err, fb, new_motion, new_cmd, new_ref, ddhat)
                 for i in range(n):
                     if step < start_steps[i]:
                         continue   # not started yet: motors off, estimator idle
@@ -102,8 +145,11 @@ def _run(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, d_pc, d_ro
                         motion[i, 1] = new_motion[i, 1]
                         cmd[i, 0] = new_cmd[i, 0]
                         cmd[i, 1] = new_cmd[i, 1]
-                        dhat[i, 0] += dt_control * ddhat[i, 0]
-                        dhat[i, 1] += dt_control * ddhat[i, 1]
+                        ref[i, 0] = new_ref[i, 0]
+                        ref[i, 1] = new_ref[i, 1]
+                        if law != OBSERVER:
+                            dhat[i, 0] += dt_control * ddhat[i, 0]
+                            dhat[i, 1] += dt_control * ddhat[i, 1]
             if step % record_every == 0:
                 r = step // record_every
                 rec_poses[r] = poses
@@ -119,8 +165,9 @@ def _run(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, d_pc, d_ro
     p_stage = np.zeros((n, 3))
     d_stage = np.zeros((n, 2))
     for step in range(step0, step0 + steps):
-        _controls(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, d_pc,
-                  d_robot, wheel_base, vmax, wmax, err, fb, motion, cmd, ddhat)
+        _controls(poses, dhat, targets, tgt, src, wts, leader, law, k1, k2, offset, gamma_v,
+                  gamma_w, 0.0, observer_rate, on_pc, d_pc, d_robot, wheel_base, vmax, wmax,
+                  err, fb, motion, cmd, ref, ddhat)
         if step % record_every == 0:
             r = step // record_every
             rec_poses[r] = poses
@@ -139,8 +186,9 @@ def _run(poses, dhat, targets, tgt, src, wts, leader, k1, k2, offset, d_pc, d_ro
                         p_stage[i, c] = poses[i, c] + frac * kp[stage - 1, i, c]
                     for c in range(2):
                         d_stage[i, c] = dhat[i, c] + frac * kd[stage - 1, i, c]
-                _controls(p_stage, d_stage, targets, tgt, src, wts, leader, k1, k2, offset,
-                          d_pc, d_robot, wheel_base, vmax, wmax, err, fb, motion, cmd, ddhat)
+                _controls(p_stage, d_stage, targets, tgt, src, wts, leader, law, k1, k2,
+                          offset, gamma_v, gamma_w, 0.0, observer_rate, on_pc, d_pc, d_robot,
+                          wheel_base, vmax, wmax, err, fb, motion, cmd, ref, ddhat)
                 for i in range(n):
                     kp[stage, i, 0] = motion[i, 0] * math.cos(p_stage[i, 2])
                     kp[stage, i, 1] = motion[i, 0] * math.sin(p_stage[i, 2])
@@ -233,17 +281,19 @@ def simulate(experiment, rate_hz='config', duration=None, dt=None, record_dt=Non
     dhat = np.zeros((experiment.n, 2))
     motion = np.zeros((experiment.n, 2))
     cmd = np.zeros((experiment.n, 2))
+    ref = np.zeros((experiment.n, 2))
+    gamma_v, gamma_w = gains.estimator_gains()
     tgt, src, wts = experiment.graph.edge_arrays()
     starts = [int(round(p.start / dt)) for p in experiment.phases] + [total]
     for phase, a, b in zip(experiment.phases, starts[:-1], starts[1:], strict=True):
         if a >= total:
             break
         _run(poses, dhat, np.ascontiguousarray(phase.targets), tgt, src, wts,
-             experiment.graph.leader - 1, gains.k1, gains.k2, gains.offset, d_pc, d_robot,
-             limits.wheel_base,
-             limits.max_wheel_speed, limits.max_angular_rate, dt, a, min(b, total) - a,
-             control_every, record_every, motion, cmd, tick_offsets, start_steps, rec_poses,
-             rec_dhat, rec_cmd)
+             experiment.graph.leader - 1, gains.law_code, gains.k1, gains.k2, gains.offset,
+             gamma_v, gamma_w, gains.hold_period(rate_hz), gains.observer_rate, on_pc, d_pc,
+             d_robot, limits.wheel_base, limits.max_wheel_speed, limits.max_angular_rate, dt, a,
+             min(b, total) - a, control_every, record_every, motion, cmd, ref, tick_offsets, start_steps,
+             rec_poses, rec_dhat, rec_cmd)
     t = np.arange(n_rec) * record_every * dt
     phase_index = np.searchsorted(np.array(starts[1:-1]) * dt, t, side='right')
     return SimResult(experiment, rate_hz, gains, limits, dist, t, rec_poses, rec_dhat, rec_cmd,

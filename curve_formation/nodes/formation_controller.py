@@ -18,7 +18,7 @@ from std_msgs.msg import Bool, Float64MultiArray
 
 from curve_formation.core.agent import AgentConfig, AgentController
 from curve_formation.core.assignment import AssignmentError, SPACINGS
-from curve_formation.core.control import Gains, WheelLimits
+from curve_formation.core.control import Gains, LAWS, WheelLimits
 from curve_formation.nodes import messages, qos, topics
 from curve_formation.nodes.params import declare_parameters, Param, ParameterError
 from curve_formation.nodes.runtime import now_seconds, run_node
@@ -37,6 +37,16 @@ PARAMETERS = (
     Param('offset', 'double', 0.01, 'offset l of the control point ahead of the axle (m), '
           'non-zero'),
     Param('rate_hz', 'double', 10.0, 'control rate (Hz)', positive=True),
+    Param('law', 'string', 'observer', "disturbance estimator: paper (the paper's adaptive "
+          'law), adaptive (per-channel gains) or observer (from the measured motion)',
+          choices=tuple(LAWS)),
+    Param('adaptation', 'double[]', [1.0, 1.0], 'law adaptive: [gamma_v, gamma_w] '
+          "multiplying the paper's estimator rate per channel"),
+    Param('observer_rate', 'double', 5.0, 'law observer: observer bandwidth (1/s)',
+          positive=True),
+    Param('heading', 'string', 'sampled', 'sampled: each command turns as the continuous law '
+          'would over one period; paper: holds its instantaneous turn rate',
+          choices=('paper', 'sampled')),
     Param('wheel_base', 'double', 0.0, 'distance between the wheels (m); 0 = no wheel limit',
           low=0.0),
     Param('max_wheel_speed', 'double', 0.0, 'max linear speed of each wheel (m/s); 0 = '
@@ -87,6 +97,11 @@ def agent_config(p):
         raise ParameterError(f"parameter 'role' is {p.role!r} but 'in_neighbours' is "
                              f'{p.in_neighbours}: the leader receives from nobody, a follower '
                              'from at least one agent')
+    if len(p.adaptation) != 2 or min(p.adaptation) <= 0:
+        raise ParameterError(f"parameter 'adaptation' must be [gamma_v, gamma_w] > 0, got "
+                             f'{p.adaptation}')
+    if p.law == 'observer' and p.k2 <= 0:
+        raise ParameterError("parameter 'k2' must be > 0 with law 'observer'")
     if len(p.pc_disturbance) != 2:
         raise ParameterError("parameter 'pc_disturbance' must be [d_v, d_w]")
     fence = p.geofence or None
@@ -97,7 +112,8 @@ def agent_config(p):
     return AgentConfig(
         index=p.index, agent_count=p.agent_count,
         neighbours=tuple(zip(p.in_neighbours, weights, strict=True)),
-        gains=Gains(p.k1, p.k2, p.offset),
+        gains=Gains(p.k1, p.k2, p.offset, law=p.law, adaptation=tuple(p.adaptation),
+                    observer_rate=p.observer_rate, sampled_heading=p.heading == 'sampled'),
         limits=WheelLimits(p.wheel_base, p.max_wheel_speed or inf, p.max_angular_rate or inf),
         rate_hz=p.rate_hz, pose_timeout=p.pose_timeout, neighbour_timeout=p.neighbour_timeout,
         spacing=p.spacing, fixed_s=p.s if p.s >= 0 else None,

@@ -1,0 +1,118 @@
+"""Our control law (observer + sampled heading) against the paper's, on the paper's cases.
+
+The floor of a run is the settling time of the same gains, graph, heading command and start
+with no disturbance and the estimator off; the goal is to settle within 1.25x the floor.
+"""
+
+import dataclasses
+import math
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+import numpy as np
+import pytest
+
+from curve_formation.core import metrics
+from curve_formation.core.control import body_velocity, sampled_feedback
+from curve_formation.core.dynamics import arc_step
+from curve_formation.core.experiment import load_experiment, seeded_start
+from curve_formation.core.simulator import simulate
+from curve_formation.paths import resolve_config
+
+
+SEEDS = (0, 1)
+
+
+def settle_times(case, gains, rate, start, disturbance=None):
+    result = simulate(case, rate_hz=rate, gains=gains, initial_poses=start,
+                      disturbance=disturbance)
+    data = metrics.result_metrics(result)
+    return [p['settle_time'] for p in data['phases']], result
+
+
+@pytest.mark.parametrize('rate', [None, 10.0], ids=['continuous', '10Hz'])
+@pytest.mark.parametrize('name', ['closed_curve', 'open_curve', 'shape_change'])
+def test_observer_law_settles_within_the_disturbance_free_floor(name, rate):
+    case = load_experiment(resolve_config(name))
+    assert case.gains.law == 'observer' and case.gains.sampled_heading   # shipped default
+    floor_gains = dataclasses.replace(case.gains, k2=0.0)
+    for seed in SEEDS:
+        start = seeded_start(case, seed)
+        floor, _ = settle_times(case, floor_gains, rate, start, disturbance=[0.0, 0.0])
+        ours, result = settle_times(case, case.gains, rate, start)
+        assert None not in floor, (name, seed, floor)
+        for f, t in zip(floor, ours, strict=True):
+            assert t is not None and t <= 1.25 * f, (name, seed, rate, floor, ours)
+        # The estimate has converged to the paper's d / k2.
+        np.testing.assert_allclose(result.dhat[-1], result.disturbance / case.gains.k2,
+                                   atol=1e-6)
+
+
+@pytest.mark.parametrize('rate', [None, 10.0], ids=['continuous', '10Hz'])
+def test_the_paper_law_with_the_same_settings_does_not_settle(rate):
+    """The reference, one switch away, keeps its measured behaviour (paper-notes.md)."""
+    case = load_experiment(resolve_config('closed_curve'))
+    times, result = settle_times(case, case.gains.paper_law(), rate, seeded_start(case, 0))
+    assert times == [None]
+    assert np.abs(result.dhat[-1] - result.disturbance / case.gains.k2).max() > 0.1
+
+
+def test_observer_learns_a_disturbance_injected_before_saturated_wheels():
+    """Mona case: d = [0.5, 0.5] on the PC against 2.25 cm/s wheels, 20x the wheel limit.
+
+    The law saturates its feedback before compensating, so a saturated command is never
+    mistaken for a disturbance; the estimate reaches d / k2 and the formation then moves as
+    the disturbance-free floor does. Neither settles within the 60 s phases from this start
+    (see test_mona_start_is_too_far_for_60_s_phases).
+    """
+    case = load_experiment(resolve_config('mona_arena'))
+    ours = simulate(case)
+    floor = simulate(case, gains=dataclasses.replace(case.gains, k2=0.0), disturbance=[0, 0])
+    np.testing.assert_allclose(ours.dhat[-1] * case.gains.k2, case.disturbance, atol=1e-9)
+    assert ours.error_norm[-1] < 1.25 * floor.error_norm[-1]
+    paper = simulate(case, gains=case.gains.paper_law())
+    assert paper.error_norm[-1] > 10 * ours.error_norm[-1]
+    wheel = np.abs(ours.commands[..., 0]) + 0.5 * case.limits.wheel_base * np.abs(
+        ours.commands[..., 1])
+    assert wheel.max() <= case.limits.max_wheel_speed * (1 + 1e-9)
+
+
+def test_mona_start_is_too_far_for_60_s_phases():
+    """Why no law settles the Mona case within its first phase: at 2.25 cm/s the farthest
+    robot needs over 45 s of straight driving to reach its target, before any turning and
+    before the exponential tail of the linear law below saturation.
+    """
+    case = load_experiment(resolve_config('mona_arena'))
+    distance = np.linalg.norm(case.initial_poses[:, :2] - case.phases[0].targets, axis=1)
+    assert distance.max() / case.limits.max_wheel_speed > 45.0
+
+
+@given(along=st.floats(-5, 5), across=st.floats(-5, 5),
+       offset=st.sampled_from([0.01, 0.1, -0.05]))
+@settings(max_examples=200, deadline=None)
+def test_sampled_heading_never_overshoots_and_tends_to_the_paper_law(along, across, offset):
+    period = 0.1
+    v, w = sampled_feedback(along, across, offset, period)
+    if math.hypot(along, across) < 1e-9:
+        assert abs(v) < 1e-9 and abs(w) < 1e-6
+        return
+    # Angle between the (reversed, for l < 0) heading and ub before and after one period.
+    sign = 1.0 if offset > 0 else -1.0
+    before = math.atan2(sign * across, sign * along)
+    after = before - w * period
+    assert abs(after) <= abs(before) + 1e-12
+    assert after * before >= -1e-12            # same side: no overshoot
+    tiny = 1e-7
+    v0, w0 = sampled_feedback(along, across, offset, tiny)
+    assert v0 == pytest.approx(along, abs=1e-3 * math.hypot(along, across))
+    assert w0 == pytest.approx(across / offset, rel=1e-3, abs=1e-3)
+
+
+@given(v=st.floats(-2, 2), w=st.floats(-20, 20), theta=st.floats(-4, 4))
+@settings(max_examples=200, deadline=None)
+def test_body_velocity_inverts_an_arc(v, w, theta):
+    dt = 0.1
+    end = arc_step(0.3, -0.2, theta, v, w, dt)
+    mv, mw = body_velocity(0.3, -0.2, theta, *end, dt)
+    assert mv == pytest.approx(v, abs=1e-9)
+    assert mw == pytest.approx(w, abs=1e-9)
