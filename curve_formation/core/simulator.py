@@ -292,8 +292,8 @@ def simulate(experiment, rate_hz='config', duration=None, dt=None, record_dt=Non
              experiment.graph.leader - 1, gains.law_code, gains.k1, gains.k2, gains.offset,
              gamma_v, gamma_w, gains.hold_period(rate_hz), gains.observer_rate, on_pc, d_pc,
              d_robot, limits.wheel_base, limits.max_wheel_speed, limits.max_angular_rate, dt, a,
-             min(b, total) - a, control_every, record_every, motion, cmd, ref, tick_offsets, start_steps,
-             rec_poses, rec_dhat, rec_cmd)
+             min(b, total) - a, control_every, record_every, motion, cmd, ref, tick_offsets,
+             start_steps, rec_poses, rec_dhat, rec_cmd)
     t = np.arange(n_rec) * record_every * dt
     phase_index = np.searchsorted(np.array(starts[1:-1]) * dt, t, side='right')
     return SimResult(experiment, rate_hz, gains, limits, dist, t, rec_poses, rec_dhat, rec_cmd,
