@@ -10,7 +10,9 @@ dt = 1 ms well under a second; cost linear in n.
 import argparse
 import time
 
-from curve_formation.core.experiment import build_experiment, load_experiment
+from scenarios import scaled_experiment
+
+from curve_formation.core.experiment import load_experiment
 from curve_formation.core.simulator import simulate
 from curve_formation.paths import resolve_config
 
@@ -25,26 +27,6 @@ def best_time(func, repeat):
         func()
         best = min(best, time.perf_counter() - start)
     return best
-
-
-def scaled_experiment(n, seed=0):
-    """n agents on a wavy closed curve, Fourier K = n // 2 (so n <= H), chain + skip edges."""
-    edges = [{'from': i, 'to': i + 1} for i in range(1, n)]
-    edges += [{'from': i, 'to': i + 2} for i in range(1, n - 1, 3)]
-    return build_experiment({
-        'name': f'scale_{n}',
-        'agents': {'count': n, 'initial': {'random': {'seed': seed, 'center': [0, 0],
-                                                      'half_width': [12, 12]}}},
-        'graph': {'edges': edges},
-        'controller': {'k1': 1.0, 'k2': 1.0, 'offset': 0.01, 'rate_hz': 10.0},
-        'disturbance': {'value': [1.0, 1.0]},
-        'limits': {'wheel_base': 0.1, 'max_wheel_speed': 5.0},
-        'curves': [{'basis': 'fourier', 'harmonics': max(1, n // 2),
-                    'samples': max(400, 3 * n + 3),
-                    'x': '(8 + sin(6*pi*s)) * cos(2*pi*s)',
-                    'y': '(8 + cos(4*pi*s)) * sin(2*pi*s)'}],
-        'simulation': {'duration': 10.0, 'dt': 0.001, 'record_dt': 0.1},
-    }, f'<scale {n}>')
 
 
 def paper_cases(repeat):

@@ -116,3 +116,42 @@ def test_body_velocity_inverts_an_arc(v, w, theta):
     mv, mw = body_velocity(0.3, -0.2, theta, *end, dt)
     assert mv == pytest.approx(v, abs=1e-9)
     assert mw == pytest.approx(w, abs=1e-9)
+
+
+def heading_rate_growth(push, k1=1.0, offset=0.01, duration=2.0, dt=1e-3):
+    """Growth rate (1/s) of the heading rate of one robot at the paper law's rest state.
+
+    The estimate is off by a forward push `push` (m/s): d = [push, 0] with k2 = 0. The robot
+    starts at its rest point e = push h / k1 with the heading turned by 1e-6 rad.
+    """
+    from curve_formation.core.control import agent_input
+    target = np.array([offset - push / k1, 0.0])   # xb - target = push h / k1 at rest
+
+    def rates(state):
+        ex, ey = state[:2] + offset * np.array([math.cos(state[2]), math.sin(state[2])]) - target
+        v, w, _, _ = agent_input(ex, ey, ex, ey, state[2], 0.0, 0.0, k1, 0.0, offset)
+        return np.array([(v + push) * math.cos(state[2]), (v + push) * math.sin(state[2]), w])
+
+    state = np.array([0.0, 0.0, 1e-6])   # heading h = (1, 0) at rest, turned by 1e-6 rad
+    turn_rates = []
+    for _ in range(int(duration / dt)):
+        a = rates(state)
+        b = rates(state + 0.5 * dt * a)
+        c = rates(state + 0.5 * dt * b)
+        d = rates(state + dt * c)
+        state = state + dt / 6 * (a + 2 * b + 2 * c + d)
+        turn_rates.append(abs(a[2]))
+    t = np.arange(len(turn_rates)) * dt
+    late = t > duration / 2
+    return np.polyfit(t[late], np.log(np.array(turn_rates)[late]), 1)[0]
+
+
+@pytest.mark.parametrize('push_over_k1l', [0.5, 2.0, 4.0])
+def test_paper_rest_state_is_unstable_once_the_push_exceeds_k1_l(push_over_k1l):
+    """docs/control-laws.md: linearised, the heading mode grows at p / l - k1 (p: forward
+    push the estimate has not cancelled), so the rest state is unstable once p > k1 l.
+    """
+    k1, offset = 1.0, 0.01
+    push = push_over_k1l * k1 * offset
+    rate = heading_rate_growth(push, k1, offset)
+    assert rate == pytest.approx(push / offset - k1, abs=0.05)

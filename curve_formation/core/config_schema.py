@@ -81,7 +81,8 @@ class ControllerSpec(Strict):
     observer_rate: float = Field(5.0, gt=0, description='law observer: bandwidth of the '
                                  'disturbance observer (1/s)')
     k1: float = Field(gt=0, description='gain on the target error (1/s)')
-    k2: float = Field(ge=0, description='estimator gain')
+    k2: float = Field(ge=0, description='estimator gain; 0 = estimator off (every law '
+                      'estimates d / k2, as the paper)')
     offset: float = Field(description='offset l of the control point ahead of the axle (m)')
     rate_hz: Optional[float] = Field(
         None, gt=0, description='control rate with zero-order hold; null = continuous')
@@ -92,12 +93,6 @@ class ControllerSpec(Strict):
         if min(value) <= 0 or not all(math.isfinite(g) for g in value):
             raise ValueError('adaptation gains must be finite and > 0')
         return value
-
-    @model_validator(mode='after')
-    def _observer_needs_k2(self):
-        if self.law == 'observer' and self.k2 <= 0:
-            raise ValueError('law observer needs k2 > 0 (it estimates d / k2, as the paper)')
-        return self
 
     @field_validator('offset')
     @classmethod

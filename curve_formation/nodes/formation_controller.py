@@ -33,7 +33,7 @@ PARAMETERS = (
           'leader)'),
     Param('weights', 'double[]', [], 'edge weights a_ij, one per in-neighbour (empty = all 1)'),
     Param('k1', 'double', 1.0, 'gain on the target error (1/s)', positive=True),
-    Param('k2', 'double', 1.0, 'disturbance estimator gain', low=0.0),
+    Param('k2', 'double', 1.0, 'disturbance estimator gain; 0 = estimator off', low=0.0),
     Param('offset', 'double', 0.01, 'offset l of the control point ahead of the axle (m), '
           'non-zero'),
     Param('rate_hz', 'double', 10.0, 'control rate (Hz)', positive=True),
@@ -100,8 +100,6 @@ def agent_config(p):
     if len(p.adaptation) != 2 or min(p.adaptation) <= 0:
         raise ParameterError(f"parameter 'adaptation' must be [gamma_v, gamma_w] > 0, got "
                              f'{p.adaptation}')
-    if p.law == 'observer' and p.k2 <= 0:
-        raise ParameterError("parameter 'k2' must be > 0 with law 'observer'")
     if len(p.pc_disturbance) != 2:
         raise ParameterError("parameter 'pc_disturbance' must be [d_v, d_w]")
     fence = p.geofence or None
