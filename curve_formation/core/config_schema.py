@@ -194,6 +194,62 @@ class ArenaSpec(Strict):
     size: Pair = Field(description='arena width and height (m), origin at a corner')
 
 
+class CornerMarker(Strict):
+    id: int = Field(ge=0, description='ArUco id of a fixed marker on the arena floor')
+    position: Pair = Field(description='its centre in the arena frame (m); its x axis along '
+                           "the arena's x axis")
+
+
+class FakeCameraSpec(Strict):
+    """How fake_camera renders the arena (tests and demos only)."""
+
+    tilt_deg: float = Field(0.0, ge=0, lt=60, description='camera tilt from straight down')
+    height: float = Field(2.0, gt=0, description='camera distance from the arena centre (m)')
+    noise: float = Field(0.0, ge=0, description='pixel noise standard deviation (grey levels)')
+    blur: float = Field(0.0, ge=0, description='Gaussian blur sigma (pixels)')
+    brightness: float = Field(1.0, gt=0, description='brightness factor')
+
+
+class Intrinsics(Strict):
+    camera_matrix: list[float] = Field(min_length=9, max_length=9,
+                                       description='3x3 camera matrix K, row by row (pixels)')
+    distortion: list[float] = Field(default_factory=list,
+                                    description='OpenCV distortion coefficients k1 k2 p1 p2 ..')
+
+
+class CameraSpec(Strict):
+    """The overhead camera: markers, arena calibration, fake camera options."""
+
+    dictionary: str = Field('DICT_4X4_50', description='cv2.aruco predefined dictionary name')
+    robot_ids: list[int] = Field(description='marker id on agent 1, 2, .., n')
+    marker_size: float = Field(gt=0, description="side of a robot marker's black square (m)")
+    marker_offset: Pair = Field((0.0, 0.0), description='marker centre relative to the axle '
+                                'centre in the robot frame, x forward (m)')
+    corners: list[CornerMarker] = Field(min_length=2, description='fixed floor markers with '
+                                        'known arena positions (at least 2; 4 recommended)')
+    corner_size: float = Field(gt=0, description="side of a corner marker's black square (m)")
+    calibration: Literal['continuous', 'fixed'] = Field(
+        'continuous', description='continuous: homography re-estimated from the corner markers '
+        'in every frame that shows enough of them; fixed: read from calibration_file only')
+    calibration_file: Optional[str] = Field(None, description='saved homography (YAML), '
+                                            'reloaded at start; relative to the experiment file')
+    intrinsics: Optional[Intrinsics] = None
+    resolution: tuple[int, int] = Field((1280, 720), description='width, height (pixels)')
+    rate_hz: float = Field(30.0, gt=0, description='frame rate of the (fake) camera')
+    lost_timeout: float = Field(0.5, gt=0, description='a robot unseen for this long is '
+                                'reported lost (s)')
+    fake: FakeCameraSpec = FakeCameraSpec()
+
+    @model_validator(mode='after')
+    def _distinct_ids(self):
+        ids = list(self.robot_ids) + [c.id for c in self.corners]
+        repeated = sorted({i for i in ids if ids.count(i) > 1})
+        if repeated:
+            raise ValueError(f'marker ids must be distinct across robots and corners, '
+                             f'repeated: {repeated}')
+        return self
+
+
 class MetricsSpec(Strict):
     tolerance: float = Field(1e-3, gt=0, description='settling tolerance, relative to the '
                              'size (bounding-box diagonal) of the active curve')
@@ -212,3 +268,4 @@ class ExperimentSpec(Strict):
     arena: Optional[ArenaSpec] = None
     safety: SafetySpec = SafetySpec()
     metrics: MetricsSpec = MetricsSpec()
+    camera: Optional[CameraSpec] = None

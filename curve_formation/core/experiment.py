@@ -149,10 +149,31 @@ def _build(spec, source):
             raise ConfigError(source, f'{key}.start', f'switch times must increase, got '
                               f'{curve_spec.start} after {spec.curves[k - 1].start}')
         phases.append(_build_phase(k, curve_spec, n, spec.agents.spacing, source, key))
+    _check_camera(spec, source)
     return Experiment(spec=spec, source=source, graph=graph,
                       gains=_gains(spec.controller),
                       limits=_limits(spec), disturbance=_disturbance(spec, source),
                       initial_poses=_initial_poses(spec, source), phases=tuple(phases))
+
+
+def _check_camera(spec, source):
+    camera = spec.camera
+    if camera is None:
+        return
+    if spec.arena is None:
+        raise ConfigError(source, 'camera', 'a camera needs `arena` (its size frames the view)')
+    if len(camera.robot_ids) != spec.agents.count:
+        raise ConfigError(source, 'camera.robot_ids', f'expected {spec.agents.count} marker '
+                          f'ids (one per agent), got {len(camera.robot_ids)}')
+    from curve_formation.vision.markers import DICTIONARIES, dictionary_size
+    if camera.dictionary not in DICTIONARIES:
+        raise ConfigError(source, 'camera.dictionary', f'unknown ArUco dictionary '
+                          f'{camera.dictionary!r}; one of {", ".join(DICTIONARIES)}')
+    size = dictionary_size(camera.dictionary)
+    too_big = [i for i in camera.robot_ids + [c.id for c in camera.corners] if i >= size]
+    if too_big:
+        raise ConfigError(source, 'camera', f'marker ids {too_big} do not exist in '
+                          f'{camera.dictionary} (ids 0..{size - 1})')
 
 
 def _build_phase(index, curve_spec, n, spacing, source, key):

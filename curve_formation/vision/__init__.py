@@ -1,0 +1,1 @@
+"""Overhead camera: ArUco markers, arena calibration, rendering (OpenCV, no ROS)."""

@@ -1,0 +1,144 @@
+"""Synthetic overhead-camera frames: floor, corner markers and one marker per robot.
+
+Grey-level (mono8) images as the camera would deliver them, from a PinholeCamera. Markers are
+drawn with a one-module white quiet zone, anti-aliased by warping the marker image into its
+projected quadrilateral (only its bounding box is touched, so a frame costs little more than
+copying the static background).
+"""
+
+from dataclasses import dataclass
+import math
+
+import cv2
+import numpy as np
+
+from curve_formation.vision.markers import (
+    dictionary,
+    marker_bits,
+    marker_corners,
+    robot_marker_pose,
+)
+
+FLOOR = 190        # grey level of the arena floor
+SURROUNDINGS = 70  # outside the arena
+ROBOT_BODY = 45    # the robot under its marker
+
+
+@dataclass(frozen=True)
+class RenderOptions:
+    """Image effects: pixel noise sigma (grey levels), blur sigma (px), brightness factor."""
+
+    noise: float = 0.0
+    blur: float = 0.0
+    brightness: float = 1.0
+
+
+class ArenaRenderer:
+    """Renders frames of the arena with robots at given poses.
+
+    camera: PinholeCamera; layout: MarkerLayout; arena_size (m); robot_radius (m) of the body
+    disc drawn under each marker.
+    """
+
+    def __init__(self, camera, layout, arena_size, options=RenderOptions(), robot_radius=None,
+                 seed=0):
+        self.camera = camera
+        self.layout = layout
+        self.options = options
+        self.robot_radius = robot_radius or 0.8 * layout.marker_size * math.sqrt(2)
+        self.rng = np.random.default_rng(seed)
+        self.homography = camera.floor_homography()
+        self._dictionary = dictionary(layout.dictionary_name)
+        self._bits = marker_bits(layout.dictionary_name)
+        self._marker_images = {}
+        self.background = self._background(arena_size)
+
+    def _background(self, arena_size):
+        image = np.full((self.camera.height, self.camera.width), SURROUNDINGS, np.uint8)
+        w, h = arena_size
+        floor = self.camera.project([[0, 0], [w, 0], [w, h], [0, h]])
+        cv2.fillConvexPoly(image, np.round(floor * 16).astype(np.int32), FLOOR,
+                           lineType=cv2.LINE_AA, shift=4)
+        for marker_id, (x, y) in self.layout.corners.items():
+            self._draw_marker(image, marker_id, x, y, 0.0, self.layout.corner_size)
+        return image
+
+    def marker_image(self, marker_id, module_px):
+        """Marker `marker_id` with a one-module white quiet zone, module_px per module."""
+        key = (marker_id, module_px)
+        if key not in self._marker_images:
+            inner = cv2.aruco.generateImageMarker(self._dictionary, marker_id,
+                                                  (self._bits + 2) * module_px, borderBits=1)
+            self._marker_images[key] = cv2.copyMakeBorder(
+                inner, module_px, module_px, module_px, module_px, cv2.BORDER_CONSTANT,
+                value=255)
+        return self._marker_images[key]
+
+    def _draw_marker(self, image, marker_id, x, y, heading, side):
+        outer = side * (self._bits + 4) / (self._bits + 2)   # with the quiet zone
+        corners = marker_corners(x, y, heading, outer)
+        # Source resolution close to the projected one, so the warp neither aliases nor blurs.
+        projected = self.camera.project(corners)
+        side_px = np.linalg.norm(np.diff(np.vstack([projected, projected[:1]]), axis=0),
+                                 axis=1).max()
+        module_px = max(1, int(round(side_px / (self._bits + 4))))
+        self._warp_into(image, self.marker_image(marker_id, module_px), corners)
+
+    def _warp_into(self, image, source, arena_corners):
+        """Warp `source` onto the arena quadrilateral (ArUco corner order), blending edges."""
+        target = self.camera.project(arena_corners)
+        n = source.shape[0]
+        edge = np.array([[-0.5, -0.5], [n - 0.5, -0.5], [n - 0.5, n - 0.5], [-0.5, n - 0.5]],
+                        np.float32)
+        x0, y0 = np.floor(target.min(axis=0)).astype(int) - 1
+        x1, y1 = np.ceil(target.max(axis=0)).astype(int) + 2
+        x0, y0 = max(x0, 0), max(y0, 0)
+        x1, y1 = min(x1, image.shape[1]), min(y1, image.shape[0])
+        if x1 <= x0 or y1 <= y0:
+            return
+        local = (target - [x0, y0]).astype(np.float32)
+        warp = cv2.getPerspectiveTransform(edge, local)
+        size = (x1 - x0, y1 - y0)
+        patch = cv2.warpPerspective(source, warp, size, flags=cv2.INTER_LINEAR)
+        mask = cv2.warpPerspective(np.ones_like(source, np.float32), warp, size,
+                                   flags=cv2.INTER_LINEAR)
+        roi = image[y0:y1, x0:x1]
+        roi[:] = np.round(roi * (1 - mask) + patch * mask).astype(np.uint8)
+
+    def render(self, poses, hidden=(), extra_markers=()):
+        """One frame (height x width uint8).
+
+        poses: {agent index (1-based): (x, y, heading)} axle poses (m, rad), arena frame.
+        hidden: agents whose marker is covered (their body is still drawn).
+        extra_markers: ((marker id, x, y, heading), ...) additional robot-sized markers, e.g.
+        a second robot wearing the same id.
+        """
+        image = self.background.copy()
+        for agent, (x, y, heading) in poses.items():
+            body = self.camera.project(_disc(x, y, self.robot_radius))
+            cv2.fillConvexPoly(image, np.round(body * 16).astype(np.int32), ROBOT_BODY,
+                               lineType=cv2.LINE_AA, shift=4)
+            if agent in hidden:
+                continue
+            mx, my = robot_marker_pose(x, y, heading, self.layout.marker_offset)
+            self._draw_marker(image, self.layout.robot_ids[agent - 1], mx, my, heading,
+                              self.layout.marker_size)
+        for marker_id, x, y, heading in extra_markers:
+            self._draw_marker(image, marker_id, x, y, heading, self.layout.marker_size)
+        return self._effects(image)
+
+    def _effects(self, image):
+        opts = self.options
+        if opts.blur > 0:
+            image = cv2.GaussianBlur(image, (0, 0), opts.blur)
+        if opts.brightness != 1.0 or opts.noise > 0:
+            out = image.astype(np.float32) * opts.brightness
+            if opts.noise > 0:
+                out += self.rng.normal(0.0, opts.noise, out.shape).astype(np.float32)
+            image = np.clip(out, 0, 255).astype(np.uint8)
+        return image
+
+
+def _disc(x, y, radius, points=32):
+    angles = np.linspace(0, 2 * math.pi, points, endpoint=False)
+    return np.column_stack([x + radius * np.cos(angles), y + radius * np.sin(angles)])

@@ -1,0 +1,161 @@
+"""Robot poses from overhead-camera frames: ArUco detection and the floor homography.
+
+Pixels follow OpenCV (origin at the centre of the top-left pixel, v down); the arena frame is
+metres with y up. The homography maps undistorted pixels to the floor plane; it is estimated
+from the corner markers (16 points from 4 markers) and kept when a frame shows too few of
+them, so a bumped camera recovers as soon as the corners are seen again.
+"""
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Optional
+
+import cv2
+import numpy as np
+import yaml
+
+from curve_formation.vision.camera import apply_homography
+from curve_formation.vision.markers import dictionary, pose_from_corners
+
+MIN_CORNER_MARKERS = 2        # 8 points: enough for a homography (4 needed), some redundancy
+MAX_REPROJECTION_PX = 3.0     # a fit worse than this is refused (a marker misread or moved)
+
+
+class CalibrationError(ValueError):
+    """A calibration file that cannot be used; the message names the file."""
+
+
+@dataclass
+class Calibration:
+    """Pixel -> arena homography and how it was obtained."""
+
+    homography: np.ndarray           # 3x3, undistorted pixels -> arena (m)
+    rms_px: float                    # reprojection error of the corner points (pixels)
+    corner_ids: tuple = ()
+
+    def save(self, path):
+        """Write as YAML (atomically: a crash never leaves half a file)."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(path.suffix + '.tmp')
+        tmp.write_text(yaml.safe_dump({
+            'homography_pixels_to_arena': np.asarray(self.homography).tolist(),
+            'rms_reprojection_px': float(self.rms_px),
+            'corner_ids': [int(i) for i in self.corner_ids]}, sort_keys=False))
+        tmp.replace(path)
+
+    @classmethod
+    def load(cls, path):
+        path = Path(path)
+        try:
+            data = yaml.safe_load(path.read_text())
+            h = np.array(data['homography_pixels_to_arena'], float)
+        except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError) as exc:
+            raise CalibrationError(f'{path}: not a calibration file '
+                                   f'(homography_pixels_to_arena: 3x3 list): {exc}') from None
+        if h.shape != (3, 3) or not np.isfinite(h).all():
+            raise CalibrationError(f'{path}: homography_pixels_to_arena: expected a finite '
+                                   f'3x3 matrix, got shape {h.shape}')
+        return cls(h, float(data.get('rms_reprojection_px', float('nan'))),
+                   tuple(data.get('corner_ids', ())))
+
+
+@dataclass
+class Frame:
+    """What one image gave.
+
+    poses: {agent: (x, y, heading)} (m, rad, arena frame) of robots seen exactly once.
+    duplicates: agents whose marker id was seen more than once (not published).
+    pixels: {agent: (4, 2) corner pixels}; unknown_ids: ids that belong to nobody.
+    calibrated: whether a homography is available; recalibrated: updated from this frame.
+    """
+
+    poses: dict = field(default_factory=dict)
+    duplicates: tuple = ()
+    pixels: dict = field(default_factory=dict)
+    unknown_ids: tuple = ()
+    calibrated: bool = False
+    recalibrated: bool = False
+    corners_seen: int = 0
+
+
+class MarkerTracker:
+    """Detects the layout's markers and turns them into robot poses in the arena frame.
+
+    continuous: re-estimate the homography from every frame with enough corner markers;
+    otherwise only `calibration` (e.g. loaded from a file) is used. intrinsics: optional
+    (camera_matrix 3x3, distortion) to undistort corner pixels first.
+    """
+
+    def __init__(self, layout, calibration: Optional[Calibration] = None, continuous=True,
+                 intrinsics=None):
+        self.layout = layout
+        self.calibration = calibration
+        self.continuous = continuous
+        params = cv2.aruco.DetectorParameters()
+        # Sub-pixel corners from lines fitted to the marker contour: on rendered 1280x720
+        # frames 0.2 degrees heading error against 0.9 with CORNER_REFINE_SUBPIX (measured).
+        params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_CONTOUR
+        self.detector = cv2.aruco.ArucoDetector(dictionary(layout.dictionary_name), params)
+        self.agent_of = layout.agent_of
+        self.intrinsics = None
+        if intrinsics is not None:
+            k, dist = intrinsics
+            self.intrinsics = (np.asarray(k, float).reshape(3, 3),
+                               np.asarray(dist, float).ravel())
+
+    def detect(self, gray):
+        """{marker id: [(4, 2) pixel corners, ...]} of every marker found (undistorted)."""
+        corners, ids, _ = self.detector.detectMarkers(gray)
+        found = {}
+        if ids is None:
+            return found
+        for quad, marker_id in zip(corners, ids.ravel(), strict=True):
+            pts = quad.reshape(4, 2).astype(float)
+            if self.intrinsics is not None:
+                k, dist = self.intrinsics
+                pts = cv2.undistortPoints(pts.reshape(-1, 1, 2), k, dist, P=k).reshape(4, 2)
+            found.setdefault(int(marker_id), []).append(pts)
+        return found
+
+    def process(self, gray):
+        """One frame (uint8 grey image) -> Frame."""
+        found = self.detect(gray)
+        frame = Frame()
+        corner_ids = [i for i in self.layout.corners if len(found.get(i, ())) == 1]
+        frame.corners_seen = len(corner_ids)
+        if self.continuous and len(corner_ids) >= MIN_CORNER_MARKERS:
+            fitted = fit_homography(np.concatenate([found[i][0] for i in corner_ids]),
+                                    self.layout.corner_points(corner_ids), corner_ids)
+            if fitted is not None:
+                self.calibration = fitted
+                frame.recalibrated = True
+        frame.calibrated = self.calibration is not None
+        frame.unknown_ids = tuple(sorted(i for i in found if i not in self.agent_of
+                                         and i not in self.layout.corners))
+        duplicates = []
+        for marker_id, quads in found.items():
+            agent = self.agent_of.get(marker_id)
+            if agent is None:
+                continue
+            if len(quads) > 1:
+                duplicates.append(agent)
+                continue
+            frame.pixels[agent] = quads[0]
+            if frame.calibrated:
+                arena = apply_homography(self.calibration.homography, quads[0])
+                frame.poses[agent] = pose_from_corners(arena, self.layout.marker_offset)
+        frame.duplicates = tuple(sorted(duplicates))
+        return frame
+
+
+def fit_homography(pixels, arena, corner_ids=()):
+    """Least-squares pixel -> arena homography, or None if degenerate or a poor fit."""
+    h, _ = cv2.findHomography(np.asarray(pixels, np.float64), np.asarray(arena, np.float64), 0)
+    if h is None or not np.isfinite(h).all():
+        return None
+    back = apply_homography(np.linalg.inv(h), arena)
+    rms = float(np.sqrt(np.mean(np.sum((back - pixels) ** 2, axis=1))))
+    if rms > MAX_REPROJECTION_PX:
+        return None
+    return Calibration(h, rms, tuple(corner_ids))
