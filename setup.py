@@ -11,6 +11,8 @@ NODES = {
     'formation_controller': 'curve_formation.nodes.formation_controller:main',
     'fake_robot': 'curve_formation.nodes.fake_robot:main',
     'formation_recorder': 'curve_formation.nodes.recorder:main',
+    'camera_tracker': 'curve_formation.nodes.camera_tracker:main',
+    'fake_camera': 'curve_formation.nodes.fake_camera:main',
 }
 
 setup(
@@ -23,7 +25,7 @@ setup(
         ('share/' + PACKAGE + '/config', glob('config/*.yaml')),
     ],
     install_requires=['setuptools', 'numpy', 'scipy', 'numba', 'matplotlib', 'PyYAML',
-                      'pydantic>=2'],
+                      'pydantic>=2', 'opencv-python-headless'],
     zip_safe=True,
     maintainer='curve_formation maintainers',
     maintainer_email='curve-formation@example.org',

@@ -115,7 +115,8 @@ def _cmd_demo(args):
 def _cmd_run(args):
     from curve_formation.runner import run_experiment
     result = run_experiment(args.config, args.out, args.duration, args.single_process,
-                            with_robots=not args.no_sim, rate_hz=args.rate, bag_path=args.bag)
+                            with_robots=not args.no_sim, rate_hz=args.rate, bag_path=args.bag,
+                            camera={} if args.camera else None)
     print(_summary_line(result['experiment'], result))
     print(f'wrote {args.out}/metrics.json, figures, params/ and logs/')
 
@@ -207,6 +208,10 @@ def build_parser():
     run.add_argument('--bag', help='record a ROS 2 bag (sqlite3) at this new path')
     run.add_argument('--no-sim', action='store_true',
                      help='no fake robots: drive the real robots that publish /robot_<i>/pose')
+    run.add_argument('--camera', action='store_true',
+                     help='poses from camera_tracker (the experiment needs `camera`): fed by '
+                     'fake_camera rendering the fake robots, or with --no-sim by a real camera '
+                     'driver on /camera/image_raw')
     run.set_defaults(func=_cmd_run)
     analyze = sub.add_parser('analyze', help='metrics and figures from a recorded bag')
     analyze.add_argument('bag', help='bag folder')

@@ -49,13 +49,18 @@ class NodeLaunch:
 
 
 def node_launches(experiment, experiment_path, with_robots=True, rate_hz=None,
-                  pose_noise=(0.0, 0.0), command_latency=0.0, faults=None):
+                  pose_noise=(0.0, 0.0), command_latency=0.0, faults=None, camera=None):
     """The node graph of an experiment: curve server, controllers and (optionally) fake robots.
 
     faults: fault injection, {'pose_drop': p, 'state_drop': p} (probabilities).
+    camera: None, or fake_camera parameter overrides ({} for none): poses then come from
+    camera_tracker, fed by fake_camera rendering the fake robots (with_robots) or by a real
+    camera driver on /camera/image_raw.
     """
     faults = faults or {}
     spec = experiment.spec
+    if camera is not None and spec.camera is None:
+        raise ValueError(f'{experiment.source}: camera: a camera run needs a `camera` section')
     rate = control_rate(experiment, rate_hz)
     on_pc = spec.disturbance.injected == 'on_pc'
     limits = experiment.limits
@@ -104,7 +109,26 @@ def node_launches(experiment, experiment_path, with_robots=True, rate_hz=None,
                 'disturbance': [0.0, 0.0] if on_pc else d, 'seed': i,
                 'pose_noise': [float(v) for v in pose_noise],
                 'command_latency': float(command_latency),
-                'fault_pose_drop': float(faults.get('pose_drop', 0.0))}))
+                'fault_pose_drop': float(faults.get('pose_drop', 0.0)),
+                'pose_topic': 'pose' if camera is None else 'true_pose'}))
+    if camera is not None:
+        launches += camera_launches(experiment, experiment_path, with_robots, camera)
+    return launches
+
+
+def camera_launches(experiment, experiment_path, with_fake_camera, overrides):
+    """camera_tracker, and fake_camera (with the experiment's fake settings) when simulated."""
+    cam = experiment.spec.camera
+    path = str(Path(experiment_path).resolve())
+    launches = [NodeLaunch('curve_formation.nodes.camera_tracker', '/', 'camera_tracker',
+                           {'experiment': path})]
+    if with_fake_camera:
+        fake = cam.fake
+        launches.append(NodeLaunch('curve_formation.nodes.fake_camera', '/', 'fake_camera', {
+            'experiment': path, 'rate_hz': float(cam.rate_hz),
+            'resolution': [int(v) for v in cam.resolution], 'tilt_deg': float(fake.tilt_deg),
+            'height': float(fake.height), 'noise': float(fake.noise),
+            'blur': float(fake.blur), 'brightness': float(fake.brightness), **overrides}))
     return launches
 
 
@@ -151,7 +175,7 @@ class Run:
 
     def __init__(self, experiment_path, out_dir, single_process=False, with_robots=True,
                  rate_hz=None, record_hz=20.0, pose_noise=(0.0, 0.0), command_latency=0.0,
-                 bag_path=None, faults=None, log=print):
+                 bag_path=None, faults=None, camera=None, log=print):
         self.experiment_path = resolve_config(experiment_path)
         self.experiment = load_experiment(self.experiment_path)
         self.out = Path(out_dir)
@@ -159,7 +183,7 @@ class Run:
         self.log = log
         self.rate_hz = control_rate(self.experiment, rate_hz)
         self.launches = node_launches(self.experiment, self.experiment_path, with_robots,
-                                      rate_hz, pose_noise, command_latency, faults)
+                                      rate_hz, pose_noise, command_latency, faults, camera)
         self.param_files = write_params_files(self.launches, self.out / 'params')
         self.domain_id = private_domain_id()
         self.record_hz = record_hz
@@ -339,7 +363,9 @@ def phases_of(curve_ids, phase_count):
 
 NODE_CLASSES = {'curve_formation.nodes.curve_server': 'CurveServer',
                 'curve_formation.nodes.formation_controller': 'FormationController',
-                'curve_formation.nodes.fake_robot': 'FakeRobot'}
+                'curve_formation.nodes.fake_robot': 'FakeRobot',
+                'curve_formation.nodes.camera_tracker': 'CameraTracker',
+                'curve_formation.nodes.fake_camera': 'FakeCamera'}
 
 
 def _node_class(module):
@@ -353,7 +379,7 @@ def _overrides(parameters):
 
 
 def run_experiment(config, out_dir, duration=None, single_process=False, with_robots=True,
-                   rate_hz=None, bag_path=None, log=print):
+                   rate_hz=None, bag_path=None, camera=None, log=print):
     """Run an experiment's node graph for `duration` s (default: the file's) and measure it.
 
     SIGTERM is handled like Ctrl-C: every node is stopped and the bag closed.
@@ -361,7 +387,7 @@ def run_experiment(config, out_dir, duration=None, single_process=False, with_ro
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)
     try:
         run = Run(config, out_dir, single_process, with_robots, rate_hz, bag_path=bag_path,
-                  log=log)
+                  camera=camera, log=log)
     except BaseException:
         signal.signal(signal.SIGTERM, previous)
         raise

@@ -26,6 +26,8 @@ class RandomStart(Strict):
     seed: int = 0
     center: Pair = Field(description='centre of the box (m)')
     half_width: Pair = Field(description='half side lengths of the box (m)')
+    min_separation: float = Field(0.0, ge=0, description='least distance between two '
+                                  'robots (m), e.g. a robot diameter; 0 = robots are points')
 
     @field_validator('half_width')
     @classmethod

@@ -217,13 +217,32 @@ def _disturbance(spec, source):
     return np.tile(np.array(dist.value if dist.value is not None else (0.0, 0.0)), (n, 1))
 
 
-def random_poses(n, center, half_width, seed):
-    """(n, 3) poses uniform in the box center +- half_width (m), headings uniform (rad)."""
+MAX_DRAWS_PER_ROBOT = 1000
+
+
+def random_poses(n, center, half_width, seed, min_separation=0.0):
+    """(n, 3) poses uniform in the box center +- half_width (m), headings uniform (rad).
+
+    With min_separation (m) > 0 each position is redrawn until it keeps that distance from
+    the ones before; ValueError if the box cannot hold them.
+    """
     rng = np.random.default_rng(seed)
     center = np.asarray(center, float)
     half = np.asarray(half_width, float)
-    return np.column_stack([rng.uniform(center - half, center + half, size=(n, 2)),
-                            rng.uniform(-math.pi, math.pi, size=n)])
+    if min_separation <= 0:
+        return np.column_stack([rng.uniform(center - half, center + half, size=(n, 2)),
+                                rng.uniform(-math.pi, math.pi, size=n)])
+    points = []
+    for _ in range(n):
+        for _ in range(MAX_DRAWS_PER_ROBOT):
+            p = rng.uniform(center - half, center + half)
+            if all(np.hypot(*(p - q)) >= min_separation for q in points):
+                points.append(p)
+                break
+        else:
+            raise ValueError(f'cannot place {n} robots {min_separation} m apart in the start '
+                             f'box (placed {len(points)})')
+    return np.column_stack([np.array(points), rng.uniform(-math.pi, math.pi, size=n)])
 
 
 def seeded_start(experiment, seed):
@@ -231,7 +250,7 @@ def seeded_start(experiment, seed):
     box = experiment.spec.agents.initial.random
     if box is None:
         raise ValueError(f'{experiment.source}: agents.initial: no random start box to reseed')
-    return random_poses(experiment.n, box.center, box.half_width, seed)
+    return random_poses(experiment.n, box.center, box.half_width, seed, box.min_separation)
 
 
 def _initial_poses(spec, source):
@@ -243,8 +262,11 @@ def _initial_poses(spec, source):
                               f'poses (one per agent), got {len(initial.poses)}')
         poses = np.array(initial.poses, dtype=float)
     else:
-        poses = random_poses(n, initial.random.center, initial.random.half_width,
-                             initial.random.seed)
+        try:
+            poses = random_poses(n, initial.random.center, initial.random.half_width,
+                                 initial.random.seed, initial.random.min_separation)
+        except ValueError as exc:
+            raise ConfigError(source, 'agents.initial.random.min_separation', str(exc)) from None
     if spec.arena is not None:
         width, height = spec.arena.size
         outside = np.flatnonzero((poses[:, 0] < 0) | (poses[:, 0] > width)

@@ -1,13 +1,23 @@
 """README tables of every node's parameters, topics and QoS, generated from the node modules."""
 
-from curve_formation.nodes import curve_server, fake_robot, formation_controller, qos, recorder
+from curve_formation.nodes import (
+    camera_tracker,
+    curve_server,
+    fake_camera,
+    fake_robot,
+    formation_controller,
+    qos,
+    recorder,
+)
 from curve_formation.nodes.params import markdown_table
 
 
 NODES = (('formation_controller', formation_controller),
          ('curve_server', curve_server),
          ('fake_robot', fake_robot),
-         ('formation_recorder', recorder))
+         ('formation_recorder', recorder),
+         ('camera_tracker', camera_tracker),
+         ('fake_camera', fake_camera))
 
 QOS_TEXT = {
     'SENSOR': 'sensor data (best effort, keep last 5)',
@@ -15,6 +25,7 @@ QOS_TEXT = {
     'STATE': f'reliable, keep last {qos.STATE.depth}',
     'LATCHED': f'reliable, transient local, keep last {qos.LATCHED.depth}',
     'EVENTS': f'reliable, keep last {qos.EVENTS.depth}',
+    'IMAGE': f'best effort, keep last {qos.IMAGE.depth}',
 }
 
 

@@ -40,12 +40,16 @@ PARAMETERS = (
           'a pose', low=0.0, high=1.0),
     Param('seed', 'int', 0, 'seed of the pose noise and drops'),
     Param('frame_id', 'string', 'arena', 'frame of the published pose'),
+    Param('pose_topic', 'string', topics.POSE, f"topic of the published pose: "
+          f"'{topics.POSE}', or '{topics.TRUE_POSE}' when a camera tracks the robot",
+          choices=(topics.POSE, topics.TRUE_POSE)),
 )
 
 
 TOPICS = (
     ('sub', topics.CMD_VEL, 'geometry_msgs/Twist', 'COMMAND', 'velocity command'),
-    ('pub', topics.POSE, 'geometry_msgs/PoseStamped', 'SENSOR', 'pose at rate_hz'),
+    ('pub', topics.POSE, 'geometry_msgs/PoseStamped', 'SENSOR', 'pose at rate_hz (on '
+     f'{topics.TRUE_POSE} instead with pose_topic)'),
 )
 
 class FakeRobot(Node):
@@ -64,7 +68,7 @@ class FakeRobot(Node):
         self.rng = np.random.default_rng(p.seed)
         self.last_time = None
         self.last_command_time = None
-        self.pose_pub = self.create_publisher(PoseStamped, topics.POSE, qos.SENSOR)
+        self.pose_pub = self.create_publisher(PoseStamped, p.pose_topic, qos.SENSOR)
         self.create_subscription(Twist, topics.CMD_VEL, self._on_cmd, qos.COMMAND)
         self.create_timer(1.0 / p.rate_hz, self._on_timer)
 

@@ -12,8 +12,9 @@ stamp of the pose the error was computed from.
 import math
 
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import PoseStamped, Twist, Vector3Stamped
-from sensor_msgs.msg import JointState
+from geometry_msgs.msg import Pose, PoseArray, PoseStamped, Twist, Vector3Stamped
+import numpy as np
+from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from curve_formation.core.curve_codec import (
@@ -106,4 +107,62 @@ def estimate_to_msg(dhat, stamp_s):
     msg = Vector3Stamped()
     msg.header.stamp = seconds_to_stamp(stamp_s)
     msg.vector.x, msg.vector.y = float(dhat[0]), float(dhat[1])
+    return msg
+
+
+# sensor_msgs/Image encodings this package reads, with their channel count.
+IMAGE_CHANNELS = {'mono8': 1, '8UC1': 1, 'bgr8': 3, 'rgb8': 3, 'bgra8': 4, 'rgba8': 4}
+
+
+def image_to_msg(image, stamp_s, frame_id='camera'):
+    """sensor_msgs/Image from a uint8 array: (h, w) -> mono8, (h, w, 3) -> bgr8 (OpenCV's)."""
+    image = np.ascontiguousarray(image, dtype=np.uint8)
+    msg = Image()
+    msg.header.stamp = seconds_to_stamp(stamp_s)
+    msg.header.frame_id = frame_id
+    msg.height, msg.width = image.shape[:2]
+    msg.encoding = 'mono8' if image.ndim == 2 else 'bgr8'
+    msg.is_bigendian = 0
+    msg.step = msg.width * (1 if image.ndim == 2 else image.shape[2])
+    msg.data = image.tobytes()
+    return msg
+
+
+def gray_from_image_msg(msg):
+    """(h, w) uint8 grey image from a mono8 / bgr8 / rgb8 / bgra8 / rgba8 Image.
+
+    Raises MessageError on another encoding or a size that does not match the header.
+    """
+    channels = IMAGE_CHANNELS.get(msg.encoding)
+    if channels is None:
+        raise MessageError(f'image encoding {msg.encoding!r} not supported; one of '
+                           f'{", ".join(IMAGE_CHANNELS)}')
+    data = np.frombuffer(msg.data, dtype=np.uint8)
+    if msg.step < msg.width * channels or data.size < msg.step * msg.height:
+        raise MessageError(f'image data ({data.size} bytes, step {msg.step}) does not hold '
+                           f'{msg.height} x {msg.width} x {channels}')
+    rows = data[:msg.step * msg.height].reshape(msg.height, msg.step)
+    pixels = rows[:, :msg.width * channels].reshape(msg.height, msg.width, channels)
+    if channels == 1:
+        return np.ascontiguousarray(pixels[..., 0])
+    import cv2
+    code = {('bgr8', 3): cv2.COLOR_BGR2GRAY, ('rgb8', 3): cv2.COLOR_RGB2GRAY,
+            ('bgra8', 4): cv2.COLOR_BGRA2GRAY, ('rgba8', 4): cv2.COLOR_RGBA2GRAY}
+    return cv2.cvtColor(np.ascontiguousarray(pixels), code[(msg.encoding, channels)])
+
+
+def pose_array_to_msg(poses, count, stamp_s, frame_id='arena'):
+    """geometry_msgs/PoseArray of agents 1..count in order; an agent missing from `poses`
+    ({agent: (x, y, theta)}) gets a NaN pose, so positions keep their meaning."""
+    msg = PoseArray()
+    msg.header.stamp = seconds_to_stamp(stamp_s)
+    msg.header.frame_id = frame_id
+    nan = float('nan')
+    for agent in range(1, count + 1):
+        x, y, th = poses.get(agent, (nan, nan, nan))
+        pose = Pose()
+        pose.position.x, pose.position.y = float(x), float(y)
+        _, _, qz, qw = quaternion_from_yaw(th) if math.isfinite(th) else (0, 0, nan, nan)
+        pose.orientation.z, pose.orientation.w = float(qz), float(qw)
+        msg.poses.append(pose)
     return msg

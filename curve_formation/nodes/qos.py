@@ -24,3 +24,6 @@ LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
 # Diagnostics and the e-stop: reliable, a few deep.
 EVENTS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5,
                     reliability=ReliabilityPolicy.RELIABLE)
+# Camera frames: only the newest is worth processing; an older one would only add latency.
+IMAGE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                   reliability=ReliabilityPolicy.BEST_EFFORT)

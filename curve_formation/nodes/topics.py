@@ -6,6 +6,10 @@ ESTOP = '/formation/estop'
 CURVE_PATH = '/formation/curve_path'
 CURVE_MARKERS = '/formation/markers'
 POSE = 'pose'
+TRUE_POSE = 'true_pose'               # a fake robot's ground truth, when a camera tracks it
+CAMERA_IMAGE = '/camera/image_raw'
+CAMERA_POSES = '/camera/robot_poses'  # all robots, agent order (NaN = not seen)
+CAMERA_DEBUG = '/camera/debug_image'
 CMD_VEL = 'cmd_vel'
 STATE = 'formation_state'
 ESTIMATE = 'disturbance_estimate'

@@ -114,10 +114,11 @@ class ArenaRenderer:
         a second robot wearing the same id.
         """
         image = self.background.copy()
-        for agent, (x, y, heading) in poses.items():
+        for x, y, _ in poses.values():
             body = self.camera.project(_disc(x, y, self.robot_radius))
             cv2.fillConvexPoly(image, np.round(body * 16).astype(np.int32), ROBOT_BODY,
                                lineType=cv2.LINE_AA, shift=4)
+        for agent, (x, y, heading) in poses.items():   # markers on top of every body
             if agent in hidden:
                 continue
             mx, my = robot_marker_pose(x, y, heading, self.layout.marker_offset)

@@ -1,0 +1,267 @@
+"""camera_tracker: robot poses from the overhead camera's ArUco markers.
+
+Input: sensor_msgs/Image on /camera/image_raw from any camera driver, or, with `source` set, a
+device number or video file opened with cv2.VideoCapture and read at `rate_hz`. Markers,
+arena corners and calibration come from the experiment's `camera` section. Each frame gives
+/robot_<i>/pose (PoseStamped, axle centre, arena frame, stamped with the image's stamp) for
+every robot seen exactly once, and /camera/robot_poses (PoseArray of all robots in agent
+order, NaN when not seen). A robot not seen is simply not published, so its controller stops
+it after its pose timeout; a marker id seen twice in one frame is ambiguous and not published
+either. /diagnostics (1 Hz) reports per robot the detection rate and whether it is lost
+(unseen for `lost_timeout`), the frame latency, and the calibration. /camera/debug_image
+(bgr8, `debug_rate_hz`, only while someone subscribes) shows detections, ids, the desired
+curve and each robot's target point for the arena operator.
+"""
+
+import math
+from pathlib import Path
+import time
+
+import cv2
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseArray, PoseStamped
+import numpy as np
+from rclpy.node import Node
+from sensor_msgs.msg import Image
+from std_msgs.msg import Float64MultiArray
+
+from curve_formation.core.assignment import agent_parameters
+from curve_formation.core.experiment import ConfigError, load_experiment
+from curve_formation.nodes import messages, qos, topics
+from curve_formation.nodes.params import declare_parameters, Param, ParameterError
+from curve_formation.nodes.runtime import now_seconds, run_node
+from curve_formation.paths import resolve_config
+from curve_formation.vision.camera import apply_homography
+from curve_formation.vision.markers import MarkerLayout
+from curve_formation.vision.tracker import Calibration, CalibrationError, MarkerTracker
+
+SAVE_INTERVAL = 5.0   # s between saves of a continuously re-estimated calibration
+
+
+PARAMETERS = (
+    Param('experiment', 'string', None, 'experiment YAML with a `camera` section (markers, '
+          'corners, calibration)'),
+    Param('source', 'string', '', "'' = subscribe to /camera/image_raw; else a device number "
+          '(e.g. 0) or a video file for cv2.VideoCapture'),
+    Param('rate_hz', 'double', 30.0, 'frames read per second from `source`', positive=True),
+    Param('calibration', 'string', '', "'continuous' or 'fixed'; '' = the experiment's",
+          choices=('', 'continuous', 'fixed')),
+    Param('calibration_file', 'string', '', "saved homography (YAML), reloaded at start; '' = "
+          "the experiment's camera.calibration_file (if any)"),
+    Param('lost_timeout', 'double', 0.0, "a robot unseen this long is reported lost (s); 0 = "
+          "the experiment's", low=0.0),
+    Param('debug_rate_hz', 'double', 5.0, 'rate of the annotated debug image (Hz); 0 = off',
+          low=0.0),
+    Param('frame_id', 'string', 'arena', 'frame of the published poses'),
+)
+
+
+TOPICS = (
+    ('sub', topics.CAMERA_IMAGE, 'sensor_msgs/Image', 'IMAGE',
+     'camera frames (mono8, bgr8, rgb8, ...); not used when `source` is set'),
+    ('sub', topics.CURVE, 'std_msgs/Float64MultiArray', 'LATCHED',
+     'desired curve, drawn in the debug image'),
+    ('pub', f'/robot_<i>/{topics.POSE}', 'geometry_msgs/PoseStamped', 'SENSOR',
+     "each robot's pose, stamped with its image"),
+    ('pub', topics.CAMERA_POSES, 'geometry_msgs/PoseArray', 'SENSOR',
+     'all robots in agent order, NaN when not seen'),
+    ('pub', topics.DIAGNOSTICS, 'diagnostic_msgs/DiagnosticArray', 'EVENTS',
+     'detection rate per robot, lost robots, frame latency, calibration (1 Hz)'),
+    ('pub', topics.CAMERA_DEBUG, 'sensor_msgs/Image', 'IMAGE',
+     'annotated frame (bgr8) while subscribed'),
+)
+
+
+class CameraTracker(Node):
+    """ArUco detection and arena calibration over a camera stream."""
+
+    def __init__(self, **kwargs):
+        super().__init__('camera_tracker', **kwargs)
+        p = self.params = declare_parameters(self, PARAMETERS)
+        try:
+            self.experiment = load_experiment(resolve_config(p.experiment))
+        except (ConfigError, FileNotFoundError) as exc:
+            raise ParameterError(f"parameter 'experiment': {exc}") from None
+        camera = self.experiment.spec.camera
+        if camera is None:
+            raise ParameterError(f"parameter 'experiment': {self.experiment.source} has no "
+                                 '`camera` section')
+        self.n = self.experiment.n
+        self.lost_timeout = p.lost_timeout or camera.lost_timeout
+        mode = p.calibration or camera.calibration
+        self.calibration_path = self._calibration_path(camera)
+        calibration = None
+        if self.calibration_path is not None and self.calibration_path.exists():
+            try:
+                calibration = Calibration.load(self.calibration_path)
+            except CalibrationError as exc:
+                raise ParameterError(f"parameter 'calibration_file': {exc}") from None
+            self.get_logger().info(f'calibration loaded from {self.calibration_path}')
+        elif mode == 'fixed':
+            raise ParameterError(f"parameter 'calibration_file': calibration 'fixed' needs a "
+                                 f'saved calibration, {self.calibration_path} does not exist')
+        intrinsics = None
+        if camera.intrinsics is not None:
+            intrinsics = (camera.intrinsics.camera_matrix, camera.intrinsics.distortion)
+        self.layout = MarkerLayout.from_spec(camera)
+        self.tracker = MarkerTracker(self.layout, calibration, mode == 'continuous', intrinsics)
+        self.pose_pubs = [self.create_publisher(PoseStamped, topics.robot_topic(i, topics.POSE),
+                                                qos.SENSOR) for i in range(1, self.n + 1)]
+        self.array_pub = self.create_publisher(PoseArray, topics.CAMERA_POSES, qos.SENSOR)
+        self.diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.EVENTS)
+        self.debug_pub = self.create_publisher(Image, topics.CAMERA_DEBUG, qos.IMAGE)
+        self.create_subscription(Float64MultiArray, topics.CURVE, self._on_curve, qos.LATCHED)
+        self.curve = None
+        self.targets = None
+        self.last_seen = {}
+        self.seen_counts = np.zeros(self.n + 1, int)
+        self.frames = 0
+        self.latencies = []
+        self.process_times = []
+        self.duplicates = set()
+        self.last_saved = -math.inf
+        self.last_debug = -math.inf
+        self.capture = None
+        if p.source:
+            target = int(p.source) if p.source.isdigit() else p.source
+            self.capture = cv2.VideoCapture(target)
+            if not self.capture.isOpened():
+                raise ParameterError(f"parameter 'source': cannot open {p.source!r}")
+            self.create_timer(1.0 / p.rate_hz, self._on_capture)
+        else:
+            self.create_subscription(Image, topics.CAMERA_IMAGE, self._on_image, qos.IMAGE)
+        self.create_timer(1.0, self._publish_diagnostics)
+
+    def _calibration_path(self, camera):
+        given = self.params.calibration_file or camera.calibration_file
+        if not given:
+            return None
+        path = Path(given)
+        if not path.is_absolute() and not self.params.calibration_file:
+            path = Path(self.experiment.source).parent / path
+        return path
+
+    def _on_curve(self, msg):
+        try:
+            curve, _ = messages.curve_from_msg(msg)
+        except messages.MessageError:
+            return
+        spacing = self.experiment.spec.agents.spacing
+        self.curve = curve
+        self.targets = curve.points(agent_parameters(curve, self.n, spacing))
+
+    def _on_capture(self):
+        ok, frame = self.capture.read()
+        if not ok:
+            self.get_logger().warning('no frame from the camera source',
+                                      throttle_duration_sec=5.0)
+            return
+        gray = frame if frame.ndim == 2 else cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+        self.process(gray, now_seconds(self))
+
+    def _on_image(self, msg):
+        try:
+            gray = messages.gray_from_image_msg(msg)
+        except messages.MessageError as exc:
+            self.get_logger().error(f'image refused: {exc}', throttle_duration_sec=5.0)
+            return
+        self.process(gray, messages.stamp_to_seconds(msg.header.stamp))
+
+    def process(self, gray, stamp):
+        """Detect, publish poses stamped `stamp` (s), keep statistics, save calibration."""
+        started = time.perf_counter()
+        frame = self.tracker.process(gray)
+        for agent, (x, y, theta) in frame.poses.items():
+            self.pose_pubs[agent - 1].publish(messages.pose_to_msg(
+                x, y, theta, stamp, self.params.frame_id))
+            self.last_seen[agent] = stamp
+            self.seen_counts[agent] += 1
+        self.array_pub.publish(messages.pose_array_to_msg(frame.poses, self.n, stamp,
+                                                          self.params.frame_id))
+        now = now_seconds(self)
+        self.frames += 1
+        self.latencies.append(now - stamp)
+        self.process_times.append(time.perf_counter() - started)
+        self.duplicates.update(frame.duplicates)
+        if not frame.calibrated:
+            self.get_logger().warning(
+                f'not calibrated: {frame.corners_seen} corner markers seen, need 2',
+                throttle_duration_sec=5.0)
+        if (frame.recalibrated and self.calibration_path is not None
+                and now - self.last_saved > SAVE_INTERVAL):
+            self.tracker.calibration.save(self.calibration_path)
+            self.last_saved = now
+        if (self.params.debug_rate_hz > 0 and self.debug_pub.get_subscription_count() > 0
+                and now - self.last_debug >= 1.0 / self.params.debug_rate_hz):
+            self.last_debug = now
+            self.debug_pub.publish(messages.image_to_msg(self.annotate(gray, frame), stamp))
+
+    def annotate(self, gray, frame):
+        """bgr8 debug image: detected markers with agent numbers, curve and targets."""
+        image = cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR)
+        for agent, quad in frame.pixels.items():
+            cv2.polylines(image, [np.round(quad).astype(np.int32)], True, (0, 200, 0), 2)
+            cv2.putText(image, str(agent), tuple(np.round(quad[0]).astype(int)),
+                        cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 255), 2)
+        calibration = self.tracker.calibration
+        if calibration is not None and self.curve is not None:
+            to_pixels = np.linalg.inv(calibration.homography)
+            line = apply_homography(to_pixels, self.curve.points(np.linspace(0, 1, 300)))
+            cv2.polylines(image, [np.round(line).astype(np.int32)], False, (255, 128, 0), 1)
+            for agent, (u, v) in enumerate(apply_homography(to_pixels, self.targets), 1):
+                cv2.circle(image, (int(round(u)), int(round(v))), 5, (0, 165, 255), 2)
+                cv2.putText(image, str(agent), (int(round(u)) + 6, int(round(v)) - 6),
+                            cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 165, 255), 1)
+        return image
+
+    def _publish_diagnostics(self):
+        now = now_seconds(self)
+        msg = DiagnosticArray()
+        msg.header.stamp = messages.seconds_to_stamp(now)
+        frames = max(self.frames, 1)
+        for agent in range(1, self.n + 1):
+            status = DiagnosticStatus(name=f'camera_tracker: robot {agent}',
+                                      hardware_id=f'marker {self.layout.robot_ids[agent - 1]}')
+            seen = self.last_seen.get(agent)
+            lost = seen is None or now - seen > self.lost_timeout
+            rate = self.seen_counts[agent] / frames
+            status.level = DiagnosticStatus.WARN if lost else DiagnosticStatus.OK
+            status.message = ('lost' if lost else 'tracked') + (
+                ', marker id seen twice' if agent in self.duplicates else '')
+            status.values = [KeyValue(key='detection_rate', value=f'{rate:.3f}'),
+                             KeyValue(key='last_seen_age_s', value='never' if seen is None
+                                      else f'{now - seen:.3f}')]
+            msg.status.append(status)
+        camera = DiagnosticStatus(name='camera_tracker: camera', hardware_id='camera')
+        calibrated = self.tracker.calibration is not None
+        camera.level = DiagnosticStatus.OK if calibrated and self.frames else DiagnosticStatus.WARN
+        camera.message = (f'{self.frames} frames' if self.frames else 'no frames') + (
+            '' if calibrated else ', not calibrated')
+        latency = np.array(self.latencies or [np.nan])
+        processing = np.array(self.process_times or [np.nan])
+        camera.values = [
+            KeyValue(key='frames', value=str(self.frames)),
+            KeyValue(key='latency_p50_s', value=f'{np.median(latency):.4f}'),
+            KeyValue(key='latency_max_s', value=f'{np.max(latency):.4f}'),
+            KeyValue(key='processing_p50_s', value=f'{np.median(processing):.4f}'),
+            KeyValue(key='calibration_rms_px', value='none' if not calibrated
+                     else f'{self.tracker.calibration.rms_px:.3f}')]
+        msg.status.append(camera)
+        self.diag_pub.publish(msg)
+        self.seen_counts[:] = 0
+        self.frames = 0
+        self.latencies.clear()
+        self.process_times.clear()
+        self.duplicates.clear()
+
+    def on_shutdown(self):
+        if self.capture is not None:
+            self.capture.release()
+
+
+def main(args=None):
+    return run_node(CameraTracker, args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

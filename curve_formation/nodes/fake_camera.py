@@ -1,0 +1,122 @@
+"""fake_camera: renders the arena as the overhead camera would see it (tests and demos).
+
+Subscribes every fake robot's ground truth (/robot_<i>/true_pose) and publishes mono8
+sensor_msgs/Image frames on /camera/image_raw at `rate_hz`, stamped with the time of capture:
+floor, corner markers and each robot's ArUco marker at its pose (layout from the experiment's
+`camera` section). Options: resolution, tilt, pixel noise, blur, brightness; and faults: cover
+some robots' markers for a time window, or show a second marker with a robot's id.
+"""
+
+from geometry_msgs.msg import PoseStamped
+from rclpy.node import Node
+from sensor_msgs.msg import Image
+
+from curve_formation.core.experiment import ConfigError, load_experiment
+from curve_formation.nodes import messages, qos, topics
+from curve_formation.nodes.params import declare_parameters, Param, ParameterError
+from curve_formation.nodes.runtime import now_seconds, run_node
+from curve_formation.paths import resolve_config
+from curve_formation.vision.camera import overhead_camera
+from curve_formation.vision.markers import MarkerLayout
+from curve_formation.vision.render import ArenaRenderer, RenderOptions
+
+
+PARAMETERS = (
+    Param('experiment', 'string', None, "experiment YAML with `arena` and `camera` sections"),
+    Param('rate_hz', 'double', 30.0, 'frame rate (Hz)', positive=True),
+    Param('resolution', 'int[]', [1280, 720], 'image width and height (pixels)'),
+    Param('tilt_deg', 'double', 0.0, 'camera tilt from straight down (degrees)', low=0.0,
+          high=59.0),
+    Param('height', 'double', 2.0, 'camera distance from the arena centre (m)', positive=True),
+    Param('noise', 'double', 0.0, 'pixel noise standard deviation (grey levels)', low=0.0),
+    Param('blur', 'double', 0.0, 'Gaussian blur sigma (pixels)', low=0.0),
+    Param('brightness', 'double', 1.0, 'brightness factor', positive=True),
+    Param('hide', 'int[]', [], 'fault: agents whose marker is covered'),
+    Param('hide_from', 'double', 0.0, 'fault: covering starts this long after the first '
+          'frame (s)', low=0.0),
+    Param('hide_for', 'double', -1.0, 'fault: and lasts this long (s); negative = for good'),
+    Param('duplicate_of', 'int', 0, "fault: show a second marker with this agent's id "
+          '(0 = none)', low=0),
+    Param('duplicate_at', 'double[]', [0.3, 0.3], 'fault: where the second marker lies '
+          '[x, y] (m, arena frame)'),
+    Param('seed', 'int', 0, 'seed of the pixel noise'),
+    Param('frame_id', 'string', 'camera', 'frame of the published images'),
+)
+
+
+TOPICS = (
+    ('sub', f'/robot_<i>/{topics.TRUE_POSE}', 'geometry_msgs/PoseStamped', 'SENSOR',
+     "each fake robot's ground-truth pose"),
+    ('pub', topics.CAMERA_IMAGE, 'sensor_msgs/Image', 'IMAGE', 'mono8 frames at rate_hz'),
+)
+
+
+class FakeCamera(Node):
+    """Arena renderer over the fake robots' true poses."""
+
+    def __init__(self, **kwargs):
+        super().__init__('fake_camera', **kwargs)
+        p = self.params = declare_parameters(self, PARAMETERS)
+        try:
+            experiment = load_experiment(resolve_config(p.experiment))
+        except (ConfigError, FileNotFoundError) as exc:
+            raise ParameterError(f"parameter 'experiment': {exc}") from None
+        if experiment.spec.camera is None:
+            raise ParameterError(f"parameter 'experiment': {experiment.source} has no "
+                                 '`camera` section')
+        if len(p.resolution) != 2 or min(p.resolution) < 16:
+            raise ParameterError(f"parameter 'resolution' must be [width, height] >= 16, got "
+                                 f'{p.resolution}')
+        if len(p.duplicate_at) != 2:
+            raise ParameterError("parameter 'duplicate_at' must be [x, y]")
+        n = experiment.n
+        bad = [i for i in list(p.hide) + ([p.duplicate_of] if p.duplicate_of else [])
+               if not 1 <= i <= n]
+        if bad:
+            raise ParameterError(f"parameters 'hide'/'duplicate_of': agents {bad} are not in "
+                                 f'1..{n}')
+        arena = experiment.spec.arena.size
+        self.layout = MarkerLayout.from_spec(experiment.spec.camera)
+        camera = overhead_camera(arena, tuple(p.resolution), p.tilt_deg, p.height)
+        self.renderer = ArenaRenderer(camera, self.layout, arena,
+                                      RenderOptions(p.noise, p.blur, p.brightness), seed=p.seed)
+        self.poses = {}
+        self.first_frame = None
+        for i in range(1, n + 1):
+            self.create_subscription(PoseStamped, topics.robot_topic(i, topics.TRUE_POSE),
+                                     lambda m, i=i: self._on_pose(i, m), qos.SENSOR)
+        self.image_pub = self.create_publisher(Image, topics.CAMERA_IMAGE, qos.IMAGE)
+        self.create_timer(1.0 / p.rate_hz, self._on_timer)
+
+    def _on_pose(self, i, msg):
+        x, y, theta, _ = messages.pose_from_msg(msg)
+        self.poses[i] = (x, y, theta)
+
+    def hidden(self, now):
+        """Agents whose marker is covered at time `now` (s)."""
+        p = self.params
+        if not p.hide or self.first_frame is None:
+            return ()
+        elapsed = now - self.first_frame
+        if elapsed < p.hide_from or (p.hide_for >= 0 and elapsed > p.hide_from + p.hide_for):
+            return ()
+        return tuple(p.hide)
+
+    def _on_timer(self):
+        now = now_seconds(self)
+        if self.first_frame is None:
+            self.first_frame = now
+        extra = ()
+        if self.params.duplicate_of:
+            x, y = self.params.duplicate_at
+            extra = ((self.layout.robot_ids[self.params.duplicate_of - 1], x, y, 0.0),)
+        image = self.renderer.render(self.poses, self.hidden(now), extra)
+        self.image_pub.publish(messages.image_to_msg(image, now, self.params.frame_id))
+
+
+def main(args=None):
+    return run_node(FakeCamera, args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
