@@ -20,6 +20,7 @@ from curve_formation.core.experiment import load_experiment
 from curve_formation.core.simulator import simulate
 from curve_formation.paths import resolve_config
 
+
 matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 
@@ -60,7 +61,7 @@ def main():
                    title=f'forward push left uncancelled (dashed: k1 l = {threshold:g})')
     axes[1, 0].set(xlabel='t (s)', ylabel='q = d_w - k2 dhat_w (rad/s)',
                    title='turn channel: adapts at k2^2 l^2 / k1 (paper)')
-    axes[1, 1].set(xlabel='t (s)', ylabel='max |theta\'| (rad/s)',
+    axes[1, 1].set(xlabel='t (s)', ylabel="max |theta'| (rad/s)",
                    title='fastest heading rate (circling)')
     axes[1, 1].legend()
     fig.tight_layout()

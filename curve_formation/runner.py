@@ -112,7 +112,9 @@ def node_launches(experiment, experiment_path, with_robots=True, rate_hz=None,
                 'fault_pose_drop': float(faults.get('pose_drop', 0.0)),
                 'pose_topic': 'pose' if camera is None else 'true_pose'}))
     if camera is not None:
-        launches += camera_launches(experiment, experiment_path, with_robots, camera)
+        cameras = camera_launches(experiment, experiment_path, with_robots, camera)
+        launches[0].parameters['wait_for_subscribers'] += len(cameras)   # they draw the curve
+        launches += cameras
     return launches
 
 
@@ -182,6 +184,8 @@ class Run:
         self.single_process = single_process
         self.log = log
         self.rate_hz = control_rate(self.experiment, rate_hz)
+        self.camera = camera
+        self.with_robots = with_robots
         self.launches = node_launches(self.experiment, self.experiment_path, with_robots,
                                       rate_hz, pose_noise, command_latency, faults, camera)
         self.param_files = write_params_files(self.launches, self.out / 'params')
@@ -215,7 +219,8 @@ class Run:
         self.context = Context()
         # Ctrl-C stays a KeyboardInterrupt, so stop() can close the bag and stop the nodes.
         rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
-        self.monitor = Monitor(self.experiment.n, self.record_hz, context=self.context)
+        self.monitor = Monitor(self.experiment.n, self.record_hz, context=self.context,
+                               ground_truth=self.camera is not None and self.with_robots)
         # Python callbacks share the GIL: more executor threads would not run them faster.
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.monitor)
@@ -348,6 +353,8 @@ class Run:
                                      data['dhat'], data['commands'])
         result['control'] = f'ROS nodes at {self.rate_hz:g} Hz'
         result['mode'] = 'single process' if self.single_process else 'one process per node'
+        if len(data['true_poses']) == len(data['t']):
+            result['ground_truth'] = ground_truth_metrics(self.experiment, data, phase)
         self.out.mkdir(parents=True, exist_ok=True)
         (self.out / 'metrics.json').write_text(json.dumps(result, indent=2) + '\n')
         plots.run_figures(self.out, self.experiment, data['t'], data['poses'], phase,
@@ -407,6 +414,22 @@ def run_experiment(config, out_dir, duration=None, single_process=False, with_ro
     if bag_path is not None:
         result['bag'] = {'path': str(bag_path), 'messages': run.bag_writer.count}
     return result
+
+
+def ground_truth_metrics(experiment, data, phase):
+    """With a camera: the formation measured on the fake robots' true poses, and how far the
+    tracked poses (what the controllers saw, up to a frame old) were from them.
+    """
+    truth = data['true_poses']
+    seen = np.isfinite(truth).all(axis=2) & np.isfinite(data['poses']).all(axis=2)
+    gap = np.linalg.norm(data['poses'][..., :2] - truth[..., :2], axis=2)[seen]
+    turn = np.abs(np.angle(np.exp(1j * (data['poses'][..., 2] - truth[..., 2]))))[seen]
+    out = metrics.run_metrics(experiment, data['t'], truth, phase)
+    return {'final_error_norm': out['final_error_norm'],
+            'phases': [{k: p[k] for k in ('settled', 'settle_time', 'final_error_norm')}
+                       for p in out['phases']],
+            'tracked_vs_true_position_rms': float(np.sqrt(np.mean(gap ** 2))),
+            'tracked_vs_true_heading_rms_deg': float(np.degrees(np.sqrt(np.mean(turn ** 2))))}
 
 
 def _stop_with_parent():

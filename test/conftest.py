@@ -1,4 +1,4 @@
-"""Shared fixtures: experiment dictionaries to break on purpose."""
+"""Shared fixtures: experiment dictionaries to break on purpose, a private ROS context."""
 
 from pathlib import Path
 import sys
@@ -33,3 +33,35 @@ def ros_domain(monkeypatch):
     monkeypatch.setenv('ROS_DOMAIN_ID', str(domain))
     monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     return domain
+
+
+@pytest.fixture
+def ros(ros_domain):
+    """(context, add, spin_until) on a private context; everything torn down after."""
+    import time
+
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+
+    context = Context()
+    rclpy.init(context=context)
+    executor = SingleThreadedExecutor(context=context)
+    nodes = []
+
+    def add(node):
+        nodes.append(node)
+        executor.add_node(node)
+        return node
+
+    def spin_until(predicate, timeout=10.0):
+        deadline = time.monotonic() + timeout
+        while not predicate():
+            assert time.monotonic() < deadline, 'timed out'
+            executor.spin_once(timeout_sec=0.02)
+
+    yield context, add, spin_until
+    executor.shutdown()
+    for node in nodes:
+        node.destroy_node()
+    rclpy.try_shutdown(context=context)

@@ -4,6 +4,7 @@ import copy
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 import yaml
 
@@ -81,6 +82,46 @@ def test_initial_poses_outside_the_arena(arena_dict):
     arena_dict['agents']['initial'] = {'poses': [[0.5, 0.4, 0.0]] * 8 + [[2.5, 0.4, 0.0]]}
     with pytest.raises(ConfigError, match=r'agents.initial: agent 9 starts at .* outside'):
         build_experiment(arena_dict, 'arena.yaml')
+
+
+CAMERA_BROKEN = [
+    ('robot id count', ('robot_ids',), [1, 2, 3], 'camera.robot_ids', 'expected 9'),
+    ('unknown dictionary', ('dictionary',), 'DICT_9X9_5', 'camera.dictionary',
+     'unknown ArUco dictionary'),
+    ('id beyond the dictionary', ('robot_ids', 8), 77, 'camera', 'ids 0..49'),
+    ('repeated id', ('corners', 0, 'id'), 3, 'camera', 'repeated: [3]'),
+    ('one corner', ('corners',), [{'id': 40, 'position': [0.05, 0.05]}], 'camera.corners',
+     'at least 2'),
+    ('misspelt key', ('marker_sise',), 0.04, 'camera.marker_sise', 'Extra inputs'),
+]
+
+
+@pytest.mark.parametrize('what, path, value, key, words', CAMERA_BROKEN,
+                         ids=[b[0] for b in CAMERA_BROKEN])
+def test_broken_camera_section_is_refused_clearly(arena_dict, what, path, value, key, words):
+    set_path(arena_dict['camera'], path, value)
+    with pytest.raises(ConfigError) as info:
+        build_experiment(arena_dict, 'arena.yaml')
+    message = str(info.value)
+    assert message.startswith(f'arena.yaml: {key}') and words in message, message
+
+
+def test_camera_needs_an_arena(arena_dict):
+    del arena_dict['arena']
+    with pytest.raises(ConfigError, match='arena.yaml: camera: a camera needs `arena`'):
+        build_experiment(arena_dict, 'arena.yaml')
+
+
+def test_robots_that_cannot_be_separated_are_refused(arena_dict):
+    arena_dict['agents']['initial']['random']['min_separation'] = 0.5
+    with pytest.raises(ConfigError, match='min_separation: cannot place 9 robots 0.5 m'):
+        build_experiment(arena_dict, 'arena.yaml')
+
+
+def test_random_starts_keep_their_separation(arena_dict):
+    poses = build_experiment(arena_dict, 'arena.yaml').initial_poses
+    gaps = np.linalg.norm(poses[:, None, :2] - poses[None, :, :2], axis=2)
+    assert gaps[~np.eye(len(poses), dtype=bool)].min() >= 0.1
 
 
 def test_not_a_mapping():

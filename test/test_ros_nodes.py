@@ -8,8 +8,6 @@ from geometry_msgs.msg import Twist
 import numpy as np
 import pytest
 import rclpy
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
@@ -24,32 +22,6 @@ from curve_formation.nodes.params import ParameterError
 
 
 pytestmark = pytest.mark.ros
-
-
-@pytest.fixture
-def ros(ros_domain):
-    """(context, executor, spin_until) on a private context; everything torn down after."""
-    context = Context()
-    rclpy.init(context=context)
-    executor = SingleThreadedExecutor(context=context)
-    nodes = []
-
-    def add(node):
-        nodes.append(node)
-        executor.add_node(node)
-        return node
-
-    def spin_until(predicate, timeout=10.0):
-        deadline = time.monotonic() + timeout
-        while not predicate():
-            assert time.monotonic() < deadline, 'timed out'
-            executor.spin_once(timeout_sec=0.02)
-
-    yield context, add, spin_until
-    executor.shutdown()
-    for node in nodes:
-        node.destroy_node()
-    rclpy.try_shutdown(context=context)
 
 
 def overrides(**values):

@@ -35,6 +35,7 @@ from curve_formation.vision.camera import apply_homography
 from curve_formation.vision.markers import MarkerLayout
 from curve_formation.vision.tracker import Calibration, CalibrationError, MarkerTracker
 
+
 SAVE_INTERVAL = 5.0   # s between saves of a continuously re-estimated calibration
 
 
@@ -171,14 +172,14 @@ class CameraTracker(Node):
         """Detect, publish poses stamped `stamp` (s), keep statistics, save calibration."""
         started = time.perf_counter()
         frame = self.tracker.process(gray)
+        now = now_seconds(self)
         for agent, (x, y, theta) in frame.poses.items():
             self.pose_pubs[agent - 1].publish(messages.pose_to_msg(
                 x, y, theta, stamp, self.params.frame_id))
-            self.last_seen[agent] = stamp
+            self.last_seen[agent] = now
             self.seen_counts[agent] += 1
         self.array_pub.publish(messages.pose_array_to_msg(frame.poses, self.n, stamp,
                                                           self.params.frame_id))
-        now = now_seconds(self)
         self.frames += 1
         self.latencies.append(now - stamp)
         self.process_times.append(time.perf_counter() - started)

@@ -3,13 +3,15 @@
 Subscribes every fake robot's ground truth (/robot_<i>/true_pose) and publishes mono8
 sensor_msgs/Image frames on /camera/image_raw at `rate_hz`, stamped with the time of capture:
 floor, corner markers and each robot's ArUco marker at its pose (layout from the experiment's
-`camera` section). Options: resolution, tilt, pixel noise, blur, brightness; and faults: cover
-some robots' markers for a time window, or show a second marker with a robot's id.
+`camera` section). Options: resolution, tilt, pixel noise, blur, brightness; and faults for a
+time window counted from the first curve: cover some robots' markers, or show a second marker
+with a robot's id.
 """
 
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 from sensor_msgs.msg import Image
+from std_msgs.msg import Float64MultiArray
 
 from curve_formation.core.experiment import ConfigError, load_experiment
 from curve_formation.nodes import messages, qos, topics
@@ -22,7 +24,7 @@ from curve_formation.vision.render import ArenaRenderer, RenderOptions
 
 
 PARAMETERS = (
-    Param('experiment', 'string', None, "experiment YAML with `arena` and `camera` sections"),
+    Param('experiment', 'string', None, 'experiment YAML with `arena` and `camera` sections'),
     Param('rate_hz', 'double', 30.0, 'frame rate (Hz)', positive=True),
     Param('resolution', 'int[]', [1280, 720], 'image width and height (pixels)'),
     Param('tilt_deg', 'double', 0.0, 'camera tilt from straight down (degrees)', low=0.0,
@@ -32,13 +34,13 @@ PARAMETERS = (
     Param('blur', 'double', 0.0, 'Gaussian blur sigma (pixels)', low=0.0),
     Param('brightness', 'double', 1.0, 'brightness factor', positive=True),
     Param('hide', 'int[]', [], 'fault: agents whose marker is covered'),
-    Param('hide_from', 'double', 0.0, 'fault: covering starts this long after the first '
-          'frame (s)', low=0.0),
-    Param('hide_for', 'double', -1.0, 'fault: and lasts this long (s); negative = for good'),
     Param('duplicate_of', 'int', 0, "fault: show a second marker with this agent's id "
           '(0 = none)', low=0),
     Param('duplicate_at', 'double[]', [0.3, 0.3], 'fault: where the second marker lies '
           '[x, y] (m, arena frame)'),
+    Param('fault_from', 'double', 0.0, 'faults start this long after the first curve '
+          'arrives on /formation/curve (s)', low=0.0),
+    Param('fault_for', 'double', -1.0, 'and last this long (s); negative = for good'),
     Param('seed', 'int', 0, 'seed of the pixel noise'),
     Param('frame_id', 'string', 'camera', 'frame of the published images'),
 )
@@ -47,6 +49,8 @@ PARAMETERS = (
 TOPICS = (
     ('sub', f'/robot_<i>/{topics.TRUE_POSE}', 'geometry_msgs/PoseStamped', 'SENSOR',
      "each fake robot's ground-truth pose"),
+    ('sub', topics.CURVE, 'std_msgs/Float64MultiArray', 'LATCHED',
+     'the first curve starts the fault clock'),
     ('pub', topics.CAMERA_IMAGE, 'sensor_msgs/Image', 'IMAGE', 'mono8 frames at rate_hz'),
 )
 
@@ -81,7 +85,8 @@ class FakeCamera(Node):
         self.renderer = ArenaRenderer(camera, self.layout, arena,
                                       RenderOptions(p.noise, p.blur, p.brightness), seed=p.seed)
         self.poses = {}
-        self.first_frame = None
+        self.first_curve = None
+        self.create_subscription(Float64MultiArray, topics.CURVE, self._on_curve, qos.LATCHED)
         for i in range(1, n + 1):
             self.create_subscription(PoseStamped, topics.robot_topic(i, topics.TRUE_POSE),
                                      lambda m, i=i: self._on_pose(i, m), qos.SENSOR)
@@ -92,25 +97,28 @@ class FakeCamera(Node):
         x, y, theta, _ = messages.pose_from_msg(msg)
         self.poses[i] = (x, y, theta)
 
-    def hidden(self, now):
-        """Agents whose marker is covered at time `now` (s)."""
+    def _on_curve(self, _msg):
+        if self.first_curve is None:
+            self.first_curve = now_seconds(self)
+
+    def faulty(self, now):
+        """Whether the configured faults act at time `now` (s)."""
         p = self.params
-        if not p.hide or self.first_frame is None:
-            return ()
-        elapsed = now - self.first_frame
-        if elapsed < p.hide_from or (p.hide_for >= 0 and elapsed > p.hide_from + p.hide_for):
-            return ()
-        return tuple(p.hide)
+        if self.first_curve is None:
+            return False
+        elapsed = now - self.first_curve
+        return elapsed >= p.fault_from and (p.fault_for < 0 or elapsed <= p.fault_from
+                                            + p.fault_for)
 
     def _on_timer(self):
         now = now_seconds(self)
-        if self.first_frame is None:
-            self.first_frame = now
+        faulty = self.faulty(now)
+        hidden = tuple(self.params.hide) if faulty else ()
         extra = ()
-        if self.params.duplicate_of:
+        if faulty and self.params.duplicate_of:
             x, y = self.params.duplicate_at
             extra = ((self.layout.robot_ids[self.params.duplicate_of - 1], x, y, 0.0),)
-        image = self.renderer.render(self.poses, self.hidden(now), extra)
+        image = self.renderer.render(self.poses, hidden, extra)
         self.image_pub.publish(messages.image_to_msg(image, now, self.params.frame_id))
 
 

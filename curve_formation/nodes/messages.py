@@ -153,7 +153,8 @@ def gray_from_image_msg(msg):
 
 def pose_array_to_msg(poses, count, stamp_s, frame_id='arena'):
     """geometry_msgs/PoseArray of agents 1..count in order; an agent missing from `poses`
-    ({agent: (x, y, theta)}) gets a NaN pose, so positions keep their meaning."""
+    ({agent: (x, y, theta)}) gets a NaN pose, so positions keep their meaning.
+    """
     msg = PoseArray()
     msg.header.stamp = seconds_to_stamp(stamp_s)
     msg.header.frame_id = frame_id

@@ -25,19 +25,22 @@ class Recording:
     commands: list = field(default_factory=list)
     dhat: list = field(default_factory=list)
     curve_id: list = field(default_factory=list)
+    true_poses: list = field(default_factory=list)   # fake robots' ground truth (camera runs)
 
     def arrays(self):
         return {name: np.array(getattr(self, name)) for name in
-                ('t', 'poses', 'commands', 'dhat', 'curve_id')}
+                ('t', 'poses', 'commands', 'dhat', 'curve_id', 'true_poses')}
 
 
 class Monitor(Node):
     """Subscribes to all robots' topics and keeps a Recording."""
 
-    def __init__(self, n, record_hz=20.0, **kwargs):
+    def __init__(self, n, record_hz=20.0, ground_truth=False, **kwargs):
+        """ground_truth: also record the fake robots' true poses (when a camera tracks them)."""
         super().__init__('formation_monitor', **kwargs)
         self.n = n
         self.poses = np.full((n, 3), np.nan)
+        self.true_poses = np.full((n, 3), np.nan) if ground_truth else None
         self.pose_stamps = np.full(n, np.nan)
         self.commands = np.full((n, 2), np.nan)
         self.command_times = np.full(n, np.nan)
@@ -58,6 +61,11 @@ class Monitor(Node):
                                      lambda m, i=i: self._on_estimate(i, m), qos.STATE)
             self.create_subscription(JointState, topics.robot_topic(i, topics.STATE),
                                      lambda m, i=i: self._on_state(i, m), qos.STATE)
+        if ground_truth:
+            for i in range(1, n + 1):
+                self.create_subscription(
+                    PoseStamped, topics.robot_topic(i, topics.TRUE_POSE),
+                    lambda m, i=i: self._on_true_pose(i, m), qos.SENSOR)
         self.create_subscription(Float64MultiArray, topics.CURVE, self._on_curve, qos.LATCHED)
         self.create_timer(1.0 / record_hz, self._sample)
 
@@ -65,6 +73,9 @@ class Monitor(Node):
         x, y, th, stamp = messages.pose_from_msg(msg)
         self.poses[i - 1] = (x, y, th)
         self.pose_stamps[i - 1] = stamp
+
+    def _on_true_pose(self, i, msg):
+        self.true_poses[i - 1] = messages.pose_from_msg(msg)[:3]
 
     def _on_cmd(self, i, msg):
         self.commands[i - 1] = messages.twist_from_msg(msg)
@@ -105,3 +116,5 @@ class Monitor(Node):
         rec.commands.append(self.commands.copy())
         rec.dhat.append(self.dhat.copy())
         rec.curve_id.append(self.curve_id)
+        if self.true_poses is not None:
+            rec.true_poses.append(self.true_poses.copy())

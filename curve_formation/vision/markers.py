@@ -12,6 +12,7 @@ import math
 import cv2
 import numpy as np
 
+
 # cv2.aruco also has lower-case aliases (DICT_APRILTAG_36h11); the upper-case names suffice.
 DICTIONARIES = tuple(sorted(name for name in dir(cv2.aruco)
                             if name.startswith('DICT_') and name == name.upper()))

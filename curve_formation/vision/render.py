@@ -19,6 +19,7 @@ from curve_formation.vision.markers import (
     robot_marker_pose,
 )
 
+
 FLOOR = 190        # grey level of the arena floor
 SURROUNDINGS = 70  # outside the arena
 ROBOT_BODY = 45    # the robot under its marker
@@ -46,7 +47,8 @@ class ArenaRenderer:
         self.layout = layout
         self.options = options
         self.robot_radius = robot_radius or 0.8 * layout.marker_size * math.sqrt(2)
-        self.rng = np.random.default_rng(seed)
+        cv2.setRNGSeed(seed)   # pixel noise comes from OpenCV's generator (fast)
+        self._noise = None
         self.homography = camera.floor_homography()
         self._dictionary = dictionary(layout.dictionary_name)
         self._bits = marker_bits(layout.dictionary_name)
@@ -132,11 +134,13 @@ class ArenaRenderer:
         opts = self.options
         if opts.blur > 0:
             image = cv2.GaussianBlur(image, (0, 0), opts.blur)
-        if opts.brightness != 1.0 or opts.noise > 0:
-            out = image.astype(np.float32) * opts.brightness
-            if opts.noise > 0:
-                out += self.rng.normal(0.0, opts.noise, out.shape).astype(np.float32)
-            image = np.clip(out, 0, 255).astype(np.uint8)
+        if opts.brightness != 1.0:
+            image = cv2.convertScaleAbs(image, alpha=opts.brightness)
+        if opts.noise > 0:
+            if self._noise is None:
+                self._noise = np.empty(image.shape, np.int16)
+            cv2.randn(self._noise, 0.0, opts.noise)
+            image = np.clip(cv2.add(image.astype(np.int16), self._noise), 0, 255).astype(np.uint8)
         return image
 
 

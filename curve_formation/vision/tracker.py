@@ -17,6 +17,7 @@ import yaml
 from curve_formation.vision.camera import apply_homography
 from curve_formation.vision.markers import dictionary, pose_from_corners
 
+
 MIN_CORNER_MARKERS = 2        # 8 points: enough for a homography (4 needed), some redundancy
 MAX_REPROJECTION_PX = 3.0     # a fit worse than this is refused (a marker misread or moved)
 

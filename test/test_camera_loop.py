@@ -1,0 +1,82 @@
+"""The camera in the loop over Fast DDS: fake_robot -> fake_camera (rendered 1280x720 frames)
+-> camera_tracker (ArUco) -> formation_controller -> fake_robot, every node its own process.
+"""
+
+import re
+
+import numpy as np
+import pytest
+
+from conftest import DATA_DIR
+from curve_formation.core import metrics
+from curve_formation.core.simulator import simulate
+from curve_formation.runner import phases_of, Run
+
+
+pytestmark = pytest.mark.ros
+
+EXPERIMENT = DATA_DIR / 'camera_loop.yaml'
+
+
+def quiet(*_):
+    pass
+
+
+def error_norms(run, data, key):
+    phase = phases_of(data['curve_id'], len(run.experiment.phases))
+    return metrics.error_norm(metrics.target_errors(data[key], phase, run.experiment))
+
+
+def test_closed_loop_through_the_camera_converges(ros_domain, tmp_path):
+    with Run(EXPERIMENT, tmp_path, camera={}, log=quiet) as run:
+        run.spin_for(40.0)
+        data = run.recording()
+    t = data['t']
+    truth = error_norms(run, data, 'true_poses')
+    tracked = error_norms(run, data, 'poses')
+    tolerance = 1e-3 * run.experiment.phases[0].curve.size()
+    late = t > 36.0
+    # The robots' true poses end within the settling tolerance (noise-limited: the camera
+    # sees each robot to ~0.5 mm), from 0.33 at the start, as the simulator predicts.
+    assert truth[0] > 300 * tolerance
+    assert truth[late].max() < 2 * tolerance and tracked[late].max() < 2 * tolerance
+    sim = simulate(run.experiment, duration=40.0)
+    sim_settle = metrics.settle_time(sim.t, sim.error_norm, tolerance, 0, np.inf)
+    assert truth[np.searchsorted(t, sim_settle + 5.0):].max() < 2 * tolerance
+    # What the controllers saw was the truth, up to one frame of motion.
+    seen = np.isfinite(data['poses']).all(axis=2)
+    gap = np.linalg.norm(data['poses'][..., :2] - data['true_poses'][..., :2], axis=2)[seen]
+    assert np.sqrt(np.mean(gap ** 2)) < 0.003
+    # The observer learnt d / k2 = [0.015, 0.3] from camera poses.
+    miss = np.abs(data['dhat'][-1] - run.experiment.disturbance / run.experiment.gains.k2)
+    assert miss[:, 0].max() < 0.005 and miss[:, 1].max() < 0.06, miss
+
+
+def commands_during(data, robot, start, end):
+    window = (data['t'] >= start) & (data['t'] <= end)
+    return np.abs(data['commands'][window, robot - 1]).sum(axis=1)
+
+
+@pytest.mark.parametrize('fault', [{'hide': [9]}, {'duplicate_of': 9,
+                                                     'duplicate_at': [0.3, 0.4]}],
+                         ids=['marker covered', 'marker id seen twice'])
+def test_a_lost_marker_stops_its_robot_for_as_long_and_only_it(ros_domain, tmp_path, fault):
+    """Robot 9 (a leaf: nobody follows it) loses its pose for 2 s from t = 4 s."""
+    camera = dict(fault, fault_from=4.0, fault_for=2.0)
+    with Run(EXPERIMENT, tmp_path, camera=camera, log=quiet) as run:
+        run.spin_for(9.0)
+        data = run.recording()
+    # The fault clock starts when fake_camera gets the curve, the monitor's a little later.
+    assert commands_during(data, 9, 1.0, 3.0).min() > 0                     # driving before
+    stopped = commands_during(data, 9, 3.0, 7.5) == 0.0
+    assert 1.2 < stopped.sum() / 20.0 < 2.0 + 0.5                           # 20 Hz samples
+    # Driving again afterwards, and the others throughout. Camera poses reach a controller
+    # ~0.1 s after capture, and on these two shared cores a late frame now and then makes a
+    # pose 0.5 s old: that robot then stops for a tick, as it must (seen in 1 of 4 runs).
+    assert np.mean(commands_during(data, 9, 7.5, 9.0) > 0) > 0.8
+    for robot in range(1, 9):
+        assert np.mean(commands_during(data, robot, 3.0, 7.5) > 0) > 0.9, robot
+    # Stopped at the first tick after the pose timeout.
+    log = (tmp_path / 'logs' / 'robot_9.formation_controller.log').read_text()
+    first_age = float(re.search(r'own pose stale \(([0-9.]+) s old\)', log).group(1))
+    assert first_age < run.experiment.spec.safety.pose_timeout + 0.1 + 0.05
