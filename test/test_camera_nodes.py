@@ -20,6 +20,7 @@ from curve_formation.vision.markers import MarkerLayout
 from curve_formation.vision.render import ArenaRenderer
 from curve_formation.vision.tracker import Calibration
 
+
 pytestmark = pytest.mark.ros
 
 TRUTH = {1: (0.4, 0.3, 0.5), 2: (0.8, 0.5, -2.0), 3: (1.2, 0.35, 3.0), 4: (1.5, 0.6, 1.0)}
