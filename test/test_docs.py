@@ -30,7 +30,9 @@ def test_nodes_create_the_documented_topics(ros_domain, name, module):
     rclpy.init(context=context)
     params = {'formation_controller': dict(index=2, agent_count=3, in_neighbours=[1]),
               'curve_server': dict(experiment='closed_curve'),
-              'fake_robot': {}}[name]
+              'fake_robot': {},
+              'camera_tracker': dict(experiment='arena_demo'),
+              'fake_camera': dict(experiment='arena_demo')}[name]
     cls = getattr(module, NODE_CLASSES[module.__name__])
     node = cls(context=context, namespace='/robot_2',
                parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
@@ -38,7 +40,7 @@ def test_nodes_create_the_documented_topics(ros_domain, name, module):
         pubs = dict(node.get_publisher_names_and_types_by_node(node.get_name(), '/robot_2'))
         subs = dict(node.get_subscriber_names_and_types_by_node(node.get_name(), '/robot_2'))
         for direction, topic, msg_type, _, _ in module.TOPICS:
-            resolved = (topic.replace('<j>', '1') if topic.startswith('/')
+            resolved = (topic.replace('<j>', '1').replace('<i>', '1') if topic.startswith('/')
                         else f'/robot_2/{topic}')
             found = (pubs if direction == 'pub' else subs).get(resolved)
             package, name = msg_type.split('/')

@@ -95,8 +95,9 @@ def test_killed_follower_stops_its_out_neighbours_and_rejoins_when_restarted(ros
 
 def test_dropped_messages_and_latency_still_converge_at_arena_speeds(ros_domain, tmp_path):
     """20 % of poses and of neighbour states dropped, commands delayed 200 ms, on the arena demo
-    (Mona wheel limits, 10 Hz). Tolerance: the error never exceeds its start and after 30 s is
-    within 25 % of the fault-free batch simulation (measured: 0.314 vs 0.301, start 1.49).
+    (Mona wheel limits, 10 Hz, robots drifting with d = [5 mm/s, 0.1 rad/s]). Tolerance: the
+    error never exceeds its start by more than 1 % (the drift acts before the observer has
+    learnt it) and after 30 s is within 25 % of the fault-free batch simulation.
     At the fast test case's ~10 m/s the same faults make the law diverge (README).
     """
     with Run('arena_demo', tmp_path, command_latency=0.2,
@@ -105,7 +106,7 @@ def test_dropped_messages_and_latency_still_converge_at_arena_speeds(ros_domain,
         data = run.recording()
     norm = metrics.error_norm(metrics.target_errors(
         data['poses'], phases_of(data['curve_id'], 1), run.experiment))
-    assert norm.max() <= norm[0] * (1 + 1e-9)
+    assert norm.max() <= norm[0] * 1.01
     expected = simulate(run.experiment, duration=30.0).error_norm[-1]
     assert norm[-1] < 1.25 * expected
-    assert norm[-1] < 0.3 * norm[0]
+    assert norm[-1] < 0.4 * norm[0]      # simulated: 1.49 -> 0.54 in 30 s
