@@ -42,3 +42,11 @@ def test_peak_wheel_speed():
     out = metrics.peak_speeds(commands, 0.1)
     assert out['peak_wheel_speed'] == pytest.approx(0.02)
     assert out['peak_w'] == pytest.approx(0.2)
+
+
+def test_closest_approach_finds_the_nearest_pair_over_time():
+    from curve_formation.core.metrics import closest_approach
+    poses = np.zeros((3, 3, 3))
+    poses[:, 1, 0] = [1.0, 0.3, 0.8]
+    poses[:, 2, 1] = [2.0, 2.0, 0.5]
+    assert closest_approach(poses) == (pytest.approx(0.3), 1)

@@ -100,6 +100,22 @@ def spacing_uniformity(curve, points):
             'min_over_max': float(gaps.min() / gaps.max())}
 
 
+def closest_approach(poses):
+    """Smallest distance (m) between two robots' axle centres over a run, with when (index).
+
+    The law has no collision avoidance: compare with the robots' size.
+    """
+    if poses.shape[1] < 2:
+        return float('inf'), 0
+    xy = poses[..., :2]
+    gaps = np.linalg.norm(xy[:, :, None, :] - xy[:, None, :, :], axis=3)
+    gaps[:, np.arange(poses.shape[1]), np.arange(poses.shape[1])] = np.inf
+    gaps[np.isnan(gaps)] = np.inf          # robots not seen yet
+    per_row = gaps.reshape(len(gaps), -1).min(axis=1)
+    k = int(np.argmin(per_row))
+    return float(per_row[k]), k
+
+
 def peak_speeds(commands, wheel_base):
     """Peak |v|, |w| and, with a wheel base, peak wheel speed of the sent commands."""
     if commands is None or len(commands) == 0:
@@ -155,6 +171,7 @@ def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance
         'lyapunov_final': float(lyapunov(errors[-1:], None if dhat is None else dhat[-1:],
                                          experiment, disturbance, gains)[0]),
         'all_settled': all(p['settled'] for p in phases),
+        'closest_approach': closest_approach(poses)[0],
     }
     if dhat is not None and gains.k2 > 0:
         target = np.asarray(disturbance) / gains.k2
