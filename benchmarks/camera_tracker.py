@@ -26,6 +26,7 @@ from curve_formation.vision.markers import MarkerLayout
 from curve_formation.vision.render import ArenaRenderer, RenderOptions
 from curve_formation.vision.tracker import MarkerTracker
 
+
 ARENA = (1.8, 0.8)
 
 

@@ -28,6 +28,7 @@ from curve_formation.paths import resolve_config
 
 
 DEFAULT_RATE_HZ = 10.0
+LARGE_DATA_PROFILE = Path(__file__).resolve().parent / 'fastdds_large_data.xml'
 # Keys of the bag metadata (custom_data) that make a bag self-describing.
 PARAMETERS_KEY = 'curve_formation.parameters'
 READY_TIMEOUT = 90.0   # s; nine Python processes start in ~10 s on two cores
@@ -177,8 +178,9 @@ class Run:
 
     def __init__(self, experiment_path, out_dir, single_process=False, with_robots=True,
                  rate_hz=None, record_hz=20.0, pose_noise=(0.0, 0.0), command_latency=0.0,
-                 bag_path=None, faults=None, camera=None, log=print):
+                 bag_path=None, faults=None, camera=None, bag_images=False, log=print):
         self.experiment_path = resolve_config(experiment_path)
+        self.bag_images = bag_images
         self.experiment = load_experiment(self.experiment_path)
         self.out = Path(out_dir)
         self.single_process = single_process
@@ -209,6 +211,7 @@ class Run:
     def start(self):
         os.environ['ROS_DOMAIN_ID'] = str(self.domain_id)
         os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+
         import rclpy
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
@@ -225,13 +228,15 @@ class Run:
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.monitor)
         if self.bag_writer is not None:
-            from curve_formation.nodes.recorder import formation_topics, Recorder
+            from curve_formation.nodes.recorder import camera_topics, formation_topics, Recorder
             self.bag_writer.__enter__()
             self.bag_writer.set_custom(EXPERIMENT_KEY, self.experiment_path.read_text())
             self.bag_writer.set_custom(PARAMETERS_KEY, '\n'.join(
                 path.read_text() for path in self.param_files.values()))
-            self.recorder = Recorder(self.bag_writer, formation_topics(self.experiment.n),
-                                     context=self.context)
+            recorded = formation_topics(self.experiment.n)
+            if self.bag_images:
+                recorded += camera_topics()
+            self.recorder = Recorder(self.bag_writer, recorded, context=self.context)
             self.executor.add_node(self.recorder)
             self.log(f'recording {self.bag_writer.path}')
         self.log(f'ROS_DOMAIN_ID={self.domain_id}; parameters in {self.out / "params"}')
@@ -254,6 +259,8 @@ class Run:
         logs = self.out / 'logs'
         logs.mkdir(parents=True, exist_ok=True)
         env = dict(os.environ, ROS_DOMAIN_ID=str(self.domain_id), PYTHONUNBUFFERED='1')
+        if self.camera is not None:   # images: shared memory with large segments
+            env.setdefault('FASTRTPS_DEFAULT_PROFILES_FILE', str(LARGE_DATA_PROFILE))
         cmd = [sys.executable, '-m', launch.module, '--ros-args', '-r',
                f'__ns:={launch.namespace}', '--params-file', str(self.param_files[launch.key])]
         with open(logs / f'{launch.key}.log', 'w') as log_file:
@@ -386,7 +393,7 @@ def _overrides(parameters):
 
 
 def run_experiment(config, out_dir, duration=None, single_process=False, with_robots=True,
-                   rate_hz=None, bag_path=None, camera=None, log=print):
+                   rate_hz=None, bag_path=None, camera=None, bag_images=False, log=print):
     """Run an experiment's node graph for `duration` s (default: the file's) and measure it.
 
     SIGTERM is handled like Ctrl-C: every node is stopped and the bag closed.
@@ -394,7 +401,7 @@ def run_experiment(config, out_dir, duration=None, single_process=False, with_ro
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)
     try:
         run = Run(config, out_dir, single_process, with_robots, rate_hz, bag_path=bag_path,
-                  camera=camera, log=log)
+                  camera=camera, bag_images=bag_images, log=log)
     except BaseException:
         signal.signal(signal.SIGTERM, previous)
         raise

@@ -6,7 +6,7 @@ and at the end of the run; killed hard, it loses at most the last second.
 """
 
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import PoseStamped, Twist, Vector3Stamped
+from geometry_msgs.msg import PoseArray, PoseStamped, Twist, Vector3Stamped
 from nav_msgs.msg import Path
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -31,6 +31,12 @@ def formation_topics(n):
                 (topics.robot_topic(i, topics.STATE), JointState, qos.STATE),
                 (topics.robot_topic(i, topics.ESTIMATE), Vector3Stamped, qos.STATE)]
     return out
+
+
+def camera_topics():
+    """[(topic, message class, QoSProfile)] of the overhead camera: frames and all poses."""
+    return [(topics.CAMERA_IMAGE, Image, qos.IMAGE),
+            (topics.CAMERA_POSES, PoseArray, qos.SENSOR)]
 
 
 def type_name(msg_class):
