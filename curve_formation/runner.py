@@ -24,6 +24,7 @@ import yaml
 from curve_formation.analysis import EXPERIMENT_KEY
 from curve_formation.core import metrics, plots
 from curve_formation.core.experiment import load_experiment
+from curve_formation.nodes.runtime import PublicationCounter, PUBLICATIONS_ENV
 from curve_formation.paths import resolve_config
 
 
@@ -196,7 +197,10 @@ class Run:
         self.processes = {}
         self.in_process_nodes = []
         self.bag_writer = None
+        self.counters = []
+        self.publications_dir = self.out / 'publications'
         if bag_path is not None:
+            self.publications_dir.mkdir(parents=True, exist_ok=True)
             from curve_formation.bag import BagWriter
             self.bag_writer = BagWriter(bag_path)   # refuses an existing path before any start
 
@@ -254,6 +258,8 @@ class Run:
                 context=self.context, namespace=launch.namespace,
                 parameter_overrides=_overrides(launch.parameters))
             self.in_process_nodes.append(node)
+            if self.bag_writer is not None:
+                self.counters.append((node, PublicationCounter(node)))
             self.executor.add_node(node)
             return
         logs = self.out / 'logs'
@@ -261,6 +267,8 @@ class Run:
         env = dict(os.environ, ROS_DOMAIN_ID=str(self.domain_id), PYTHONUNBUFFERED='1')
         if self.camera is not None:   # images: shared memory with large segments
             env.setdefault('FASTRTPS_DEFAULT_PROFILES_FILE', str(LARGE_DATA_PROFILE))
+        if self.bag_writer is not None:   # each node reports what it published
+            env[PUBLICATIONS_ENV] = str(self.publications_dir)
         cmd = [sys.executable, '-m', launch.module, '--ros-args', '-r',
                f'__ns:={launch.namespace}', '--params-file', str(self.param_files[launch.key])]
         with open(logs / f'{launch.key}.log', 'w') as log_file:
@@ -339,6 +347,8 @@ class Run:
             hook = getattr(node, 'on_shutdown', None)
             if hook is not None:
                 hook()
+        for node, counter in self.counters:
+            counter.save(self.publications_dir, node.get_fully_qualified_name())
         self.executor.shutdown(timeout_sec=1.0)
         for node in self.in_process_nodes + [self.monitor, getattr(self, 'recorder', None)]:
             if node is not None:
@@ -419,8 +429,29 @@ def run_experiment(config, out_dir, duration=None, single_process=False, with_ro
     result = run.write_results()
     result['interrupted'] = interrupted
     if bag_path is not None:
-        result['bag'] = {'path': str(bag_path), 'messages': run.bag_writer.count}
+        result['bag'] = {'path': str(bag_path), 'messages': run.bag_writer.count,
+                         **bag_accounting(bag_path, run.publications_dir)}
+        (run.out / 'metrics.json').write_text(json.dumps(result, indent=2) + '\n')
     return result
+
+
+def bag_accounting(bag_path, publications_dir):
+    """Per recorded topic: messages the nodes published while subscribed, and in the bag.
+
+    `lost` sums, over topics, what was published but is not in the bag (never negative per
+    topic: a bag may also hold messages published before a node counted a subscriber).
+    """
+    from curve_formation.bag import bag_summary
+    published = {}
+    for path in Path(publications_dir).glob('*.json'):
+        for topic, count in json.loads(path.read_text()).items():
+            published[topic] = published.get(topic, 0) + count
+    recorded = {topic: count for topic, (_, count) in bag_summary(bag_path).items()}
+    topics = {t: {'published': published.get(t, 0), 'recorded': n}
+              for t, n in sorted(recorded.items())}
+    return {'topics': topics,
+            'lost': sum(max(0, v['published'] - v['recorded']) for v in topics.values()),
+            'published': sum(v['published'] for v in topics.values())}
 
 
 def ground_truth_metrics(experiment, data, phase):

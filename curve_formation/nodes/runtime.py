@@ -1,5 +1,8 @@
 """Running a node as a console script: init, spin, clean shutdown, clear start-up errors."""
 
+import json
+import os
+from pathlib import Path
 import signal
 import sys
 
@@ -11,6 +14,33 @@ from curve_formation.nodes.params import ParameterError
 
 
 SIGNAL_CHECK_PERIOD = 0.2   # s, longest wait before a signal is noticed
+# Set by the runner: a folder where each node process writes, when it ends, how many messages
+# it published per topic while someone subscribed (to check that a bag lost nothing).
+PUBLICATIONS_ENV = 'CURVE_FORMATION_PUBLICATIONS'
+
+
+class PublicationCounter:
+    """Counts a node's publications per topic, only those sent while a subscriber matched."""
+
+    def __init__(self, node):
+        self.counts = {}
+        for publisher in node.publishers:
+            self._wrap(publisher)
+
+    def _wrap(self, publisher):
+        topic = publisher.topic_name
+        self.counts.setdefault(topic, 0)
+        publish = publisher.publish
+
+        def counted(msg):
+            if publisher.get_subscription_count() > 0:
+                self.counts[topic] += 1
+            publish(msg)
+        publisher.publish = counted
+
+    def save(self, folder, name):
+        path = Path(folder) / f'{name.strip("/").replace("/", ".")}.json'
+        path.write_text(json.dumps(self.counts))
 
 
 def now_seconds(node):
@@ -31,9 +61,11 @@ def run_node(node_factory, args=None):
     signal.signal(signal.SIGINT, _interrupt)
     signal.signal(signal.SIGTERM, _interrupt)
     node = None
+    counter = None
     status = 0
     try:
         node = node_factory()
+        counter = PublicationCounter(node) if os.environ.get(PUBLICATIONS_ENV) else None
         executor = SingleThreadedExecutor()
         executor.add_node(node)
         # A bounded wait returns to Python regularly, so SIGINT/SIGTERM are handled even when
@@ -50,6 +82,8 @@ def run_node(node_factory, args=None):
             hook = getattr(node, 'on_shutdown', None)
             if hook is not None and rclpy.ok():
                 hook()
+            if counter is not None:
+                counter.save(os.environ[PUBLICATIONS_ENV], node.get_fully_qualified_name())
             node.destroy_node()
         rclpy.try_shutdown()
     return status
