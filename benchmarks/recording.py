@@ -9,8 +9,8 @@ Recorder into a sqlite3 bag, then reads the bag back and prints, per kind of top
 vs recorded, and the sustained messages/s and MB/s. Lost = published - recorded: on a reliable
 topic that is the recorder's loss; on a best-effort topic (poses, images) it can also be DDS
 dropping a sample the recorder was too busy to take.
---large-data runs both processes with curve_formation/fastdds_large_data.xml (shared memory
-with large segments), as `curve-formation run --camera` does.
+Both processes use curve_formation/fastdds_large_data.xml (shared memory with large
+segments), as every process of a run does; --dds-defaults shows what Fast DDS's defaults do.
 """
 
 import argparse
@@ -22,6 +22,8 @@ import subprocess
 import sys
 import tempfile
 import time
+
+from curve_formation.paths import DDS_PROFILE_ENV, use_dds_profile
 
 
 PUBLISHER = r"""
@@ -86,12 +88,13 @@ def main():
     parser.add_argument('--duration', type=float, default=30.0)
     parser.add_argument('--resolution', type=int, nargs=2, default=(1280, 720))
     parser.add_argument('--no-images', action='store_true')
-    parser.add_argument('--large-data', action='store_true',
-                        help="Fast DDS profile for images (the runner's with --camera)")
+    parser.add_argument('--dds-defaults', action='store_true',
+                        help="Fast DDS's default transports instead of our profile")
     args = parser.parse_args()
-    if args.large_data:
-        from curve_formation.runner import LARGE_DATA_PROFILE
-        os.environ['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(LARGE_DATA_PROFILE)
+    if args.dds_defaults:
+        os.environ.pop(DDS_PROFILE_ENV, None)
+    else:
+        use_dds_profile()
     os.environ.setdefault('ROS_DOMAIN_ID', '96')
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     import rclpy
@@ -136,7 +139,7 @@ def main():
             recorded[kind] = recorded.get(kind, 0) + count
     size = sum(f.stat().st_size for f in path.iterdir())
     messages_total = sum(recorded.values())
-    print(('Fast DDS profile for large data; ' if args.large_data else 'Fast DDS defaults; ')
+    print(('Fast DDS defaults; ' if args.dds_defaults else 'our Fast DDS profile; ')
           + f'{args.duration:g} s, 9 robots (pose 30 Hz; cmd_vel, state, estimate 10 Hz)'
           + (f' + {args.resolution[0]}x{args.resolution[1]} mono8 at 30 Hz' if images else ''))
     print(f'{"topic kind":>10s} {"published":>10s} {"recorded":>9s} {"lost":>6s}')

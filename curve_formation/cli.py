@@ -7,7 +7,6 @@ Bad input ends with one line `error: FILE: KEY: ...` and exit status 2, never a 
 import argparse
 import dataclasses
 import json
-import os
 from pathlib import Path
 import sys
 
@@ -15,7 +14,7 @@ import numpy as np
 
 from curve_formation.bag import BagError
 from curve_formation.core.experiment import ConfigError, load_experiment
-from curve_formation.paths import resolve_config
+from curve_formation.paths import resolve_config, use_dds_profile
 
 
 def _write_json(path, data):
@@ -114,9 +113,7 @@ def _cmd_demo(args):
 
 
 def _cmd_run(args):
-    from curve_formation.runner import LARGE_DATA_PROFILE, run_experiment
-    if args.camera:   # before this process creates its DDS participant
-        os.environ.setdefault('FASTRTPS_DEFAULT_PROFILES_FILE', str(LARGE_DATA_PROFILE))
+    from curve_formation.runner import run_experiment
     result = run_experiment(args.config, args.out, args.duration, args.single_process,
                             with_robots=not args.no_sim, rate_hz=args.rate, bag_path=args.bag,
                             camera={} if args.camera else None, bag_images=args.bag_images)
@@ -256,6 +253,7 @@ def build_parser():
 
 def main(argv=None):
     args = build_parser().parse_args(argv)
+    use_dds_profile()   # before any ROS context exists in this process
     try:
         args.func(args)
     except ConfigError as exc:

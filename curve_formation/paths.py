@@ -1,10 +1,21 @@
-"""Where the shipped experiment files are: the source tree or the installed share folder."""
+"""Where the shipped experiment files are, and the DDS settings every process of a run uses."""
 
+import os
 from pathlib import Path
 import sys
 
 
 PACKAGE = 'curve_formation'
+# Fast DDS profile (shared memory with large segments, large UDP buffers); see the file.
+DDS_PROFILE = Path(__file__).resolve().parent / 'fastdds_large_data.xml'
+DDS_PROFILE_ENV = 'FASTRTPS_DEFAULT_PROFILES_FILE'
+
+
+def use_dds_profile(env=None):
+    """Point Fast DDS at DDS_PROFILE in `env` (default: this process's, which must happen
+    before the process creates its first ROS context), unless a profile is already chosen.
+    """
+    (os.environ if env is None else env).setdefault(DDS_PROFILE_ENV, str(DDS_PROFILE))
 
 
 def config_dirs():

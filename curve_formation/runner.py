@@ -25,11 +25,10 @@ from curve_formation.analysis import EXPERIMENT_KEY
 from curve_formation.core import metrics, plots
 from curve_formation.core.experiment import load_experiment
 from curve_formation.nodes.runtime import PublicationCounter, PUBLICATIONS_ENV
-from curve_formation.paths import resolve_config
+from curve_formation.paths import resolve_config, use_dds_profile
 
 
 DEFAULT_RATE_HZ = 10.0
-LARGE_DATA_PROFILE = Path(__file__).resolve().parent / 'fastdds_large_data.xml'
 # Keys of the bag metadata (custom_data) that make a bag self-describing.
 PARAMETERS_KEY = 'curve_formation.parameters'
 READY_TIMEOUT = 90.0   # s; nine Python processes start in ~10 s on two cores
@@ -265,8 +264,7 @@ class Run:
         logs = self.out / 'logs'
         logs.mkdir(parents=True, exist_ok=True)
         env = dict(os.environ, ROS_DOMAIN_ID=str(self.domain_id), PYTHONUNBUFFERED='1')
-        if self.camera is not None:   # images: shared memory with large segments
-            env.setdefault('FASTRTPS_DEFAULT_PROFILES_FILE', str(LARGE_DATA_PROFILE))
+        use_dds_profile(env)
         if self.bag_writer is not None:   # each node reports what it published
             env[PUBLICATIONS_ENV] = str(self.publications_dir)
         cmd = [sys.executable, '-m', launch.module, '--ros-args', '-r',

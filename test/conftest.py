@@ -9,6 +9,11 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).parent))
 
+from curve_formation.paths import use_dds_profile  # noqa: E402
+
+
+use_dds_profile()   # as the CLI and every node do, before any ROS context in this process
+
 CONFIG_DIR = Path(__file__).resolve().parent.parent / 'config'
 
 

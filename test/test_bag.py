@@ -1,5 +1,6 @@
 """ROS 2 bags: round trip, clean close on Ctrl-C/SIGTERM, at most a second lost on SIGKILL."""
 
+import json
 import os
 import signal
 import sqlite3
@@ -82,7 +83,9 @@ def test_interrupted_run_leaves_a_closed_valid_bag(tmp_path, ros_env, sig):
         last[topic] = (msg.linear.x, msg.angular.z)
     # Each controller's final command, sent as it was stopped, is zero and was recorded.
     assert all(v == (0.0, 0.0) for v in last.values()), last
-    assert (tmp_path / 'run' / 'metrics.json').exists()
+    # Every message the nodes published (while subscribed) is in the bag.
+    accounting = json.loads((tmp_path / 'run' / 'metrics.json').read_text())['bag']
+    assert accounting['published'] > 1000 and accounting['lost'] == 0, accounting
 
 
 @pytest.mark.ros

@@ -13,7 +13,7 @@ from conftest import DATA_DIR
 from curve_formation.core import metrics
 from curve_formation.core.simulator import simulate
 from curve_formation.nodes import qos, topics
-from curve_formation.runner import phases_of, Run
+from curve_formation.runner import bag_accounting, phases_of, Run
 
 
 pytestmark = pytest.mark.ros
@@ -100,10 +100,13 @@ def test_dropped_messages_and_latency_still_converge_at_arena_speeds(ros_domain,
     learnt it) and after 30 s is within 25 % of the fault-free batch simulation.
     At the fast test case's ~10 m/s the same faults make the law diverge (README).
     """
-    with Run('arena_demo', tmp_path, command_latency=0.2,
+    with Run('arena_demo', tmp_path, command_latency=0.2, bag_path=tmp_path / 'bag',
              faults={'pose_drop': 0.2, 'state_drop': 0.2}, log=quiet) as run:
         run.spin_for(30.0)
         data = run.recording()
+    # The faults drop messages before they are published: the bag has every one that was.
+    accounting = bag_accounting(tmp_path / 'bag', run.publications_dir)
+    assert accounting['published'] > 10_000 and accounting['lost'] == 0, accounting
     norm = metrics.error_norm(metrics.target_errors(
         data['poses'], phases_of(data['curve_id'], 1), run.experiment))
     assert norm.max() <= norm[0] * 1.01

@@ -16,7 +16,7 @@ from std_msgs.msg import Bool, Float64MultiArray
 from curve_formation import bag
 from curve_formation.nodes import qos, topics
 from curve_formation.nodes.params import declare_parameters, Param, ParameterError
-from curve_formation.nodes.runtime import run_node
+from curve_formation.nodes.runtime import RECORDER_NODE, run_node
 
 
 def formation_topics(n):
@@ -59,7 +59,7 @@ class Recorder(Node):
     """Writes every message of the given topics, as received, to an open bag.BagWriter."""
 
     def __init__(self, writer, topic_list, **kwargs):
-        super().__init__('formation_recorder', **kwargs)
+        super().__init__(RECORDER_NODE, **kwargs)
         self.writer = writer
         self.received = {}
         for topic, msg_class, profile in topic_list:

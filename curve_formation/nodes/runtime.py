@@ -11,29 +11,44 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 
 from curve_formation.nodes.params import ParameterError
+from curve_formation.paths import use_dds_profile
 
 
 SIGNAL_CHECK_PERIOD = 0.2   # s, longest wait before a signal is noticed
 # Set by the runner: a folder where each node process writes, when it ends, how many messages
 # it published per topic while someone subscribed (to check that a bag lost nothing).
 PUBLICATIONS_ENV = 'CURVE_FORMATION_PUBLICATIONS'
+RECORDER_NODE = 'formation_recorder'
 
 
 class PublicationCounter:
-    """Counts a node's publications per topic, only those sent while a subscriber matched."""
+    """Counts a node's publications per topic once the bag recorder subscribes to the topic.
 
-    def __init__(self, node):
+    The recorder is recognised by its node name in the ROS graph; before it has subscribed, a
+    message can reach other subscribers but not the bag, so it is not counted.
+    """
+
+    def __init__(self, node, recorder_name=RECORDER_NODE):
+        self.node = node
+        self.recorder_name = recorder_name
         self.counts = {}
         for publisher in node.publishers:
             self._wrap(publisher)
+
+    def _recorder_subscribed(self, topic):
+        return any(info.node_name == self.recorder_name
+                   for info in self.node.get_subscriptions_info_by_topic(topic))
 
     def _wrap(self, publisher):
         topic = publisher.topic_name
         self.counts.setdefault(topic, 0)
         publish = publisher.publish
+        recorded = False
 
         def counted(msg):
-            if publisher.get_subscription_count() > 0:
+            nonlocal recorded
+            recorded = recorded or self._recorder_subscribed(topic)
+            if recorded:
                 self.counts[topic] += 1
             publish(msg)
         publisher.publish = counted
@@ -56,6 +71,7 @@ def run_node(node_factory, args=None):
     node is destroyed, which is why rclpy's own SIGINT handler (it would shut the context
     down first) is replaced: SIGINT and SIGTERM both raise KeyboardInterrupt here.
     """
+    use_dds_profile()   # large messages over shared memory, unless a profile is chosen
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     # Installed explicitly: a process started from a background job inherits SIGINT ignored.
     signal.signal(signal.SIGINT, _interrupt)
