@@ -197,6 +197,7 @@ class Run:
         self.in_process_nodes = []
         self.bag_writer = None
         self.counters = []
+        self.best_effort_topics = set()
         self.publications_dir = self.out / 'publications'
         if bag_path is not None:
             self.publications_dir.mkdir(parents=True, exist_ok=True)
@@ -218,6 +219,7 @@ class Run:
         import rclpy
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import ReliabilityPolicy
         from rclpy.signals import SignalHandlerOptions
 
         from curve_formation.nodes.monitor import Monitor
@@ -239,6 +241,8 @@ class Run:
             recorded = formation_topics(self.experiment.n)
             if self.bag_images:
                 recorded += camera_topics()
+            self.best_effort_topics = {topic for topic, _, profile in recorded
+                                       if profile.reliability == ReliabilityPolicy.BEST_EFFORT}
             self.recorder = Recorder(self.bag_writer, recorded, context=self.context)
             self.executor.add_node(self.recorder)
             self.log(f'recording {self.bag_writer.path}')
@@ -338,9 +342,14 @@ class Run:
         self.processes = {}
         if getattr(self, 'context', None) is None:
             return
-        end = time.monotonic() + 0.3   # record the nodes' last zero commands
-        while time.monotonic() < end:
+        # Record what is still queued (the nodes' last zero commands among it): spin until
+        # nothing new has arrived for 0.3 s, 3 s at most.
+        end = time.monotonic() + 3.0
+        quiet_since, seen = time.monotonic(), self._received()
+        while time.monotonic() < end and time.monotonic() - quiet_since < 0.3:
             self.executor.spin_once(timeout_sec=0.02)
+            if self._received() != seen:
+                quiet_since, seen = time.monotonic(), self._received()
         for node in self.in_process_nodes:
             hook = getattr(node, 'on_shutdown', None)
             if hook is not None:
@@ -353,6 +362,10 @@ class Run:
                 node.destroy_node()
         self.rclpy.try_shutdown(context=self.context)
         self.context = None
+
+    def _received(self):
+        recorder = getattr(self, 'recorder', None)
+        return self.bag_writer.count if recorder is not None else 0
 
     # -- results ---------------------------------------------------------------------------
     def recording(self):
@@ -428,16 +441,19 @@ def run_experiment(config, out_dir, duration=None, single_process=False, with_ro
     result['interrupted'] = interrupted
     if bag_path is not None:
         result['bag'] = {'path': str(bag_path), 'messages': run.bag_writer.count,
-                         **bag_accounting(bag_path, run.publications_dir)}
+                         **bag_accounting(bag_path, run.publications_dir,
+                                          run.best_effort_topics)}
         (run.out / 'metrics.json').write_text(json.dumps(result, indent=2) + '\n')
     return result
 
 
-def bag_accounting(bag_path, publications_dir):
+def bag_accounting(bag_path, publications_dir, best_effort=()):
     """Per recorded topic: messages the nodes published while subscribed, and in the bag.
 
-    `lost` sums, over topics, what was published but is not in the bag (never negative per
-    topic: a bag may also hold messages published before a node counted a subscriber).
+    `lost`: published but not in the bag, summed over the reliable topics (never negative per
+    topic: a bag may also hold messages published before a node counted the recorder).
+    `lost_best_effort`: the same over the `best_effort` topics (poses, images), whose samples
+    DDS may drop by design.
     """
     from curve_formation.bag import bag_summary
     published = {}
@@ -445,10 +461,13 @@ def bag_accounting(bag_path, publications_dir):
         for topic, count in json.loads(path.read_text()).items():
             published[topic] = published.get(topic, 0) + count
     recorded = {topic: count for topic, (_, count) in bag_summary(bag_path).items()}
-    topics = {t: {'published': published.get(t, 0), 'recorded': n}
-              for t, n in sorted(recorded.items())}
-    return {'topics': topics,
-            'lost': sum(max(0, v['published'] - v['recorded']) for v in topics.values()),
+    topics = {t: {'published': published.get(t, 0), 'recorded': n,
+                  'best_effort': t in best_effort} for t, n in sorted(recorded.items())}
+
+    def lost(effort):
+        return sum(max(0, v['published'] - v['recorded']) for v in topics.values()
+                   if v['best_effort'] == effort)
+    return {'topics': topics, 'lost': lost(False), 'lost_best_effort': lost(True),
             'published': sum(v['published'] for v in topics.values())}
 
 

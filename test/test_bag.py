@@ -83,9 +83,11 @@ def test_interrupted_run_leaves_a_closed_valid_bag(tmp_path, ros_env, sig):
         last[topic] = (msg.linear.x, msg.angular.z)
     # Each controller's final command, sent as it was stopped, is zero and was recorded.
     assert all(v == (0.0, 0.0) for v in last.values()), last
-    # Every message the nodes published (while subscribed) is in the bag.
+    # Every message the nodes published on a reliable topic (while subscribed) is in the bag;
+    # of the best-effort poses DDS may drop a few under load.
     accounting = json.loads((tmp_path / 'run' / 'metrics.json').read_text())['bag']
     assert accounting['published'] > 1000 and accounting['lost'] == 0, accounting
+    assert accounting['lost_best_effort'] < 0.005 * accounting['published'], accounting
 
 
 @pytest.mark.ros

