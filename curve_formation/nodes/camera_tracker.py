@@ -26,11 +26,14 @@ from sensor_msgs.msg import Image
 from std_msgs.msg import Float64MultiArray
 
 from curve_formation.core.assignment import agent_parameters
-from curve_formation.core.experiment import ConfigError, load_experiment
 from curve_formation.nodes import messages, qos, topics
-from curve_formation.nodes.params import declare_parameters, Param, ParameterError
+from curve_formation.nodes.params import (
+    declare_parameters,
+    experiment_parameter,
+    Param,
+    ParameterError,
+)
 from curve_formation.nodes.runtime import now_seconds, run_node
-from curve_formation.paths import resolve_config
 from curve_formation.vision.camera import apply_homography
 from curve_formation.vision.markers import MarkerLayout
 from curve_formation.vision.tracker import Calibration, CalibrationError, MarkerTracker
@@ -79,14 +82,8 @@ class CameraTracker(Node):
     def __init__(self, **kwargs):
         super().__init__('camera_tracker', **kwargs)
         p = self.params = declare_parameters(self, PARAMETERS)
-        try:
-            self.experiment = load_experiment(resolve_config(p.experiment))
-        except (ConfigError, FileNotFoundError) as exc:
-            raise ParameterError(f"parameter 'experiment': {exc}") from None
+        self.experiment = experiment_parameter(p.experiment, needs=('camera',))
         camera = self.experiment.spec.camera
-        if camera is None:
-            raise ParameterError(f"parameter 'experiment': {self.experiment.source} has no "
-                                 '`camera` section')
         self.n = self.experiment.n
         self.lost_timeout = p.lost_timeout or camera.lost_timeout
         mode = p.calibration or camera.calibration

@@ -17,11 +17,13 @@ from visualization_msgs.msg import Marker, MarkerArray
 from curve_formation.core.assignment import agent_parameters, AssignmentError, check_assumptions
 from curve_formation.core.curve_sources import point_samples
 from curve_formation.core.curves import CurveError, fit_curve, make_basis
-from curve_formation.core.experiment import ConfigError, load_experiment
 from curve_formation.nodes import messages, qos, topics
-from curve_formation.nodes.params import declare_parameters, Param, ParameterError
+from curve_formation.nodes.params import (
+    declare_parameters,
+    experiment_parameter,
+    Param,
+)
 from curve_formation.nodes.runtime import now_seconds, run_node
-from curve_formation.paths import resolve_config
 
 
 PARAMETERS = (
@@ -55,10 +57,7 @@ class CurveServer(Node):
     def __init__(self, **kwargs):
         super().__init__('curve_server', **kwargs)
         self.params = declare_parameters(self, PARAMETERS)
-        try:
-            self.experiment = load_experiment(resolve_config(self.params.experiment))
-        except (ConfigError, FileNotFoundError) as exc:
-            raise ParameterError(f"parameter 'experiment': {exc}") from None
+        self.experiment = experiment_parameter(self.params.experiment)
         self.curve_pub = self.create_publisher(Float64MultiArray, topics.CURVE, qos.LATCHED)
         self.path_pub = self.create_publisher(Path, topics.CURVE_PATH, qos.LATCHED)
         self.marker_pub = self.create_publisher(MarkerArray, topics.CURVE_MARKERS, qos.LATCHED)

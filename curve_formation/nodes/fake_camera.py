@@ -13,11 +13,14 @@ from rclpy.node import Node
 from sensor_msgs.msg import Image
 from std_msgs.msg import Float64MultiArray
 
-from curve_formation.core.experiment import ConfigError, load_experiment
 from curve_formation.nodes import messages, qos, topics
-from curve_formation.nodes.params import declare_parameters, Param, ParameterError
+from curve_formation.nodes.params import (
+    declare_parameters,
+    experiment_parameter,
+    Param,
+    ParameterError,
+)
 from curve_formation.nodes.runtime import now_seconds, run_node
-from curve_formation.paths import resolve_config
 from curve_formation.vision.camera import overhead_camera
 from curve_formation.vision.markers import MarkerLayout
 from curve_formation.vision.render import ArenaRenderer, RenderOptions
@@ -61,13 +64,7 @@ class FakeCamera(Node):
     def __init__(self, **kwargs):
         super().__init__('fake_camera', **kwargs)
         p = self.params = declare_parameters(self, PARAMETERS)
-        try:
-            experiment = load_experiment(resolve_config(p.experiment))
-        except (ConfigError, FileNotFoundError) as exc:
-            raise ParameterError(f"parameter 'experiment': {exc}") from None
-        if experiment.spec.camera is None:
-            raise ParameterError(f"parameter 'experiment': {experiment.source} has no "
-                                 '`camera` section')
+        experiment = experiment_parameter(p.experiment, needs=('camera', 'arena'))
         if len(p.resolution) != 2 or min(p.resolution) < 16:
             raise ParameterError(f"parameter 'resolution' must be [width, height] >= 16, got "
                                  f'{p.resolution}')

@@ -125,3 +125,21 @@ def markdown_table(table):
         text = f'{p.description}{bounds}.{choices}'.replace('|', '\\|')
         rows.append(f'| `{p.name}` | {p.kind} | `{p.doc_default()}` | {text} |')
     return '\n'.join(rows)
+
+
+def experiment_parameter(value, needs=()):
+    """The Experiment named by an `experiment` parameter (path or shipped name).
+
+    needs: sections it must have (e.g. ('camera',)). ParameterError names the parameter.
+    """
+    from curve_formation.core.experiment import ConfigError, load_experiment
+    from curve_formation.paths import resolve_config
+    try:
+        experiment = load_experiment(resolve_config(value))
+    except (ConfigError, FileNotFoundError) as exc:
+        raise ParameterError(f"parameter 'experiment': {exc}") from None
+    for section in needs:
+        if getattr(experiment.spec, section) is None:
+            raise ParameterError(f"parameter 'experiment': {experiment.source} has no "
+                                 f'`{section}` section')
+    return experiment
