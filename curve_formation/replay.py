@@ -55,10 +55,11 @@ def load(path, topics=None, start=0.0):
 
 
 def replay(node, path, rate=1.0, topics=None, loop=False, start=0.0, clock=True,
-           wait_for_subscribers=0.0, log=print):
+           wait_for_subscribers=0.0, log=print, stop=None):
     """Publish the bag through `node` (an rclpy Node); returns the number of messages sent.
 
     wait_for_subscribers: up to this many seconds for every topic to have a subscriber.
+    stop: a threading.Event that ends the replay (a loop runs until it is set or Ctrl-C).
     """
     if rate <= 0:
         raise BagError(f'replay rate must be > 0, got {rate}')
@@ -74,17 +75,19 @@ def replay(node, path, rate=1.0, topics=None, loop=False, start=0.0, clock=True,
     log(f'replaying {len(records)} messages on {len(publishers)} topics at {rate:g}x')
     sent = 0
     while True:
-        sent += _play_once(records, publishers, clock_pub, rate)
-        if not loop:
+        sent += _play_once(records, publishers, clock_pub, rate, stop)
+        if not loop or (stop is not None and stop.is_set()):
             return sent
 
 
-def _play_once(records, publishers, clock_pub, rate):
+def _play_once(records, publishers, clock_pub, rate, stop=None):
     bag_start = records[0][0]
     wall_start = time.monotonic()
     next_clock = bag_start
     sent = 0
     for stamp, topic, raw in records:
+        if stop is not None and stop.is_set():
+            break
         while True:
             due = wall_start + (min(stamp, next_clock) - bag_start) * 1e-9 / rate
             delay = due - time.monotonic()
