@@ -208,5 +208,5 @@ def test_replay_loops_until_stopped(tmp_path, ros):
         player.join(5.0)
     assert not player.is_alive()
     # The bag is F T F T F; passes join as ... F F T ...: two joins = the bag played 3 times.
-    joins = sum(a is False and b is False for a, b in zip(received, received[1:]))
+    joins = sum(a is False and b is False for a, b in zip(received, received[1:], strict=False))
     assert joins >= 2, received
