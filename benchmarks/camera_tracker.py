@@ -11,14 +11,13 @@ and OpenCV to one thread. Goal: well above the 30 Hz camera rate at 1080p.
 """
 
 import argparse
-import math
 import os
 import time
 
 import cv2
 import numpy as np
 
-from curve_formation.core.experiment import load_experiment
+from curve_formation.core.experiment import load_experiment, random_poses
 from curve_formation.nodes import messages
 from curve_formation.paths import resolve_config
 from curve_formation.vision.camera import overhead_camera
@@ -33,15 +32,10 @@ ARENA = (1.8, 0.8)
 def frames_at(layout, resolution, count, seed=0):
     renderer = ArenaRenderer(overhead_camera(ARENA, resolution), layout, ARENA,
                              RenderOptions(noise=2.0, blur=0.7), seed=seed)
-    rng = np.random.default_rng(seed)
     out = []
-    for _ in range(count):
-        poses = {}
-        while len(poses) < 9:
-            p = (rng.uniform(0.15, 1.65), rng.uniform(0.15, 0.65), rng.uniform(-math.pi, math.pi))
-            if all(math.hypot(p[0] - q[0], p[1] - q[1]) > 0.12 for q in poses.values()):
-                poses[len(poses) + 1] = p
-        out.append(renderer.render(poses))
+    for frame in range(count):   # 9 robots 0.12 m apart, 0.15 m or more from the edges
+        poses = random_poses(9, (0.9, 0.4), (0.75, 0.25), seed * 1000 + frame, 0.12)
+        out.append(renderer.render({i + 1: tuple(p) for i, p in enumerate(poses)}))
     return out
 
 

@@ -65,12 +65,11 @@ def one_run(case, gains, rate, start, disturbance=None):
     data = metrics.result_metrics(result)
     estimate = (float(np.abs(result.dhat[-1] - result.disturbance / gains.k2).max())
                 if gains.k2 > 0 else 0.0)
-    wheel = limits.wheel_base or 0.0
-    cmd = result.commands
-    peak = float((np.abs(cmd[..., 0]) + 0.5 * wheel * np.abs(cmd[..., 1])).max())
     return {'settle': [p['settle_time'] for p in data['phases']],
-            'estimate_error': estimate, 'peak_wheel_speed': peak,
-            'peak_w': float(np.abs(cmd[..., 1]).max())}
+            'estimate_error': estimate,
+            # without a wheel base (the abstract cases) the peak wheel speed is the peak |v|
+            'peak_wheel_speed': data.get('peak_wheel_speed', data['peak_v']),
+            'peak_w': data['peak_w']}
 
 
 def paper_cases(seeds):

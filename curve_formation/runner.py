@@ -62,13 +62,16 @@ def node_launches(experiment, experiment_path, with_robots=True, rate_hz=None,
     spec = experiment.spec
     if camera is not None and spec.camera is None:
         raise ValueError(f'{experiment.source}: camera: a camera run needs a `camera` section')
+    cameras = ([] if camera is None
+               else camera_launches(experiment, experiment_path, with_robots, camera))
     rate = control_rate(experiment, rate_hz)
     on_pc = spec.disturbance.injected == 'on_pc'
     limits = experiment.limits
-    # The curve server waits for the n controllers and the runner's monitor.
+    # The curve server waits for the n controllers, the runner's monitor and the camera nodes
+    # (they draw the curve).
     launches = [NodeLaunch('curve_formation.nodes.curve_server', '/', 'curve_server',
                            {'experiment': str(Path(experiment_path).resolve()),
-                            'wait_for_subscribers': experiment.n + 1})]
+                            'wait_for_subscribers': experiment.n + 1 + len(cameras)})]
     for i in range(1, experiment.n + 1):
         ns = f'/robot_{i}'
         nbrs = experiment.graph.in_neighbours(i)
@@ -112,11 +115,7 @@ def node_launches(experiment, experiment_path, with_robots=True, rate_hz=None,
                 'command_latency': float(command_latency),
                 'fault_pose_drop': float(faults.get('pose_drop', 0.0)),
                 'pose_topic': 'pose' if camera is None else 'true_pose'}))
-    if camera is not None:
-        cameras = camera_launches(experiment, experiment_path, with_robots, camera)
-        launches[0].parameters['wait_for_subscribers'] += len(cameras)   # they draw the curve
-        launches += cameras
-    return launches
+    return launches + cameras
 
 
 def camera_launches(experiment, experiment_path, with_fake_camera, overrides):
@@ -364,8 +363,7 @@ class Run:
         self.context = None
 
     def _received(self):
-        recorder = getattr(self, 'recorder', None)
-        return self.bag_writer.count if recorder is not None else 0
+        return 0 if self.bag_writer is None else self.bag_writer.count
 
     # -- results ---------------------------------------------------------------------------
     def recording(self):

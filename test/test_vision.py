@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from curve_formation.core.experiment import load_experiment
+from curve_formation.core.experiment import load_experiment, random_poses
 from curve_formation.nodes import messages
 from curve_formation.paths import resolve_config
 from curve_formation.vision.camera import overhead_camera
@@ -22,14 +22,12 @@ def layout():
     return MarkerLayout.from_spec(load_experiment(resolve_config('arena_demo')).spec.camera)
 
 
-def scattered_poses(rng, n=9, separation=0.12):
-    """n robots in the arena, at least `separation` apart (m), away from the corner markers."""
-    poses = {}
-    while len(poses) < n:
-        p = (rng.uniform(0.15, 1.65), rng.uniform(0.15, 0.65), rng.uniform(-math.pi, math.pi))
-        if all(math.hypot(p[0] - q[0], p[1] - q[1]) >= separation for q in poses.values()):
-            poses[len(poses) + 1] = p
-    return poses
+def scattered_poses(seed, n=9, separation=0.12):
+    """{agent: pose}: n robots in the arena, at least `separation` apart (m), 0.15 m or more
+    from its edges (and so from the corner markers).
+    """
+    poses = random_poses(n, (0.9, 0.4), (0.75, 0.25), seed, separation)
+    return {i + 1: tuple(p) for i, p in enumerate(poses)}
 
 
 NOISY = RenderOptions(2.0, 0.7)
@@ -39,10 +37,9 @@ def tracking_errors(layout, camera, frames=15, options=NOISY, seed=0):
     """Position (m) and heading (rad) errors over `frames` random scenes, and misses."""
     renderer = ArenaRenderer(camera, layout, ARENA, options, seed=seed)
     tracker = MarkerTracker(layout)
-    rng = np.random.default_rng(seed)
     position, heading, missed = [], [], 0
-    for _ in range(frames):
-        truth = scattered_poses(rng)
+    for frame in range(frames):
+        truth = scattered_poses(1000 * seed + frame)
         found = tracker.process(renderer.render(truth)).poses
         for agent, (x, y, th) in truth.items():
             if agent not in found:
@@ -91,7 +88,7 @@ def test_pose_from_corners_inverts_the_marker_geometry():
 def test_covered_marker_is_not_reported_and_the_others_are(layout):
     camera = overhead_camera(ARENA, (1280, 720))
     renderer = ArenaRenderer(camera, layout, ARENA)
-    truth = scattered_poses(np.random.default_rng(3))
+    truth = scattered_poses(3)
     frame = MarkerTracker(layout).process(renderer.render(truth, hidden=(4,)))
     assert sorted(frame.poses) == [1, 2, 3, 5, 6, 7, 8, 9]
 
@@ -99,7 +96,7 @@ def test_covered_marker_is_not_reported_and_the_others_are(layout):
 def test_a_marker_id_seen_twice_is_refused_and_reported(layout):
     camera = overhead_camera(ARENA, (1280, 720))
     renderer = ArenaRenderer(camera, layout, ARENA)
-    truth = scattered_poses(np.random.default_rng(4))
+    truth = scattered_poses(4)
     truth_far = {k: v for k, v in truth.items()
                  if math.hypot(v[0] - 0.9, v[1] - 0.4) > 0.12}
     frame = MarkerTracker(layout).process(renderer.render(
@@ -122,7 +119,7 @@ def test_uncalibrated_without_corner_markers(layout):
 def test_continuous_calibration_recovers_a_bumped_camera_and_fixed_does_not(layout):
     straight = overhead_camera(ARENA, (1280, 720))
     bumped = overhead_camera(ARENA, (1280, 720), tilt_deg=10.0, distance=2.1)
-    truth = scattered_poses(np.random.default_rng(5))
+    truth = scattered_poses(5)
     first = ArenaRenderer(straight, layout, ARENA).render(truth)
     after = ArenaRenderer(bumped, layout, ARENA).render(truth)
     continuous = MarkerTracker(layout)

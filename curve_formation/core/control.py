@@ -14,6 +14,8 @@ import math
 
 import numpy as np
 
+from curve_formation.core.dynamics import chord_ratio
+
 
 # Disturbance estimators, by name in the experiment YAML (`controller.law`) and by code in the
 # compiled simulator.
@@ -49,7 +51,9 @@ class Gains:
         return dataclasses.replace(self, law='paper', sampled_heading=False)
 
     def hold_period(self, rate_hz):
-        """The `period` argument of agent_input at this control rate (None = continuous)."""
+        """The `period` argument of agent_input at this rate (Hz; None = continuous): the
+        control period with the sampled heading under a zero-order hold, else 0.
+        """
         return 1.0 / rate_hz if self.sampled_heading and rate_hz else 0.0
 
     def estimator_gains(self):
@@ -170,9 +174,7 @@ def body_velocity(x0, y0, theta0, x1, y1, theta1, dt):
     turn = math.atan2(math.sin(theta1 - theta0), math.cos(theta1 - theta0))
     mid = theta0 + 0.5 * turn
     along = (x1 - x0) * math.cos(mid) + (y1 - y0) * math.sin(mid)
-    half = 0.5 * turn
-    chord_per_arc = math.sin(half) / half if abs(half) > 1e-4 else 1.0 - half * half / 6.0
-    return along / (dt * chord_per_arc), turn / dt
+    return along / (dt * chord_ratio(0.5 * turn)), turn / dt
 
 
 def saturate(v, w, wheel_base, max_wheel_speed, max_angular_rate):

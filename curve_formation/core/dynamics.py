@@ -8,6 +8,11 @@ robot node calls it as is.
 import math
 
 
+def chord_ratio(half):
+    """sin(h) / h: chord over arc length of an arc turning 2 h (rad); accurate as h -> 0."""
+    return math.sin(half) / half if abs(half) > 1e-4 else 1.0 - half * half / 6.0
+
+
 def arc_step(x, y, theta, v, w, dt):
     """Exact pose after dt (s) at constant body velocities v (m/s) and w (rad/s).
 
@@ -15,7 +20,6 @@ def arc_step(x, y, theta, v, w, dt):
     heading; this form stays accurate as w -> 0, where v / w times a sine difference does not.
     """
     half = 0.5 * w * dt
-    chord = v * dt * (math.sin(half) / half if abs(half) > 1e-4
-                      else 1.0 - half * half / 6.0)
+    chord = v * dt * chord_ratio(half)
     mid = theta + half
     return x + chord * math.cos(mid), y + chord * math.sin(mid), theta + w * dt

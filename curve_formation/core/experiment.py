@@ -88,7 +88,6 @@ class Experiment:
         }
 
 
-
 def _format_location(loc):
     parts = []
     for item in loc:

@@ -6,6 +6,7 @@ index of the active curve, and the experiment (curves, gains, graph, disturbance
 """
 
 import numpy as np
+from scipy.spatial.distance import pdist
 
 
 def offset_points(poses, offset):
@@ -107,12 +108,9 @@ def closest_approach(poses):
     """
     if poses.shape[1] < 2:
         return float('inf'), 0
-    xy = poses[..., :2]
-    gaps = np.linalg.norm(xy[:, :, None, :] - xy[:, None, :, :], axis=3)
-    gaps[:, np.arange(poses.shape[1]), np.arange(poses.shape[1])] = np.inf
-    gaps[np.isnan(gaps)] = np.inf          # robots not seen yet
-    per_row = gaps.reshape(len(gaps), -1).min(axis=1)
-    k = int(np.argmin(per_row))
+    # One sample at a time: n (n - 1) / 2 distances each, never the whole R x n x n array.
+    per_row = np.array([np.nan_to_num(pdist(row[:, :2]), nan=np.inf).min() for row in poses])
+    k = int(np.argmin(per_row))   # robots not seen yet (NaN) count as infinitely far
     return float(per_row[k]), k
 
 

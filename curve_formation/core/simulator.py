@@ -36,7 +36,7 @@ _agent_input = _jit(control.agent_input,
                     sampled_feedback=numba.njit(cache=True)(control.sampled_feedback))
 _saturate = numba.njit(cache=True)(control.saturate)
 _observer_input = _jit(control.observer_input, agent_input=_agent_input, saturate=_saturate)
-_arc = numba.njit(cache=True)(dynamics.arc_step)
+_arc = _jit(dynamics.arc_step, chord_ratio=numba.njit(cache=True)(dynamics.chord_ratio))
 _observer_step = numba.njit(cache=True)(control.observer_step)
 OBSERVER = control.LAWS['observer']
 
@@ -69,27 +69,26 @@ def _controls(poses, dhat, targets, tgt, src, wts, leader, law, k1, k2, offset, 
         fb[i, 0] += wts[k] * (err[i, 0] - err[j, 0])
         fb[i, 1] += wts[k] * (err[i, 1] - err[j, 1])
     for i in range(n):
-        v, w, ddv, ddw = _agent_input(fb[i, 0], fb[i, 1], err[i, 0], err[i, 1], poses[i, 2],
-                                      dhat[i, 0], dhat[i, 1], k1, k2, offset, gamma_v, gamma_w,
-                                      period)
         if law == OBSERVER:
-            v, w = _observer_input(fb[i, 0], fb[i, 1], poses[i, 2], dhat[i, 0], dhat[i, 1], k1,
-                                   k2, offset, period, wheel_base, vmax, wmax)
-        if on_pc:
-            ref[i, 0], ref[i, 1] = v, w
+            u_v, u_w = _observer_input(fb[i, 0], fb[i, 1], poses[i, 2], dhat[i, 0], dhat[i, 1],
+                                       k1, k2, offset, period, wheel_base, vmax, wmax)
+            ddv = 0.0
+            ddw = 0.0
         else:
-            ref[i, 0], ref[i, 1] = _saturate(v, w, wheel_base, vmax, wmax)
-        v, w = _saturate(v + d_pc[i, 0], w + d_pc[i, 1], wheel_base, vmax, wmax)
+            u_v, u_w, ddv, ddw = _agent_input(fb[i, 0], fb[i, 1], err[i, 0], err[i, 1],
+                                              poses[i, 2], dhat[i, 0], dhat[i, 1], k1, k2,
+                                              offset, gamma_v, gamma_w, period)
+        v, w = _saturate(u_v + d_pc[i, 0], u_w + d_pc[i, 1], wheel_base, vmax, wmax)
         motion[i, 0] = v + d_robot[i, 0]
         motion[i, 1] = w + d_robot[i, 1]
         cmd[i, 0] = v
         cmd[i, 1] = w
-        if law == OBSERVER:
-            ddv = 0.0
-            ddw = 0.0
-            if k2 != 0.0:   # k2 = 0: estimator off
-                ddv = observer_rate * ((motion[i, 0] - ref[i, 0]) / k2 - dhat[i, 0])
-                ddw = observer_rate * ((motion[i, 1] - ref[i, 1]) / k2 - dhat[i, 1])
+        # On the robot the disturbance enters after the limits, so ref is the command sent.
+        ref[i, 0] = u_v if on_pc else v
+        ref[i, 1] = u_w if on_pc else w
+        if law == OBSERVER and k2 != 0.0:   # k2 = 0: estimator off
+            ddv = observer_rate * ((motion[i, 0] - ref[i, 0]) / k2 - dhat[i, 0])
+            ddw = observer_rate * ((motion[i, 1] - ref[i, 1]) / k2 - dhat[i, 1])
         ddhat[i, 0] = ddv
         ddhat[i, 1] = ddw
 
