@@ -33,6 +33,7 @@ DEFAULT_RATE_HZ = 10.0
 PARAMETERS_KEY = 'curve_formation.parameters'
 READY_TIMEOUT = 90.0   # s; nine Python processes start in ~10 s on two cores
 STOP_TIMEOUT = 10.0    # s for every node to exit after SIGINT before it is killed
+PROCESS_CHECK_PERIOD = 0.2   # s between checks that every node process still runs
 
 
 @dataclass(frozen=True)
@@ -193,6 +194,7 @@ class Run:
         self.domain_id = private_domain_id()
         self.record_hz = record_hz
         self.processes = {}
+        self._last_process_check = -np.inf
         self.in_process_nodes = []
         self.bag_writer = None
         self.counters = []
@@ -205,7 +207,11 @@ class Run:
 
     # -- lifecycle -------------------------------------------------------------------------
     def __enter__(self):
-        self.start()
+        try:
+            self.start()
+        except BaseException:
+            self.stop()   # a start that timed out must not leave node processes running
+            raise
         return self
 
     def __exit__(self, *exc):
@@ -299,7 +305,14 @@ class Run:
         self.spin_until(lambda: time.monotonic() >= end or self.check_processes(), seconds + 5)
 
     def check_processes(self):
-        """Raise if a node process ended on its own; returns False otherwise."""
+        """Raise if a node process ended on its own; returns False otherwise.
+
+        Looks at most every PROCESS_CHECK_PERIOD s (it is called between callbacks).
+        """
+        now = time.monotonic()
+        if now - self._last_process_check < PROCESS_CHECK_PERIOD:
+            return False
+        self._last_process_check = now
         for key, proc in self.processes.items():
             if proc.poll() is not None:
                 tail = (self.out / 'logs' / f'{key}.log').read_text()[-2000:]
@@ -341,6 +354,10 @@ class Run:
         self.processes = {}
         if getattr(self, 'context', None) is None:
             return
+        if getattr(self, 'executor', None) is None:   # start() failed before the executor
+            self.rclpy.try_shutdown(context=self.context)
+            self.context = None
+            return
         # Record what is still queued (the nodes' last zero commands among it): spin until
         # nothing new has arrived for 0.3 s, 3 s at most.
         end = time.monotonic() + 3.0
@@ -356,7 +373,8 @@ class Run:
         for node, counter in self.counters:
             counter.save(self.publications_dir, node.get_fully_qualified_name())
         self.executor.shutdown(timeout_sec=1.0)
-        for node in self.in_process_nodes + [self.monitor, getattr(self, 'recorder', None)]:
+        for node in self.in_process_nodes + [getattr(self, 'monitor', None),
+                                             getattr(self, 'recorder', None)]:
             if node is not None:
                 node.destroy_node()
         self.rclpy.try_shutdown(context=self.context)

@@ -158,3 +158,23 @@ def test_runner_writes_params_metrics_and_figures_single_process(ros_domain, tmp
     assert (tmp_path / 'paths.png').stat().st_size > 10_000
     params = sorted(p.name for p in (tmp_path / 'params').glob('*.yaml'))
     assert 'robot_6.formation_controller.yaml' in params and 'curve_server.yaml' in params
+
+
+def test_a_start_that_times_out_stops_the_nodes_it_started(tmp_path, ros_domain, monkeypatch):
+    """--no-sim without robots: no pose ever comes, the start times out, nothing lingers."""
+    import subprocess
+
+    from curve_formation import runner
+    monkeypatch.setattr(runner, 'READY_TIMEOUT', 8.0)
+    started = []
+    popen = subprocess.Popen
+
+    def recording_popen(*args, **kwargs):
+        started.append(popen(*args, **kwargs))
+        return started[-1]
+    monkeypatch.setattr(runner.subprocess, 'Popen', recording_popen)
+    with pytest.raises(TimeoutError, match='pose'):
+        with Run(DATA_DIR / 'fast_closed.yaml', tmp_path, with_robots=False, log=quiet):
+            pass
+    assert len(started) == 6   # the controllers; the curve server was never reached
+    assert all(proc.poll() is not None for proc in started)

@@ -51,6 +51,9 @@ TOPICS = (
      'a newly observed curve as ordered points, fitted and published as the next curve'),
 )
 
+WAIT_POLL = 0.05   # s, how often the subscriber count is checked before the first curve
+
+
 class CurveServer(Node):
     """Publishes the experiment's curves on schedule and fits observed ones."""
 
@@ -66,12 +69,17 @@ class CurveServer(Node):
         self.next_id = 0
         self.next_phase = 0
         self.start = None
+        # Polls for subscribers every WAIT_POLL s until the start, then wakes at each switch.
+        self.timer = self.create_timer(WAIT_POLL, self._on_timer)
         self._on_timer()
-        self.create_timer(0.01, self._on_timer)
 
     def _on_timer(self):
         if self.start is None:
-            if self.curve_pub.get_subscription_count() < self.params.wait_for_subscribers:
+            have = self.curve_pub.get_subscription_count()
+            if have < self.params.wait_for_subscribers:
+                self.get_logger().warn(
+                    f'waiting for {self.params.wait_for_subscribers} curve subscribers, '
+                    f'{have} so far', skip_first=True, throttle_duration_sec=5.0)
                 return
             self.start = now_seconds(self)
         phases = self.experiment.phases
@@ -80,6 +88,12 @@ class CurveServer(Node):
             phase = phases[self.next_phase]
             self.next_phase += 1
             self.publish_curve(phase.curve, phase.targets)
+        if self.next_phase == len(phases):
+            self.timer.cancel()
+            return
+        wait = phases[self.next_phase].start - (now_seconds(self) - self.start)
+        self.timer.timer_period_ns = max(1_000_000, int(wait * 1e9))
+        self.timer.reset()
 
     def publish_curve(self, curve, targets):
         curve_id = self.next_id

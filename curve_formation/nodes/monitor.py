@@ -5,6 +5,7 @@ t = 0 is when the first curve arrives. Rows are sampled at `record_hz` from the 
 """
 
 from dataclasses import dataclass, field
+import time
 
 from geometry_msgs.msg import PoseStamped, Twist, Vector3Stamped
 import numpy as np
@@ -37,7 +38,7 @@ class Monitor(Node):
 
     def __init__(self, n, record_hz=20.0, ground_truth=False, **kwargs):
         """ground_truth: also record the fake robots' true poses (when a camera tracks them)."""
-        super().__init__('formation_monitor', **kwargs)
+        super().__init__('formation_monitor', start_parameter_services=False, **kwargs)
         self.n = n
         self.poses = np.full((n, 3), np.nan)
         self.true_poses = np.full((n, 3), np.nan) if ground_truth else None
@@ -48,26 +49,30 @@ class Monitor(Node):
         self.curve_id = None
         self.t0 = None
         self.curve_times = {}      # curve id -> time the monitor received it (s)
-        self.command_arrivals = [[] for _ in range(n)]   # per robot, receive times (s)
+        # Per robot, one (published, received, handled) row per command (s, system clock):
+        # the DDS source timestamp, the time DDS received it here, the time this callback ran.
+        self.command_arrivals = [[] for _ in range(n)]
         self.tick_latencies = [[] for _ in range(n)]     # estimate arrival - pose stamp (s)
         self.adopted = {}          # (robot, curve id) -> first state on that curve (s)
         self.recording = Recording()
         for i in range(1, n + 1):
-            self.create_subscription(PoseStamped, topics.robot_topic(i, topics.POSE),
-                                     lambda m, i=i: self._on_pose(i, m), qos.SENSOR)
-            self.create_subscription(Twist, topics.robot_topic(i, topics.CMD_VEL),
-                                     lambda m, i=i: self._on_cmd(i, m), qos.COMMAND)
-            self.create_subscription(Vector3Stamped, topics.robot_topic(i, topics.ESTIMATE),
-                                     lambda m, i=i: self._on_estimate(i, m), qos.STATE)
-            self.create_subscription(JointState, topics.robot_topic(i, topics.STATE),
-                                     lambda m, i=i: self._on_state(i, m), qos.STATE)
-        if ground_truth:
-            for i in range(1, n + 1):
-                self.create_subscription(
-                    PoseStamped, topics.robot_topic(i, topics.TRUE_POSE),
-                    lambda m, i=i: self._on_true_pose(i, m), qos.SENSOR)
-        self.create_subscription(Float64MultiArray, topics.CURVE, self._on_curve, qos.LATCHED)
+            self._subscribe(PoseStamped, topics.robot_topic(i, topics.POSE),
+                            lambda m, i=i: self._on_pose(i, m), qos.SENSOR)
+            self._subscribe(Twist, topics.robot_topic(i, topics.CMD_VEL),
+                            lambda m, info, i=i: self._on_cmd(i, m, info), qos.COMMAND)
+            self._subscribe(Vector3Stamped, topics.robot_topic(i, topics.ESTIMATE),
+                            lambda m, i=i: self._on_estimate(i, m), qos.STATE)
+            self._subscribe(JointState, topics.robot_topic(i, topics.STATE),
+                            lambda m, i=i: self._on_state(i, m), qos.STATE)
+            if ground_truth:
+                self._subscribe(PoseStamped, topics.robot_topic(i, topics.TRUE_POSE),
+                                lambda m, i=i: self._on_true_pose(i, m), qos.SENSOR)
+        self._subscribe(Float64MultiArray, topics.CURVE, self._on_curve, qos.LATCHED)
         self.create_timer(1.0 / record_hz, self._sample)
+
+    def _subscribe(self, msg_type, topic, callback, profile):
+        self.create_subscription(msg_type, topic, callback, profile,
+                                 event_callbacks=qos.observer_events())
 
     def _on_pose(self, i, msg):
         x, y, th, stamp = messages.pose_from_msg(msg)
@@ -77,10 +82,12 @@ class Monitor(Node):
     def _on_true_pose(self, i, msg):
         self.true_poses[i - 1] = messages.pose_from_msg(msg)[:3]
 
-    def _on_cmd(self, i, msg):
+    def _on_cmd(self, i, msg, info):
         self.commands[i - 1] = messages.twist_from_msg(msg)
         self.command_times[i - 1] = now_seconds(self)
-        self.command_arrivals[i - 1].append(self.command_times[i - 1])
+        self.command_arrivals[i - 1].append((info['source_timestamp'] * 1e-9,
+                                             info['received_timestamp'] * 1e-9,
+                                             time.time()))
 
     def _on_estimate(self, i, msg):
         self.dhat[i - 1] = (msg.vector.x, msg.vector.y)

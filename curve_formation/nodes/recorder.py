@@ -59,7 +59,7 @@ class Recorder(Node):
     """Writes every message of the given topics, as received, to an open bag.BagWriter."""
 
     def __init__(self, writer, topic_list, **kwargs):
-        super().__init__(RECORDER_NODE, **kwargs)
+        super().__init__(RECORDER_NODE, start_parameter_services=False, **kwargs)
         self.writer = writer
         self.received = {}
         for topic, msg_class, profile in topic_list:
@@ -69,7 +69,7 @@ class Recorder(Node):
                               durability=profile.durability)
             self.create_subscription(msg_class, topic,
                                      lambda data, topic=topic: self._on_message(topic, data),
-                                     deep, raw=True)
+                                     deep, raw=True, event_callbacks=qos.observer_events())
 
     def _on_message(self, topic, data):
         self.received[topic] += 1
