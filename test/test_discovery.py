@@ -25,7 +25,8 @@ def test_a_late_participant_discovers_34_others(ros):
     """Runs of 16 robots have 34 processes. With ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST a
     participant announces itself only to the first maxInitialPeersRange participant ports
     (Fast DDS's default: 32); our profile widens it, so the last one to start (this test's,
-    the curve server in a run) still finds every subscriber."""
+    the curve server in a run) still finds every subscriber.
+    """
     from std_msgs.msg import Bool
     context, add, spin_until = ros
     count = 34
