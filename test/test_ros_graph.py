@@ -58,12 +58,25 @@ def simulated_envelope(experiment, t, duration, runs=12, seed=0, initial_poses=N
     return np.min(norms, axis=0), np.max(norms, axis=0)
 
 
-def assert_within_envelope(t, ros, low, high, window):
-    below = ros[window] / low[window]
-    above = ros[window] / high[window]
+def assert_within_envelope(t, ros, low, high, window, tolerance):
+    """ROS error within the simulated envelope (x/÷ ENVELOPE_MARGIN) while the simulations are
+    above the settling tolerance, and below the tolerance where every simulation has settled.
+
+    Below the tolerance the error is a floor (exponentially small, or the residual motion the
+    10 Hz law keeps under a disturbance) that depends on tick timing the simulator does not
+    model; under full-suite load the ROS floor was measured at 0.37 and 0.59 of the simulated
+    one (lower, not higher), so floors are not compared.
+    """
+    transient = window & (low > tolerance)
+    below = ros[transient] / low[transient]
+    above = ros[transient] / high[transient]
     assert below.min() > 1 / ENVELOPE_MARGIN and above.max() < ENVELOPE_MARGIN, (
         f'ROS/sim-envelope ratios {below.min():.3f} .. {above.max():.3f} '
-        f'(at t = {t[window][np.argmax(above)]:.1f} s)')
+        f'(at t = {t[transient][np.argmax(above)]:.1f} s)')
+    settled = window & (high < tolerance)
+    assert np.all(ros[settled] < tolerance), (
+        f'ROS error {ros[settled].max():.3g} above the tolerance {tolerance:.3g} after every '
+        'simulation settled')
 
 
 def test_closed_curve_matches_the_batch_simulator_and_converges(ros_domain, tmp_path):
@@ -73,9 +86,9 @@ def test_closed_curve_matches_the_batch_simulator_and_converges(ros_domain, tmp_
         data = run.recording()
     ros = ros_error_norm(run, data)
     low, high = simulated_envelope(run.experiment, data['t'], 29.0)
-    assert_within_envelope(data['t'], ros, low, high, data['t'] > 0.5)
-    sim = simulate(run.experiment, duration=29.0, record_dt=0.01)
     tolerance = 1e-3 * run.experiment.phases[0].curve.size()
+    assert_within_envelope(data['t'], ros, low, high, data['t'] > 0.5, tolerance)
+    sim = simulate(run.experiment, duration=29.0, record_dt=0.01)
     assert ros[-1] < tolerance < ros[0] / 100
     ros_settle = metrics.settle_time(data['t'], ros, tolerance, 0, np.inf)
     sim_settle = metrics.settle_time(sim.t, sim.error_norm, tolerance, 0, np.inf)
@@ -96,8 +109,8 @@ def test_observer_law_learns_the_disturbance_from_camera_rate_poses(ros_domain, 
     experiment = run.experiment
     ros = ros_error_norm(run, data)
     low, high = simulated_envelope(experiment, data['t'], 29.0)
-    assert_within_envelope(data['t'], ros, low, high, data['t'] > 0.5)
     tolerance = 1e-3 * experiment.phases[0].curve.size()
+    assert_within_envelope(data['t'], ros, low, high, data['t'] > 0.5, tolerance)
     assert ros[-1] < tolerance
     # Published estimates have converged to the paper's d / k2 in every node.
     np.testing.assert_allclose(data['dhat'][-1], experiment.disturbance / experiment.gains.k2,
@@ -127,7 +140,8 @@ def test_curve_switch_is_picked_up_within_one_control_period(ros_domain, tmp_pat
     rel_t = t[on_second] - t[k]
     low, high = simulated_envelope(after_switch, rel_t, rel_t[-1] + 1.0,
                                    initial_poses=data['poses'][k], staggered_start=False)
-    assert_within_envelope(rel_t, ros[on_second], low, high, rel_t > 0.5)
+    assert_within_envelope(rel_t, ros[on_second], low, high, rel_t > 0.5,
+                           1e-3 * run.experiment.phases[1].curve.size())
 
 
 def test_followers_of_a_silent_neighbour_stop_within_the_timeout(ros_domain, tmp_path):
