@@ -195,6 +195,8 @@ class Run:
         self.record_hz = record_hz
         self.processes = {}
         self._last_process_check = -np.inf
+        # Set by start(); stop() takes down whatever of them exists.
+        self.context = self.executor = self.monitor = self.recorder = None
         self.in_process_nodes = []
         self.bag_writer = None
         self.counters = []
@@ -352,9 +354,9 @@ class Run:
                 proc.kill()
                 proc.wait(5)
         self.processes = {}
-        if getattr(self, 'context', None) is None:
+        if self.context is None:
             return
-        if getattr(self, 'executor', None) is None:   # start() failed before the executor
+        if self.executor is None:   # start() failed before the executor
             self.rclpy.try_shutdown(context=self.context)
             self.context = None
             return
@@ -373,12 +375,11 @@ class Run:
         for node, counter in self.counters:
             counter.save(self.publications_dir, node.get_fully_qualified_name())
         self.executor.shutdown(timeout_sec=1.0)
-        for node in self.in_process_nodes + [getattr(self, 'monitor', None),
-                                             getattr(self, 'recorder', None)]:
+        for node in self.in_process_nodes + [self.monitor, self.recorder]:
             if node is not None:
                 node.destroy_node()
         self.rclpy.try_shutdown(context=self.context)
-        self.context = None
+        self.context = self.executor = None
 
     def _received(self):
         return 0 if self.bag_writer is None else self.bag_writer.count
