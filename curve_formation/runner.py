@@ -16,6 +16,7 @@ import random
 import signal
 import subprocess
 import sys
+import threading
 import time
 
 import numpy as np
@@ -194,6 +195,7 @@ class Run:
         self.domain_id = private_domain_id()
         self.record_hz = record_hz
         self.processes = {}
+        self.stop_requested = threading.Event()   # set by run_experiment's signal handlers
         self._last_process_check = -np.inf
         # Set by start(); stop() takes down whatever of them exists.
         self.context = self.executor = self.monitor = self.recorder = None
@@ -232,7 +234,8 @@ class Run:
         from curve_formation.nodes.monitor import Monitor
         self.rclpy = rclpy
         self.context = Context()
-        # Ctrl-C stays a KeyboardInterrupt, so stop() can close the bag and stop the nodes.
+        # Signals stay with Python (Ctrl-C, or run_experiment's handlers), so that stop() can
+        # close the bag and stop the nodes.
         rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
         self.monitor = Monitor(self.experiment.n, self.record_hz, context=self.context,
                                ground_truth=self.camera is not None and self.with_robots)
@@ -295,9 +298,16 @@ class Run:
             raise TimeoutError(f'{exc}; missing: {self.monitor.missing()}') from None
 
     def spin_until(self, predicate, timeout, what='a condition'):
-        """Spin the monitor (and in-process nodes) until predicate() or timeout (s)."""
+        """Spin the monitor (and in-process nodes) until predicate() or timeout (s).
+
+        KeyboardInterrupt once stop_requested is set: a signal handler only sets it, because
+        an exception raised inside an rclpy call (e.g. while a message is being converted)
+        comes out as a RuntimeError ("Unable to convert call argument"), not as an interrupt.
+        """
         deadline = time.monotonic() + timeout
         while not predicate():
+            if self.stop_requested.is_set():
+                raise KeyboardInterrupt('stop requested')
             if time.monotonic() > deadline:
                 raise TimeoutError(f'timed out after {timeout:g} s waiting for {what}')
             self.executor.spin_once(timeout_sec=0.02)
@@ -434,16 +444,14 @@ def run_experiment(config, out_dir, duration=None, single_process=False, with_ro
                    rate_hz=None, bag_path=None, camera=None, bag_images=False, log=print):
     """Run an experiment's node graph for `duration` s (default: the file's) and measure it.
 
-    SIGTERM is handled like Ctrl-C: every node is stopped and the bag closed.
+    Ctrl-C (SIGINT) and SIGTERM stop every node and close the bag; both only set
+    Run.stop_requested, acted on between callbacks (see Run.spin_until).
     """
-    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
-    try:
-        run = Run(config, out_dir, single_process, with_robots, rate_hz, bag_path=bag_path,
-                  camera=camera, bag_images=bag_images, log=log)
-    except BaseException:
-        signal.signal(signal.SIGTERM, previous)
-        raise
+    run = Run(config, out_dir, single_process, with_robots, rate_hz, bag_path=bag_path,
+              camera=camera, bag_images=bag_images, log=log)
     duration = run.experiment.spec.simulation.duration if duration is None else duration
+    previous = {sig: signal.signal(sig, lambda *_: run.stop_requested.set())
+                for sig in (signal.SIGINT, signal.SIGTERM)}
     interrupted = False
     try:
         run.start()
@@ -453,7 +461,8 @@ def run_experiment(config, out_dir, duration=None, single_process=False, with_ro
         log('interrupted: stopping every node')
     finally:
         run.stop()
-        signal.signal(signal.SIGTERM, previous)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
     result = run.write_results()
     result['interrupted'] = interrupted
     if bag_path is not None:
@@ -512,6 +521,3 @@ def _stop_with_parent():
     except OSError:
         pass
 
-
-def _raise_interrupt(signum, frame):
-    raise KeyboardInterrupt(f'signal {signum}')

@@ -5,6 +5,7 @@ import os
 from pathlib import Path
 import signal
 import sys
+import threading
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -14,7 +15,7 @@ from curve_formation.nodes.params import ParameterError
 from curve_formation.paths import use_dds_profile
 
 
-SIGNAL_CHECK_PERIOD = 0.2   # s, longest wait before a signal is noticed
+SIGNAL_CHECK_PERIOD = 0.2   # s, longest wait before a signal is acted on
 # Set by the runner: a folder where each node process writes, when it ends, how many messages
 # it published per topic while someone subscribed (to check that a bag lost nothing).
 PUBLICATIONS_ENV = 'CURVE_FORMATION_PUBLICATIONS'
@@ -64,29 +65,33 @@ def now_seconds(node):
 
 
 def run_node(node_factory, args=None):
-    """Create the node, spin it until Ctrl-C or shutdown, then shut it down cleanly.
+    """Create the node, spin it until Ctrl-C, SIGTERM or shutdown, then shut it down cleanly.
 
     A ParameterError at start ends the process with one line on stderr and exit status 2.
     A node may define on_shutdown() (e.g. to send a last zero command); it runs before the
     node is destroyed, which is why rclpy's own SIGINT handler (it would shut the context
-    down first) is replaced: SIGINT and SIGTERM both raise KeyboardInterrupt here.
+    down first) is replaced. Once the node runs, SIGINT and SIGTERM only set a flag that ends
+    the spin loop: an exception raised inside an rclpy call (e.g. while a message is being
+    converted) would come out as a RuntimeError, not as an interrupt.
     """
     use_dds_profile()   # large messages over shared memory, unless a profile is chosen
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    stop = threading.Event()
     # Installed explicitly: a process started from a background job inherits SIGINT ignored.
-    signal.signal(signal.SIGINT, _interrupt)
-    signal.signal(signal.SIGTERM, _interrupt)
+    # While the node is built (it may block, e.g. opening a camera) a signal interrupts it.
+    _on_stop_signals(_interrupt)
     node = None
     counter = None
     status = 0
     try:
         node = node_factory()
+        _on_stop_signals(lambda *_: stop.set())
         counter = PublicationCounter(node) if os.environ.get(PUBLICATIONS_ENV) else None
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-        # A bounded wait returns to Python regularly, so SIGINT/SIGTERM are handled even when
-        # no timer fires (e.g. on sim time after /clock stopped).
-        while rclpy.ok():
+        # A bounded wait returns to Python regularly, so the flag is seen even when no timer
+        # fires (e.g. on sim time after /clock stopped).
+        while rclpy.ok() and not stop.is_set():
             executor.spin_once(timeout_sec=SIGNAL_CHECK_PERIOD)
     except ParameterError as exc:
         print(f'error: {exc}', file=sys.stderr)
@@ -103,6 +108,11 @@ def run_node(node_factory, args=None):
             node.destroy_node()
         rclpy.try_shutdown()
     return status
+
+
+def _on_stop_signals(handler):
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, handler)
 
 
 def _interrupt(signum, frame):
