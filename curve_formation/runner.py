@@ -520,4 +520,3 @@ def _stop_with_parent():
         ctypes.CDLL('libc.so.6', use_errno=True).prctl(1, signal.SIGINT)  # PR_SET_PDEATHSIG
     except OSError:
         pass
-
