@@ -14,6 +14,7 @@ from rclpy.serialization import serialize_message
 
 from conftest import DATA_DIR
 from curve_formation.bag import bag_summary, BagError, BagWriter, qos, read_messages
+from curve_formation.nodes.runtime import PublicationCounter, RECORDER_NODE
 
 
 def test_write_then_read_round_trip(tmp_path):
@@ -30,6 +31,44 @@ def test_write_then_read_round_trip(tmp_path):
     assert [m.linear.x for _, _, _, m in got] == pytest.approx([0.01 * k for k in range(50)])
     assert [stamp for _, _, stamp, _ in got] == sorted(stamp for _, _, stamp, _ in got)
     assert (path / 'metadata.yaml').read_text().count('offered_qos_profiles') == 1
+
+
+class _GraphStub:
+    """A node and one publisher whose graph and matched readers a test sets by hand."""
+
+    def __init__(self):
+        self.graph = []     # node names of the subscriptions the graph lists
+        self.matched = 0    # subscriptions the publisher's writer has matched
+        self.sent = 0
+        stub = self
+
+        class Publisher:
+            topic_name = '/robot_1/cmd_vel'
+
+            def publish(self, msg):
+                stub.sent += 1
+
+            def get_subscription_count(self):
+                return stub.matched
+
+        self.publishers = [Publisher()]
+
+    def get_subscriptions_info_by_topic(self, topic):
+        return [type('Info', (), {'node_name': name}) for name in self.graph]
+
+
+def test_publications_count_once_the_recorders_reader_is_matched():
+    node = _GraphStub()
+    counter = PublicationCounter(node)
+    publish = node.publishers[0].publish
+    node.graph, node.matched = ['monitor'], 1
+    publish(None)                                   # the recorder is not subscribed yet
+    node.graph = ['monitor', RECORDER_NODE]
+    publish(None)                                   # in the graph, not matched: not delivered
+    node.matched = 2
+    publish(None)
+    publish(None)
+    assert node.sent == 4 and counter.counts == {'/robot_1/cmd_vel': 2}
 
 
 def test_existing_path_is_refused(tmp_path):

@@ -1,5 +1,6 @@
 """Nodes in-process with a private Context and executor, spin loops bounded by deadlines."""
 
+import os
 import subprocess
 import sys
 import time
@@ -167,3 +168,11 @@ def test_curve_server_fits_and_publishes_an_observed_curve(ros):
     deadline = time.monotonic() + 1.0
     spin_until(lambda: time.monotonic() > deadline)
     assert server.next_id == 2
+
+
+def test_unknown_executor_choice_exits_2_naming_the_variable(ros_domain):
+    env = dict(os.environ, CURVE_FORMATION_EXECUTOR='multi')
+    proc = subprocess.run([sys.executable, '-m', 'curve_formation.nodes.fake_robot'], env=env,
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and 'Traceback' not in proc.stderr
+    assert 'CURVE_FORMATION_EXECUTOR' in proc.stderr and 'events, single' in proc.stderr

@@ -9,6 +9,7 @@ import threading
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.experimental import EventsExecutor
 from rclpy.signals import SignalHandlerOptions
 
 from curve_formation.nodes.params import ParameterError
@@ -16,6 +17,11 @@ from curve_formation.paths import use_dds_profile
 
 
 SIGNAL_CHECK_PERIOD = 0.2   # s, longest wait before a signal is acted on
+# Which rclpy executor spins a node process: 'events' (rclpy's EventsExecutor, callbacks
+# dispatched from C++) or 'single' (SingleThreadedExecutor, which rebuilds its wait set in
+# Python on every wake-up).
+EXECUTOR_ENV = 'CURVE_FORMATION_EXECUTOR'
+EXECUTORS = ('events', 'single')
 # Set by the runner: a folder where each node process writes, when it ends, how many messages
 # it published per topic while someone subscribed (to check that a bag lost nothing).
 PUBLICATIONS_ENV = 'CURVE_FORMATION_PUBLICATIONS'
@@ -23,10 +29,12 @@ RECORDER_NODE = 'formation_recorder'
 
 
 class PublicationCounter:
-    """Counts a node's publications per topic once the bag recorder subscribes to the topic.
+    """Counts a node's publications per topic once the bag recorder receives the topic.
 
-    The recorder is recognised by its node name in the ROS graph; before it has subscribed, a
-    message can reach other subscribers but not the bag, so it is not counted.
+    A message counts once the recorder (recognised by its node name) subscribes to the topic
+    and this publisher has matched as many subscriptions as the graph lists: the graph can
+    list the recorder's reader before the writer has matched it, and a message published in
+    between reaches other subscribers but not the bag.
     """
 
     def __init__(self, node, recorder_name=RECORDER_NODE):
@@ -36,9 +44,12 @@ class PublicationCounter:
         for publisher in node.publishers:
             self._wrap(publisher)
 
-    def _recorder_subscribed(self, topic):
-        return any(info.node_name == self.recorder_name
-                   for info in self.node.get_subscriptions_info_by_topic(topic))
+    def _recorder_readers(self, topic):
+        """Subscriptions to `topic` in the graph if the recorder's is among them, else None."""
+        infos = self.node.get_subscriptions_info_by_topic(topic)
+        if any(info.node_name == self.recorder_name for info in infos):
+            return len(infos)
+        return None
 
     def _wrap(self, publisher):
         topic = publisher.topic_name
@@ -48,7 +59,9 @@ class PublicationCounter:
 
         def counted(msg):
             nonlocal recorded
-            recorded = recorded or self._recorder_subscribed(topic)
+            if not recorded:
+                readers = self._recorder_readers(topic)
+                recorded = readers is not None and publisher.get_subscription_count() >= readers
             if recorded:
                 self.counts[topic] += 1
             publish(msg)
@@ -84,10 +97,10 @@ def run_node(node_factory, args=None):
     counter = None
     status = 0
     try:
+        executor = make_executor()
         node = node_factory()
         _on_stop_signals(lambda *_: stop.set())
         counter = PublicationCounter(node) if os.environ.get(PUBLICATIONS_ENV) else None
-        executor = SingleThreadedExecutor()
         executor.add_node(node)
         # A bounded wait returns to Python regularly, so the flag is seen even when no timer
         # fires (e.g. on sim time after /clock stopped).
@@ -108,6 +121,17 @@ def run_node(node_factory, args=None):
             node.destroy_node()
         rclpy.try_shutdown()
     return status
+
+
+def make_executor(context=None):
+    """The executor chosen by $CURVE_FORMATION_EXECUTOR (default 'events')."""
+    kind = os.environ.get(EXECUTOR_ENV, 'events')
+    if kind == 'events':
+        return EventsExecutor(context=context)
+    if kind == 'single':
+        return SingleThreadedExecutor(context=context)
+    raise ParameterError(f'environment variable {EXECUTOR_ENV} = {kind!r}; expected one of '
+                         f'{", ".join(EXECUTORS)}')
 
 
 def _on_stop_signals(handler):
