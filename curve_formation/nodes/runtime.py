@@ -9,7 +9,6 @@ import threading
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-from rclpy.experimental import EventsExecutor
 from rclpy.signals import SignalHandlerOptions
 
 from curve_formation.nodes.params import ParameterError
@@ -124,9 +123,19 @@ def run_node(node_factory, args=None):
 
 
 def make_executor(context=None):
-    """The executor chosen by $CURVE_FORMATION_EXECUTOR (default 'events')."""
+    """The executor chosen by $CURVE_FORMATION_EXECUTOR (default 'events').
+
+    rclpy has the EventsExecutor since Jazzy's 7.1.4; an older rclpy gets the
+    SingleThreadedExecutor, with a note on stderr.
+    """
     kind = os.environ.get(EXECUTOR_ENV, 'events')
     if kind == 'events':
+        try:
+            from rclpy.experimental import EventsExecutor
+        except ImportError:
+            print('note: this rclpy has no EventsExecutor (Jazzy >= 7.1.4); using the '
+                  'SingleThreadedExecutor', file=sys.stderr)
+            return SingleThreadedExecutor(context=context)
         return EventsExecutor(context=context)
     if kind == 'single':
         return SingleThreadedExecutor(context=context)
