@@ -21,9 +21,15 @@ import time
 import matplotlib
 import numpy as np
 from scenarios import scaled_experiment
+import yaml
 
 from curve_formation.core import metrics
-from curve_formation.core.experiment import load_experiment, seeded_start
+from curve_formation.core.experiment import (
+    build_experiment,
+    load_experiment,
+    seeded_start,
+    with_start,
+)
 from curve_formation.core.simulator import simulate
 from curve_formation.paths import resolve_config
 
@@ -32,7 +38,7 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 
 
-CASES = ('closed_curve', 'open_curve', 'shape_change', 'mona_arena')
+CASES = ('closed_curve', 'open_curve', 'shape_change', 'mona_arena', 'mona_arena/nearest')
 MODES = (('continuous', None), ('10 Hz', 10.0))
 TURN_BOUND = 10.0   # rad/s, for the paper heading at 10 Hz when a case has no limits
 
@@ -72,16 +78,27 @@ def one_run(case, gains, rate, start, disturbance=None):
             'peak_w': data['peak_w']}
 
 
-def paper_cases(seeds):
+def load_case(name):
+    """A shipped experiment; '<name>/nearest' is the same with `assignment: nearest`."""
+    base, _, assignment = name.partition('/')
+    if not assignment:
+        return load_experiment(resolve_config(base))
+    data = yaml.safe_load(resolve_config(base).read_text())
+    data['agents']['assignment'] = assignment
+    return build_experiment(data, name)
+
+
+def paper_cases(seeds, names=CASES):
     rows = []
-    for name in CASES:
-        case = load_experiment(resolve_config(name))
+    for name in names:
+        case = load_case(name)
         for mode, rate in MODES:
             started = time.perf_counter()
             runs = {law: [] for law in laws(case.gains)}
             floors = {False: [], True: []}
             for seed in seeds:
                 start = seeded_start(case, seed)
+                case = with_start(case, start)   # `nearest` assigns from each start
                 for sampled in (False, True):
                     if sampled and rate is None:
                         floors[True].append(floors[False][-1])   # identical when continuous
@@ -232,13 +249,15 @@ def main():
     parser.add_argument('--seeds', type=int, default=20)
     parser.add_argument('--quick', action='store_true', help='3 seeds, no scaling parts')
     parser.add_argument('--out', default='out/bench/convergence')
+    parser.add_argument('--cases', nargs='+', default=list(CASES), choices=CASES,
+                        help='paper cases to run (default: all)')
     args = parser.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     seeds = range(3 if args.quick else args.seeds)
     started = time.perf_counter()
     print(f'Paper cases, {len(seeds)} seeds each')
-    rows = paper_cases(seeds)
+    rows = paper_cases(seeds, args.cases)
     print_table(rows)
     n_rows = d_rows = []
     if not args.quick:

@@ -4,12 +4,14 @@ import math
 
 import numpy as np
 import pytest
+import yaml
 
 from conftest import DATA_DIR
 from curve_formation.core.agent import AgentConfig, AgentController, is_stale
+from curve_formation.core.assignment import AssignmentError
 from curve_formation.core.control import Gains, WheelLimits
 from curve_formation.core.dynamics import arc_step
-from curve_formation.core.experiment import load_experiment
+from curve_formation.core.experiment import build_experiment, load_experiment, with_start
 from curve_formation.core.simulator import simulate
 from curve_formation.paths import resolve_config
 
@@ -22,15 +24,23 @@ def controllers_for(experiment, rate_hz):
                           gains=experiment.gains, limits=experiment.limits, rate_hz=rate_hz,
                           spacing=experiment.spec.agents.spacing)
         ctrl = AgentController(cfg)
-        ctrl.set_curve(experiment.phases[0].curve, 0)
+        # the parameters the curve server sends with the curve
+        ctrl.set_curve(experiment.phases[0].curve, 0, experiment.phases[0].s)
         out.append(ctrl)
     return out
 
 
-@pytest.mark.parametrize('name', ['mona_arena', str(DATA_DIR / 'fast_closed.yaml')])
+def nearest_arena():
+    """The arena case with `assignment: nearest`."""
+    data = yaml.safe_load(resolve_config('mona_arena').read_text())
+    data['agents']['assignment'] = 'nearest'
+    return build_experiment(data, 'mona_arena (nearest)')
+
+
+@pytest.mark.parametrize('name', ['mona_arena', str(DATA_DIR / 'fast_closed.yaml'), 'nearest'])
 def test_node_controllers_reproduce_the_simulator_exactly(name):
     """n AgentControllers ticked together at 10 Hz with exact unicycle steps == simulate()."""
-    experiment = load_experiment(resolve_config(name))
+    experiment = nearest_arena() if name == 'nearest' else load_experiment(resolve_config(name))
     rate, dt, duration = 10.0, 0.001, 5.0
     ctrls = controllers_for(experiment, rate)
     on_pc = experiment.spec.disturbance.injected == 'on_pc'
@@ -38,7 +48,7 @@ def test_node_controllers_reproduce_the_simulator_exactly(name):
         ctrls = [AgentController(AgentConfig(**{**c.config.__dict__, 'pc_disturbance': tuple(
             experiment.disturbance[c.config.index - 1])})) for c in ctrls]
         for c in ctrls:
-            c.set_curve(experiment.phases[0].curve, 0)
+            c.set_curve(experiment.phases[0].curve, 0, experiment.phases[0].s)
     poses = experiment.initial_poses.copy()
     motion = np.zeros((experiment.n, 2))
     steps_per_tick = int(round(1 / (rate * dt)))
@@ -198,3 +208,35 @@ def test_acceleration_limit_ramps_up_but_stops_at_once():
     assert (ctrl.tick(10.2).v, ctrl.tick(10.2).w) == (0.0, 0.0)
     ctrl.set_estop(False)
     assert abs(ctrl.tick(10.3).v) <= 0.05 + 1e-12    # resumes from rest, smoothly
+
+
+def test_nearest_assignment_shortens_the_longest_trip_and_follows_the_switches():
+    experiment = nearest_arena()
+    fixed = load_experiment(resolve_config('mona_arena'))
+    starts = fixed.initial_poses[:, :2]
+    phase0 = experiment.phases[0]
+    np.testing.assert_allclose(np.sort(phase0.s), np.sort(fixed.phases[0].s))
+    assert not np.allclose(phase0.s, fixed.phases[0].s)   # this start does get re-ordered
+    longest = np.linalg.norm(starts - phase0.targets, axis=1).max()
+    assert longest < 0.8 * np.linalg.norm(starts - fixed.phases[0].targets, axis=1).max()
+    # after the switch: assigned from the first curve's targets, where the agents settled
+    second = experiment.phases[1]
+    np.testing.assert_allclose(np.sort(second.s), np.sort(fixed.phases[1].s))
+    assert (np.linalg.norm(phase0.targets - second.targets, axis=1).max()
+            <= np.linalg.norm(phase0.targets - fixed.phases[1].curve.points(
+                np.sort(second.s)), axis=1).max() + 1e-12)
+    # another start: assigned again from there
+    moved = with_start(experiment, fixed.initial_poses[::-1])
+    assert not np.allclose(moved.phases[0].s, phase0.s)
+    np.testing.assert_allclose(moved.initial_poses, fixed.initial_poses[::-1])
+
+
+def test_curve_parameters_from_the_sender_are_used_and_checked():
+    ctrl = AgentController(config())
+    ctrl.set_curve(circle(), 0, [0.5, 0.0, 0.25])
+    assert ctrl.s == 0.0                       # agent 2 takes the second value sent
+    with pytest.raises(AssignmentError, match='3 agents'):
+        ctrl.set_curve(circle(), 1, [0.5, 0.0])
+    with pytest.raises(AssignmentError, match='share'):
+        ctrl.set_curve(circle(), 1, [0.5, 0.5, 0.0])
+    assert ctrl.curve_id == 0                  # a refused curve leaves the previous one

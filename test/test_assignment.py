@@ -1,10 +1,14 @@
+import itertools
+
 import numpy as np
 import pytest
 
 from curve_formation.core.assignment import (
     agent_parameters,
+    assigned_parameters,
     AssignmentError,
     check_assumptions,
+    nearest_order,
     uniform_parameters,
 )
 from curve_formation.core.curve_sources import expression_samples
@@ -64,3 +68,34 @@ def test_valid_parameters_return_the_stacked_basis():
     g_bar = check_assumptions(FourierBasis(6), uniform_parameters(6, True))
     assert g_bar.shape == (12, 26)
     np.testing.assert_allclose(g_bar @ np.linalg.pinv(g_bar), np.eye(12), atol=1e-10)
+
+
+@pytest.mark.parametrize('seed', range(12))
+def test_nearest_order_is_the_bottleneck_optimum_then_the_shortest(seed):
+    """Against every permutation of 6 agents: no order has a shorter longest distance, and
+    none with the same longest distance is shorter in total.
+    """
+    rng = np.random.default_rng(seed)
+    points, targets = rng.uniform(-1, 1, (6, 2)), rng.uniform(-1, 1, (6, 2))
+    dist = np.linalg.norm(points[:, None] - targets[None], axis=2)
+    perm = nearest_order(points, targets)
+    assert sorted(perm) == list(range(6))
+    chosen = dist[np.arange(6), perm]
+    best = min(max(dist[np.arange(6), p]) for p in itertools.permutations(range(6)))
+    assert chosen.max() == pytest.approx(best)
+    shortest = min(dist[np.arange(6), p].sum() for p in itertools.permutations(range(6))
+                   if max(dist[np.arange(6), p]) <= best + 1e-12)
+    assert chosen.sum() == pytest.approx(shortest)
+
+
+def test_nearest_assignment_keeps_the_set_of_parameters():
+    curve = ellipse()
+    s = agent_parameters(curve, 5, 'uniform_s')
+    targets = curve.points(s)
+    points = targets[[3, 0, 4, 1, 2]] + 0.01     # the agents sit next to shuffled targets
+    got = assigned_parameters(s, targets, points, 'nearest')
+    np.testing.assert_allclose(got, s[[3, 0, 4, 1, 2]])
+    np.testing.assert_allclose(assigned_parameters(s, targets, points, 'fixed'), s)
+    check_assumptions(curve.basis, got)          # a permutation keeps Assumption 1
+    with pytest.raises(AssignmentError, match='nearest'):
+        assigned_parameters(s, targets, points, 'closest')

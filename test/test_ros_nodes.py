@@ -12,14 +12,17 @@ import rclpy
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
+import yaml
 
 from curve_formation.core.agent import State
 from curve_formation.core.curve_sources import expression_samples
 from curve_formation.core.curves import fit_curve, FourierBasis
+from curve_formation.core.experiment import load_experiment
 from curve_formation.nodes import messages, qos, topics
 from curve_formation.nodes.curve_server import CurveServer
 from curve_formation.nodes.formation_controller import FormationController
 from curve_formation.nodes.params import ParameterError
+from curve_formation.paths import resolve_config
 
 
 pytestmark = pytest.mark.ros
@@ -168,6 +171,35 @@ def test_curve_server_fits_and_publishes_an_observed_curve(ros):
     deadline = time.monotonic() + 1.0
     spin_until(lambda: time.monotonic() > deadline)
     assert server.next_id == 2
+
+
+def test_curve_message_round_trip_with_and_without_agent_parameters():
+    curve = load_experiment(resolve_config('closed_curve')).phases[0].curve
+    msg = messages.curve_to_msg(curve, 4, [0.5, 0.0, 0.25])
+    back, curve_id = messages.curve_from_msg(msg)
+    np.testing.assert_allclose(back.xi, curve.xi)
+    assert curve_id == 4
+    np.testing.assert_allclose(messages.agent_parameters_from_msg(msg), [0.5, 0.0, 0.25])
+    assert messages.agent_parameters_from_msg(messages.curve_to_msg(curve, 4)) is None
+    msg.layout.dim[-1].size = 99
+    with pytest.raises(messages.MessageError, match='99 agent parameters'):
+        messages.agent_parameters_from_msg(msg)
+
+
+def test_curve_server_sends_each_agents_assigned_parameter(ros, tmp_path, arena_dict):
+    arena_dict['agents']['assignment'] = 'nearest'
+    path = tmp_path / 'arena.yaml'
+    path.write_text(yaml.safe_dump(arena_dict))
+    experiment = load_experiment(path)
+    context, add, spin_until = ros
+    probe = add(rclpy.create_node('observer', context=context))
+    received = []
+    probe.create_subscription(Float64MultiArray, topics.CURVE, lambda m: received.append(
+        messages.agent_parameters_from_msg(m)), qos.LATCHED)
+    add(CurveServer(context=context, parameter_overrides=overrides(experiment=str(path))))
+    spin_until(lambda: received)
+    np.testing.assert_allclose(received[0], experiment.phases[0].s)
+    assert not np.all(np.diff(received[0]) > 0)   # re-ordered, not the paper's s_i = (i-1)/n
 
 
 def test_unknown_executor_choice_exits_2_naming_the_variable(ros_domain):

@@ -1,6 +1,7 @@
 """What the paper proves, checked along simulated trajectories; and what it does not show."""
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -142,3 +143,24 @@ def test_metrics_use_the_settings_the_run_used():
     assert result.error_norm[-1] < 1e-4 * result.error_norm[0]
     data = metrics.result_metrics(result)
     assert data['all_settled'] and data['final_error_norm'] < 1e-3
+
+
+def test_compiled_cache_is_dropped_when_a_law_source_changes(tmp_path):
+    """numba would keep running a stepping loop compiled from an older control.py."""
+    import shutil
+
+    from curve_formation.core import simulator
+    here = Path(simulator.__file__).parent
+    for name in ('control.py', 'dynamics.py', 'simulator.py'):
+        shutil.copy(here / name, tmp_path / name)
+    cache = tmp_path / '__pycache__'
+    cache.mkdir()
+    (cache / 'simulator._run-1.py311.nbi').write_text('compiled')
+    assert simulator.drop_stale_cache(tmp_path)            # no record of the sources yet
+    assert not list(cache.glob('*.nbi'))
+    (cache / 'simulator._run-1.py311.nbi').write_text('compiled')
+    assert not simulator.drop_stale_cache(tmp_path)        # unchanged: the cache stays
+    with open(tmp_path / 'control.py', 'a') as f:
+        f.write('# edited\n')
+    assert simulator.drop_stale_cache(tmp_path)
+    assert not list(cache.glob('*.nbi'))

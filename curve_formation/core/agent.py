@@ -18,7 +18,9 @@ from dataclasses import dataclass, field
 import math
 from typing import Optional
 
-from curve_formation.core.assignment import agent_parameters, check_assumptions
+import numpy as np
+
+from curve_formation.core.assignment import agent_parameters, AssignmentError, check_assumptions
 from curve_formation.core.control import (
     agent_input,
     body_velocity,
@@ -130,10 +132,19 @@ class AgentController:
         self.anchor = None
         self.reference = (0.0, 0.0)
 
-    def set_curve(self, curve, curve_id):
-        """Adopt a new curve; raises ValueError (AssignmentError) if it breaks the assumptions."""
+    def set_curve(self, curve, curve_id, s_all=None):
+        """Adopt a new curve; raises ValueError (AssignmentError) if it breaks the assumptions.
+
+        s_all (n,): every agent's parameter as the sender assigned them; None derives them
+        from the configured spacing (agent i the i-th).
+        """
         n = self.config.agent_count
-        s_all = agent_parameters(curve, n, self.config.spacing)
+        if s_all is None:
+            s_all = agent_parameters(curve, n, self.config.spacing)
+        elif len(s_all) != n:
+            raise AssignmentError(f'the curve assigns {len(s_all)} agent parameters, this '
+                                  f'team has {n} agents')
+        s_all = np.array(s_all, dtype=float)
         if self.config.fixed_s is not None:
             s_all[self.config.index - 1] = self.config.fixed_s
         check_assumptions(curve.basis, s_all)

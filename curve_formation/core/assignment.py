@@ -1,11 +1,13 @@
 """Curve parameters s_i of the agents and the paper's Assumptions 1 and 2."""
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 from curve_formation.core.curves import CurveError
 
 
 SPACINGS = ('uniform_s', 'arc_length')
+ASSIGNMENTS = ('fixed', 'nearest')
 
 
 class AssignmentError(ValueError):
@@ -36,6 +38,41 @@ def agent_parameters(curve, n, spacing='uniform_s'):
     if spacing == 'arc_length':
         return arc_length_parameters(curve, n)
     raise AssignmentError(f'unknown spacing {spacing!r}; expected one of {SPACINGS}')
+
+
+def nearest_order(points, targets):
+    """perm (n,): agent i goes to targets[perm[i]], minimising the longest distance (m).
+
+    Among the orders with the smallest longest distance (a bottleneck assignment, found by
+    bisection over the distances), the one with the smallest total distance. points and
+    targets (n, 2), arena frame.
+    """
+    points, targets = np.asarray(points, float), np.asarray(targets, float)
+    dist = np.linalg.norm(points[:, None, :] - targets[None, :, :], axis=2)
+    values = np.unique(dist)
+    low, high = 0, len(values) - 1
+    while low < high:   # smallest threshold that still admits a full assignment
+        mid = (low + high) // 2
+        too_far = (dist > values[mid]).astype(float)
+        rows, cols = linear_sum_assignment(too_far)
+        if too_far[rows, cols].sum() == 0:
+            high = mid
+        else:
+            low = mid + 1
+    cost = np.where(dist <= values[low], dist, np.inf)
+    rows, cols = linear_sum_assignment(cost)
+    return cols[np.argsort(rows)]
+
+
+def assigned_parameters(s, targets, points, assignment):
+    """The agents' parameters: s (n,) as given ('fixed') or permuted so that each agent at
+    `points` (n, 2) gets the nearest of the `targets` (n, 2) of s ('nearest').
+    """
+    if assignment == 'fixed':
+        return np.asarray(s, float)
+    if assignment == 'nearest':
+        return np.asarray(s, float)[nearest_order(points, targets)]
+    raise AssignmentError(f'unknown assignment {assignment!r}; expected one of {ASSIGNMENTS}')
 
 
 def check_assumptions(basis, s):

@@ -54,6 +54,11 @@ class Agents(Strict):
     count: int = Field(ge=1, le=10_000, description='number of agents n; agent 1 is the '
                        'leader (the graph is held as a dense n x n matrix)')
     spacing: Literal['uniform_s', 'arc_length'] = 'uniform_s'
+    assignment: Literal['fixed', 'nearest'] = Field(
+        'fixed', description="which agent takes which of the spacing's points: 'fixed' (the "
+        "paper: agent i the i-th), 'nearest' (for each curve, the order that minimises the "
+        'longest distance from where the agents are: their start for the first curve, the '
+        "previous curve's targets after a switch)")
     initial: Initial
 
 

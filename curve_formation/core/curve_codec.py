@@ -1,7 +1,9 @@
 """The curve's wire layout and planar quaternions, free of any message library.
 
 A curve travels as a flat array xi (2H values, the paper's layout) with three labelled
-dimensions: ('xi', 2H, 2H), ('basis=<fourier|polynomial>', K or p, 0), ('curve_id=<k>', 0, 0).
+dimensions: ('xi', 2H, 2H), ('basis=<fourier|polynomial>', K or p, 0), ('curve_id=<k>', 0, 0);
+and, when the sender assigns the agents' parameters, a fourth, ('s', n, n), whose n values
+s_1..s_n follow the coefficients.
 """
 
 import math
@@ -15,13 +17,19 @@ class CodecError(ValueError):
     """A curve message that cannot be decoded."""
 
 
-def encode_curve(curve, curve_id):
-    """(dims, data): dims [(label, size, stride)], data the 2H coefficients."""
+def encode_curve(curve, curve_id, s=None):
+    """(dims, data): dims [(label, size, stride)], data the 2H coefficients, then s (n,) if
+    given (the agents' curve parameters).
+    """
     basis = curve.basis
     size = basis.K if basis.kind == 'fourier' else basis.p
     dims = [('xi', 2 * basis.H, 2 * basis.H), (f'basis={basis.kind}', int(size), 0),
             (f'curve_id={int(curve_id)}', 0, 0)]
-    return dims, [float(v) for v in curve.xi]
+    data = [float(v) for v in curve.xi]
+    if s is not None:
+        dims.append(('s', len(s), len(s)))
+        data += [float(v) for v in s]
+    return dims, data
 
 
 def decode_curve(dims, data):
@@ -33,13 +41,27 @@ def decode_curve(dims, data):
         basis = make_basis(kind, labels['basis'][1])
     except (KeyError, IndexError, ValueError) as exc:
         raise CodecError(f'curve message layout not understood: {exc}') from None
-    xi = np.array(data, dtype=float)
+    values = np.array(data, dtype=float)
+    n_s = labels['s'][1] if 's' in labels else 0
+    xi = values[:len(values) - n_s]
     if len(xi) != 2 * basis.H:
         raise CodecError(f'curve message has {len(xi)} coefficients, {basis.describe()} '
                          f'needs {2 * basis.H}')
-    if not np.all(np.isfinite(xi)):
-        raise CodecError('curve message has NaN or infinite coefficients')
+    if not np.all(np.isfinite(values)):
+        raise CodecError('curve message has NaN or infinite values')
     return Curve(basis, xi), curve_id
+
+
+def decode_agent_parameters(dims, data):
+    """The agents' parameters s (n,) a curve message carries, or None if it has none."""
+    sizes = {label: size for label, size in dims}
+    if 's' not in sizes:
+        return None
+    n_s = int(sizes['s'])
+    if n_s < 1 or n_s > len(data):
+        raise CodecError(f'curve message announces {n_s} agent parameters but holds '
+                         f'{len(data)} values')
+    return np.array(data[len(data) - n_s:], dtype=float)
 
 
 def yaw_from_quaternion(x, y, z, w):

@@ -3,6 +3,7 @@
 Every problem is raised as :class:`ConfigError` naming the file, the key and what was expected.
 """
 
+import dataclasses
 from dataclasses import dataclass
 import math
 from pathlib import Path
@@ -12,12 +13,18 @@ from pydantic import ValidationError
 import yaml
 
 from curve_formation.core import curve_sources
-from curve_formation.core.assignment import agent_parameters, AssignmentError, check_assumptions
+from curve_formation.core.assignment import (
+    agent_parameters,
+    assigned_parameters,
+    AssignmentError,
+    check_assumptions,
+)
 from curve_formation.core.config_schema import ExperimentSpec
 from curve_formation.core.control import Gains, NO_LIMITS, WheelLimits
 from curve_formation.core.curves import CurveError, fit_curve, make_basis
 from curve_formation.core.expressions import ExpressionError
 from curve_formation.core.graph import DirectedGraph, Edge, GraphError
+from curve_formation.core.metrics import offset_points
 
 
 class ConfigError(ValueError):
@@ -139,7 +146,6 @@ def _build(spec, source):
     if spec.graph.leader != 1:
         raise ConfigError(source, 'graph.leader', "the leader must be agent 1 (the paper's "
                           f'numbering), got {spec.graph.leader}')
-    phases = []
     for k, curve_spec in enumerate(spec.curves):
         key = f'curves[{k}]'
         if k == 0 and curve_spec.start != 0:
@@ -147,12 +153,49 @@ def _build(spec, source):
         if k > 0 and curve_spec.start <= spec.curves[k - 1].start:
             raise ConfigError(source, f'{key}.start', f'switch times must increase, got '
                               f'{curve_spec.start} after {spec.curves[k - 1].start}')
-        phases.append(_build_phase(k, curve_spec, n, spec.agents.spacing, source, key))
     _check_camera(spec, source)
-    return Experiment(spec=spec, source=source, graph=graph,
-                      gains=_gains(spec.controller),
+    gains = _gains(spec.controller)
+    initial = _initial_poses(spec, source)
+    phases = tuple(_build_phases(spec, source, offset_points(initial, gains.offset)))
+    return Experiment(spec=spec, source=source, graph=graph, gains=gains,
                       limits=_limits(spec), disturbance=_disturbance(spec, source),
-                      initial_poses=_initial_poses(spec, source), phases=tuple(phases))
+                      initial_poses=initial, phases=phases)
+
+
+def with_start(experiment, poses):
+    """The experiment started from `poses` (n, 3): with `assignment: nearest` its agents'
+    curve parameters are assigned again from there.
+    """
+    poses = np.array(poses, dtype=float)
+    phases = experiment.phases
+    if experiment.spec.agents.assignment != 'fixed':
+        phases = tuple(_assign_phases(phases, offset_points(poses, experiment.gains.offset),
+                                      experiment.spec.agents.assignment, experiment.source))
+    return dataclasses.replace(experiment, initial_poses=poses, phases=phases)
+
+
+def _build_phases(spec, source, start_points):
+    phases = [_build_phase(k, curve_spec, spec.agents.count, spec.agents.spacing, source,
+                           f'curves[{k}]') for k, curve_spec in enumerate(spec.curves)]
+    return _assign_phases(phases, start_points, spec.agents.assignment, source)
+
+
+def _assign_phases(phases, start_points, assignment, source):
+    """Phases with their s permuted by `assignment`, each from where the previous ended."""
+    if assignment == 'fixed':
+        return list(phases)
+    out, points = [], start_points
+    for phase in phases:
+        s = assigned_parameters(np.sort(phase.s), phase.curve.points(np.sort(phase.s)), points,
+                                assignment)
+        try:
+            g_bar = check_assumptions(phase.curve.basis, s)
+        except AssignmentError as exc:
+            raise ConfigError(source, f'curves[{phase.index}]', str(exc)) from None
+        targets = phase.curve.points(s)
+        out.append(dataclasses.replace(phase, s=s, targets=targets, g_bar=g_bar))
+        points = targets
+    return out
 
 
 def _check_camera(spec, source):

@@ -15,13 +15,45 @@ controller (core.control), and its cost is linear in agents plus edges.
 """
 
 from dataclasses import dataclass
+import hashlib
 import math
+from pathlib import Path
 import types
 
 import numba
 import numpy as np
 
 from curve_formation.core import control, dynamics, metrics
+
+
+def drop_stale_cache(folder=Path(__file__).parent):
+    """Delete numba's compiled cache when control.py, dynamics.py or this file changed.
+
+    numba checks a cached function against its own source file only, not against the
+    functions it compiled in from other modules: after an edit of control.py the stepping loop
+    would run the old law. Installed copies never change; an unwritable cache is left alone.
+    """
+    sources = b''.join((folder / name).read_bytes()
+                       for name in ('control.py', 'dynamics.py', 'simulator.py'))
+    digest = hashlib.sha256(sources).hexdigest()
+    cache = folder / '__pycache__'
+    stamp = cache / 'simulator.sources.sha256'
+    try:
+        if stamp.read_text() == digest:
+            return False
+    except OSError:
+        pass
+    try:
+        for path in cache.glob('*.nb[ic]'):
+            path.unlink()
+        cache.mkdir(exist_ok=True)
+        stamp.write_text(digest)
+    except OSError:
+        return False
+    return True
+
+
+drop_stale_cache()
 
 
 def _jit(function, **callees):

@@ -4,7 +4,9 @@ Publishes /formation/curve (Float64MultiArray, latched: late joiners get the cur
 /formation/curve_path (nav_msgs/Path) and /formation/markers (MarkerArray: the curve and each
 agent's target point) for RViz. Accepts a newly observed curve as ordered sampled points on
 /formation/observed_curve (PolygonStamped), fits it and publishes it as the next curve.
-Curve ids count up from 0 in the order curves are published.
+Curve ids count up from 0 in the order curves are published. Each curve carries every agent's
+curve parameter s_i, as the experiment's `spacing` and `assignment` give them (an observed
+curve is assigned from the previous curve's targets).
 """
 
 from geometry_msgs.msg import Point, PolygonStamped, PoseStamped
@@ -14,9 +16,15 @@ from rclpy.node import Node
 from std_msgs.msg import ColorRGBA, Float64MultiArray
 from visualization_msgs.msg import Marker, MarkerArray
 
-from curve_formation.core.assignment import agent_parameters, AssignmentError, check_assumptions
+from curve_formation.core.assignment import (
+    agent_parameters,
+    assigned_parameters,
+    AssignmentError,
+    check_assumptions,
+)
 from curve_formation.core.curve_sources import point_samples
 from curve_formation.core.curves import CurveError, fit_curve, make_basis
+from curve_formation.core.metrics import offset_points
 from curve_formation.nodes import messages, qos, topics
 from curve_formation.nodes.params import (
     declare_parameters,
@@ -43,7 +51,8 @@ PARAMETERS = (
 
 TOPICS = (
     ('pub', topics.CURVE, 'std_msgs/Float64MultiArray', 'LATCHED',
-     'coefficients xi; layout labels: basis kind and size, curve id'),
+     "coefficients xi, then each agent's s_i; layout labels: basis kind and size, curve id, "
+     'number of agents'),
     ('pub', topics.CURVE_PATH, 'nav_msgs/Path', 'LATCHED', 'the curve, sampled, for RViz'),
     ('pub', topics.CURVE_MARKERS, 'visualization_msgs/MarkerArray', 'LATCHED',
      "curve line and each agent's target point"),
@@ -68,6 +77,10 @@ class CurveServer(Node):
                                  qos.EVENTS)
         self.next_id = 0
         self.next_phase = 0
+        # Where the agents are headed: the last published targets (m, arena frame), from
+        # which an observed curve's points are assigned; before any curve, the start poses.
+        self.targets = offset_points(self.experiment.initial_poses,
+                                     self.experiment.gains.offset)
         self.start = None
         # Polls for subscribers every WAIT_POLL s until the start, then wakes at each switch.
         self.timer = self.create_timer(WAIT_POLL, self._on_timer)
@@ -87,7 +100,7 @@ class CurveServer(Node):
         while self.next_phase < len(phases) and phases[self.next_phase].start <= elapsed:
             phase = phases[self.next_phase]
             self.next_phase += 1
-            self.publish_curve(phase.curve, phase.targets)
+            self.publish_curve(phase.curve, phase.s)
         if self.next_phase == len(phases):
             self.timer.cancel()
             return
@@ -95,10 +108,13 @@ class CurveServer(Node):
         self.timer.timer_period_ns = max(1_000_000, int(wait * 1e9))
         self.timer.reset()
 
-    def publish_curve(self, curve, targets):
+    def publish_curve(self, curve, s):
+        """Publish a curve with the agents' parameters s (n,), its path and its markers."""
         curve_id = self.next_id
         self.next_id += 1
-        self.curve_pub.publish(messages.curve_to_msg(curve, curve_id))
+        targets = curve.points(s)
+        self.targets = targets
+        self.curve_pub.publish(messages.curve_to_msg(curve, curve_id, s))
         stamp = self.get_clock().now().to_msg()
         _, pts = curve.sample(self.params.path_samples)
         if curve.basis.closed:
@@ -136,13 +152,15 @@ class CurveServer(Node):
             fit = fit_curve(basis, *point_samples(points, basis.closed))
             n = self.experiment.n
             s = agent_parameters(fit.curve, n, self.experiment.spec.agents.spacing)
+            s = assigned_parameters(s, fit.curve.points(s), self.targets,
+                                    self.experiment.spec.agents.assignment)
             check_assumptions(basis, s)
         except (CurveError, AssignmentError) as exc:
             self.get_logger().error(f'observed curve refused ({len(points)} points): {exc}')
             return
         self.get_logger().info(f'observed curve fitted from {len(points)} points, rms '
                                f'residual {fit.rms_residual:.3g}')
-        self.publish_curve(fit.curve, fit.curve.points(s))
+        self.publish_curve(fit.curve, s)
 
 
 def main(args=None):

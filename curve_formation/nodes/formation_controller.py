@@ -52,7 +52,8 @@ PARAMETERS = (
     Param('max_wheel_speed', 'double', 0.0, 'max linear speed of each wheel (m/s); 0 = '
           'unlimited', low=0.0),
     Param('max_angular_rate', 'double', 0.0, 'max |w| (rad/s); 0 = unlimited', low=0.0),
-    Param('spacing', 'string', 'uniform_s', 'how s_i is derived from each curve',
+    Param('spacing', 'string', 'uniform_s', 'how s_i is derived from a curve that does not '
+          "carry the agents' parameters (the curve server sends them)",
           choices=SPACINGS),
     Param('s', 'double', -1.0, 'fixed curve parameter s_i in [0, 1]; negative = derive from '
           '`spacing`', high=1.0),
@@ -167,7 +168,7 @@ class FormationController(Node):
     def _on_curve(self, msg):
         try:
             curve, curve_id = messages.curve_from_msg(msg)
-            self.controller.set_curve(curve, curve_id)
+            self.controller.set_curve(curve, curve_id, messages.agent_parameters_from_msg(msg))
         except (messages.MessageError, AssignmentError, ValueError) as exc:
             self.get_logger().error(f'curve refused, keeping the previous one: {exc}')
             return

@@ -19,6 +19,7 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from curve_formation.core.curve_codec import (
     CodecError,
+    decode_agent_parameters,
     decode_curve,
     encode_curve,
     quaternion_from_yaw,
@@ -38,8 +39,9 @@ def seconds_to_stamp(seconds):
     return Time(sec=int(sec), nanosec=int(round((seconds - sec) * 1e9)) % 1_000_000_000)
 
 
-def curve_to_msg(curve, curve_id):
-    dims, data = encode_curve(curve, curve_id)
+def curve_to_msg(curve, curve_id, s=None):
+    """Float64MultiArray of a curve and, if given, the agents' parameters s (n,)."""
+    dims, data = encode_curve(curve, curve_id, s)
     msg = Float64MultiArray()
     msg.layout.dim = [MultiArrayDimension(label=label, size=size, stride=stride)
                       for label, size, stride in dims]
@@ -50,6 +52,11 @@ def curve_to_msg(curve, curve_id):
 def curve_from_msg(msg):
     """(Curve, curve_id) from a curve message; MessageError if malformed."""
     return decode_curve([(d.label, d.size) for d in msg.layout.dim], msg.data)
+
+
+def agent_parameters_from_msg(msg):
+    """The agents' parameters s (n,) a curve message carries, or None."""
+    return decode_agent_parameters([(d.label, d.size) for d in msg.layout.dim], msg.data)
 
 
 def pose_from_msg(msg):
