@@ -85,6 +85,7 @@ class Tick:
     curve_id: Optional[int] = None
     dhat: tuple = (0.0, 0.0)
     feedback: Optional[tuple] = None
+    neighbour_stamps: tuple = ()      # ((j, stamp s), ...) of the in-neighbour states used
 
 
 @dataclass(frozen=True)
@@ -228,6 +229,7 @@ class AgentController:
                                       f'{self.curve_id}', base)
             fx, fy = follower_feedback(ex, ey, [nb.error for nb in self.neighbours.values()],
                                        [w for _, w in cfg.neighbours])
+            base.neighbour_stamps = tuple((j, nb.stamp) for j, nb in self.neighbours.items())
         gains = cfg.gains
         period = 1.0 / cfg.rate_hz
         hold = gains.hold_period(cfg.rate_hz)

@@ -131,6 +131,9 @@ TOPICS = (
     ('pub', topics.CMD_VEL, 'geometry_msgs/Twist', 'COMMAND', 'velocity command at rate_hz'),
     ('pub', topics.STATE, 'sensor_msgs/JointState', 'STATE',
      'own state on every pose, for out-neighbours (names e_x, e_y, curve_id, leader_stamp)'),
+    ('pub', topics.TICK, 'sensor_msgs/JointState', 'STATE',
+     'every tick: the command sent (v, w) and the stamps of the inputs it came from (own '
+     'pose, each in-neighbour state), to trace or replay a command'),
     ('pub', topics.ESTIMATE, 'geometry_msgs/Vector3Stamped', 'STATE',
      'disturbance estimate (x = d_v, y = d_w) every tick, stamped with the pose used'),
     ('pub', topics.DIAGNOSTICS, 'diagnostic_msgs/DiagnosticArray', 'EVENTS',
@@ -151,6 +154,7 @@ class FormationController(Node):
         self.state_pub = self.create_publisher(JointState, topics.STATE, qos.STATE)
         self.rng = np.random.default_rng()
         self.estimate_pub = self.create_publisher(Vector3Stamped, topics.ESTIMATE, qos.STATE)
+        self.tick_pub = self.create_publisher(JointState, topics.TICK, qos.STATE)
         self.diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.EVENTS)
         self.create_subscription(PoseStamped, topics.POSE, self._on_pose, qos.SENSOR)
         self.create_subscription(Float64MultiArray, topics.CURVE, self._on_curve, qos.LATCHED)
@@ -202,6 +206,7 @@ class FormationController(Node):
         now = now_seconds(self)
         tick = self.controller.tick(now)
         self.cmd_pub.publish(messages.twist_to_msg(tick.v, tick.w))
+        self.tick_pub.publish(messages.tick_to_msg(tick, now))
         # Stamped with the pose this tick used, so pose-to-command latency can be measured.
         used = tick.error_stamp if tick.error_stamp is not None else now
         self.estimate_pub.publish(messages.estimate_to_msg(tick.dhat, used))

@@ -117,6 +117,26 @@ def estimate_to_msg(dhat, stamp_s):
     return msg
 
 
+def tick_to_msg(tick, now_s):
+    """JointState of one control tick at now_s: the command sent and the inputs it came from.
+
+    names 'v' (m/s), 'w' (rad/s), 'pose_stamp' (s, NaN if none) and 'stamp_<j>' (s) for each
+    in-neighbour state used, in position.
+    """
+    msg = JointState()
+    msg.header.stamp = seconds_to_stamp(now_s)
+    pose = math.nan if tick.error_stamp is None else tick.error_stamp
+    msg.name = ['v', 'w', 'pose_stamp'] + [f'stamp_{j}' for j, _ in tick.neighbour_stamps]
+    msg.position = [float(tick.v), float(tick.w), float(pose)] + [
+        float(stamp) for _, stamp in tick.neighbour_stamps]
+    return msg
+
+
+def tick_from_msg(msg):
+    """{name: value} of a control_tick message."""
+    return dict(zip(msg.name, msg.position, strict=True))
+
+
 # sensor_msgs/Image encodings this package reads, with their channel count.
 IMAGE_CHANNELS = {'mono8': 1, '8UC1': 1, 'bgr8': 3, 'rgb8': 3, 'bgra8': 4, 'rgba8': 4}
 

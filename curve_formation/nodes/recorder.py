@@ -29,7 +29,8 @@ def formation_topics(n):
         out += [(topics.robot_topic(i, topics.POSE), PoseStamped, qos.SENSOR),
                 (topics.robot_topic(i, topics.CMD_VEL), Twist, qos.COMMAND),
                 (topics.robot_topic(i, topics.STATE), JointState, qos.STATE),
-                (topics.robot_topic(i, topics.ESTIMATE), Vector3Stamped, qos.STATE)]
+                (topics.robot_topic(i, topics.ESTIMATE), Vector3Stamped, qos.STATE),
+                (topics.robot_topic(i, topics.TICK), JointState, qos.STATE)]
     return out
 
 

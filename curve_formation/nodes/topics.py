@@ -13,6 +13,7 @@ CAMERA_DEBUG = '/camera/debug_image'
 CMD_VEL = 'cmd_vel'
 STATE = 'formation_state'
 ESTIMATE = 'disturbance_estimate'
+TICK = 'control_tick'
 DIAGNOSTICS = '/diagnostics'
 
 
