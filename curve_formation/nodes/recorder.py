@@ -84,7 +84,8 @@ PARAMETERS = (
 )
 
 TOPICS = (
-    ('sub', '/robot_<i>/{pose,cmd_vel,formation_state,disturbance_estimate}', 'various', 'SENSOR',
+    ('sub', '/robot_<i>/{pose,cmd_vel,control_tick,formation_state,disturbance_estimate}',
+     'various', 'SENSOR',
      "every robot's topics, with their own QoS, queue depth 500"),
     ('sub', '/formation/{curve,curve_path,estop}, /diagnostics', 'various', 'LATCHED',
      'the curve, its path, the e-stop and diagnostics'),
