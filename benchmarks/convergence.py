@@ -98,16 +98,16 @@ def paper_cases(seeds, names=CASES):
             floors = {False: [], True: []}
             for seed in seeds:
                 start = seeded_start(case, seed)
-                case = with_start(case, start)   # `nearest` assigns from each start
+                seeded = with_start(case, start)   # `nearest` assigns from each start
                 for sampled in (False, True):
                     if sampled and rate is None:
                         floors[True].append(floors[False][-1])   # identical when continuous
                         continue
                     floor = dataclasses.replace(case.gains.paper_law(), k2=0.0,
                                                 sampled_heading=sampled)
-                    floors[sampled].append(one_run(case, floor, rate, start, [0.0, 0.0]))
+                    floors[sampled].append(one_run(seeded, floor, rate, start, [0.0, 0.0]))
                 for law, gains in laws(case.gains).items():
-                    runs[law].append(one_run(case, gains, rate, start))
+                    runs[law].append(one_run(seeded, gains, rate, start))
             for law, gains in laws(case.gains).items():
                 rows.append(summarise(name, mode, law, runs[law],
                                       floors[gains.sampled_heading]))

@@ -93,9 +93,9 @@ def test_nearest_assignment_keeps_the_set_of_parameters():
     s = agent_parameters(curve, 5, 'uniform_s')
     targets = curve.points(s)
     points = targets[[3, 0, 4, 1, 2]] + 0.01     # the agents sit next to shuffled targets
-    got = assigned_parameters(s, targets, points, 'nearest')
+    got = assigned_parameters(curve, s, points, 'nearest')
     np.testing.assert_allclose(got, s[[3, 0, 4, 1, 2]])
-    np.testing.assert_allclose(assigned_parameters(s, targets, points, 'fixed'), s)
+    np.testing.assert_allclose(assigned_parameters(curve, s, points, 'fixed'), s)
     check_assumptions(curve.basis, got)          # a permutation keeps Assumption 1
     with pytest.raises(AssignmentError, match='nearest'):
-        assigned_parameters(s, targets, points, 'closest')
+        assigned_parameters(curve, s, points, 'closest')

@@ -128,11 +128,16 @@ def tick_key(tick):
                         if name not in ('v', 'w')))
 
 
+def robot_of(topic):
+    """3 for '/robot_3/pose'."""
+    return int(topic.split('/')[1].split('_')[1])
+
+
 def recorded_ticks(bag):
     from curve_formation.nodes import messages
     out = {i: [] for i in range(1, 7)}
     for topic, _, _, msg in read_messages(bag, [f'/robot_{i}/control_tick' for i in range(1, 7)]):
-        out[int(topic.split('_')[1].split('/')[0])].append(messages.tick_from_msg(msg))
+        out[robot_of(topic)].append(messages.tick_from_msg(msg))
     return out
 
 
@@ -212,7 +217,7 @@ def law_on_bag_inputs(bag):
     poses, states = {}, {}
     names = [f'/robot_{i}/{kind}' for i in range(1, 7) for kind in ('pose', 'formation_state')]
     for topic, _, _, msg in read_messages(bag, names):
-        robot = int(topic.split('_')[1].split('/')[0])
+        robot = robot_of(topic)
         if topic.endswith('/pose'):
             x, y, theta, stamp = messages.pose_from_msg(msg)
             poses[robot, round(stamp, 9)] = (x, y, theta, stamp)

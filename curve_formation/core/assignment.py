@@ -64,14 +64,15 @@ def nearest_order(points, targets):
     return cols[np.argsort(rows)]
 
 
-def assigned_parameters(s, targets, points, assignment):
+def assigned_parameters(curve, s, points, assignment):
     """The agents' parameters: s (n,) as given ('fixed') or permuted so that each agent at
-    `points` (n, 2) gets the nearest of the `targets` (n, 2) of s ('nearest').
+    `points` (n, 2, arena frame) gets the nearest of the curve's points at s ('nearest').
     """
+    s = np.asarray(s, float)
     if assignment == 'fixed':
-        return np.asarray(s, float)
+        return s
     if assignment == 'nearest':
-        return np.asarray(s, float)[nearest_order(points, targets)]
+        return s[nearest_order(points, curve.points(s))]
     raise AssignmentError(f'unknown assignment {assignment!r}; expected one of {ASSIGNMENTS}')
 
 

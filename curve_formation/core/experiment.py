@@ -167,11 +167,9 @@ def with_start(experiment, poses):
     curve parameters are assigned again from there.
     """
     poses = np.array(poses, dtype=float)
-    phases = experiment.phases
-    if experiment.spec.agents.assignment != 'fixed':
-        phases = tuple(_assign_phases(phases, offset_points(poses, experiment.gains.offset),
-                                      experiment.spec.agents.assignment, experiment.source))
-    return dataclasses.replace(experiment, initial_poses=poses, phases=phases)
+    phases = _assign_phases(experiment.phases, offset_points(poses, experiment.gains.offset),
+                            experiment.spec.agents.assignment, experiment.source)
+    return dataclasses.replace(experiment, initial_poses=poses, phases=tuple(phases))
 
 
 def _build_phases(spec, source, start_points):
@@ -186,8 +184,8 @@ def _assign_phases(phases, start_points, assignment, source):
         return list(phases)
     out, points = [], start_points
     for phase in phases:
-        s = assigned_parameters(np.sort(phase.s), phase.curve.points(np.sort(phase.s)), points,
-                                assignment)
+        # phase.s may carry an earlier assignment: start from the spacing's sorted points
+        s = assigned_parameters(phase.curve, np.sort(phase.s), points, assignment)
         try:
             g_bar = check_assumptions(phase.curve.basis, s)
         except AssignmentError as exc:

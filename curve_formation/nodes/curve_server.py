@@ -152,7 +152,7 @@ class CurveServer(Node):
             fit = fit_curve(basis, *point_samples(points, basis.closed))
             n = self.experiment.n
             s = agent_parameters(fit.curve, n, self.experiment.spec.agents.spacing)
-            s = assigned_parameters(s, fit.curve.points(s), self.targets,
+            s = assigned_parameters(fit.curve, s, self.targets,
                                     self.experiment.spec.agents.assignment)
             check_assumptions(basis, s)
         except (CurveError, AssignmentError) as exc:
