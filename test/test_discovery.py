@@ -47,5 +47,10 @@ def test_a_late_participant_discovers_34_others(ros):
     finally:
         for proc in procs:
             proc.terminate()
+        deadline = time.monotonic() + 60.0   # 35 participants leaving at once on 2 cores
         for proc in procs:
-            proc.wait(10)
+            try:   # drains stdout too: a listener blocked on a full pipe would never exit
+                proc.communicate(timeout=max(deadline - time.monotonic(), 1.0))
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.communicate()
