@@ -33,7 +33,7 @@ DEFAULT_RATE_HZ = 10.0
 # Keys of the bag metadata (custom_data) that make a bag self-describing.
 PARAMETERS_KEY = 'curve_formation.parameters'
 READY_TIMEOUT = 90.0   # s; nine Python processes start in ~10 s on two cores
-STOP_TIMEOUT = 10.0    # s for every node to exit after SIGINT before it is killed
+STOP_TIMEOUT = 10.0    # s for a group of nodes to exit after SIGINT before it is killed
 PROCESS_CHECK_PERIOD = 0.2   # s between checks that every node process still runs
 
 
@@ -86,6 +86,7 @@ def node_launches(experiment, experiment_path, with_robots=True, rate_hz=None,
             'law': experiment.gains.law,
             'adaptation': [float(g) for g in experiment.gains.adaptation],
             'observer_rate': float(experiment.gains.observer_rate),
+            'pinning': float(experiment.graph.follower_pinning),
             'heading': 'sampled' if experiment.gains.sampled_heading else 'paper',
             'wheel_base': float(limits.wheel_base),
             'max_wheel_speed': _finite_or_zero(limits.max_wheel_speed),
@@ -353,16 +354,24 @@ class Run:
                 self.bag_writer.close()
 
     def _stop_nodes(self):
-        for proc in self.processes.values():
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGINT)
-        deadline = time.monotonic() + STOP_TIMEOUT   # one deadline for all nodes together
-        for proc in self.processes.values():
-            try:
-                proc.wait(max(0.1, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(5)
+        # Controllers first, so that their last ticks and zero commands are acknowledged by
+        # the fake robots and the recorder, which are all still there; the runner spins
+        # meanwhile, so the recorder keeps draining its queue.
+        first = {k: p for k, p in self.processes.items() if k.endswith('formation_controller')}
+        for group in (first, {k: p for k, p in self.processes.items() if k not in first}):
+            deadline = time.monotonic() + STOP_TIMEOUT   # for the whole group together
+            for proc in group.values():
+                if proc.poll() is None:
+                    proc.send_signal(signal.SIGINT)
+            while time.monotonic() < deadline and any(p.poll() is None for p in group.values()):
+                if self.executor is not None:
+                    self.executor.spin_once(timeout_sec=0.02)
+                else:
+                    time.sleep(0.02)
+            for proc in group.values():
+                if proc.poll() is None:
+                    proc.kill()
+                    proc.wait(5)
         self.processes = {}
         if self.context is None:
             return
@@ -467,32 +476,50 @@ def run_experiment(config, out_dir, duration=None, single_process=False, with_ro
     result['interrupted'] = interrupted
     if bag_path is not None:
         result['bag'] = {'path': str(bag_path), 'messages': run.bag_writer.count,
-                         **bag_accounting(bag_path, run.publications_dir,
+                         **bag_accounting(bag_path, run.publications_dir, run.recorder.streams,
                                           run.best_effort_topics)}
         (run.out / 'metrics.json').write_text(json.dumps(result, indent=2) + '\n')
     return result
 
 
-def bag_accounting(bag_path, publications_dir, best_effort=()):
-    """Per recorded topic: messages the nodes published while subscribed, and in the bag.
+def bag_accounting(bag_path, publications_dir, streams, best_effort=()):
+    """Per recorded topic: messages the nodes published, should have recorded, and recorded.
 
-    `lost`: published but not in the bag, summed over the reliable topics (never negative per
-    topic: a bag may also hold messages published before a node counted the recorder).
-    `lost_best_effort`: the same over the `best_effort` topics (poses, images), whose samples
-    DDS may drop by design.
+    A DDS writer numbers its samples 1, 2, ... in publish order, so a writer stream (see
+    runtime.writer_key) of N publications whose first received sample was number f should
+    have put N - f + 1 in the bag, however late the recorder was matched. `streams` is the
+    recorder's tally (Recorder.streams). A stream never received counts whole, and so does
+    one with several writers or out of order. `lost`: expected but not in the bag, summed over
+    the reliable topics; `lost_best_effort`: the same over the `best_effort` topics (poses,
+    images), whose samples DDS may drop by design.
     """
     from curve_formation.bag import bag_summary
-    published = {}
+    published, writers = {}, {}
     for path in Path(publications_dir).glob('*.json'):
-        for topic, count in json.loads(path.read_text()).items():
-            published[topic] = published.get(topic, 0) + count
+        for key, count in json.loads(path.read_text()).items():
+            published[key] = published.get(key, 0) + count
+            writers[key] = writers.get(key, 0) + 1
     recorded = {topic: count for topic, (_, count) in bag_summary(bag_path).items()}
-    topics = {t: {'published': published.get(t, 0), 'recorded': n,
+
+    topics = {t: {'published': 0, 'expected': 0, 'recorded': n, 'lost': 0,
                   'best_effort': t in best_effort} for t, n in sorted(recorded.items())}
+    for key, count in published.items():
+        name = key.split(' ', 1)[0]
+        if name not in recorded:   # a topic the bag does not record, e.g. RViz markers
+            continue
+        stream = streams.get(key, {'first': 1, 'received': 0, 'in_order': True})
+        exact = writers[key] == 1 and stream['in_order']
+        expected = count - stream['first'] + 1 if exact else count
+        topic = topics[name]
+        topic['published'] += count
+        topic['expected'] += expected
+        topic['lost'] += max(0, expected - stream['received'])
+    for name, topic in topics.items():   # received but not written: the bag writer failed
+        received = sum(s['received'] for s in streams.values() if s['topic'] == name)
+        topic['lost'] += max(0, received - topic['recorded'])
 
     def lost(effort):
-        return sum(max(0, v['published'] - v['recorded']) for v in topics.values()
-                   if v['best_effort'] == effort)
+        return sum(v['lost'] for v in topics.values() if v['best_effort'] == effort)
     return {'topics': topics, 'lost': lost(False), 'lost_best_effort': lost(True),
             'published': sum(v['published'] for v in topics.values())}
 

@@ -8,13 +8,16 @@ import subprocess
 import sys
 import time
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import Twist
 import pytest
+import rclpy
 from rclpy.serialization import serialize_message
 
 from conftest import DATA_DIR
 from curve_formation.bag import bag_summary, BagError, BagWriter, qos, read_messages
-from curve_formation.nodes.runtime import PublicationCounter, RECORDER_NODE
+from curve_formation.nodes.runtime import PublicationCounter
+from curve_formation.runner import bag_accounting
 
 
 def test_write_then_read_round_trip(tmp_path):
@@ -33,42 +36,113 @@ def test_write_then_read_round_trip(tmp_path):
     assert (path / 'metadata.yaml').read_text().count('offered_qos_profiles') == 1
 
 
-class _GraphStub:
-    """A node and one publisher whose graph and matched readers a test sets by hand."""
+class _NodeStub:
+    """A node with a cmd_vel and a /diagnostics publisher that only count what they send."""
 
     def __init__(self):
-        self.graph = []     # node names of the subscriptions the graph lists
-        self.matched = 0    # subscriptions the publisher's writer has matched
         self.sent = 0
         stub = self
 
         class Publisher:
-            topic_name = '/robot_1/cmd_vel'
+            def __init__(self, topic_name):
+                self.topic_name = topic_name
 
             def publish(self, msg):
                 stub.sent += 1
 
-            def get_subscription_count(self):
-                return stub.matched
-
-        self.publishers = [Publisher()]
-
-    def get_subscriptions_info_by_topic(self, topic):
-        return [type('Info', (), {'node_name': name}) for name in self.graph]
+        self.publishers = [Publisher('/robot_1/cmd_vel'), Publisher('/diagnostics')]
 
 
-def test_publications_count_once_the_recorders_reader_is_matched():
-    node = _GraphStub()
+def test_publications_are_counted_per_writer_stream():
+    node = _NodeStub()
     counter = PublicationCounter(node)
-    publish = node.publishers[0].publish
-    node.graph, node.matched = ['monitor'], 1
-    publish(None)                                   # the recorder is not subscribed yet
-    node.graph = ['monitor', RECORDER_NODE]
-    publish(None)                                   # in the graph, not matched: not delivered
-    node.matched = 2
-    publish(None)
-    publish(None)
-    assert node.sent == 4 and counter.counts == {'/robot_1/cmd_vel': 2}
+    cmd, diagnostics = node.publishers
+    for _ in range(3):
+        cmd.publish(Twist())
+    for name in ('/robot_1/formation_controller', '/robot_1/formation_controller', 'other'):
+        diagnostics.publish(DiagnosticArray(status=[DiagnosticStatus(name=name)]))
+    assert node.sent == 6
+    assert counter.counts == {'/robot_1/cmd_vel': 3,
+                              '/diagnostics /robot_1/formation_controller': 2,
+                              '/diagnostics other': 1}
+
+
+def accounting(tmp_path, publications, streams, recorded):
+    """bag_accounting over node files `publications` ([{key: count}]) and a bag holding
+    `recorded` ({topic: count}) cmd_vel-typed messages.
+    """
+    folder = tmp_path / 'publications'
+    folder.mkdir(parents=True)
+    for k, counts in enumerate(publications):
+        (folder / f'node{k}.json').write_text(json.dumps(counts))
+    with BagWriter(tmp_path / 'bag') as writer:
+        for topic, count in recorded.items():
+            writer.add_topic(topic, 'geometry_msgs/msg/Twist', qos())
+            for k in range(count):
+                writer.write(topic, k + 1, serialize_message(Twist()))
+    return bag_accounting(tmp_path / 'bag', folder, streams)
+
+
+def stream(topic, first, received, in_order=True):
+    return {'topic': topic, 'first': first, 'last': first + received - 1,
+            'received': received, 'in_order': in_order}
+
+
+@pytest.mark.parametrize('received, recorded, lost', [
+    (7, 7, 0),    # the recorder matched at the 4th of 10: nothing after it is missing
+    (6, 6, 1),    # one of the seven from the 4th on never arrived
+    (7, 6, 1),    # arrived but not written
+])
+def test_the_bag_accounting_starts_at_the_first_sample_recorded(tmp_path, received, recorded,
+                                                                 lost):
+    cmd = '/robot_1/cmd_vel'
+    out = accounting(tmp_path, [{cmd: 10}], {cmd: stream(cmd, 4, received)}, {cmd: recorded})
+    assert out['lost'] == lost and out['published'] == 10
+    assert out['topics'][cmd]['expected'] == 7
+
+
+def test_the_bag_accounting_counts_whole_what_it_cannot_place(tmp_path):
+    cmd, diag = '/robot_1/cmd_vel', '/diagnostics'
+    out = accounting(
+        tmp_path,
+        [{cmd: 10, f'{diag} a': 5}, {cmd: 8}],     # two nodes wrote cmd_vel
+        {cmd: stream(cmd, 1, 17, in_order=False), f'{diag} a': stream(diag, 1, 5)},
+        {cmd: 17, diag: 5, '/robot_2/cmd_vel': 0})
+    assert out['topics'][cmd]['expected'] == 18 and out['topics'][cmd]['lost'] == 1
+    assert out['topics'][diag]['lost'] == 0
+    out = accounting(tmp_path / 'x', [{cmd: 4}], {}, {cmd: 0})    # never received
+    assert out['lost'] == 4
+
+
+def test_a_late_recorder_accounts_exactly_over_dds(ros, tmp_path):
+    """Messages published before the recorder was matched are not expected in the bag; the
+    ones after are, to the message, and their DDS sequence numbers say which is which.
+    """
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    from curve_formation.nodes import qos as node_qos
+    from curve_formation.nodes.recorder import Recorder
+    context, add, spin_until = ros
+    node = add(rclpy.create_node('talker', context=context))
+    cmd = '/robot_1/cmd_vel'
+    publisher = node.create_publisher(Twist, cmd, QoSProfile(
+        depth=10, reliability=ReliabilityPolicy.RELIABLE))
+    counter = PublicationCounter(node)
+    for _ in range(5):
+        publisher.publish(Twist())
+    with BagWriter(tmp_path / 'bag') as writer:
+        recorder = add(Recorder(writer, [(cmd, Twist, node_qos.COMMAND)], context=context))
+        spin_until(lambda: publisher.get_subscription_count() == 1)
+        for _ in range(20):
+            publisher.publish(Twist())
+        spin_until(lambda: recorder.received[cmd] == 20)
+    folder = tmp_path / 'publications'
+    folder.mkdir()
+    counter.save(folder, 'talker')
+    out = bag_accounting(tmp_path / 'bag', folder, recorder.streams)
+    assert recorder.streams[cmd]['first'] == 6 and recorder.streams[cmd]['in_order']
+    assert out['topics'][cmd] == {'published': 25, 'expected': 20, 'recorded': 20, 'lost': 0,
+                                  'best_effort': False}
 
 
 def test_existing_path_is_refused(tmp_path):

@@ -106,7 +106,8 @@ def test_dropped_messages_and_latency_still_converge_at_arena_speeds(ros_domain,
         data = run.recording()
     # The faults drop messages before they are published: the bag has every one that was
     # (poses are best effort: DDS may drop a few under this load, measured 0 to 7 of ~7000).
-    accounting = bag_accounting(tmp_path / 'bag', run.publications_dir, run.best_effort_topics)
+    accounting = bag_accounting(tmp_path / 'bag', run.publications_dir, run.recorder.streams,
+                                run.best_effort_topics)
     assert accounting['published'] > 10_000 and accounting['lost'] == 0, accounting
     assert accounting['lost_best_effort'] < 0.005 * accounting['published'], accounting
     norm = metrics.error_norm(metrics.target_errors(

@@ -54,6 +54,7 @@ class AgentConfig:
     index: int
     agent_count: int
     neighbours: tuple = ()          # ((j, a_ij), ...) in-neighbours, empty for the leader
+    pinning: float = 0.0            # a follower's weight b on its own error (DirectedGraph)
     gains: Gains = Gains(1.0, 1.0, 0.01)
     limits: WheelLimits = NO_LIMITS
     rate_hz: float = 10.0
@@ -228,7 +229,7 @@ class AgentController:
                     return self._stop(f'neighbour {j} is on curve {nb.curve_id}, this robot on '
                                       f'{self.curve_id}', base)
             fx, fy = follower_feedback(ex, ey, [nb.error for nb in self.neighbours.values()],
-                                       [w for _, w in cfg.neighbours])
+                                       [w for _, w in cfg.neighbours], cfg.pinning)
             base.neighbour_stamps = tuple((j, nb.stamp) for j, nb in self.neighbours.items())
         gains = cfg.gains
         period = 1.0 / cfg.rate_hz

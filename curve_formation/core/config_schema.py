@@ -73,6 +73,10 @@ class EdgeSpec(Strict):
 class GraphSpec(Strict):
     leader: int = Field(1, ge=1)
     edges: list[EdgeSpec]
+    pinning: float = Field(
+        0.0, ge=0, allow_inf_nan=False,
+        description="weight b of each follower's own target error in its feedback, "
+        "b e_i + sum_j a_ij (e_i - e_j) (the leader's is 1); 0 = the paper's consensus law")
 
 
 class ControllerSpec(Strict):

@@ -217,10 +217,12 @@ def leader_feedback(ex, ey):
     return ex, ey
 
 
-def follower_feedback(ex, ey, neighbour_errors, weights):
-    """A follower's feedback sum_j a_ij (e_i - e_j) from its in-neighbours' errors (k, 2)."""
-    fx = 0.0
-    fy = 0.0
+def follower_feedback(ex, ey, neighbour_errors, weights, pinning=0.0):
+    """A follower's feedback b e_i + sum_j a_ij (e_i - e_j) (m) from its own error, its
+    in-neighbours' errors (k, 2) and its pinning weight b (0 in the paper).
+    """
+    fx = pinning * ex
+    fy = pinning * ey
     for j in range(len(weights)):
         fx += weights[j] * (ex - neighbour_errors[j][0])
         fy += weights[j] * (ey - neighbour_errors[j][1])

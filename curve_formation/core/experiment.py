@@ -139,7 +139,7 @@ def _build(spec, source):
     n = spec.agents.count
     try:
         graph = DirectedGraph(n, [Edge(e.source, e.target, e.weight) for e in spec.graph.edges],
-                              leader=spec.graph.leader)
+                              leader=spec.graph.leader, follower_pinning=spec.graph.pinning)
         graph.certificate()
     except GraphError as exc:
         raise ConfigError(source, 'graph', str(exc)) from None

@@ -35,13 +35,21 @@ class Certificate:
 
 
 class DirectedGraph:
-    """Weighted directed graph over agents 1..n with agent `leader` as root."""
+    """Weighted directed graph over agents 1..n with agent `leader` as root.
 
-    def __init__(self, n, edges, leader=1):
+    follower_pinning b >= 0 weighs each follower's own target error in its feedback
+    (b e_i + sum_j a_ij (e_i - e_j)); the paper has b = 0. Any b keeps Theorem 1: L + B
+    stays a nonsingular M-matrix, and certificate() checks P and Q.
+    """
+
+    def __init__(self, n, edges, leader=1, follower_pinning=0.0):
         self.n = int(n)
         if self.n < 1:
             raise GraphError(f'a formation needs at least one agent, got n = {n}')
         self.leader = int(leader)
+        self.follower_pinning = float(follower_pinning)
+        if not (self.follower_pinning >= 0 and np.isfinite(self.follower_pinning)):
+            raise GraphError(f'follower pinning must be finite and >= 0, got {follower_pinning}')
         self.edges = tuple(Edge(int(e.source), int(e.target), float(e.weight)) for e in edges)
         self.adjacency = np.zeros((self.n, self.n))
         for edge in self.edges:
@@ -114,9 +122,14 @@ class DirectedGraph:
 
     @property
     def pinning(self):
-        """B = diag(1 for the leader, 0 otherwise): (n, n), the paper's Lambda."""
-        b = np.zeros((self.n, self.n))
-        b[self.leader - 1, self.leader - 1] = 1.0
+        """B = diag(1 for the leader, b for the followers): (n, n), the paper's Lambda."""
+        return np.diag(self.pins)
+
+    @property
+    def pins(self):
+        """diag(B): (n,), each agent's weight on its own target error."""
+        b = np.full(self.n, self.follower_pinning)
+        b[self.leader - 1] = 1.0
         return b
 
     @property

@@ -77,7 +77,7 @@ MAX_TURN_PER_SUBSTEP = 0.05
 
 
 @numba.njit(cache=True)
-def _controls(poses, dhat, targets, tgt, src, wts, leader, law, k1, k2, offset, gamma_v, gamma_w,
+def _controls(poses, dhat, targets, tgt, src, wts, pins, law, k1, k2, offset, gamma_v, gamma_w,
               period, observer_rate, on_pc, d_pc, d_robot, wheel_base, vmax, wmax, err, fb,
               motion, cmd, ref, ddhat):
     """Evaluate the law for all agents: fills err, fb, cmd (sent), motion (actual), ref, ddhat.
@@ -91,10 +91,8 @@ def _controls(poses, dhat, targets, tgt, src, wts, leader, law, k1, k2, offset, 
     for i in range(n):
         err[i, 0] = poses[i, 0] + offset * math.cos(poses[i, 2]) - targets[i, 0]
         err[i, 1] = poses[i, 1] + offset * math.sin(poses[i, 2]) - targets[i, 1]
-        fb[i, 0] = 0.0
-        fb[i, 1] = 0.0
-    fb[leader, 0] = err[leader, 0]
-    fb[leader, 1] = err[leader, 1]
+        fb[i, 0] = pins[i] * err[i, 0]
+        fb[i, 1] = pins[i] * err[i, 1]
     for k in range(tgt.shape[0]):
         i = tgt[k]
         j = src[k]
@@ -134,7 +132,7 @@ def _arc_step(poses, motion, dt):
 
 
 @numba.njit(cache=True)
-def _run(poses, dhat, targets, tgt, src, wts, leader, law, k1, k2, offset, gamma_v, gamma_w,
+def _run(poses, dhat, targets, tgt, src, wts, pins, law, k1, k2, offset, gamma_v, gamma_w,
          period, observer_rate, on_pc, d_pc, d_robot, wheel_base, vmax, wmax, dt, step0, steps,
          control_every, record_every, motion, cmd, ref, tick_offsets, start_steps, rec_poses,
          rec_dhat, rec_cmd):
@@ -165,7 +163,7 @@ def _run(poses, dhat, targets, tgt, src, wts, leader, law, k1, k2, offset, gamma
                             dhat[i, 0], dhat[i, 1], motion[i, 0], motion[i, 1], ref[i, 0],
                             ref[i, 1], k2, blend)
             if ticking:
-                _controls(poses, dhat, targets, tgt, src, wts, leader, law, k1, k2, offset,
+                _controls(poses, dhat, targets, tgt, src, wts, pins, law, k1, k2, offset,
                           gamma_v, gamma_w, period, observer_rate, on_pc, d_pc, d_robot,
                           wheel_base, vmax, wmax, err, fb, new_motion, new_cmd, new_ref, ddhat)
                 for i in range(n):
@@ -196,7 +194,7 @@ def _run(poses, dhat, targets, tgt, src, wts, leader, law, k1, k2, offset, gamma
     p_stage = np.zeros((n, 3))
     d_stage = np.zeros((n, 2))
     for step in range(step0, step0 + steps):
-        _controls(poses, dhat, targets, tgt, src, wts, leader, law, k1, k2, offset, gamma_v,
+        _controls(poses, dhat, targets, tgt, src, wts, pins, law, k1, k2, offset, gamma_v,
                   gamma_w, 0.0, observer_rate, on_pc, d_pc, d_robot, wheel_base, vmax, wmax,
                   err, fb, motion, cmd, ref, ddhat)
         if step % record_every == 0:
@@ -217,7 +215,7 @@ def _run(poses, dhat, targets, tgt, src, wts, leader, law, k1, k2, offset, gamma
                         p_stage[i, c] = poses[i, c] + frac * kp[stage - 1, i, c]
                     for c in range(2):
                         d_stage[i, c] = dhat[i, c] + frac * kd[stage - 1, i, c]
-                _controls(p_stage, d_stage, targets, tgt, src, wts, leader, law, k1, k2,
+                _controls(p_stage, d_stage, targets, tgt, src, wts, pins, law, k1, k2,
                           offset, gamma_v, gamma_w, 0.0, observer_rate, on_pc, d_pc, d_robot,
                           wheel_base, vmax, wmax, err, fb, motion, cmd, ref, ddhat)
                 for i in range(n):
@@ -320,7 +318,7 @@ def simulate(experiment, rate_hz='config', duration=None, dt=None, record_dt=Non
         if a >= total:
             break
         _run(poses, dhat, np.ascontiguousarray(phase.targets), tgt, src, wts,
-             experiment.graph.leader - 1, gains.law_code, gains.k1, gains.k2, gains.offset,
+             experiment.graph.pins, gains.law_code, gains.k1, gains.k2, gains.offset,
              gamma_v, gamma_w, gains.hold_period(rate_hz), gains.observer_rate, on_pc, d_pc,
              d_robot, limits.wheel_base, limits.max_wheel_speed, limits.max_angular_rate, dt, a,
              min(b, total) - a, control_every, record_every, motion, cmd, ref, tick_offsets,

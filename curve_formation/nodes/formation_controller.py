@@ -8,6 +8,8 @@ stale input gives a zero Twist and a warning, never a stale command. All the mat
 core.agent.AgentController.
 """
 
+import time
+
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, Twist, Vector3Stamped
 import numpy as np
@@ -32,6 +34,8 @@ PARAMETERS = (
     Param('in_neighbours', 'int[]', [], 'agents j this robot receives from (empty for the '
           'leader)'),
     Param('weights', 'double[]', [], 'edge weights a_ij, one per in-neighbour (empty = all 1)'),
+    Param('pinning', 'double', 0.0, "a follower's weight b on its own target error, added to "
+          "its neighbours' (0 = the paper's consensus law)", low=0.0),
     Param('k1', 'double', 1.0, 'gain on the target error (1/s)', positive=True),
     Param('k2', 'double', 1.0, 'disturbance estimator gain; 0 = estimator off', low=0.0),
     Param('offset', 'double', 0.01, 'offset l of the control point ahead of the axle (m), '
@@ -110,7 +114,7 @@ def agent_config(p):
     inf = float('inf')
     return AgentConfig(
         index=p.index, agent_count=p.agent_count,
-        neighbours=tuple(zip(p.in_neighbours, weights, strict=True)),
+        neighbours=tuple(zip(p.in_neighbours, weights, strict=True)), pinning=p.pinning,
         gains=Gains(p.k1, p.k2, p.offset, law=p.law, adaptation=tuple(p.adaptation),
                     observer_rate=p.observer_rate, sampled_heading=p.heading == 'sampled'),
         limits=WheelLimits(p.wheel_base, p.max_wheel_speed or inf, p.max_angular_rate or inf),
@@ -234,9 +238,13 @@ class FormationController(Node):
         self.diag_pub.publish(msg)
 
     def on_shutdown(self):
-        """Leave the robot stopped: send a zero command and wait until it is acknowledged."""
+        """Leave the robot stopped: send a zero command, then wait (2 s at most) until every
+        reader acknowledged it and the last ticks, so a recorder misses none of them.
+        """
         self.cmd_pub.publish(Twist())
-        self.cmd_pub.wait_for_all_acked(Duration(seconds=1.0))
+        end = time.monotonic() + 2.0
+        for publisher in (self.cmd_pub, self.tick_pub, self.state_pub, self.estimate_pub):
+            publisher.wait_for_all_acked(Duration(seconds=max(0.0, end - time.monotonic())))
 
 
 def main(args=None):

@@ -10,13 +10,14 @@ from geometry_msgs.msg import PoseArray, PoseStamped, Twist, Vector3Stamped
 from nav_msgs.msg import Path
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import Bool, Float64MultiArray
 
 from curve_formation import bag
 from curve_formation.nodes import qos, topics
 from curve_formation.nodes.params import declare_parameters, Param, ParameterError
-from curve_formation.nodes.runtime import RECORDER_NODE, run_node
+from curve_formation.nodes.runtime import RECORDER_NODE, run_node, writer_key
 
 
 def formation_topics(n):
@@ -57,24 +58,43 @@ RECORD_DEPTH = 500
 
 
 class Recorder(Node):
-    """Writes every message of the given topics, as received, to an open bag.BagWriter."""
+    """Writes every message of the given topics, as received, to an open bag.BagWriter.
+
+    `streams` tallies each writer stream (runtime.writer_key): the DDS sequence number of the
+    first message received, the last one, how many arrived and whether they came in order
+    (they do from a single writer), from which runner.bag_accounting tells what was lost.
+    """
 
     def __init__(self, writer, topic_list, **kwargs):
         super().__init__(RECORDER_NODE, start_parameter_services=False, **kwargs)
         self.writer = writer
         self.received = {}
+        self.streams = {}
         for topic, msg_class, profile in topic_list:
             writer.add_topic(topic, type_name(msg_class), bag_qos(profile))
             self.received[topic] = 0
             deep = QoSProfile(depth=RECORD_DEPTH, reliability=profile.reliability,
                               durability=profile.durability)
-            self.create_subscription(msg_class, topic,
-                                     lambda data, topic=topic: self._on_message(topic, data),
-                                     deep, raw=True, event_callbacks=qos.observer_events())
+            keyed = msg_class if msg_class is DiagnosticArray else None
+            self.create_subscription(
+                msg_class, topic,
+                lambda data, info, topic=topic, keyed=keyed:
+                    self._on_message(topic, data, info, keyed),
+                deep, raw=True, event_callbacks=qos.observer_events())
 
-    def _on_message(self, topic, data):
+    def _on_message(self, topic, data, info, keyed=None):
         self.received[topic] += 1
         self.writer.write(topic, self.get_clock().now().nanoseconds, data)
+        key = topic if keyed is None else writer_key(topic, deserialize_message(data, keyed))
+        seq = info['publication_sequence_number']
+        stream = self.streams.get(key)
+        if stream is None:
+            self.streams[key] = {'topic': topic, 'first': seq, 'last': seq, 'received': 1,
+                                 'in_order': seq is not None}
+            return
+        stream['received'] += 1
+        stream['in_order'] = stream['in_order'] and seq is not None and seq > stream['last']
+        stream['last'] = seq
 
 
 PARAMETERS = (

@@ -22,47 +22,44 @@ SIGNAL_CHECK_PERIOD = 0.2   # s, longest wait before a signal is acted on
 EXECUTOR_ENV = 'CURVE_FORMATION_EXECUTOR'
 EXECUTORS = ('events', 'single')
 # Set by the runner: a folder where each node process writes, when it ends, how many messages
-# it published per topic while someone subscribed (to check that a bag lost nothing).
+# it published per writer stream (to check that a bag lost nothing).
 PUBLICATIONS_ENV = 'CURVE_FORMATION_PUBLICATIONS'
 RECORDER_NODE = 'formation_recorder'
 
 
-class PublicationCounter:
-    """Counts a node's publications per topic once the bag recorder receives the topic.
+def writer_key(topic, msg):
+    """Names one writer's stream within a topic, the same way for publisher and recorder.
 
-    A message counts once the recorder (recognised by its node name) subscribes to the topic
-    and this publisher has matched as many subscriptions as the graph lists: the graph can
-    list the recorder's reader before the writer has matched it, and a message published in
-    between reaches other subscribers but not the bag.
+    A formation topic has one writer, so its name suffices; /diagnostics has many, and each of
+    our nodes puts its own name first in its DiagnosticArray, so that name is added.
+    """
+    status = getattr(msg, 'status', None)
+    if status:
+        return f'{topic} {status[0].name}'
+    return topic
+
+
+class PublicationCounter:
+    """Counts a node's publications per writer stream (see writer_key), from its first one.
+
+    A DDS writer numbers its samples 1, 2, ... in publish order, and the recorder notes the
+    first number it received of each stream; so what it should hold is every publication from
+    that one on, however late it was matched (see runner.bag_accounting).
     """
 
-    def __init__(self, node, recorder_name=RECORDER_NODE):
+    def __init__(self, node):
         self.node = node
-        self.recorder_name = recorder_name
         self.counts = {}
         for publisher in node.publishers:
             self._wrap(publisher)
 
-    def _recorder_readers(self, topic):
-        """Subscriptions to `topic` in the graph if the recorder's is among them, else None."""
-        infos = self.node.get_subscriptions_info_by_topic(topic)
-        if any(info.node_name == self.recorder_name for info in infos):
-            return len(infos)
-        return None
-
     def _wrap(self, publisher):
         topic = publisher.topic_name
-        self.counts.setdefault(topic, 0)
         publish = publisher.publish
-        recorded = False
 
         def counted(msg):
-            nonlocal recorded
-            if not recorded:
-                readers = self._recorder_readers(topic)
-                recorded = readers is not None and publisher.get_subscription_count() >= readers
-            if recorded:
-                self.counts[topic] += 1
+            key = writer_key(topic, msg)
+            self.counts[key] = self.counts.get(key, 0) + 1
             publish(msg)
         publisher.publish = counted
 
