@@ -38,7 +38,7 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 
 
-CASES = ('closed_curve', 'open_curve', 'shape_change', 'mona_arena', 'mona_arena/nearest')
+CASES = ('closed_curve', 'open_curve', 'shape_change', 'mona_arena', 'mona_arena/paper')
 MODES = (('continuous', None), ('10 Hz', 10.0))
 TURN_BOUND = 10.0   # rad/s, for the paper heading at 10 Hz when a case has no limits
 
@@ -79,12 +79,15 @@ def one_run(case, gains, rate, start, disturbance=None):
 
 
 def load_case(name):
-    """A shipped experiment; '<name>/nearest' is the same with `assignment: nearest`."""
-    base, _, assignment = name.partition('/')
-    if not assignment:
+    """A shipped experiment; 'mona_arena/paper' is the arena case with the paper's agents and
+    graph (fixed assignment, no follower pinning).
+    """
+    base, _, variant = name.partition('/')
+    if not variant:
         return load_experiment(resolve_config(base))
     data = yaml.safe_load(resolve_config(base).read_text())
-    data['agents']['assignment'] = assignment
+    data['agents']['assignment'] = 'fixed'
+    data['graph']['pinning'] = 0.0
     return build_experiment(data, name)
 
 

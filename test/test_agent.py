@@ -21,7 +21,8 @@ def controllers_for(experiment, rate_hz):
     for i in range(1, experiment.n + 1):
         cfg = AgentConfig(index=i, agent_count=experiment.n,
                           neighbours=tuple(experiment.graph.in_neighbours(i)),
-                          gains=experiment.gains, limits=experiment.limits, rate_hz=rate_hz,
+                          pinning=experiment.graph.follower_pinning, gains=experiment.gains,
+                          limits=experiment.limits, rate_hz=rate_hz,
                           spacing=experiment.spec.agents.spacing)
         ctrl = AgentController(cfg)
         # the parameters the curve server sends with the curve
@@ -30,17 +31,20 @@ def controllers_for(experiment, rate_hz):
     return out
 
 
-def nearest_arena():
-    """The arena case with `assignment: nearest`."""
+def fixed_arena():
+    """The arena case as the paper has it: `assignment: fixed`, no follower pinning."""
     data = yaml.safe_load(resolve_config('mona_arena').read_text())
-    data['agents']['assignment'] = 'nearest'
-    return build_experiment(data, 'mona_arena (nearest)')
+    data['agents']['assignment'] = 'fixed'
+    data['graph']['pinning'] = 0.0
+    return build_experiment(data, 'mona_arena (fixed)')
 
 
-@pytest.mark.parametrize('name', ['mona_arena', str(DATA_DIR / 'fast_closed.yaml'), 'nearest'])
+@pytest.mark.parametrize('name', ['mona_arena', str(DATA_DIR / 'fast_closed.yaml'), 'fixed'])
 def test_node_controllers_reproduce_the_simulator_exactly(name):
-    """n AgentControllers ticked together at 10 Hz with exact unicycle steps == simulate()."""
-    experiment = nearest_arena() if name == 'nearest' else load_experiment(resolve_config(name))
+    """n AgentControllers ticked together at 10 Hz with exact unicycle steps == simulate()
+    (the shipped arena case has nearest assignment and follower pinning).
+    """
+    experiment = fixed_arena() if name == 'fixed' else load_experiment(resolve_config(name))
     rate, dt, duration = 10.0, 0.001, 5.0
     ctrls = controllers_for(experiment, rate)
     on_pc = experiment.spec.disturbance.injected == 'on_pc'
@@ -211,8 +215,9 @@ def test_acceleration_limit_ramps_up_but_stops_at_once():
 
 
 def test_nearest_assignment_shortens_the_longest_trip_and_follows_the_switches():
-    experiment = nearest_arena()
-    fixed = load_experiment(resolve_config('mona_arena'))
+    experiment = load_experiment(resolve_config('mona_arena'))
+    assert experiment.spec.agents.assignment == 'nearest'
+    fixed = fixed_arena()
     starts = fixed.initial_poses[:, :2]
     phase0 = experiment.phases[0]
     np.testing.assert_allclose(np.sort(phase0.s), np.sort(fixed.phases[0].s))

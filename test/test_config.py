@@ -45,6 +45,7 @@ BROKEN = [
                                               {'from': 4, 'to': 3}, {'from': 4, 'to': 5},
                                               {'from': 5, 'to': 6}], 'graph',
      'no spanning tree'),
+    ('negative pinning', ('graph', 'pinning'), -1.0, 'graph.pinning', 'greater than or equal'),
     ('two leaders', ('graph', 'edges'), [{'from': 1, 'to': 2}, {'from': 2, 'to': 3}],
      'graph', 'receive from nobody'),
     ('too few harmonics', ('curves', 0, 'harmonics'), 2, 'curves[0]', 'Assumption 2'),

@@ -8,14 +8,15 @@ def chain(n):
     return [Edge(i, i + 1) for i in range(1, n)]
 
 
-def random_rooted_graph(rng, n):
+def random_rooted_graph(rng, n, pinning=0.0):
     """A random spanning tree from agent 1 plus random extra edges (none into the leader)."""
     edges = {(int(rng.integers(1, i)), i): float(rng.uniform(0.2, 2)) for i in range(2, n + 1)}
     for _ in range(n):
         a, b = rng.integers(1, n + 1, size=2)
         if a != b and b != 1:
             edges.setdefault((int(a), int(b)), float(rng.uniform(0.2, 2)))
-    return DirectedGraph(n, [Edge(a, b, w) for (a, b), w in edges.items()])
+    return DirectedGraph(n, [Edge(a, b, w) for (a, b), w in edges.items()],
+                         follower_pinning=pinning)
 
 
 def test_laplacian_as_in_the_paper():
@@ -29,7 +30,9 @@ def test_laplacian_as_in_the_paper():
 @pytest.mark.parametrize('seed', range(20))
 def test_certificate_positive_definite_on_random_rooted_graphs(seed):
     rng = np.random.default_rng(seed)
-    g = random_rooted_graph(rng, int(rng.integers(2, 30)))
+    # every other graph pins its followers too (b e_i added to their feedback)
+    g = random_rooted_graph(rng, int(rng.integers(2, 30)), (seed % 2) * rng.uniform(0.1, 3))
+    np.testing.assert_allclose(np.diag(g.feedback_matrix - g.laplacian), g.pins)
     cert = g.certificate()
     assert cert.min_eig_P > 0 and cert.min_eig_Q > 0
     m = g.feedback_matrix
@@ -47,6 +50,12 @@ def test_certificate_positive_definite_on_random_rooted_graphs(seed):
 def test_refuses_unusable_graphs(n, edges, fragment):
     with pytest.raises(GraphError, match=fragment):
         DirectedGraph(n, edges)
+
+
+@pytest.mark.parametrize('pinning', [-0.5, float('nan'), float('inf')])
+def test_refuses_a_bad_follower_pinning(pinning):
+    with pytest.raises(GraphError, match='pinning'):
+        DirectedGraph(3, chain(3), follower_pinning=pinning)
 
 
 def test_unreachable_cycle_is_refused_as_no_spanning_tree():

@@ -230,7 +230,8 @@ def law_on_bag_inputs(bag):
         ctrl = AgentController(AgentConfig(
             index=i, agent_count=experiment.n, neighbours=tuple(
                 experiment.graph.in_neighbours(i)), gains=experiment.gains,
-            limits=experiment.limits, rate_hz=experiment.spec.controller.rate_hz))
+            pinning=experiment.graph.follower_pinning, limits=experiment.limits,
+            rate_hz=experiment.spec.controller.rate_hz))
         ctrl.set_curve(phase.curve, 0, phase.s)
         pose = poses[i, round(tick['pose_stamp'], 9)]
         ctrl.on_pose(*pose)

@@ -20,6 +20,8 @@ from curve_formation.core.dynamics import chord_ratio
 # Disturbance estimators, by name in the experiment YAML (`controller.law`) and by code in the
 # compiled simulator.
 LAWS = {'paper': 0, 'adaptive': 1, 'observer': 2}
+# Share of the wheel and turn-rate limits the observer law's feedback may use (observer_input).
+FEEDBACK_HEADROOM = 0.95
 
 
 @dataclass(frozen=True)
@@ -144,10 +146,14 @@ def observer_input(fx, fy, theta, dhat_v, dhat_w, k1, k2, offset, period, wheel_
     The feedback part of agent_input (fx, fy, period as there) is saturated before the
     compensation is subtracted, so that a command saturated by the limits is never mistaken
     for a disturbance: at dhat = d / k2 the robot moves exactly as the saturated feedback asks.
+    It is saturated to FEEDBACK_HEADROOM of the limits, strictly inside them: where the
+    disturbance is added before the limits (on the PC), a feedback on the limit would move the
+    robot the same for a whole ray of estimates, along which the estimate drifts.
     """
     v, w, _, _ = agent_input(fx, fy, 0.0, 0.0, theta, 0.0, 0.0, k1, k2, offset, 1.0, 1.0,
                              period)
-    v, w = saturate(v, w, wheel_base, max_wheel_speed, max_angular_rate)
+    v, w = saturate(v, w, wheel_base, FEEDBACK_HEADROOM * max_wheel_speed,
+                    FEEDBACK_HEADROOM * max_angular_rate)
     return v - k2 * dhat_v, w - k2 * dhat_w
 
 
