@@ -58,9 +58,12 @@ def commands_during(data, robot, start, end):
     return np.abs(data['commands'][window, robot - 1]).sum(axis=1)
 
 
-@pytest.mark.parametrize('fault', [{'hide': [9]}, {'duplicate_of': 9,
-                                                     'duplicate_at': [0.3, 0.4]}],
-                         ids=['marker covered', 'marker id seen twice'])
+# The duplicate-id case behind `-m slow` (28 s): the tracker's refusal of an id seen twice is
+# tested in test_camera_nodes, and what the loop does with a missing pose is the covered case.
+@pytest.mark.parametrize('fault', [
+    pytest.param({'hide': [9]}, id='marker covered'),
+    pytest.param({'duplicate_of': 9, 'duplicate_at': [0.3, 0.4]}, id='marker id seen twice',
+                 marks=pytest.mark.slow)])
 def test_a_lost_marker_stops_its_robot_for_as_long_and_only_it(ros_domain, tmp_path, fault):
     """Robot 9 (a leaf: nobody follows it) loses its pose for 2 s from t = 4 s."""
     camera = dict(fault, fault_from=4.0, fault_for=2.0)

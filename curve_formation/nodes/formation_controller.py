@@ -238,11 +238,11 @@ class FormationController(Node):
         self.diag_pub.publish(msg)
 
     def on_shutdown(self):
-        """Leave the robot stopped: send a zero command, then wait (2 s at most) until every
+        """Leave the robot stopped: send a zero command, then wait (1 s at most) until every
         reader acknowledged it and the last ticks, so a recorder misses none of them.
         """
         self.cmd_pub.publish(Twist())
-        end = time.monotonic() + 2.0
+        end = time.monotonic() + 1.0
         for publisher in (self.cmd_pub, self.tick_pub, self.state_pub, self.estimate_pub):
             publisher.wait_for_all_acked(Duration(seconds=max(0.0, end - time.monotonic())))
 
