@@ -100,9 +100,12 @@ def test_closed_curve_matches_the_batch_simulator_and_converges(ros_domain, tmp_
     assert np.nanmax(np.abs(cmd[..., 0]) + 0.05 * np.abs(cmd[..., 1])) <= 2.0 + 1e-9
 
 
+@pytest.mark.slow
 def test_observer_law_learns_the_disturbance_from_camera_rate_poses(ros_domain, tmp_path):
     """The shipped law over DDS: each node estimates d from differences of 30 Hz poses (not
     the exact held motion the simulator uses) and still settles as the simulator predicts.
+    Behind `-m slow` (41 s): the default run's camera loop test also has the observer learn
+    d from 30 Hz (camera) poses over DDS and settle as the simulator predicts.
     """
     with Run(DATA_DIR / 'fast_disturbed.yaml', tmp_path, log=quiet) as run:
         run.spin_for(28.0)
