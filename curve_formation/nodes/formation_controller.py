@@ -8,8 +8,6 @@ stale input gives a zero Twist and a warning, never a stale command. All the mat
 core.agent.AgentController.
 """
 
-import time
-
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, Twist, Vector3Stamped
 import numpy as np
@@ -238,13 +236,14 @@ class FormationController(Node):
         self.diag_pub.publish(msg)
 
     def on_shutdown(self):
-        """Leave the robot stopped: send a zero command, then wait (1 s at most) until every
-        reader acknowledged it and the last ticks, so a recorder misses none of them.
+        """Leave the robot stopped: send a zero command and wait (1 s at most) until it is
+        acknowledged, then (0.25 s at most per topic) for the last ticks, so that a recorder
+        misses none of them.
         """
         self.cmd_pub.publish(Twist())
-        end = time.monotonic() + 1.0
-        for publisher in (self.cmd_pub, self.tick_pub, self.state_pub, self.estimate_pub):
-            publisher.wait_for_all_acked(Duration(seconds=max(0.0, end - time.monotonic())))
+        self.cmd_pub.wait_for_all_acked(Duration(seconds=1.0))
+        for publisher in (self.tick_pub, self.state_pub, self.estimate_pub):
+            publisher.wait_for_all_acked(Duration(seconds=0.25))
 
 
 def main(args=None):
