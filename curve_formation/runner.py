@@ -25,7 +25,7 @@ import yaml
 from curve_formation.analysis import EXPERIMENT_KEY
 from curve_formation.core import metrics, plots
 from curve_formation.core.experiment import load_experiment
-from curve_formation.nodes.runtime import PublicationCounter, PUBLICATIONS_ENV
+from curve_formation.nodes.runtime import PublicationCounter, PUBLICATIONS_ENV, stream_topic
 from curve_formation.paths import resolve_config, use_dds_profile
 
 
@@ -504,7 +504,7 @@ def bag_accounting(bag_path, publications_dir, streams, best_effort=()):
     topics = {t: {'published': 0, 'expected': 0, 'recorded': n, 'lost': 0,
                   'best_effort': t in best_effort} for t, n in sorted(recorded.items())}
     for key, count in published.items():
-        name = key.split(' ', 1)[0]
+        name = stream_topic(key)
         if name not in recorded:   # a topic the bag does not record, e.g. RViz markers
             continue
         stream = streams.get(key, {'first': 1, 'received': 0, 'in_order': True})

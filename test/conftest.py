@@ -27,6 +27,17 @@ def closed_curve_dict():
 def arena_dict():
     return yaml.safe_load((CONFIG_DIR / 'mona_arena.yaml').read_text())
 
+
+def paper_arena():
+    """The shipped Mona arena case with the paper's agents and graph: fixed assignment, no
+    follower pinning.
+    """
+    from curve_formation.core.experiment import build_experiment
+    data = yaml.safe_load((CONFIG_DIR / 'mona_arena.yaml').read_text())
+    data['agents']['assignment'] = 'fixed'
+    data['graph']['pinning'] = 0.0
+    return build_experiment(data, 'mona_arena (paper agents and graph)')
+
 DATA_DIR = Path(__file__).resolve().parent / 'data'
 
 

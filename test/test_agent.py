@@ -4,14 +4,13 @@ import math
 
 import numpy as np
 import pytest
-import yaml
 
-from conftest import DATA_DIR
+from conftest import DATA_DIR, paper_arena
 from curve_formation.core.agent import AgentConfig, AgentController, is_stale
 from curve_formation.core.assignment import AssignmentError
 from curve_formation.core.control import Gains, WheelLimits
 from curve_formation.core.dynamics import arc_step
-from curve_formation.core.experiment import build_experiment, load_experiment, with_start
+from curve_formation.core.experiment import load_experiment, with_start
 from curve_formation.core.simulator import simulate
 from curve_formation.paths import resolve_config
 
@@ -31,20 +30,12 @@ def controllers_for(experiment, rate_hz):
     return out
 
 
-def fixed_arena():
-    """The arena case as the paper has it: `assignment: fixed`, no follower pinning."""
-    data = yaml.safe_load(resolve_config('mona_arena').read_text())
-    data['agents']['assignment'] = 'fixed'
-    data['graph']['pinning'] = 0.0
-    return build_experiment(data, 'mona_arena (fixed)')
-
-
 @pytest.mark.parametrize('name', ['mona_arena', str(DATA_DIR / 'fast_closed.yaml'), 'fixed'])
 def test_node_controllers_reproduce_the_simulator_exactly(name):
     """n AgentControllers ticked together at 10 Hz with exact unicycle steps == simulate()
     (the shipped arena case has nearest assignment and follower pinning).
     """
-    experiment = fixed_arena() if name == 'fixed' else load_experiment(resolve_config(name))
+    experiment = paper_arena() if name == 'fixed' else load_experiment(resolve_config(name))
     rate, dt, duration = 10.0, 0.001, 5.0
     ctrls = controllers_for(experiment, rate)
     on_pc = experiment.spec.disturbance.injected == 'on_pc'
@@ -217,7 +208,7 @@ def test_acceleration_limit_ramps_up_but_stops_at_once():
 def test_nearest_assignment_shortens_the_longest_trip_and_follows_the_switches():
     experiment = load_experiment(resolve_config('mona_arena'))
     assert experiment.spec.agents.assignment == 'nearest'
-    fixed = fixed_arena()
+    fixed = paper_arena()
     starts = fixed.initial_poses[:, :2]
     phase0 = experiment.phases[0]
     np.testing.assert_allclose(np.sort(phase0.s), np.sort(fixed.phases[0].s))

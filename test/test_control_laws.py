@@ -11,17 +11,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 import numpy as np
 import pytest
-import yaml
 
+from conftest import paper_arena
 from curve_formation.core import metrics
 from curve_formation.core.control import body_velocity, sampled_feedback
 from curve_formation.core.dynamics import arc_step
-from curve_formation.core.experiment import (
-    build_experiment,
-    load_experiment,
-    seeded_start,
-    with_start,
-)
+from curve_formation.core.experiment import load_experiment, seeded_start, with_start
 from curve_formation.core.simulator import simulate
 from curve_formation.paths import resolve_config
 
@@ -63,14 +58,6 @@ def test_the_paper_law_with_the_same_settings_does_not_settle(rate):
     assert np.abs(result.dhat[-1] - result.disturbance / case.gains.k2).max() > 0.1
 
 
-def arena(**graph_and_agents):
-    """The shipped Mona arena case with some `graph` or `agents` keys changed."""
-    data = yaml.safe_load(resolve_config('mona_arena').read_text())
-    for key, value in graph_and_agents.items():
-        data['graph' if key == 'pinning' else 'agents'][key] = value
-    return build_experiment(data, 'mona_arena (changed)')
-
-
 def test_observer_learns_a_disturbance_injected_before_saturated_wheels():
     """Mona case: d = [0.5, 0.5] on the PC against 2.25 cm/s wheels, 20x the wheel limit.
 
@@ -105,7 +92,7 @@ def test_the_arena_case_settles_every_60_s_phase_at_10_hz(seed):
                             disturbance=[0.0, 0.0])
     for t in times + floor:
         assert t is not None and t < 60.0, (seed, times, floor)
-    paper = with_start(arena(pinning=0.0, assignment='fixed'), start)
+    paper = with_start(paper_arena(), start)
     consensus, _ = settle_times(paper, dataclasses.replace(case.gains, k2=0.0), 10.0, start,
                                 disturbance=[0.0, 0.0])
     assert consensus[0] is None, consensus

@@ -75,6 +75,7 @@ class Recorder(Node):
             self.received[topic] = 0
             deep = QoSProfile(depth=RECORD_DEPTH, reliability=profile.reliability,
                               durability=profile.durability)
+            # the one type whose writers runtime.writer_key tells apart by content
             keyed = msg_class if msg_class is DiagnosticArray else None
             self.create_subscription(
                 msg_class, topic,
@@ -82,7 +83,7 @@ class Recorder(Node):
                     self._on_message(topic, data, info, keyed),
                 deep, raw=True, event_callbacks=qos.observer_events())
 
-    def _on_message(self, topic, data, info, keyed=None):
+    def _on_message(self, topic, data, info, keyed):
         self.received[topic] += 1
         self.writer.write(topic, self.get_clock().now().nanoseconds, data)
         key = topic if keyed is None else writer_key(topic, deserialize_message(data, keyed))

@@ -7,6 +7,7 @@ import signal
 import sys
 import threading
 
+from diagnostic_msgs.msg import DiagnosticArray
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
@@ -33,10 +34,14 @@ def writer_key(topic, msg):
     A formation topic has one writer, so its name suffices; /diagnostics has many, and each of
     our nodes puts its own name first in its DiagnosticArray, so that name is added.
     """
-    status = getattr(msg, 'status', None)
-    if status:
-        return f'{topic} {status[0].name}'
+    if isinstance(msg, DiagnosticArray) and msg.status:
+        return f'{topic} {msg.status[0].name}'
     return topic
+
+
+def stream_topic(key):
+    """The topic of a writer_key."""
+    return key.split(' ', 1)[0]
 
 
 class PublicationCounter:
@@ -48,7 +53,6 @@ class PublicationCounter:
     """
 
     def __init__(self, node):
-        self.node = node
         self.counts = {}
         for publisher in node.publishers:
             self._wrap(publisher)
