@@ -159,6 +159,38 @@ def test_corrupt_bag_is_a_clear_error(tmp_path):
         list(read_messages(bad))
 
 
+@pytest.mark.ros
+def test_recorder_console_script_records_over_dds(ros, ros_env, tmp_path):
+    """`ros2 run curve_formation formation_recorder` in its own process (its executor is the
+    one every node process spins) records what is published here and closes its bag on SIGINT.
+    """
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    context, add, spin_until = ros
+    path = tmp_path / 'bag'
+    proc = subprocess.Popen(
+        [sys.executable, '-m', 'curve_formation.nodes.recorder', '--ros-args',
+         '-p', f'bag:={path}', '-p', 'agent_count:=1'],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=ros_env)
+    try:
+        node = add(rclpy.create_node('talker', context=context))
+        cmd = '/robot_1/cmd_vel'
+        publisher = node.create_publisher(Twist, cmd, QoSProfile(
+            depth=20, reliability=ReliabilityPolicy.RELIABLE))   # keeps a burst of 20
+        spin_until(lambda: publisher.get_subscription_count() == 1 or proc.poll() is not None,
+                   timeout=60)
+        for k in range(20):
+            msg = Twist()
+            msg.linear.x = 0.001 * k
+            publisher.publish(msg)
+        assert publisher.wait_for_all_acked(rclpy.duration.Duration(seconds=10))
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=30)
+    assert proc.returncode == 0, out
+    got = [m.linear.x for topic, _, _, m in read_messages(path) if topic == cmd]
+    assert got == pytest.approx([0.001 * k for k in range(20)]), out
+
+
 def start_run(tmp_path, ros_env, sigint_ignored=False):
     """`curve-formation run` with a bag, returned once its t = 0; with `sigint_ignored` as
     from a background job of a non-interactive shell (SIGINT inherited ignored).

@@ -14,7 +14,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from curve_formation.nodes import messages, qos, topics
-from curve_formation.nodes.runtime import now_seconds
+from curve_formation.nodes.runtime import now_seconds, WithMessageInfo
 
 
 @dataclass
@@ -59,7 +59,8 @@ class Monitor(Node):
             self._subscribe(PoseStamped, topics.robot_topic(i, topics.POSE),
                             lambda m, i=i: self._on_pose(i, m), qos.SENSOR)
             self._subscribe(Twist, topics.robot_topic(i, topics.CMD_VEL),
-                            lambda m, info, i=i: self._on_cmd(i, m, info), qos.COMMAND)
+                            WithMessageInfo(lambda m, info, i=i: self._on_cmd(i, m, info)),
+                            qos.COMMAND)
             self._subscribe(Vector3Stamped, topics.robot_topic(i, topics.ESTIMATE),
                             lambda m, i=i: self._on_estimate(i, m), qos.STATE)
             self._subscribe(JointState, topics.robot_topic(i, topics.STATE),

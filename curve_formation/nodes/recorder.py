@@ -17,7 +17,7 @@ from std_msgs.msg import Bool, Float64MultiArray
 from curve_formation import bag
 from curve_formation.nodes import qos, topics
 from curve_formation.nodes.params import declare_parameters, Param, ParameterError
-from curve_formation.nodes.runtime import RECORDER_NODE, run_node, writer_key
+from curve_formation.nodes.runtime import RECORDER_NODE, run_node, WithMessageInfo, writer_key
 
 
 def formation_topics(n):
@@ -79,8 +79,8 @@ class Recorder(Node):
             keyed = msg_class if msg_class is DiagnosticArray else None
             self.create_subscription(
                 msg_class, topic,
-                lambda data, info, topic=topic, keyed=keyed:
-                    self._on_message(topic, data, info, keyed),
+                WithMessageInfo(lambda data, info, topic=topic, keyed=keyed:
+                                self._on_message(topic, data, info, keyed)),
                 deep, raw=True, event_callbacks=qos.observer_events())
 
     def _on_message(self, topic, data, info, keyed):

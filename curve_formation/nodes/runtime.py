@@ -1,5 +1,6 @@
 """Running a node as a console script: init, spin, clean shutdown, clear start-up errors."""
 
+import inspect
 import json
 import os
 from pathlib import Path
@@ -142,6 +143,27 @@ def make_executor(context=None):
         return SingleThreadedExecutor(context=context)
     raise ParameterError(f'environment variable {EXECUTOR_ENV} = {kind!r}; expected one of '
                          f'{", ".join(EXECUTORS)}')
+
+
+class WithMessageInfo:
+    """A subscription callback fn(msg, info) that works under both rclpy executors.
+
+    rclpy calls a two-argument callback with the message and its MessageInfo (a dict: source
+    and received timestamps in ns, publication_sequence_number, ...). rclpy 7.1.6's
+    EventsExecutor passes the pair as one tuple instead, which a plain fn(msg, info) cannot
+    take; this object advertises two arguments and accepts either form.
+    """
+
+    __signature__ = inspect.Signature([
+        inspect.Parameter('msg', inspect.Parameter.POSITIONAL_ONLY),
+        inspect.Parameter('info', inspect.Parameter.POSITIONAL_ONLY)])
+
+    def __init__(self, fn):
+        self.fn = fn
+
+    def __call__(self, *args):
+        msg, info = args if len(args) == 2 else args[0]
+        return self.fn(msg, info)
 
 
 def _on_stop_signals(handler):
