@@ -25,7 +25,12 @@ import yaml
 from curve_formation.analysis import EXPERIMENT_KEY
 from curve_formation.core import metrics, plots
 from curve_formation.core.experiment import load_experiment
-from curve_formation.nodes.runtime import PublicationCounter, PUBLICATIONS_ENV, stream_topic
+from curve_formation.nodes.runtime import (
+    make_executor,
+    PublicationCounter,
+    PUBLICATIONS_ENV,
+    stream_topic,
+)
 from curve_formation.paths import resolve_config, use_dds_profile
 
 
@@ -228,7 +233,6 @@ class Run:
 
         import rclpy
         from rclpy.context import Context
-        from rclpy.executors import SingleThreadedExecutor
         from rclpy.qos import ReliabilityPolicy
         from rclpy.signals import SignalHandlerOptions
 
@@ -240,8 +244,9 @@ class Run:
         rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
         self.monitor = Monitor(self.experiment.n, self.record_hz, context=self.context,
                                ground_truth=self.camera is not None and self.with_robots)
-        # Python callbacks share the GIL: more executor threads would not run them faster.
-        self.executor = SingleThreadedExecutor(context=self.context)
+        # The same executor as every node process (callbacks dispatched from C++). Python
+        # callbacks share the GIL: more executor threads would not run them faster.
+        self.executor = make_executor(self.context)
         self.executor.add_node(self.monitor)
         if self.bag_writer is not None:
             from curve_formation.nodes.recorder import camera_topics, formation_topics, Recorder

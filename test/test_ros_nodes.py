@@ -80,7 +80,8 @@ def test_follower_drives_only_while_its_inputs_are_fresh(ros):
     context, add, spin_until = ros
     ctrl = add(FormationController(context=context, namespace='/robot_2', parameter_overrides=(
         overrides(index=2, agent_count=3, in_neighbours=[1], weights=[1.0],
-                  neighbour_timeout=0.3, pose_timeout=0.3, k2=0.0))))
+                  neighbour_timeout=0.3, pose_timeout=0.3, k2=0.0,
+                  leader_timeout=5.0))))   # the neighbour is the leader: its own timeout
     probe = Probe(context, 2)
     add(probe.node)
     probe.curve_pub.publish(messages.curve_to_msg(circle_curve(), 0))

@@ -1,5 +1,6 @@
 """Running a node as a console script: init, spin, clean shutdown, clear start-up errors."""
 
+import contextlib
 import inspect
 import json
 import os
@@ -27,6 +28,7 @@ EXECUTORS = ('events', 'single')
 # it published per writer stream (to check that a bag lost nothing).
 PUBLICATIONS_ENV = 'CURVE_FORMATION_PUBLICATIONS'
 RECORDER_NODE = 'formation_recorder'
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
 def writer_key(topic, msg):
@@ -128,7 +130,9 @@ def make_executor(context=None):
     """The executor chosen by $CURVE_FORMATION_EXECUTOR (default 'events').
 
     rclpy has the EventsExecutor since Jazzy's 7.1.4; an older rclpy gets the
-    SingleThreadedExecutor, with a note on stderr.
+    SingleThreadedExecutor, with a note on stderr. The EventsExecutor takes SIGINT and SIGTERM
+    for itself when it is created (and then shuts the context down on either); the process's
+    Python handlers are put back, so that its owner decides how to stop.
     """
     kind = os.environ.get(EXECUTOR_ENV, 'events')
     if kind == 'events':
@@ -138,11 +142,26 @@ def make_executor(context=None):
             print('note: this rclpy has no EventsExecutor (Jazzy >= 7.1.4); using the '
                   'SingleThreadedExecutor', file=sys.stderr)
             return SingleThreadedExecutor(context=context)
-        return EventsExecutor(context=context)
+        with _python_signal_handlers_kept():
+            return EventsExecutor(context=context)
     if kind == 'single':
         return SingleThreadedExecutor(context=context)
     raise ParameterError(f'environment variable {EXECUTOR_ENV} = {kind!r}; expected one of '
                          f'{", ".join(EXECUTORS)}')
+
+
+@contextlib.contextmanager
+def _python_signal_handlers_kept():
+    if threading.current_thread() is not threading.main_thread():
+        yield   # signal handlers can only be set from the main thread
+        return
+    saved = {sig: signal.getsignal(sig) for sig in STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for sig, handler in saved.items():
+            if handler is not None:   # None: not set from Python, cannot be put back
+                signal.signal(sig, handler)
 
 
 class WithMessageInfo:
@@ -167,7 +186,7 @@ class WithMessageInfo:
 
 
 def _on_stop_signals(handler):
-    for sig in (signal.SIGINT, signal.SIGTERM):
+    for sig in STOP_SIGNALS:
         signal.signal(sig, handler)
 
 
