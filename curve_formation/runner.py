@@ -29,6 +29,7 @@ from curve_formation.nodes.runtime import (
     make_executor,
     PublicationCounter,
     PUBLICATIONS_ENV,
+    spin_until_quiet,
     stream_topic,
 )
 from curve_formation.paths import resolve_config, use_dds_profile
@@ -384,14 +385,8 @@ class Run:
             self.rclpy.try_shutdown(context=self.context)
             self.context = None
             return
-        # Record what is still queued (the nodes' last zero commands among it): spin until
-        # nothing new has arrived for 0.3 s, 3 s at most.
-        end = time.monotonic() + 3.0
-        quiet_since, seen = time.monotonic(), self._received()
-        while time.monotonic() < end and time.monotonic() - quiet_since < 0.3:
-            self.executor.spin_once(timeout_sec=0.02)
-            if self._received() != seen:
-                quiet_since, seen = time.monotonic(), self._received()
+        # Record what is still queued (the nodes' last zero commands among it).
+        spin_until_quiet(self.executor, self._received)
         for node in self.in_process_nodes:
             hook = getattr(node, 'on_shutdown', None)
             if hook is not None:

@@ -17,7 +17,13 @@ from std_msgs.msg import Bool, Float64MultiArray
 from curve_formation import bag
 from curve_formation.nodes import qos, topics
 from curve_formation.nodes.params import declare_parameters, Param, ParameterError
-from curve_formation.nodes.runtime import RECORDER_NODE, run_node, WithMessageInfo, writer_key
+from curve_formation.nodes.runtime import (
+    RECORDER_NODE,
+    run_node,
+    spin_until_quiet,
+    WithMessageInfo,
+    writer_key,
+)
 
 
 def formation_topics(n):
@@ -128,13 +134,24 @@ class RecorderNode(Recorder):
         except bag.BagError as exc:
             raise ParameterError(f"parameter 'bag': {exc}") from None
         writer.__enter__()
-        extra = [(t, Image, qos.SENSOR) for t in p.image_topics]
-        super().__init__(writer, formation_topics(p.agent_count) + extra, **kwargs)
+        try:   # a signal may come while the node is built: the bag is closed even then
+            extra = [(t, Image, qos.SENSOR) for t in p.image_topics]
+            super().__init__(writer, formation_topics(p.agent_count) + extra, **kwargs)
+        except BaseException:
+            writer.close()
+            raise
         self.get_logger().info(f'recording {len(self.received)} topics to {p.bag}')
 
     def on_shutdown(self):
+        # What arrived before the stop but is still queued goes into the bag too.
+        if self.executor is not None:
+            spin_until_quiet(self.executor, lambda: self.writer.count)
         self.writer.close()
         self.get_logger().info(f'bag closed: {self.writer.count} messages')
+
+    def destroy_node(self):
+        self.writer.close()   # also when on_shutdown did not run (context already shut down)
+        super().destroy_node()
 
 
 def main(args=None):

@@ -8,6 +8,7 @@ from pathlib import Path
 import signal
 import sys
 import threading
+import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 import rclpy
@@ -94,8 +95,14 @@ def run_node(node_factory, args=None):
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop = threading.Event()
     # Installed explicitly: a process started from a background job inherits SIGINT ignored.
-    # While the node is built (it may block, e.g. opening a camera) a signal interrupts it.
-    _on_stop_signals(_interrupt)
+    # A signal while the node is built only asks it to stop once built, so that it still ends
+    # through its shutdown (e.g. the recorder writes what it already received); a second one
+    # interrupts the building (it may block, e.g. opening a camera).
+    def while_building(signum, frame):
+        if stop.is_set():
+            raise KeyboardInterrupt(f'signal {signum}')
+        stop.set()
+    _on_stop_signals(while_building)
     node = None
     counter = None
     status = 0
@@ -124,6 +131,19 @@ def run_node(node_factory, args=None):
             node.destroy_node()
         rclpy.try_shutdown()
     return status
+
+
+def spin_until_quiet(executor, count, quiet=0.3, limit=3.0):
+    """Spin until count() has not changed for `quiet` s, `limit` s at most.
+
+    Takes what already arrived but is still queued (e.g. the last messages for a bag).
+    """
+    end = time.monotonic() + limit
+    quiet_since, seen = time.monotonic(), count()
+    while time.monotonic() < end and time.monotonic() - quiet_since < quiet:
+        executor.spin_once(timeout_sec=0.02)
+        if count() != seen:
+            quiet_since, seen = time.monotonic(), count()
 
 
 def make_executor(context=None):
@@ -188,7 +208,3 @@ class WithMessageInfo:
 def _on_stop_signals(handler):
     for sig in STOP_SIGNALS:
         signal.signal(sig, handler)
-
-
-def _interrupt(signum, frame):
-    raise KeyboardInterrupt(f'signal {signum}')
