@@ -209,3 +209,36 @@ def test_unknown_executor_choice_exits_2_naming_the_variable(ros_domain):
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and 'Traceback' not in proc.stderr
     assert 'CURVE_FORMATION_EXECUTOR' in proc.stderr and 'events, single' in proc.stderr
+
+
+HUNG_IN_SHUTDOWN = """
+import sys, time
+from rclpy.node import Node
+from curve_formation.nodes import runtime
+runtime.EXIT_DEADLINE = 2.0
+
+class Hung(Node):
+    def __init__(self):
+        super().__init__('hung')
+        print('built', flush=True)
+
+    def on_shutdown(self):
+        time.sleep(3600)   # stands for a DDS teardown that never returns
+
+sys.exit(runtime.run_node(Hung))
+"""
+
+
+def test_a_node_hung_in_its_shutdown_still_ends_after_a_stop_signal(ros_domain):
+    """No node process outlives its run (orphans of a killed runner once hung for hours)."""
+    import signal
+    proc = subprocess.Popen([sys.executable, '-c', HUNG_IN_SHUTDOWN], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == 'built'
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    assert proc.returncode != 0
+    assert 'Timeout' in err and 'on_shutdown' in err   # where it hung, from faulthandler

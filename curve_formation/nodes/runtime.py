@@ -1,6 +1,7 @@
 """Running a node as a console script: init, spin, clean shutdown, clear start-up errors."""
 
 import contextlib
+import faulthandler
 import inspect
 import json
 import os
@@ -20,6 +21,7 @@ from curve_formation.paths import use_dds_profile
 
 
 SIGNAL_CHECK_PERIOD = 0.2   # s, longest wait before a signal is acted on
+EXIT_DEADLINE = 15.0        # s from a stop signal to a forced exit (_exit_hard_after)
 # Which rclpy executor spins a node process: 'events' (rclpy's EventsExecutor, callbacks
 # dispatched from C++) or 'single' (SingleThreadedExecutor, which rebuilds its wait set in
 # Python on every wake-up).
@@ -101,6 +103,11 @@ def run_node(node_factory, args=None):
     def while_building(signum, frame):
         if stop.is_set():
             raise KeyboardInterrupt(f'signal {signum}')
+        request_stop()
+
+    def request_stop(*_):
+        if not stop.is_set():
+            _exit_hard_after(EXIT_DEADLINE)
         stop.set()
     _on_stop_signals(while_building)
     node = None
@@ -109,7 +116,7 @@ def run_node(node_factory, args=None):
     try:
         executor = make_executor()
         node = node_factory()
-        _on_stop_signals(lambda *_: stop.set())
+        _on_stop_signals(request_stop)
         counter = PublicationCounter(node) if os.environ.get(PUBLICATIONS_ENV) else None
         executor.add_node(node)
         # A bounded wait returns to Python regularly, so the flag is seen even when no timer
@@ -122,6 +129,8 @@ def run_node(node_factory, args=None):
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        if not stop.is_set():   # ended otherwise (error, shutdown): bounded all the same
+            _exit_hard_after(EXIT_DEADLINE)
         if node is not None:
             hook = getattr(node, 'on_shutdown', None)
             if hook is not None and rclpy.ok():
@@ -131,6 +140,16 @@ def run_node(node_factory, args=None):
             node.destroy_node()
         rclpy.try_shutdown()
     return status
+
+
+def _exit_hard_after(seconds):
+    """Dump every thread's stack to stderr and end the process if it still runs in `seconds`.
+
+    A node must not outlive its run: Fast DDS has been seen to hang for good while tearing
+    down a node whose construction was interrupted. faulthandler's watchdog is a C thread,
+    so it fires even while the main thread is blocked in C holding the GIL.
+    """
+    faulthandler.dump_traceback_later(seconds, exit=True)
 
 
 def spin_until_quiet(executor, count, quiet=0.3, limit=3.0):
