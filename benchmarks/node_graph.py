@@ -1,6 +1,6 @@
 """ROS node graph timing: N fake robots + N controllers, one process each or all in one.
 
-Run: scripts/bench node_graph [--sizes 9 16 25] [--seconds 15]
+Run: scripts/bench node_graph [--sizes 9 16 25 50] [--seconds 15] [--modes multi single]
 
 For each N and mode it prints: cmd_vel rate per robot (Hz, mean over robots), period jitter
 |interval - 100 ms| (p50/p99 over all robots) of the commands as published (DDS source
@@ -105,7 +105,7 @@ def quiet_stderr(path):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
-    parser.add_argument('--sizes', type=int, nargs='+', default=[9, 16, 25])
+    parser.add_argument('--sizes', type=int, nargs='+', default=[9, 16, 25, 50])
     parser.add_argument('--seconds', type=float, default=15.0)
     parser.add_argument('--modes', nargs='+', default=['multi', 'single'],
                         choices=['multi', 'single'])
