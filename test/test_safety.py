@@ -115,4 +115,4 @@ def test_dropped_messages_and_latency_still_converge_at_arena_speeds(ros_domain,
     assert norm.max() <= norm[0] * 1.01
     expected = simulate(run.experiment, duration=30.0).error_norm[-1]
     assert norm[-1] < 1.25 * expected
-    assert norm[-1] < 0.4 * norm[0]      # simulated: 1.49 -> 0.54 in 30 s
+    assert norm[-1] < 0.4 * norm[0]      # simulated: 0.93 -> 0.026 in 30 s (settles at 34 s)
