@@ -110,9 +110,11 @@ def test_dropped_messages_and_latency_still_converge_at_arena_speeds(ros_domain,
                                 run.best_effort_topics)
     assert accounting['published'] > 10_000 and accounting['lost'] == 0, accounting
     assert accounting['lost_best_effort'] < 0.005 * accounting['published'], accounting
-    norm = metrics.error_norm(metrics.target_errors(
-        data['poses'], phases_of(data['curve_id'], 1), run.experiment))
+    errors = metrics.target_errors(data['poses'], phases_of(data['curve_id'], 1), run.experiment)
+    norm = metrics.error_norm(errors)
     assert norm.max() <= norm[0] * 1.01
     expected = simulate(run.experiment, duration=30.0).error_norm[-1]
-    assert norm[-1] < 1.25 * expected
+    # On failure: which robot lagged, and its log (a stop for stale inputs shows there).
+    per_robot = np.linalg.norm(errors[-1], axis=1).round(4).tolist()
+    assert norm[-1] < 1.25 * expected, (per_robot, tmp_path / 'logs')
     assert norm[-1] < 0.4 * norm[0]      # simulated: 0.93 -> 0.026 in 30 s (settles at 34 s)
