@@ -99,19 +99,19 @@ def main():
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     import rclpy
     from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
     from sensor_msgs.msg import Image
 
     from curve_formation.bag import bag_summary, BagWriter
     from curve_formation.nodes import qos, topics
     from curve_formation.nodes.recorder import formation_topics, Recorder
+    from curve_formation.nodes.runtime import make_executor
 
     images = not args.no_images
     folder = Path(tempfile.mkdtemp(prefix='recording-bench-'))
     path = folder / 'bag'
     context = Context()
     rclpy.init(context=context)
-    executor = SingleThreadedExecutor(context=context)
+    executor = make_executor(context)   # as the runner hosts the recorder
     topic_list = formation_topics(9) + ([(topics.CAMERA_IMAGE, Image, qos.IMAGE)]
                                         if images else [])
     publisher = subprocess.Popen(
