@@ -25,8 +25,10 @@ setup(
         ('share/' + PACKAGE, ['package.xml']),
         ('share/' + PACKAGE + '/config', glob('config/*.yaml')),
     ],
+    # What `sim`, `run --bag`, `analyze` and the nodes need at run time (requirements.txt
+    # pins the ROS 2 wheels and the test tools; package.xml names the same with rosdep keys).
     install_requires=['setuptools', 'numpy', 'scipy', 'numba', 'matplotlib', 'PyYAML',
-                      'pydantic>=2', 'opencv-python-headless'],
+                      'pydantic>=2', 'opencv-python-headless', 'rosbags>=0.11', 'mcap>=1.2'],
     zip_safe=True,
     maintainer='curve_formation maintainers',
     maintainer_email='curve-formation@example.org',

@@ -5,10 +5,10 @@ Run: scripts/bench recording   (--duration S, --no-images, --resolution W H)
 A publisher process sends, with the nodes' own QoS, 9 robots' topics (pose at 30 Hz; cmd_vel,
 formation_state and disturbance_estimate at 10 Hz) plus mono8 camera frames (1280x720 by
 default) at 30 Hz, numbering what it sends. This process records them with the runner's
-Recorder into a sqlite3 bag, then reads the bag back and prints, per kind of topic, published
-vs recorded, and the sustained messages/s and MB/s. Lost = published - recorded: on a reliable
-topic that is the recorder's loss; on a best-effort topic (poses, images) it can also be DDS
-dropping a sample the recorder was too busy to take.
+Recorder into an MCAP bag and then a sqlite3 one (--storage), reads each back and prints, per
+kind of topic, published vs recorded, and the sustained messages/s and MB/s. Lost = published
+- recorded: on a reliable topic that is the recorder's loss; on a best-effort topic (poses,
+images) it can also be DDS dropping a sample the recorder was too busy to take.
 Both processes use curve_formation/fastdds_large_data.xml (shared memory with large
 segments), as every process of a run does; --dds-defaults shows what Fast DDS's defaults do.
 """
@@ -88,6 +88,8 @@ def main():
     parser.add_argument('--duration', type=float, default=30.0)
     parser.add_argument('--resolution', type=int, nargs=2, default=(1280, 720))
     parser.add_argument('--no-images', action='store_true')
+    parser.add_argument('--storage', choices=('mcap', 'sqlite3', 'both'), default='both',
+                        help='bag storage to measure (default: both, side by side)')
     parser.add_argument('--dds-defaults', action='store_true',
                         help="Fast DDS's default transports instead of our profile")
     args = parser.parse_args()
@@ -97,6 +99,27 @@ def main():
         use_dds_profile()
     os.environ.setdefault('ROS_DOMAIN_ID', '96')
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    images = not args.no_images
+    storages = ('mcap', 'sqlite3') if args.storage == 'both' else (args.storage,)
+    print(('Fast DDS defaults; ' if args.dds_defaults else 'our Fast DDS profile; ')
+          + f'{args.duration:g} s, 9 robots (pose 30 Hz; cmd_vel, state, estimate 10 Hz)'
+          + (f' + {args.resolution[0]}x{args.resolution[1]} mono8 at 30 Hz' if images else ''))
+    results = {storage: measure(storage, args.duration, args.resolution, images)
+               for storage in storages}
+    print(f'{"":>10s} ' + ' '.join(f'{s + " published / recorded / lost":>36s}'
+                                   for s in storages))
+    for kind in results[storages[0]]['sent']:
+        print(f'{kind:>10s} ' + ' '.join(
+            f'{r["sent"][kind]:>18d} / {r["recorded"].get(kind, 0):>6d} / '
+            f'{r["sent"][kind] - r["recorded"].get(kind, 0):>6d}' for r in results.values()))
+    for storage, r in results.items():
+        print(f'{storage:>8s}: {r["messages"] / r["wall"]:.0f} messages/s, '
+              f'{r["size"] / r["wall"] / 1e6:.1f} MB/s to disk ({r["size"] / 1e6:.0f} MB); '
+              f'recorder CPU {100 * r["cpu"] / r["wall"]:.0f} % of a core')
+
+
+def measure(storage, duration, resolution, images):
+    """Record the publisher's load into a new bag of `storage`; what was sent and recorded."""
     import rclpy
     from rclpy.context import Context
     from sensor_msgs.msg import Image
@@ -106,7 +129,6 @@ def main():
     from curve_formation.nodes.recorder import formation_topics, Recorder
     from curve_formation.nodes.runtime import make_executor
 
-    images = not args.no_images
     folder = Path(tempfile.mkdtemp(prefix='recording-bench-'))
     path = folder / 'bag'
     context = Context()
@@ -115,9 +137,9 @@ def main():
     topic_list = formation_topics(9) + ([(topics.CAMERA_IMAGE, Image, qos.IMAGE)]
                                         if images else [])
     publisher = subprocess.Popen(
-        [sys.executable, '-c', PUBLISHER, str(args.duration), str(args.resolution[0]),
-         str(args.resolution[1]), '1' if images else '0'], stdout=subprocess.PIPE, text=True)
-    with BagWriter(path) as writer:
+        [sys.executable, '-c', PUBLISHER, str(duration), str(resolution[0]),
+         str(resolution[1]), '1' if images else '0'], stdout=subprocess.PIPE, text=True)
+    with BagWriter(path, storage) as writer:
         recorder = Recorder(writer, topic_list, context=context)
         executor.add_node(recorder)
         started = time.monotonic()
@@ -129,6 +151,9 @@ def main():
             executor.spin_once(timeout_sec=0.05)
         wall = time.monotonic() - started
         cpu = time.process_time() - cpu
+    executor.shutdown()
+    recorder.destroy_node()
+    rclpy.try_shutdown(context=context)
     sent = json.loads(publisher.stdout.read().strip().splitlines()[-1])
     recorded = {}
     for topic, (_, count) in bag_summary(path).items():
@@ -138,17 +163,9 @@ def main():
         if kind:
             recorded[kind] = recorded.get(kind, 0) + count
     size = sum(f.stat().st_size for f in path.iterdir())
-    messages_total = sum(recorded.values())
-    print(('Fast DDS defaults; ' if args.dds_defaults else 'our Fast DDS profile; ')
-          + f'{args.duration:g} s, 9 robots (pose 30 Hz; cmd_vel, state, estimate 10 Hz)'
-          + (f' + {args.resolution[0]}x{args.resolution[1]} mono8 at 30 Hz' if images else ''))
-    print(f'{"topic kind":>10s} {"published":>10s} {"recorded":>9s} {"lost":>6s}')
-    for kind, count in sent.items():
-        print(f'{kind:>10s} {count:10d} {recorded.get(kind, 0):9d} '
-              f'{count - recorded.get(kind, 0):6d}')
-    print(f'sustained: {messages_total / wall:.0f} messages/s, {size / wall / 1e6:.1f} MB/s '
-          f'to disk ({size / 1e6:.0f} MB); recorder CPU {100 * cpu / wall:.0f} % of a core')
     shutil.rmtree(folder)
+    return {'sent': sent, 'recorded': recorded, 'messages': sum(recorded.values()),
+            'size': size, 'wall': wall, 'cpu': cpu}
 
 
 if __name__ == '__main__':

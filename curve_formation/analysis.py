@@ -8,7 +8,6 @@ value, NaN before the first) from t = 0 at the first curve message.
 
 from dataclasses import dataclass, replace
 import json
-import math
 from pathlib import Path
 import re
 
@@ -17,10 +16,17 @@ import yaml
 
 from curve_formation.bag import bag_info, BagError, read_messages
 from curve_formation.core import metrics, plots
-from curve_formation.core.assignment import agent_parameters
-from curve_formation.core.curve_codec import decode_curve, yaw_from_quaternion
-from curve_formation.core.curves import Fit
-from curve_formation.core.experiment import build_experiment, load_experiment, Phase
+from curve_formation.core.curve_codec import (
+    decode_agent_parameters,
+    decode_curve,
+    yaw_from_quaternion,
+)
+from curve_formation.core.experiment import (
+    build_experiment,
+    control_rate,
+    load_experiment,
+    received_phases,
+)
 
 
 EXPERIMENT_KEY = 'curve_formation.experiment'
@@ -59,9 +65,13 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0):
         counts[topic] = counts.get(topic, 0) + 1
         t = stamp * 1e-9
         if topic == '/formation/curve':
-            curve, curve_id = decode_curve([(d.label, d.size) for d in msg.layout.dim],
-                                           msg.data)
-            curves.append((t, curve_id, curve))
+            dims = [(d.label, d.size) for d in msg.layout.dim]
+            curve, curve_id = decode_curve(dims, msg.data)
+            s = decode_agent_parameters(dims, msg.data)
+            if s is None or len(s) != n:
+                raise BagError(f"{path}: curve {curve_id} carries no agents' parameters for "
+                               f'{n} agents: cannot tell which robot goes where')
+            curves.append((t, curve, s))
             continue
         match = _ROBOT_TOPIC.match(topic)
         if not match or not 1 <= int(match.group(1)) <= n:
@@ -83,23 +93,12 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0):
     if end - t0 < 2.0 / sample_hz:
         raise BagError(f'{path}: less than two samples of poses after the first curve')
     grid = t0 + np.arange(0.0, end - t0, 1.0 / sample_hz)
-    phases = _bag_phases(experiment, curves, t0)
+    phases = received_phases(experiment, [(t - t0, curve, s) for t, curve, s in curves])
     curve_times = np.array([c[0] for c in curves])
     phase = np.searchsorted(curve_times, grid, side='right') - 1
     return BagRun(replace(experiment, phases=phases), grid - t0,
                   _sample(events['pose'], grid, 3), _sample(events['cmd_vel'], grid, 2),
                   _sample(events['disturbance_estimate'], grid, 2), phase, counts)
-
-
-def _bag_phases(experiment, curves, t0):
-    spacing = experiment.spec.agents.spacing
-    phases = []
-    for k, (t, _, curve) in enumerate(curves):
-        s = agent_parameters(curve, experiment.n, spacing)
-        g_bar = curve.basis.G(s).reshape(2 * experiment.n, 2 * curve.basis.H)
-        phases.append(Phase(k, t - t0, Fit(curve, math.nan, math.nan, 0), s, curve.points(s),
-                            g_bar))
-    return tuple(phases)
 
 
 def _sample(per_robot, grid, width):
@@ -116,32 +115,86 @@ def _sample(per_robot, grid, width):
     return out
 
 
-def analyze_bag(path, out_dir, experiment_path=None, compare=None):
-    """metrics.json and the paper's figures from a bag; `compare` overlays a second bag."""
+def analyze_bag(path, out_dir, experiment_path=None, compare=None, compare_sim=False):
+    """metrics.json and the paper's figures from a bag; `compare` overlays a second bag,
+    `compare_sim` the batch simulator run from the bag's own start (simulate_recorded).
+    """
     run = load_bag_run(path, experiment_path)
+    t, poses, phase, dhat, commands = _known(run, path)
+    result = metrics.run_metrics(run.experiment, t, poses, phase, np.nan_to_num(dhat),
+                                 np.nan_to_num(commands))
+    result['bag'] = {'path': str(path), 'messages': run.counts}
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    plots.run_figures(out, run.experiment, t, poses, phase, np.nan_to_num(dhat),
+                      label=Path(path).name)
+    others = []
+    if compare is not None:
+        other = load_bag_run(compare, experiment_path)
+        o_t, o_poses, o_phase, _, _ = _known(other, compare)
+        result['compare'] = metrics.run_metrics(run.experiment, o_t, o_poses, o_phase)
+        others.append((Path(compare).name, o_t, o_poses, o_phase))
+    if compare_sim:
+        sim = simulate_recorded(run.experiment, t, poses)
+        result['compare_sim'] = metrics.result_metrics(sim)
+        result['compare_sim_table'] = settling_table(result, result['compare_sim'])
+        others.append(('simulated', sim.t, sim.poses, sim.phase))
+    for label, o_t, o_poses, o_phase in others:
+        stem = 'compare' if label != 'simulated' else 'compare_sim'
+        errors = [metrics.error_norm(metrics.target_errors(r_poses, r_phase, run.experiment))
+                  for r_poses, r_phase in ((poses, phase), (o_poses, o_phase))]
+        plots.plot_error_norm(out / f'{stem}_error_norm.png', run.experiment,
+                              [(Path(path).name, t, errors[0]), (label, o_t, errors[1])])
+        plots.plot_paths(out / f'{stem}_paths.png', run.experiment, poses, phase,
+                         overlay=(label, o_poses))
+    (out / 'metrics.json').write_text(json.dumps(result, indent=2) + '\n')
+    return result
+
+
+def _known(run, path):
+    """(t, poses, phase, dhat, commands) from the first sample at which every robot's pose is
+    known; BagError if there is none.
+    """
     usable = ~np.isnan(run.poses).any(axis=(1, 2))
     if not usable.any():
         raise BagError(f"{path}: no time at which every robot's pose is known")
     first = np.argmax(usable)
-    t, poses, phase = run.t[first:], run.poses[first:], run.phase[first:]
-    dhat = np.nan_to_num(run.dhat[first:])
-    result = metrics.run_metrics(run.experiment, t, poses, phase, dhat,
-                                 np.nan_to_num(run.commands[first:]))
-    result['bag'] = {'path': str(path), 'messages': run.counts}
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    plots.run_figures(out, run.experiment, t, poses, phase, dhat, label=Path(path).name)
-    if compare is not None:
-        other = load_bag_run(compare, experiment_path)
-        ok = ~np.isnan(other.poses).any(axis=(1, 2))
-        errors = [metrics.error_norm(metrics.target_errors(r_poses, r_phase, run.experiment))
-                  for r_poses, r_phase in ((poses, phase), (other.poses[ok], other.phase[ok]))]
-        plots.plot_error_norm(out / 'compare_error_norm.png', run.experiment,
-                              [(Path(path).name, t, errors[0]),
-                               (Path(compare).name, other.t[ok], errors[1])])
-        plots.plot_paths(out / 'compare_paths.png', run.experiment, poses, phase,
-                         overlay=(Path(compare).name, other.poses[ok]))
-        result['compare'] = metrics.run_metrics(run.experiment, other.t[ok], other.poses[ok],
-                                                other.phase[ok])
-    (out / 'metrics.json').write_text(json.dumps(result, indent=2) + '\n')
+    return (run.t[first:], run.poses[first:], run.phase[first:], run.dhat[first:],
+            run.commands[first:])
+
+
+def simulate_recorded(experiment, t, poses):
+    """The batch simulator on a recorded run's experiment (its phases as the run received
+    them: curves, agents' parameters and switch times) from the run's first known poses
+    (t[0], poses[0]); returns a SimResult whose t is on the run's clock (s since t = 0).
+    """
+    from curve_formation.core.simulator import simulate
+    begin = float(t[0])
+    # A phase that began before the first known poses starts the simulation.
+    start_phase = max(0, int(np.searchsorted([p.start for p in experiment.phases], begin,
+                                             side='right')) - 1)
+    shifted = tuple(replace(p, start=max(0.0, p.start - begin))
+                    for p in experiment.phases[start_phase:] if p.start < t[-1])
+    shifted = (replace(shifted[0], start=0.0),) + shifted[1:]
+    sim_experiment = replace(experiment, phases=shifted, initial_poses=np.array(poses[0]))
+    spec = experiment.spec.simulation
+    duration = float(t[-1] - begin)
+    duration = round(duration / spec.record_dt) * spec.record_dt
+    result = simulate(sim_experiment, rate_hz=control_rate(experiment), duration=duration)
+    result.t = result.t + begin
+    result.phase = result.phase + start_phase
+    result.experiment = experiment
     return result
+
+
+def settling_table(real, simulated):
+    """Per phase: settling time and final error of a recorded run and of its simulation."""
+    rows = []
+    sims = {p['index']: p for p in simulated['phases']}
+    for p in real['phases']:
+        other = sims.get(p['index'], {})
+        rows.append({'phase': p['index'], 'start': p['start'],
+                     'settle_time': p['settle_time'], 'settle_time_sim': other.get('settle_time'),
+                     'final_error_norm': p['final_error_norm'],
+                     'final_error_norm_sim': other.get('final_error_norm')})
+    return rows

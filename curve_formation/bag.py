@@ -1,13 +1,18 @@
 """ROS 2 bags through the pure-Python rosbags library (no rosbag2 install needed).
 
-Storage is sqlite3 (.db3), the rosbag2 format every ROS 2 install reads, chosen because it is
-crash-consistent: BagWriter commits its transaction every `commit_period` seconds, so a run
-killed hard (SIGKILL, power loss) keeps everything but the last period; metadata.yaml is
-written on close and can be rebuilt for a killed bag with `ros2 bag reindex BAG`.
-Messages are written as the CDR bytes that crossed DDS, with their receive time.
+Storage is MCAP by default, as Jazzy's `ros2 bag record` writes it (chunks with message
+indexes, a summary, `ros2msg` schemas and rosbag2's metadata record), or sqlite3 (.db3).
+Both keep what a run killed hard (SIGKILL, power loss) had written up to the last second:
+BagWriter closes an MCAP chunk (sqlite3: commits its transaction) every `commit_period` s and
+flushes it to disk. A killed bag has no metadata.yaml (and an MCAP file no summary): `repair`
+rewrites what it holds as a complete bag. Messages are written as the CDR bytes that crossed
+DDS, with their receive time.
 """
 
+from datetime import datetime, timezone
+import os
 from pathlib import Path
+import sqlite3
 import time
 
 from rosbags.interfaces import (
@@ -19,9 +24,12 @@ from rosbags.interfaces import (
     QosTime,
 )
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+from rosbags.rosbag2.metadata import parse_qos
 from rosbags.typesys import get_typestore, Stores
 
 
+STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
+DEFAULT_STORAGE = 'mcap'
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 _ZERO = QosTime(0, 0)
 
@@ -39,16 +47,24 @@ def qos(reliable=True, transient_local=False, depth=1):
 
 
 class BagWriter:
-    """Write raw CDR messages to a new bag; use as a context manager (closes on any exit)."""
+    """Write raw CDR messages to a new bag; use as a context manager (closes on any exit).
 
-    def __init__(self, path, commit_period=1.0):
+    storage: 'mcap' (Jazzy's default) or 'sqlite3'. Every `commit_period` s what was written
+    is made durable: a run killed hard loses at most that much.
+    """
+
+    def __init__(self, path, storage=DEFAULT_STORAGE, commit_period=1.0):
         path = Path(path)
+        if storage not in STORAGES:
+            raise BagError(f'{path}: unknown bag storage {storage!r}; one of '
+                           f'{", ".join(STORAGES)}')
         if path.exists():
             raise BagError(f'{path}: a bag (or file) already exists there; not overwriting')
         path.parent.mkdir(parents=True, exist_ok=True)
         self.path = path
+        self.storage = storage
         self.commit_period = commit_period
-        self._writer = Writer(path, version=9, storage_plugin=StoragePlugin.SQLITE3)
+        self._writer = Writer(path, version=9, storage_plugin=STORAGES[storage])
         self._connections = {}
         self._last_commit = time.monotonic()
         self.count = 0
@@ -61,9 +77,13 @@ class BagWriter:
         self.close()
 
     def add_topic(self, topic, msgtype, offered_qos):
-        """Register a topic with its type name ('geometry_msgs/msg/PoseStamped') and Qos."""
+        """Register a topic with its type name ('geometry_msgs/msg/PoseStamped') and its
+        offered Qos (one, or a list: one per publisher).
+        """
+        profiles = list(offered_qos) if isinstance(offered_qos, (list, tuple)) and not \
+            isinstance(offered_qos, Qos) else [offered_qos]
         self._connections[topic] = self._writer.add_connection(
-            topic, msgtype, typestore=TYPESTORE, offered_qos_profiles=[offered_qos])
+            topic, msgtype, typestore=TYPESTORE, offered_qos_profiles=profiles)
 
     def write(self, topic, stamp_ns, data):
         """Append one serialized message received at stamp_ns (ns since the epoch)."""
@@ -78,7 +98,16 @@ class BagWriter:
 
     def commit(self):
         """Make everything written so far durable (survives a hard kill)."""
-        self._writer.storage.conn.commit()
+        storage = self._writer.storage
+        if self.storage == 'sqlite3':
+            storage.conn.commit()
+        else:
+            # rosbags keeps an MCAP chunk in memory until it holds 1 MiB: close it now (a
+            # complete chunk record with its message indexes) and put it on disk.
+            if storage.chunk.msgs:
+                storage.close_chunk()
+            storage.bio.flush()
+            os.fsync(storage.bio.fileno())
         self._last_commit = time.monotonic()
 
     def close(self):
@@ -88,7 +117,7 @@ class BagWriter:
 
 def _open_error(path, exc):
     return BagError(f'{path}: not a readable ROS 2 bag ({type(exc).__name__}: {exc}); a bag '
-                    'from a run killed hard needs `ros2 bag reindex` first')
+                    'from a run killed hard needs `curve-formation bag repair` first')
 
 
 def read_raw(path, topics=None):
@@ -133,3 +162,140 @@ def bag_info(path):
 def bag_summary(path):
     """{topic: (msgtype, count)} from a bag's metadata."""
     return bag_info(path)[0]
+
+
+def describe_bag(path):
+    """What `ros2 bag info` tells of a bag, as a dict: storage, files, size (bytes), start,
+    end and duration (ns since the epoch, ns), message count, custom metadata keys, and per
+    topic its type, count, serialization format and offered QoS profiles.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise BagError(f'{path}: no such bag')
+    try:
+        with Reader(path) as reader:
+            files = [f['path'] for f in reader.storage.files]
+            topics = [{'topic': c.topic, 'type': c.msgtype, 'count': c.msgcount,
+                       'serialization_format': c.ext.serialization_format,
+                       'qos': [qos_text(q) for q in c.ext.offered_qos_profiles]}
+                      for c in sorted(reader.connections, key=lambda c: c.topic)]
+            return {'path': str(path),
+                    'storage': 'mcap' if files and files[0].endswith('.mcap') else 'sqlite3',
+                    'files': files,
+                    'size': sum(f.stat().st_size for f in path.iterdir() if f.is_file()),
+                    'start': reader.start_time, 'end': reader.end_time,
+                    'duration': reader.duration, 'messages': reader.message_count,
+                    'custom': sorted(reader.storage.metadata.custom or {}),
+                    'topics': topics}
+    except Exception as exc:  # noqa: BLE001
+        raise _open_error(path, exc) from None
+
+
+def qos_text(profile):
+    """A Qos record in words: 'reliable, transient local, keep last 1'."""
+    history = ('keep all' if profile.history == QosHistory.KEEP_ALL
+               else f'keep last {profile.depth}')
+    return ', '.join((profile.reliability.name.lower().replace('_', ' '),
+                      profile.durability.name.lower().replace('_', ' '), history))
+
+
+def format_bag_info(info):
+    """The text of `curve-formation bag info`, laid out as `ros2 bag info` prints it."""
+    def when(ns):
+        moment = datetime.fromtimestamp(ns * 1e-9, tz=timezone.utc)
+        return f'{moment:%b %d %Y %H:%M:%S}.{ns // 1_000_000 % 1000:03d} ({ns * 1e-9:.3f})'
+    count = info['messages']
+    lines = [f'Files:             {", ".join(info["files"])}',
+             f'Bag size:          {_size_text(info["size"])}',
+             f'Storage id:        {info["storage"]}',
+             f'Duration:          {info["duration"] * 1e-9:.3f}s',
+             f'Start:             {when(info["start"]) if count else "-"}',
+             f'End:               {when(info["end"]) if count else "-"}',
+             f'Messages:          {count}']
+    for k, topic in enumerate(info['topics']):
+        lines.append(('Topic information: ' if k == 0 else ' ' * 19)
+                     + f'Topic: {topic["topic"]} | Type: {topic["type"]} | Count: '
+                     f'{topic["count"]} | Serialization Format: '
+                     f'{topic["serialization_format"]} | QoS: {"; ".join(topic["qos"])}')
+    if info['custom']:
+        lines.append(f'Custom data:       {", ".join(info["custom"])}')
+    return '\n'.join(lines)
+
+
+def _size_text(size):
+    for unit in ('B', 'KiB', 'MiB', 'GiB'):
+        if size < 1024 or unit == 'GiB':
+            return f'{size:.1f} {unit}' if unit != 'B' else f'{size} B'
+        size /= 1024
+
+
+def repair(path, out=None):
+    """Rewrite a bag whose writer was killed (no metadata.yaml; for MCAP no summary) as a
+    complete bag at `out` (default: PATH-repaired) in the same storage; the original is left
+    as it is. Returns (out, messages copied). What a killed writer left half-written at the
+    end of an MCAP file is dropped.
+    """
+    path = Path(path)
+    out = Path(out) if out is not None else path.with_name(path.name + '-repaired')
+    files = {'mcap': sorted(path.glob('*.mcap')), 'sqlite3': sorted(path.glob('*.db3'))}
+    storage = next((name for name, found in files.items() if found), None)
+    if storage is None:
+        raise BagError(f'{path}: no .mcap or .db3 file to repair')
+    topics, records = (_mcap_records(files['mcap']) if storage == 'mcap'
+                       else _sqlite3_records(files['sqlite3']))
+    with BagWriter(out, storage) as writer:
+        for topic, (msgtype, profiles) in topics.items():
+            writer.add_topic(topic, msgtype, profiles or [qos()])
+        for topic, stamp, data in sorted(records, key=lambda r: r[1]):
+            writer.write(topic, stamp, data)
+    return out, len(records)
+
+
+def _sqlite3_records(db_files):
+    """({topic: (msgtype, [Qos])}, [(topic, stamp_ns, cdr)]) committed to .db3 files."""
+    topics, records = {}, []
+    for db in db_files:
+        try:
+            with sqlite3.connect(f'file:{db}?mode=ro', uri=True) as conn:
+                names = {}
+                for tid, name, msgtype, profiles in conn.execute(
+                        'SELECT id, name, type, offered_qos_profiles FROM topics'):
+                    names[tid] = name
+                    topics[name] = (msgtype, parse_qos(profiles) if profiles else [])
+                records += [(names[tid], stamp, bytes(data)) for tid, stamp, data in
+                            conn.execute('SELECT topic_id, timestamp, data FROM messages')]
+        except sqlite3.Error as exc:
+            raise BagError(f'{db}: not a readable sqlite3 bag file ({exc})') from None
+    return topics, records
+
+
+def _mcap_records(mcap_files):
+    """({topic: (msgtype, [Qos])}, [(topic, stamp_ns, cdr)]) of the complete records of
+    .mcap files, read in order with the `mcap` library up to the first incomplete one.
+    """
+    try:
+        from mcap.records import Channel, Message, Schema
+        from mcap.stream_reader import StreamReader
+    except ImportError:
+        raise BagError('repairing an MCAP bag needs the `mcap` package (pip install mcap)'
+                       ) from None
+    topics, records = {}, []
+    for path in mcap_files:
+        schemas, channels = {}, {}
+        with open(path, 'rb') as stream:
+            reader = StreamReader(stream, validate_crcs=True)
+            try:
+                for record in reader.records:
+                    if isinstance(record, Schema):
+                        schemas[record.id] = record.name
+                    elif isinstance(record, Channel):
+                        profiles = record.metadata.get('offered_qos_profiles', '')
+                        channels[record.id] = record.topic
+                        topics[record.topic] = (schemas[record.schema_id],
+                                                parse_qos(profiles) if profiles else [])
+                    elif isinstance(record, Message) and record.channel_id in channels:
+                        records.append((channels[record.channel_id], record.log_time,
+                                        bytes(record.data)))
+            except Exception:  # noqa: BLE001, S110 - the killed writer's unfinished tail
+                pass
+    return topics, records

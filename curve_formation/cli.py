@@ -1,6 +1,7 @@
 """`curve-formation`: simulate, run, record and analyse formation experiments.
 
-Subcommands: sim (batch simulator), demo (the headless main job), run (ROS 2 node graph).
+Subcommands: check, sim (batch simulator), demo (the headless main job), run (ROS 2 node
+graph), analyze, replay and bag (info, repair) for recorded bags, estop, nodes-doc.
 Bad input ends with one line `error: FILE: KEY: ...` and exit status 2, never a traceback.
 """
 
@@ -12,7 +13,7 @@ import sys
 
 import numpy as np
 
-from curve_formation.bag import BagError
+from curve_formation.bag import BagError, DEFAULT_STORAGE, STORAGES
 from curve_formation.core.experiment import ConfigError, load_experiment
 from curve_formation.paths import resolve_config, use_dds_profile
 
@@ -109,23 +110,52 @@ def _cmd_demo(args):
     print('    ' + _summary_line(DEMO_RUN, result))
     _write_json(out / 'summary.json', summary)
     print(f'wrote {out}/: summary.json; paper_cases/<case>/ and {DEMO_RUN}/ with '
-          f'metrics.json and figures; {DEMO_RUN}/bag (ROS 2 bag, sqlite3)')
+          f'metrics.json and figures; {DEMO_RUN}/bag (ROS 2 bag, MCAP)')
 
 
 def _cmd_run(args):
     from curve_formation.runner import run_experiment
     result = run_experiment(args.config, args.out, args.duration, args.single_process,
                             with_robots=not args.no_sim, rate_hz=args.rate, bag_path=args.bag,
-                            camera={} if args.camera else None, bag_images=args.bag_images)
+                            camera={} if args.camera else None, bag_images=args.bag_images,
+                            bag_storage=args.bag_storage)
     print(_summary_line(result['experiment'], result))
     print(f'wrote {args.out}/metrics.json, figures, params/ and logs/')
 
 
 def _cmd_analyze(args):
     from curve_formation.analysis import analyze_bag
-    result = analyze_bag(args.bag, args.out, args.experiment, args.compare)
+    result = analyze_bag(args.bag, args.out, args.experiment, args.compare, args.compare_sim)
     print(_summary_line(result['experiment'], result))
+    if args.compare_sim:
+        print(_summary_line('simulated', result['compare_sim']))
+        print(f'{"phase":>5s} {"start (s)":>9s} {"settled (s)":>12s} {"simulated (s)":>14s} '
+              f'{"final ||e||":>12s} {"simulated":>10s}')
+        for row in result['compare_sim_table']:
+            print(f'{row["phase"]:5d} {row["start"]:9.2f} {_seconds(row["settle_time"]):>12s} '
+                  f'{_seconds(row["settle_time_sim"]):>14s} {row["final_error_norm"]:12.3g} '
+                  f'{_number(row["final_error_norm_sim"]):>10s}')
     print(f'wrote {args.out}/metrics.json and figures')
+
+
+def _seconds(value):
+    return 'not settled' if value is None else f'{value:.2f}'
+
+
+def _number(value):
+    return '-' if value is None else f'{value:.3g}'
+
+
+def _cmd_bag_info(args):
+    from curve_formation.bag import describe_bag, format_bag_info
+    info = describe_bag(args.bag)
+    print(json.dumps(info, indent=2) if args.json else format_bag_info(info))
+
+
+def _cmd_bag_repair(args):
+    from curve_formation.bag import repair
+    out, count = repair(args.bag, args.out)
+    print(f'wrote {out}: {count} messages')
 
 
 def _cmd_replay(args):
@@ -205,7 +235,9 @@ def build_parser():
     run.add_argument('--rate', type=float, help="control rate (Hz; default: the file's or 10)")
     run.add_argument('--single-process', action='store_true',
                      help='all nodes in one process and executor')
-    run.add_argument('--bag', help='record a ROS 2 bag (sqlite3) at this new path')
+    run.add_argument('--bag', help='record a ROS 2 bag at this new path')
+    run.add_argument('--bag-storage', choices=tuple(STORAGES), default=DEFAULT_STORAGE,
+                     help="bag storage (default mcap, as Jazzy's ros2 bag record)")
     run.add_argument('--no-sim', action='store_true',
                      help='no fake robots: drive the real robots that publish /robot_<i>/pose')
     run.add_argument('--camera', action='store_true',
@@ -221,7 +253,22 @@ def build_parser():
     analyze.add_argument('--out', required=True, help='output folder')
     analyze.add_argument('--experiment', help='experiment YAML, if the bag does not carry it')
     analyze.add_argument('--compare', help='a second bag to overlay (e.g. real vs simulated)')
+    analyze.add_argument('--compare-sim', action='store_true',
+                         help="overlay the batch simulator run from the bag's own start and "
+                         'curves: paths, error norms, settling per phase')
     analyze.set_defaults(func=_cmd_analyze)
+    bag = sub.add_parser('bag', help='inspect or repair a bag (no ROS CLI needed)')
+    bag_sub = bag.add_subparsers(dest='bag_command', required=True)
+    info = bag_sub.add_parser('info', help='what `ros2 bag info` prints: storage, duration, '
+                              'topics with types, counts and QoS')
+    info.add_argument('bag', help='bag folder')
+    info.add_argument('--json', action='store_true', help='print it as JSON')
+    info.set_defaults(func=_cmd_bag_info)
+    fix = bag_sub.add_parser('repair', help='rewrite the bag of a run killed hard (no '
+                             'metadata.yaml, MCAP without summary) as a complete bag')
+    fix.add_argument('bag', help='bag folder')
+    fix.add_argument('--out', help='folder of the repaired bag (default BAG-repaired)')
+    fix.set_defaults(func=_cmd_bag_repair)
     rep = sub.add_parser('replay', help='publish a bag with its original timing and types')
     rep.add_argument('bag', help='bag folder')
     rep.add_argument('--rate', type=float, default=1.0, help='speed factor (2 = twice as fast)')

@@ -8,6 +8,7 @@ A monitor node in this process samples poses, commands and estimates; at the end
 Ctrl-C) all nodes are stopped with SIGINT and metrics and figures are written.
 """
 
+import dataclasses
 from dataclasses import dataclass
 import json
 import os
@@ -23,8 +24,9 @@ import numpy as np
 import yaml
 
 from curve_formation.analysis import EXPERIMENT_KEY
+from curve_formation.bag import DEFAULT_STORAGE
 from curve_formation.core import metrics, plots
-from curve_formation.core.experiment import load_experiment
+from curve_formation.core.experiment import control_rate, load_experiment, received_phases
 from curve_formation.nodes.runtime import (
     make_executor,
     PublicationCounter,
@@ -35,7 +37,6 @@ from curve_formation.nodes.runtime import (
 from curve_formation.paths import resolve_config, use_dds_profile
 
 
-DEFAULT_RATE_HZ = 10.0
 # Keys of the bag metadata (custom_data) that make a bag self-describing.
 PARAMETERS_KEY = 'curve_formation.parameters'
 READY_TIMEOUT = 90.0   # s; nine Python processes start in ~10 s on two cores
@@ -97,7 +98,6 @@ def node_launches(experiment, experiment_path, with_robots=True, rate_hz=None,
             'wheel_base': float(limits.wheel_base),
             'max_wheel_speed': _finite_or_zero(limits.max_wheel_speed),
             'max_angular_rate': _finite_or_zero(limits.max_angular_rate),
-            'spacing': spec.agents.spacing,
             'pc_disturbance': d if on_pc else [0.0, 0.0],
             'pose_timeout': spec.safety.pose_timeout,
             'neighbour_timeout': spec.safety.neighbour_timeout,
@@ -143,11 +143,6 @@ def camera_launches(experiment, experiment_path, with_fake_camera, overrides):
     return launches
 
 
-def control_rate(experiment, rate_hz=None):
-    """Controllers' rate (Hz): the override, else the file's, else DEFAULT_RATE_HZ."""
-    return float(rate_hz or experiment.spec.controller.rate_hz or DEFAULT_RATE_HZ)
-
-
 def _geofence(spec):
     """[xmin, ymin, xmax, ymax]: the arena grown by the safety margin; [] without an arena."""
     if spec.arena is None:
@@ -186,7 +181,8 @@ class Run:
 
     def __init__(self, experiment_path, out_dir, single_process=False, with_robots=True,
                  rate_hz=None, record_hz=20.0, pose_noise=(0.0, 0.0), command_latency=0.0,
-                 bag_path=None, faults=None, camera=None, bag_images=False, log=print):
+                 bag_path=None, faults=None, camera=None, bag_images=False, log=print,
+                 bag_storage=DEFAULT_STORAGE):
         self.experiment_path = resolve_config(experiment_path)
         self.bag_images = bag_images
         self.experiment = load_experiment(self.experiment_path)
@@ -214,7 +210,8 @@ class Run:
         if bag_path is not None:
             self.publications_dir.mkdir(parents=True, exist_ok=True)
             from curve_formation.bag import BagWriter
-            self.bag_writer = BagWriter(bag_path)   # refuses an existing path before any start
+            # refuses an existing path before any start
+            self.bag_writer = BagWriter(bag_path, bag_storage)
 
     # -- lifecycle -------------------------------------------------------------------------
     def __enter__(self):
@@ -412,19 +409,32 @@ class Run:
         data = self.recording()
         if len(data['t']) < 2:
             raise RuntimeError('nothing was recorded')
-        phase = phases_of(data['curve_id'], len(self.experiment.phases))
-        result = metrics.run_metrics(self.experiment, data['t'], data['poses'], phase,
+        experiment, phase = self.followed(data['curve_id'])
+        result = metrics.run_metrics(experiment, data['t'], data['poses'], phase,
                                      data['dhat'], data['commands'])
         result['control'] = f'ROS nodes at {self.rate_hz:g} Hz'
         result['mode'] = 'single process' if self.single_process else 'one process per node'
         if len(data['true_poses']) == len(data['t']):
-            result['ground_truth'] = ground_truth_metrics(self.experiment, data, phase)
+            result['ground_truth'] = ground_truth_metrics(experiment, data, phase)
         self.out.mkdir(parents=True, exist_ok=True)
         (self.out / 'metrics.json').write_text(json.dumps(result, indent=2) + '\n')
-        plots.run_figures(self.out, self.experiment, data['t'], data['poses'], phase,
+        plots.run_figures(self.out, experiment, data['t'], data['poses'], phase,
                           data['dhat'], label=label)
         np.savez_compressed(self.out / 'trajectory.npz', phase=phase, **data)
         return result
+
+
+    def followed(self, curve_ids):
+        """(experiment, phase): the experiment with the phases the run followed, i.e. the
+        curves and agents' parameters the monitor received (core.experiment.received_phases),
+        and the phase index (R,) of each sample's curve id.
+        """
+        received = self.monitor.received_curves()
+        ids = np.array(sorted(self.monitor.curves))
+        phase = np.clip(np.searchsorted(ids, np.asarray(curve_ids, dtype=int)), 0,
+                        len(ids) - 1)
+        return (dataclasses.replace(self.experiment,
+                                    phases=received_phases(self.experiment, received)), phase)
 
 
 def phases_of(curve_ids, phase_count):
@@ -450,14 +460,15 @@ def _overrides(parameters):
 
 
 def run_experiment(config, out_dir, duration=None, single_process=False, with_robots=True,
-                   rate_hz=None, bag_path=None, camera=None, bag_images=False, log=print):
+                   rate_hz=None, bag_path=None, camera=None, bag_images=False, log=print,
+                   bag_storage=DEFAULT_STORAGE):
     """Run an experiment's node graph for `duration` s (default: the file's) and measure it.
 
     Ctrl-C (SIGINT) and SIGTERM stop every node and close the bag; both only set
     Run.stop_requested, acted on between callbacks (see Run.spin_until).
     """
     run = Run(config, out_dir, single_process, with_robots, rate_hz, bag_path=bag_path,
-              camera=camera, bag_images=bag_images, log=log)
+              camera=camera, bag_images=bag_images, log=log, bag_storage=bag_storage)
     duration = run.experiment.spec.simulation.duration if duration is None else duration
     previous = {sig: signal.signal(sig, lambda *_: run.stop_requested.set())
                 for sig in (signal.SIGINT, signal.SIGTERM)}

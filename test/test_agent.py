@@ -21,8 +21,7 @@ def controllers_for(experiment, rate_hz):
         cfg = AgentConfig(index=i, agent_count=experiment.n,
                           neighbours=tuple(experiment.graph.in_neighbours(i)),
                           pinning=experiment.graph.follower_pinning, gains=experiment.gains,
-                          limits=experiment.limits, rate_hz=rate_hz,
-                          spacing=experiment.spec.agents.spacing)
+                          limits=experiment.limits, rate_hz=rate_hz)
         ctrl = AgentController(cfg)
         # the parameters the curve server sends with the curve
         ctrl.set_curve(experiment.phases[0].curve, 0, experiment.phases[0].s)
@@ -79,6 +78,9 @@ def config(**kw):
     return AgentConfig(**base)
 
 
+THIRDS = [0.0, 1 / 3, 2 / 3]   # the curve server's uniform s_i for 3 agents on a closed curve
+
+
 def circle():
     from curve_formation.core.curve_sources import expression_samples
     from curve_formation.core.curves import fit_curve, FourierBasis
@@ -88,7 +90,7 @@ def circle():
 
 def ready(cfg=None):
     ctrl = AgentController(cfg or config())
-    ctrl.set_curve(circle(), 0)
+    ctrl.set_curve(circle(), 0, THIRDS)
     ctrl.on_pose(0.0, 0.0, 0.0, 10.0)
     ctrl.on_neighbour(1, 0.2, 0.0, 0, 10.0, 10.0)
     return ctrl
@@ -121,7 +123,7 @@ def test_any_stale_or_inconsistent_input_stops_the_robot(mutate, reason):
 
 def test_missing_neighbour_stops_until_it_reports():
     ctrl = AgentController(config())
-    ctrl.set_curve(circle(), 0)
+    ctrl.set_curve(circle(), 0, THIRDS)
     ctrl.on_pose(0.0, 0.0, 0.0, 10.0)
     assert 'no news from the leader' in ctrl.tick(10.0).stopped
     ctrl.leader_stamp = 10.0
@@ -148,7 +150,7 @@ def test_commands_respect_wheel_limits_with_pc_disturbance():
 
 def test_leader_uses_its_own_error_only():
     ctrl = AgentController(AgentConfig(index=1, agent_count=3, gains=Gains(1.0, 0.0, 0.1)))
-    ctrl.set_curve(circle(), 0)
+    ctrl.set_curve(circle(), 0, THIRDS)
     ctrl.on_pose(0.0, 0.0, 0.0, 1.0)
     tick = ctrl.tick(1.0)
     assert tick.feedback == pytest.approx(tick.error)
@@ -157,7 +159,7 @@ def test_leader_uses_its_own_error_only():
 def test_a_curve_breaking_the_assumptions_is_refused():
     ctrl = AgentController(config(agent_count=9))   # 9 agents > H = 5
     with pytest.raises(ValueError, match='Assumption 2'):
-        ctrl.set_curve(circle(), 0)
+        ctrl.set_curve(circle(), 0, np.arange(9) / 9)
     assert ctrl.curve is None
 
 
@@ -171,7 +173,7 @@ def test_leader_news_propagates_and_its_loss_stops_followers_without_deadlock():
     ctrls = {i: AgentController(config(index=i, neighbours=nbrs, leader_timeout=1.0))
              for i, nbrs in graph.items()}
     for c in ctrls.values():
-        c.set_curve(circle(), 0)
+        c.set_curve(circle(), 0, THIRDS)
 
     def exchange(now, leader_alive=True):
         for i, c in ctrls.items():
@@ -235,4 +237,6 @@ def test_curve_parameters_from_the_sender_are_used_and_checked():
         ctrl.set_curve(circle(), 1, [0.5, 0.0])
     with pytest.raises(AssignmentError, match='share'):
         ctrl.set_curve(circle(), 1, [0.5, 0.5, 0.0])
+    with pytest.raises(AssignmentError, match='no agent parameters'):
+        ctrl.set_curve(circle(), 1, None)      # agents never derive s_i themselves
     assert ctrl.curve_id == 0                  # a refused curve leaves the previous one

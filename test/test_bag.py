@@ -20,9 +20,10 @@ from curve_formation.nodes.runtime import PublicationCounter
 from curve_formation.runner import bag_accounting
 
 
-def test_write_then_read_round_trip(tmp_path):
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_write_then_read_round_trip(tmp_path, storage):
     path = tmp_path / 'bag'
-    with BagWriter(path) as writer:
+    with BagWriter(path, storage) as writer:
         writer.add_topic('/robot_1/cmd_vel', 'geometry_msgs/msg/Twist', qos())
         for k in range(50):
             msg = Twist()
@@ -34,6 +35,7 @@ def test_write_then_read_round_trip(tmp_path):
     assert [m.linear.x for _, _, _, m in got] == pytest.approx([0.01 * k for k in range(50)])
     assert [stamp for _, _, stamp, _ in got] == sorted(stamp for _, _, stamp, _ in got)
     assert (path / 'metadata.yaml').read_text().count('offered_qos_profiles') == 1
+    assert len(list(path.glob('*.mcap' if storage == 'mcap' else '*.db3'))) == 1
 
 
 class _NodeStub:
@@ -191,13 +193,14 @@ def test_recorder_console_script_records_over_dds(ros, ros_env, tmp_path):
     assert got == pytest.approx([0.001 * k for k in range(20)]), out
 
 
-def start_run(tmp_path, ros_env, sigint_ignored=False):
+def start_run(tmp_path, ros_env, sigint_ignored=False, storage='mcap'):
     """`curve-formation run` with a bag, returned once its t = 0; with `sigint_ignored` as
     from a background job of a non-interactive shell (SIGINT inherited ignored).
     """
     proc = subprocess.Popen(
         [sys.executable, '-m', 'curve_formation.cli', 'run', str(DATA_DIR / 'fast_closed.yaml'),
-         '--out', str(tmp_path / 'run'), '--duration', '120', '--bag', str(tmp_path / 'bag')],
+         '--out', str(tmp_path / 'run'), '--duration', '120', '--bag', str(tmp_path / 'bag'),
+         '--bag-storage', storage],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=ros_env,
         preexec_fn=(lambda: signal.signal(signal.SIGINT, signal.SIG_IGN)) if sigint_ignored
         else None)
@@ -243,6 +246,9 @@ def test_interrupted_run_leaves_a_closed_valid_bag(tmp_path, ros_env, sig):
     for topic, _, _, msg in read_messages(tmp_path / 'bag', [f'/robot_{i}/cmd_vel'
                                                             for i in range(1, 7)]):
         last[topic] = (msg.linear.x, msg.angular.z)
+    # A complete, indexed MCAP file, as Jazzy's reader needs it.
+    assert _complete_mcap_messages(tmp_path / 'bag' / 'bag.mcap', summary=True)[0] == sum(
+        count for _, count in summary.values())
     # Each controller's final command, sent as it was stopped, is zero and was recorded.
     assert all(v == (0.0, 0.0) for v in last.values()), last
     # Every message the nodes published on a reliable topic (while subscribed) is in the bag;
@@ -253,21 +259,63 @@ def test_interrupted_run_leaves_a_closed_valid_bag(tmp_path, ros_env, sig):
 
 
 @pytest.mark.ros
-def test_hard_killed_run_loses_at_most_the_last_second(tmp_path, ros_env):
-    proc = start_run(tmp_path, ros_env)
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_hard_killed_run_loses_at_most_the_last_second(tmp_path, ros_env, storage):
+    """Killed hard, the bag holds all but the last second, and `bag repair` makes a complete
+    bag of it that our reader (and, for MCAP, the independent mcap reader) reads whole.
+    """
+    proc = start_run(tmp_path, ros_env, storage=storage)
     time.sleep(4.0)
     killed_at = time.time()
     proc.kill()
     proc.wait(10)
-    db = tmp_path / 'bag' / 'bag.db3'
-    assert not (tmp_path / 'bag' / 'metadata.yaml').exists()   # never closed
-    with sqlite3.connect(db) as conn:
-        count, newest = conn.execute('SELECT COUNT(*), MAX(timestamp) FROM messages').fetchone()
+    bag = tmp_path / 'bag'
+    assert not (bag / 'metadata.yaml').exists()   # never closed
+    if storage == 'sqlite3':
+        with sqlite3.connect(bag / 'bag.db3') as conn:
+            count, newest = conn.execute(
+                'SELECT COUNT(*), MAX(timestamp) FROM messages').fetchone()
+    else:
+        count, newest = _complete_mcap_messages(bag / 'bag.mcap')
     assert count > 1000
     assert killed_at - newest * 1e-9 < 1.5   # commit period 1 s, plus scheduling slack
+    with pytest.raises(BagError, match='bag repair'):
+        list(read_messages(bag))
+    repaired = subprocess.run([sys.executable, '-m', 'curve_formation.cli', 'bag', 'repair',
+                               str(bag)], capture_output=True, text=True)
+    assert repaired.returncode == 0, repaired.stderr
+    assert f'{count} messages' in repaired.stdout
+    stamps = [stamp for _, _, stamp, _ in read_messages(tmp_path / 'bag-repaired')]
+    assert len(stamps) == count and max(stamps) == newest
+    if storage == 'mcap':
+        assert _complete_mcap_messages(tmp_path / 'bag-repaired' / 'bag-repaired.mcap',
+                                       summary=True) == (count, newest)
     # The node processes do not outlive a killed runner.
     deadline = time.monotonic() + 20
     while subprocess.run(['pgrep', '-f', str(tmp_path / 'run' / 'params')],
                          capture_output=True).returncode == 0:
         assert time.monotonic() < deadline, 'node processes outlived the killed runner'
         time.sleep(0.2)
+
+
+def _complete_mcap_messages(path, summary=False):
+    """(count, newest log time in ns) of an MCAP file's messages, read with the independent
+    `mcap` library: record by record up to a killed writer's unfinished tail, or (summary)
+    through the file's summary and indexes, as Jazzy's reader does.
+    """
+    from mcap.exceptions import McapError
+    from mcap.reader import make_reader
+    from mcap.stream_reader import StreamReader
+    count, newest = 0, 0
+    with open(path, 'rb') as stream:
+        if summary:
+            for _, _, message in make_reader(stream).iter_messages():
+                count, newest = count + 1, max(newest, message.log_time)
+            return count, newest
+        try:
+            for record in StreamReader(stream).records:
+                if type(record).__name__ == 'Message':
+                    count, newest = count + 1, max(newest, record.log_time)
+        except (McapError, EOFError, ValueError):
+            pass   # the chunk being written when the process was killed
+    return count, newest

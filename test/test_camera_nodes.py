@@ -155,3 +155,19 @@ def test_fake_camera_renders_the_true_poses_and_covers_markers_on_cue(ros):
     frames.clear()
     spin_until(lambda: len(frames) > 2)
     assert sorted(tracker.process(messages.gray_from_image_msg(frames[-1])).poses) == [1, 3, 4]
+
+
+def test_tracker_marks_each_robots_target_as_the_curve_server_assigned_it(ros):
+    """The debug image's targets: robot i's is G(s_i) xi with s_i from the curve message
+    (nearest assignment permutes them), never re-derived from the spacing.
+    """
+    from std_msgs.msg import Float64MultiArray
+    context, add, spin_until = ros
+    tracker = add(CameraTracker(context=context, parameter_overrides=params()))
+    probe = add(Node('probe', context=context))
+    curve_pub = probe.create_publisher(Float64MultiArray, topics.CURVE, qos.LATCHED)
+    phase = load_experiment(resolve_config('arena_demo')).phases[0]
+    assert not np.allclose(phase.s, np.sort(phase.s))   # assigned, not in spacing order
+    curve_pub.publish(messages.curve_to_msg(phase.curve, 0, phase.s))
+    spin_until(lambda: tracker.targets is not None)
+    np.testing.assert_allclose(tracker.targets, phase.targets)

@@ -25,6 +25,54 @@ def test_package_xml_is_format_3_with_the_message_dependencies():
             'visualization_msgs', 'diagnostic_msgs'} <= deps
 
 
+# Every third-party module the package imports at run time: (pip name, rosdep key or None
+# where rosdep has none). ROS packages are exec_depends by their own name.
+RUNTIME = {'numpy': ('numpy', 'python3-numpy'), 'scipy': ('scipy', 'python3-scipy'),
+           'numba': ('numba', 'python3-numba'),
+           'matplotlib': ('matplotlib', 'python3-matplotlib'),
+           'yaml': ('PyYAML', 'python3-yaml'), 'pydantic': ('pydantic', 'python3-pydantic'),
+           'cv2': ('opencv-python-headless', 'python3-opencv'),
+           'rosbags': ('rosbags', 'python3-rosbags-pip'), 'mcap': ('mcap', None)}
+ROS = {'rclpy', 'geometry_msgs', 'std_msgs', 'nav_msgs', 'sensor_msgs', 'visualization_msgs',
+       'diagnostic_msgs', 'builtin_interfaces', 'ament_index_python', 'rcl_interfaces',
+       'rosgraph_msgs'}
+
+
+def imported_modules():
+    """Top-level names of every module imported anywhere in curve_formation/."""
+    import ast
+    names = set()
+    for path in (ROOT / 'curve_formation').rglob('*.py'):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                names.update(alias.name.split('.')[0] for alias in node.names)
+            elif isinstance(node, ast.ImportFrom) and node.level == 0:
+                names.add(node.module.split('.')[0])
+    return names - set(sys.stdlib_module_names) - {'curve_formation'}
+
+
+def install_requires():
+    """The distribution names setup.py's install_requires lists (read, not run)."""
+    import ast
+    import re
+    for node in ast.walk(ast.parse((ROOT / 'setup.py').read_text())):
+        if isinstance(node, ast.keyword) and node.arg == 'install_requires':
+            return {re.split(r'[<>=!~ ]', ast.literal_eval(item))[0] for item in node.value.elts}
+    raise AssertionError('setup.py has no install_requires')
+
+
+def test_every_runtime_dependency_is_declared_for_pip_and_rosdep():
+    imported = imported_modules()
+    assert imported <= set(RUNTIME) | ROS, imported - set(RUNTIME) - ROS
+    deps = {e.text for e in ET.parse(ROOT / 'package.xml').getroot().findall('exec_depend')}
+    for module in imported:
+        pip, rosdep = RUNTIME.get(module, (None, module))
+        if rosdep is not None:
+            assert rosdep in deps, f'package.xml lacks {rosdep} (imports {module})'
+        if pip is not None:
+            assert pip in install_requires(), f'setup.py lacks {pip} (imports {module})'
+
+
 @pytest.fixture(scope='module')
 def colcon_install(tmp_path_factory):
     """colcon build of a copy of the tracked sources; returns the install prefix."""

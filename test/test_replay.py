@@ -23,13 +23,15 @@ pytestmark = pytest.mark.ros
 
 @pytest.fixture(scope='module')
 def recorded(tmp_path_factory):
-    """A 6 s run of the fast closed-curve experiment, recorded to a bag."""
+    """A 6 s run of the fast closed-curve experiment, recorded to a sqlite3 bag (the MCAP
+    default is recorded by test_analysis).
+    """
     import random
     folder = tmp_path_factory.mktemp('recorded')
     os.environ['ROS_DOMAIN_ID'] = str(random.SystemRandom().randint(1, 101))
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     with Run(DATA_DIR / 'fast_closed.yaml', folder / 'run', bag_path=folder / 'bag',
-             log=lambda *_: None) as run:
+             log=lambda *_: None, bag_storage='sqlite3') as run:
         run.spin_for(6.0)
         live = run.write_results()
     del os.environ['ROS_DOMAIN_ID']

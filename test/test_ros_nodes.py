@@ -84,7 +84,7 @@ def test_follower_drives_only_while_its_inputs_are_fresh(ros):
                   leader_timeout=5.0))))   # the neighbour is the leader: its own timeout
     probe = Probe(context, 2)
     add(probe.node)
-    probe.curve_pub.publish(messages.curve_to_msg(circle_curve(), 0))
+    probe.curve_pub.publish(messages.curve_to_msg(circle_curve(), 0, [0.0, 1 / 3, 2 / 3]))
     spin_until(lambda: ctrl.controller.curve is not None)
 
     def feed(seconds, neighbour=True):
@@ -121,7 +121,7 @@ def test_nan_inputs_are_rejected_not_forwarded(ros):
     ({'agent_count': 3}, 'index'),
     ({'index': 2, 'agent_count': 3, 'in_neighbours': [1], 'weights': [1.0, 2.0]}, 'weights'),
     ({'index': 2, 'agent_count': 3, 'in_neighbours': [7]}, 'in_neighbours'),
-    ({'index': 1, 'agent_count': 3, 'role': 'leader', 'spacing': 'random'}, 'spacing'),
+    ({'index': 1, 'agent_count': 3, 'role': 'leader', 'law': 'random'}, 'law'),
     ({'index': 1, 'agent_count': 3, 'role': 'follower'}, 'role'),
     ({'index': 1, 'agent_count': 3, 'role': 'leader', 'offset': 0.0}, 'offset'),
     ({'index': 1, 'agent_count': 3, 'role': 'leader', 'k2': 'fast'}, 'k2'),

@@ -20,7 +20,7 @@ from typing import Optional
 
 import numpy as np
 
-from curve_formation.core.assignment import agent_parameters, AssignmentError, check_assumptions
+from curve_formation.core.assignment import AssignmentError, check_assumptions
 from curve_formation.core.control import (
     agent_input,
     body_velocity,
@@ -64,8 +64,6 @@ class AgentConfig:
     geofence: Optional[tuple] = None  # (xmin, ymin, xmax, ymax), arena frame (m)
     max_linear_accel: float = math.inf   # m/s^2
     max_angular_accel: float = math.inf  # rad/s^2
-    spacing: str = 'uniform_s'
-    fixed_s: Optional[float] = None  # overrides the spacing rule when given
     pc_disturbance: tuple = (0.0, 0.0)  # added to the command before the limits (m/s, rad/s)
 
     @property
@@ -134,21 +132,20 @@ class AgentController:
         self.anchor = None
         self.reference = (0.0, 0.0)
 
-    def set_curve(self, curve, curve_id, s_all=None):
+    def set_curve(self, curve, curve_id, s_all):
         """Adopt a new curve; raises ValueError (AssignmentError) if it breaks the assumptions.
 
-        s_all (n,): every agent's parameter as the sender assigned them; None derives them
-        from the configured spacing (agent i the i-th).
+        s_all (n,): every agent's parameter as the sender (the curve server) assigned them;
+        a curve without them is refused: agents never derive s_i themselves.
         """
         n = self.config.agent_count
         if s_all is None:
-            s_all = agent_parameters(curve, n, self.config.spacing)
-        elif len(s_all) != n:
+            raise AssignmentError("the curve carries no agent parameters s_i (the curve "
+                                  "server's curves do)")
+        if len(s_all) != n:
             raise AssignmentError(f'the curve assigns {len(s_all)} agent parameters, this '
                                   f'team has {n} agents')
         s_all = np.array(s_all, dtype=float)
-        if self.config.fixed_s is not None:
-            s_all[self.config.index - 1] = self.config.fixed_s
         check_assumptions(curve.basis, s_all)
         self.curve, self.curve_id = curve, int(curve_id)
         self.s = float(s_all[self.config.index - 1])

@@ -78,6 +78,19 @@ def assigned_parameters(curve, s, points, assignment):
     raise AssignmentError(f'unknown assignment {assignment!r}; expected one of {ASSIGNMENTS}')
 
 
+def phase_parameters(curve, n, spacing, assignment, from_points):
+    """The agents' curve parameters s (n,) for one curve of the schedule: the one source of s_i.
+
+    The spacing's n points (agent i the i-th with `fixed`), or with `nearest` those points
+    assigned to the agents at `from_points` (n, 2; arena frame, m): the start's control
+    points for the first curve, the previous curve's targets after a switch. Checked against
+    Assumptions 1 and 2 (AssignmentError, or CurveError for a spacing the curve cannot have).
+    """
+    s = assigned_parameters(curve, agent_parameters(curve, n, spacing), from_points, assignment)
+    check_assumptions(curve.basis, s)
+    return s
+
+
 def check_assumptions(basis, s):
     """Refuse s that break Assumption 1 (rank G_bar = min(2n, 2H)) or 2 (n <= H).
 

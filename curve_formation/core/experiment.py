@@ -13,15 +13,10 @@ from pydantic import ValidationError
 import yaml
 
 from curve_formation.core import curve_sources
-from curve_formation.core.assignment import (
-    agent_parameters,
-    assigned_parameters,
-    AssignmentError,
-    check_assumptions,
-)
+from curve_formation.core.assignment import AssignmentError, phase_parameters
 from curve_formation.core.config_schema import ExperimentSpec
 from curve_formation.core.control import Gains, NO_LIMITS, WheelLimits
-from curve_formation.core.curves import CurveError, fit_curve, make_basis
+from curve_formation.core.curves import CurveError, Fit, fit_curve, make_basis
 from curve_formation.core.expressions import ExpressionError
 from curve_formation.core.graph import DirectedGraph, Edge, GraphError
 from curve_formation.core.metrics import offset_points
@@ -93,6 +88,15 @@ class Experiment:
                             p.g_bar)), 'n_le_H': self.n <= p.curve.basis.H,
                         's': p.s.tolist()} for p in self.phases],
         }
+
+
+# Control rate (Hz) of the ROS controllers when the experiment gives none (continuous).
+DEFAULT_RATE_HZ = 10.0
+
+
+def control_rate(experiment, rate_hz=None):
+    """The ROS controllers' rate (Hz): the override, else the file's, else DEFAULT_RATE_HZ."""
+    return float(rate_hz or experiment.spec.controller.rate_hz or DEFAULT_RATE_HZ)
 
 
 def _format_location(loc):
@@ -167,32 +171,51 @@ def with_start(experiment, poses):
     curve parameters are assigned again from there.
     """
     poses = np.array(poses, dtype=float)
-    phases = _assign_phases(experiment.phases, offset_points(poses, experiment.gains.offset),
-                            experiment.spec.agents.assignment, experiment.source)
+    phases = _assign_phases(experiment.spec, experiment.source,
+                            [(p.index, p.start, p.fit) for p in experiment.phases],
+                            offset_points(poses, experiment.gains.offset))
     return dataclasses.replace(experiment, initial_poses=poses, phases=tuple(phases))
 
 
+def received_phases(experiment, curves):
+    """The phases a run followed, from the curves it received, in order: curves is a list of
+    (start, curve, s) with start in s since the first curve and s (n,) the agents' parameters
+    the curve message carried. A curve equal to the schedule's curve of the same index keeps
+    that phase's fit (residuals); any other (an observed curve) has no fit residual (NaN).
+    """
+    phases = []
+    for k, (start, curve, s) in enumerate(curves):
+        s = np.asarray(s, dtype=float)
+        scheduled = experiment.phases[k].fit if k < len(experiment.phases) else None
+        same = (scheduled is not None and scheduled.curve.basis.describe()
+                == curve.basis.describe() and np.allclose(scheduled.curve.xi, curve.xi,
+                                                          rtol=0, atol=1e-12))
+        fit = scheduled if same else Fit(curve, math.nan, math.nan, 0)
+        g_bar = curve.basis.G(s).reshape(2 * len(s), 2 * curve.basis.H)
+        phases.append(Phase(k, float(start), fit, s, curve.points(s), g_bar))
+    return tuple(phases)
+
+
 def _build_phases(spec, source, start_points):
-    phases = [_build_phase(k, curve_spec, spec.agents.count, spec.agents.spacing, source,
-                           f'curves[{k}]') for k, curve_spec in enumerate(spec.curves)]
-    return _assign_phases(phases, start_points, spec.agents.assignment, source)
+    fits = [(k, curve_spec.start, _fit_phase_curve(curve_spec, source, f'curves[{k}]'))
+            for k, curve_spec in enumerate(spec.curves)]
+    return _assign_phases(spec, source, fits, start_points)
 
 
-def _assign_phases(phases, start_points, assignment, source):
-    """Phases with their s permuted by `assignment`, each from where the previous ended."""
-    if assignment == 'fixed':
-        return list(phases)
+def _assign_phases(spec, source, fits, start_points):
+    """Phases (index, start, fit) with their agents' parameters (assignment.phase_parameters),
+    each assigned from where the previous one left the agents: the start, then its targets.
+    """
     out, points = [], start_points
-    for phase in phases:
-        # phase.s may carry an earlier assignment: start from the spacing's sorted points
-        s = assigned_parameters(phase.curve, np.sort(phase.s), points, assignment)
+    for index, start, fit in fits:
         try:
-            g_bar = check_assumptions(phase.curve.basis, s)
-        except AssignmentError as exc:
-            raise ConfigError(source, f'curves[{phase.index}]', str(exc)) from None
-        targets = phase.curve.points(s)
-        out.append(dataclasses.replace(phase, s=s, targets=targets, g_bar=g_bar))
-        points = targets
+            s = phase_parameters(fit.curve, spec.agents.count, spec.agents.spacing,
+                                 spec.agents.assignment, points)
+        except (AssignmentError, CurveError) as exc:
+            raise ConfigError(source, f'curves[{index}]', str(exc)) from None
+        g_bar = fit.curve.basis.G(s).reshape(2 * len(s), 2 * fit.curve.basis.H)
+        points = fit.curve.points(s)
+        out.append(Phase(index, start, fit, s, points, g_bar))
     return out
 
 
@@ -216,7 +239,8 @@ def _check_camera(spec, source):
                           f'{camera.dictionary} (ids 0..{size - 1})')
 
 
-def _build_phase(index, curve_spec, n, spacing, source, key):
+def _fit_phase_curve(curve_spec, source, key):
+    """The fitted curve (curves.Fit) of one entry of `curves`."""
     try:
         basis = make_basis(curve_spec.basis, curve_spec.size)
         closed = basis.closed
@@ -227,15 +251,9 @@ def _build_phase(index, curve_spec, n, spacing, source, key):
             s, pts = curve_sources.bezier_samples(curve_spec.bezier, curve_spec.samples)
         else:
             s, pts = curve_sources.point_samples(curve_spec.points, closed)
-        fit = fit_curve(basis, s, pts)
+        return fit_curve(basis, s, pts)
     except (CurveError, ExpressionError) as exc:
         raise ConfigError(source, key, str(exc)) from None
-    try:
-        s_agents = agent_parameters(fit.curve, n, spacing)
-        g_bar = check_assumptions(basis, s_agents)
-    except (AssignmentError, CurveError) as exc:
-        raise ConfigError(source, key, str(exc)) from None
-    return Phase(index, curve_spec.start, fit, s_agents, fit.curve.points(s_agents), g_bar)
 
 
 def _limits(spec):

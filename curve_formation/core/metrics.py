@@ -9,6 +9,12 @@ import numpy as np
 from scipy.spatial.distance import pdist
 
 
+def finite_or_none(value):
+    """value as a float, or None when it is NaN or infinite (JSON has no NaN)."""
+    value = float(value)
+    return value if np.isfinite(value) else None
+
+
 def offset_points(poses, offset):
     """(R, n, 2) control points xb = x + l [cos theta, sin theta]."""
     th = poses[..., 2]
@@ -149,7 +155,8 @@ def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance
         settle = settle_time(t, norm, tolerance * size, p.start, end)
         phases.append({
             'index': p.index, 'start': p.start, 'curve_size': size,
-            'basis': p.curve.basis.describe(), 'fit_rms_residual': p.fit.rms_residual,
+            'basis': p.curve.basis.describe(),
+            'fit_rms_residual': finite_or_none(p.fit.rms_residual),
             'tolerance': tolerance * size, 'settled': settle is not None,
             'settle_time': settle, 'initial_error_norm': float(norm[window][0]),
             'final_error_norm': float(norm[last]),

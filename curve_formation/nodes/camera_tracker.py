@@ -25,7 +25,6 @@ from rclpy.node import Node
 from sensor_msgs.msg import Image
 from std_msgs.msg import Float64MultiArray
 
-from curve_formation.core.assignment import agent_parameters
 from curve_formation.nodes import messages, qos, topics
 from curve_formation.nodes.params import (
     declare_parameters,
@@ -142,11 +141,12 @@ class CameraTracker(Node):
     def _on_curve(self, msg):
         try:
             curve, _ = messages.curve_from_msg(msg)
+            s = messages.agent_parameters_from_msg(msg)
         except messages.MessageError:
             return
-        spacing = self.experiment.spec.agents.spacing
         self.curve = curve
-        self.targets = curve.points(agent_parameters(curve, self.n, spacing))
+        # Each robot's target as the curve server assigned it (None: the curve alone).
+        self.targets = None if s is None or len(s) != self.n else curve.points(s)
 
     def _on_capture(self):
         ok, frame = self.capture.read()
@@ -206,7 +206,8 @@ class CameraTracker(Node):
             to_pixels = np.linalg.inv(calibration.homography)
             line = apply_homography(to_pixels, self.curve.points(np.linspace(0, 1, 300)))
             cv2.polylines(image, [np.round(line).astype(np.int32)], False, (255, 128, 0), 1)
-            for agent, (u, v) in enumerate(apply_homography(to_pixels, self.targets), 1):
+            targets = [] if self.targets is None else apply_homography(to_pixels, self.targets)
+            for agent, (u, v) in enumerate(targets, 1):
                 cv2.circle(image, (int(round(u)), int(round(v))), 5, (0, 165, 255), 2)
                 cv2.putText(image, str(agent), (int(round(u)) + 6, int(round(v)) - 6),
                             cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 165, 255), 1)

@@ -16,12 +16,7 @@ from rclpy.node import Node
 from std_msgs.msg import ColorRGBA, Float64MultiArray
 from visualization_msgs.msg import Marker, MarkerArray
 
-from curve_formation.core.assignment import (
-    agent_parameters,
-    assigned_parameters,
-    AssignmentError,
-    check_assumptions,
-)
+from curve_formation.core.assignment import AssignmentError, phase_parameters
 from curve_formation.core.curve_sources import point_samples
 from curve_formation.core.curves import CurveError, fit_curve, make_basis
 from curve_formation.core.metrics import offset_points
@@ -150,11 +145,9 @@ class CurveServer(Node):
         try:
             basis = make_basis(self.params.observed_basis, self.params.observed_size)
             fit = fit_curve(basis, *point_samples(points, basis.closed))
-            n = self.experiment.n
-            s = agent_parameters(fit.curve, n, self.experiment.spec.agents.spacing)
-            s = assigned_parameters(fit.curve, s, self.targets,
-                                    self.experiment.spec.agents.assignment)
-            check_assumptions(basis, s)
+            agents = self.experiment.spec.agents
+            s = phase_parameters(fit.curve, self.experiment.n, agents.spacing,
+                                 agents.assignment, self.targets)
         except (CurveError, AssignmentError) as exc:
             self.get_logger().error(f'observed curve refused ({len(points)} points): {exc}')
             return

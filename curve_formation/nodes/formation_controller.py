@@ -17,7 +17,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64MultiArray
 
 from curve_formation.core.agent import AgentConfig, AgentController
-from curve_formation.core.assignment import AssignmentError, SPACINGS
+from curve_formation.core.assignment import AssignmentError
 from curve_formation.core.control import Gains, LAWS, WheelLimits
 from curve_formation.nodes import messages, qos, topics
 from curve_formation.nodes.params import declare_parameters, Param, ParameterError
@@ -54,11 +54,6 @@ PARAMETERS = (
     Param('max_wheel_speed', 'double', 0.0, 'max linear speed of each wheel (m/s); 0 = '
           'unlimited', low=0.0),
     Param('max_angular_rate', 'double', 0.0, 'max |w| (rad/s); 0 = unlimited', low=0.0),
-    Param('spacing', 'string', 'uniform_s', 'how s_i is derived from a curve that does not '
-          "carry the agents' parameters (the curve server sends them)",
-          choices=SPACINGS),
-    Param('s', 'double', -1.0, 'fixed curve parameter s_i in [0, 1]; negative = derive from '
-          '`spacing`', high=1.0),
     Param('pose_timeout', 'double', 0.5, 'own pose older than this stops the robot (s)',
           positive=True),
     Param('neighbour_timeout', 'double', 0.5, 'neighbour state older than this stops the '
@@ -117,7 +112,6 @@ def agent_config(p):
                     observer_rate=p.observer_rate, sampled_heading=p.heading == 'sampled'),
         limits=WheelLimits(p.wheel_base, p.max_wheel_speed or inf, p.max_angular_rate or inf),
         rate_hz=p.rate_hz, pose_timeout=p.pose_timeout, neighbour_timeout=p.neighbour_timeout,
-        spacing=p.spacing, fixed_s=p.s if p.s >= 0 else None,
         pc_disturbance=tuple(p.pc_disturbance), leader_timeout=p.leader_timeout,
         geofence=None if fence is None else tuple(fence),
         max_linear_accel=p.max_linear_accel or inf, max_angular_accel=p.max_angular_accel or inf)

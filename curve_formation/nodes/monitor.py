@@ -49,6 +49,7 @@ class Monitor(Node):
         self.curve_id = None
         self.t0 = None
         self.curve_times = {}      # curve id -> time the monitor received it (s)
+        self.curves = {}           # curve id -> (Curve, agents' parameters s (n,) or None)
         # Per robot, one (published, received, handled) row per command (s, system clock):
         # the DDS source timestamp, the time DDS received it here, the time this callback ran.
         self.command_arrivals = [[] for _ in range(n)]
@@ -101,10 +102,15 @@ class Monitor(Node):
         self.adopted.setdefault((i, curve_id), now_seconds(self))
 
     def _on_curve(self, msg):
-        _, self.curve_id = messages.curve_from_msg(msg)
+        curve, self.curve_id = messages.curve_from_msg(msg)
+        self.curves.setdefault(self.curve_id, (curve, messages.agent_parameters_from_msg(msg)))
         self.curve_times.setdefault(self.curve_id, now_seconds(self))
         if self.t0 is None:
             self.t0 = now_seconds(self)
+
+    def received_curves(self):
+        """[(start, curve, s)] of the curves received, by id (start in s since t = 0)."""
+        return [(self.curve_times[k] - self.t0, *self.curves[k]) for k in sorted(self.curves)]
 
     def ready(self):
         """Every robot's pose and every controller's command has been seen."""

@@ -108,6 +108,8 @@ PARAMETERS = (
     Param('bag', 'string', None, 'path of the new bag (refused if it exists)'),
     Param('agent_count', 'int', None, 'number of robots n whose topics are recorded', low=1),
     Param('image_topics', 'string[]', [], 'sensor_msgs/Image topics to record as well'),
+    Param('storage', 'string', bag.DEFAULT_STORAGE, "bag storage: mcap (Jazzy's default) or "
+          'sqlite3', choices=tuple(bag.STORAGES)),
 )
 
 TOPICS = (
@@ -130,7 +132,7 @@ class RecorderNode(Recorder):
         finally:
             probe.destroy_node()
         try:
-            writer = bag.BagWriter(p.bag)
+            writer = bag.BagWriter(p.bag, p.storage)
         except bag.BagError as exc:
             raise ParameterError(f"parameter 'bag': {exc}") from None
         writer.__enter__()
