@@ -10,6 +10,7 @@ NODES = {
     'curve_server': 'curve_formation.nodes.curve_server:main',
     'formation_controller': 'curve_formation.nodes.formation_controller:main',
     'fake_robot': 'curve_formation.nodes.fake_robot:main',
+    'fake_arena': 'curve_formation.nodes.fake_arena:main',
     'formation_recorder': 'curve_formation.nodes.recorder:main',
     'camera_tracker': 'curve_formation.nodes.camera_tracker:main',
     'fake_camera': 'curve_formation.nodes.fake_camera:main',

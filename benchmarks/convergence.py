@@ -59,7 +59,7 @@ def limits_for(case, gains, rate):
     limits = case.limits
     unlimited = (limits.max_wheel_speed == np.inf and limits.max_angular_rate == np.inf)
     if rate and unlimited and not gains.sampled_heading:
-        return dataclasses.replace(limits, max_angular_rate=TURN_BOUND)
+        return limits._replace(max_angular_rate=TURN_BOUND)
     return limits
 
 

@@ -71,7 +71,7 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0):
             if s is None or len(s) != n:
                 raise BagError(f"{path}: curve {curve_id} carries no agents' parameters for "
                                f'{n} agents: cannot tell which robot goes where')
-            curves.append((t, curve, s))
+            curves.append((t, curve_id, curve, s))
             continue
         match = _ROBOT_TOPIC.match(topic)
         if not match or not 1 <= int(match.group(1)) <= n:
@@ -93,9 +93,9 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0):
     if end - t0 < 2.0 / sample_hz:
         raise BagError(f'{path}: less than two samples of poses after the first curve')
     grid = t0 + np.arange(0.0, end - t0, 1.0 / sample_hz)
-    phases = received_phases(experiment, [(t - t0, curve, s) for t, curve, s in curves])
-    curve_times = np.array([c[0] for c in curves])
-    phase = np.searchsorted(curve_times, grid, side='right') - 1
+    phases = received_phases(experiment, [(t - t0, k, curve, s) for t, k, curve, s in curves])
+    starts = np.array([p.start for p in phases]) + t0
+    phase = np.searchsorted(starts, grid, side='right') - 1
     return BagRun(replace(experiment, phases=phases), grid - t0,
                   _sample(events['pose'], grid, 3), _sample(events['cmd_vel'], grid, 2),
                   _sample(events['disturbance_estimate'], grid, 2), phase, counts)
@@ -141,8 +141,9 @@ def analyze_bag(path, out_dir, experiment_path=None, compare=None, compare_sim=F
         others.append(('simulated', sim.t, sim.poses, sim.phase))
     for label, o_t, o_poses, o_phase in others:
         stem = 'compare' if label != 'simulated' else 'compare_sim'
-        errors = [metrics.error_norm(metrics.target_errors(r_poses, r_phase, run.experiment))
-                  for r_poses, r_phase in ((poses, phase), (o_poses, o_phase))]
+        errors = [metrics.error_norm(metrics.target_errors(r_poses, r_phase, run.experiment,
+                                                           t=r_t))
+                  for r_t, r_poses, r_phase in ((t, poses, phase), (o_t, o_poses, o_phase))]
         plots.plot_error_norm(out / f'{stem}_error_norm.png', run.experiment,
                               [(Path(path).name, t, errors[0]), (label, o_t, errors[1])])
         plots.plot_paths(out / f'{stem}_paths.png', run.experiment, poses, phase,
@@ -173,7 +174,7 @@ def simulate_recorded(experiment, t, poses):
     # A phase that began before the first known poses starts the simulation.
     start_phase = max(0, int(np.searchsorted([p.start for p in experiment.phases], begin,
                                              side='right')) - 1)
-    shifted = tuple(replace(p, start=max(0.0, p.start - begin))
+    shifted = tuple(replace(p, start=max(0.0, p.start - begin), changes=())
                     for p in experiment.phases[start_phase:] if p.start < t[-1])
     shifted = (replace(shifted[0], start=0.0),) + shifted[1:]
     sim_experiment = replace(experiment, phases=shifted, initial_poses=np.array(poses[0]))
@@ -183,7 +184,13 @@ def simulate_recorded(experiment, t, poses):
     result = simulate(sim_experiment, rate_hz=control_rate(experiment), duration=duration)
     result.t = result.t + begin
     result.phase = result.phase + start_phase
-    result.experiment = experiment
+    # The simulation's own re-assignments, on the run's clock.
+    followed = tuple(replace(real, changes=tuple((when + begin, s, points)
+                                                 for when, s, points in simulated.changes))
+                     for real, simulated in zip(experiment.phases[start_phase:],
+                                                result.experiment.phases, strict=False))
+    result.experiment = replace(experiment, phases=experiment.phases[:start_phase] + followed
+                                + experiment.phases[start_phase + len(followed):])
     return result
 
 

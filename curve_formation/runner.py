@@ -76,6 +76,7 @@ def node_launches(experiment, experiment_path, with_robots=True, rate_hz=None,
     rate = control_rate(experiment, rate_hz)
     on_pc = spec.disturbance.injected == 'on_pc'
     limits = experiment.limits
+    one_world = uses_fake_arena(experiment)
     # The curve server waits for the n controllers, the runner's monitor and the camera nodes
     # (they draw the curve).
     launches = [NodeLaunch('curve_formation.nodes.curve_server', '/', 'curve_server',
@@ -107,6 +108,7 @@ def node_launches(experiment, experiment_path, with_robots=True, rate_hz=None,
             'max_linear_accel': float(spec.limits.max_linear_accel or 0.0) if spec.limits else 0.0,
             'max_angular_accel': (float(spec.limits.max_angular_accel or 0.0) if spec.limits
                                   else 0.0),
+            **avoidance_parameters(experiment),
         }
         if nbrs:
             controller['in_neighbours'] = [j for j, _ in nbrs]
@@ -115,7 +117,7 @@ def node_launches(experiment, experiment_path, with_robots=True, rate_hz=None,
         controller = {k: v for k, v in controller.items() if v != []}
         launches.append(NodeLaunch('curve_formation.nodes.formation_controller', ns,
                                    'formation_controller', controller))
-        if with_robots:
+        if with_robots and not one_world:
             launches.append(NodeLaunch('curve_formation.nodes.fake_robot', ns, 'fake_robot', {
                 'index': i,
                 'initial_pose': [float(v) for v in experiment.initial_poses[i - 1]],
@@ -124,7 +126,32 @@ def node_launches(experiment, experiment_path, with_robots=True, rate_hz=None,
                 'command_latency': float(command_latency),
                 'fault_pose_drop': float(faults.get('pose_drop', 0.0)),
                 'pose_topic': 'pose' if camera is None else 'true_pose'}))
+    if with_robots and one_world:
+        launches.append(NodeLaunch('curve_formation.nodes.fake_arena', '/', 'fake_arena', {
+            'experiment': str(Path(experiment_path).resolve()),
+            'pose_noise': [float(v) for v in pose_noise],
+            'command_latency': float(command_latency),
+            'fault_pose_drop': float(faults.get('pose_drop', 0.0)),
+            'pose_topic': 'pose' if camera is None else 'true_pose',
+            'publish_robot_poses': camera is None}))
     return launches + cameras
+
+
+def uses_fake_arena(experiment):
+    """Simulated robots share one world (fake_arena) when they have bodies or avoid each
+    other; otherwise each is a fake_robot of its own, passing through the others.
+    """
+    return experiment.radius > 0 or experiment.avoidance.on
+
+
+def avoidance_parameters(experiment):
+    """The formation_controller parameters of the experiment's safety filter."""
+    av = experiment.avoidance
+    if not av.on:
+        return {}
+    return {'avoidance': True, 'radius': float(av.radius), 'avoidance_margin': av.margin,
+            'avoidance_rate': av.alpha, 'passing': av.bias, 'passing_range': av.bias_range,
+            'arena': [av.width, av.height] if av.width > 0 else []}
 
 
 def camera_launches(experiment, experiment_path, with_fake_camera, overrides):
@@ -409,12 +436,18 @@ class Run:
         data = self.recording()
         if len(data['t']) < 2:
             raise RuntimeError('nothing was recorded')
-        experiment, phase = self.followed(data['curve_id'])
+        experiment, phase = self.followed(data['t'])
+        camera = len(data['true_poses']) == len(data['t'])
+        truth = data['true_poses'] if camera else data['poses']
         result = metrics.run_metrics(experiment, data['t'], data['poses'], phase,
                                      data['dhat'], data['commands'])
+        if 'bodies' in result:   # measured on the bodies, i.e. the true poses
+            result['bodies'] = metrics.body_metrics(experiment, data['t'], truth,
+                                                    self.monitor.contacts,
+                                                    data['unseen'] if camera else None)
         result['control'] = f'ROS nodes at {self.rate_hz:g} Hz'
         result['mode'] = 'single process' if self.single_process else 'one process per node'
-        if len(data['true_poses']) == len(data['t']):
+        if camera:
             result['ground_truth'] = ground_truth_metrics(experiment, data, phase)
         self.out.mkdir(parents=True, exist_ok=True)
         (self.out / 'metrics.json').write_text(json.dumps(result, indent=2) + '\n')
@@ -424,17 +457,15 @@ class Run:
         return result
 
 
-    def followed(self, curve_ids):
+    def followed(self, t):
         """(experiment, phase): the experiment with the phases the run followed, i.e. the
-        curves and agents' parameters the monitor received (core.experiment.received_phases),
-        and the phase index (R,) of each sample's curve id.
+        curves and agents' parameters the monitor received (core.experiment.received_phases,
+        re-assignments included), and the phase index of each sample time t (R,) s.
         """
-        received = self.monitor.received_curves()
-        ids = np.array(sorted(self.monitor.curves))
-        phase = np.clip(np.searchsorted(ids, np.asarray(curve_ids, dtype=int)), 0,
-                        len(ids) - 1)
-        return (dataclasses.replace(self.experiment,
-                                    phases=received_phases(self.experiment, received)), phase)
+        phases = received_phases(self.experiment, self.monitor.received_curves())
+        starts = np.array([p.start for p in phases])
+        phase = np.clip(np.searchsorted(starts, t, side='right') - 1, 0, len(phases) - 1)
+        return dataclasses.replace(self.experiment, phases=phases), phase
 
 
 def phases_of(curve_ids, phase_count):
@@ -445,6 +476,7 @@ def phases_of(curve_ids, phase_count):
 NODE_CLASSES = {'curve_formation.nodes.curve_server': 'CurveServer',
                 'curve_formation.nodes.formation_controller': 'FormationController',
                 'curve_formation.nodes.fake_robot': 'FakeRobot',
+                'curve_formation.nodes.fake_arena': 'FakeArena',
                 'curve_formation.nodes.camera_tracker': 'CameraTracker',
                 'curve_formation.nodes.fake_camera': 'FakeCamera'}
 

@@ -30,11 +30,12 @@ def arena_dict():
 
 def paper_arena():
     """The shipped Mona arena case with the paper's agents and graph: fixed assignment, no
-    follower pinning.
+    follower pinning, point robots (no bodies, no safety filter, no re-assignment).
     """
     from curve_formation.core.experiment import build_experiment
     data = yaml.safe_load((CONFIG_DIR / 'mona_arena.yaml').read_text())
     data['agents']['assignment'] = 'fixed'
+    del data['agents']['reassign_every'], data['robots'], data['avoidance']
     data['graph']['pinning'] = 0.0
     return build_experiment(data, 'mona_arena (paper agents and graph)')
 

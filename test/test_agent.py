@@ -6,22 +6,20 @@ import numpy as np
 import pytest
 
 from conftest import DATA_DIR, paper_arena
-from curve_formation.core.agent import AgentConfig, AgentController, is_stale
-from curve_formation.core.assignment import AssignmentError
+from curve_formation.core.agent import agent_configs, AgentConfig, AgentController, is_stale
+from curve_formation.core.assignment import AssignmentError, reassigned
+from curve_formation.core.bodies import separate
 from curve_formation.core.control import Gains, WheelLimits
 from curve_formation.core.dynamics import arc_step
 from curve_formation.core.experiment import load_experiment, with_start
+from curve_formation.core.metrics import offset_points
 from curve_formation.core.simulator import simulate
 from curve_formation.paths import resolve_config
 
 
 def controllers_for(experiment, rate_hz):
     out = []
-    for i in range(1, experiment.n + 1):
-        cfg = AgentConfig(index=i, agent_count=experiment.n,
-                          neighbours=tuple(experiment.graph.in_neighbours(i)),
-                          pinning=experiment.graph.follower_pinning, gains=experiment.gains,
-                          limits=experiment.limits, rate_hz=rate_hz)
+    for cfg in agent_configs(experiment, rate_hz):
         ctrl = AgentController(cfg)
         # the parameters the curve server sends with the curve
         ctrl.set_curve(experiment.phases[0].curve, 0, experiment.phases[0].s)
@@ -31,26 +29,35 @@ def controllers_for(experiment, rate_hz):
 
 @pytest.mark.parametrize('name', ['mona_arena', str(DATA_DIR / 'fast_closed.yaml'), 'fixed'])
 def test_node_controllers_reproduce_the_simulator_exactly(name):
-    """n AgentControllers ticked together at 10 Hz with exact unicycle steps == simulate()
-    (the shipped arena case has nearest assignment and follower pinning).
+    """n AgentControllers ticked together at 10 Hz with exact unicycle steps == simulate():
+    the same tick pipeline (core.control.agent_command). The shipped arena case has nearest
+    assignment, follower pinning, bodies, the safety filter and re-assignment every second
+    (done here as the curve server does it, with assignment.reassigned).
     """
     experiment = paper_arena() if name == 'fixed' else load_experiment(resolve_config(name))
     rate, dt, duration = 10.0, 0.001, 5.0
     ctrls = controllers_for(experiment, rate)
     on_pc = experiment.spec.disturbance.injected == 'on_pc'
-    if on_pc:
-        ctrls = [AgentController(AgentConfig(**{**c.config.__dict__, 'pc_disturbance': tuple(
-            experiment.disturbance[c.config.index - 1])})) for c in ctrls]
-        for c in ctrls:
-            c.set_curve(experiment.phases[0].curve, 0, experiment.phases[0].s)
     poses = experiment.initial_poses.copy()
+    phase = experiment.phases[0]
+    s = phase.s
     motion = np.zeros((experiment.n, 2))
     steps_per_tick = int(round(1 / (rate * dt)))
+    every = experiment.spec.agents.reassign_every
+    reassigned_at = []
     for step in range(int(round(duration / dt))):
+        if every and step and step % int(round(every / dt)) == 0:
+            new = reassigned(phase.curve, s, offset_points(poses, experiment.gains.offset))
+            if new is not s:
+                s = new
+                reassigned_at.append(step * dt)
+                for c in ctrls:
+                    c.set_curve(phase.curve, 0, s)
         if step % steps_per_tick == 0:
             now = step * dt
             for c, pose in zip(ctrls, poses, strict=True):
                 c.on_pose(*pose, now)
+                c.on_others(poses, now)
             # Neighbour states cross the graph instantly here, leader news included.
             for _ in range(experiment.n):
                 states = {c.config.index: c.state() for c in ctrls}
@@ -65,10 +72,14 @@ def test_node_controllers_reproduce_the_simulator_exactly(name):
                 motion[k] = (tick.v + d[0], tick.w + d[1])
         for k in range(experiment.n):
             poses[k] = arc_step(*poses[k], *motion[k], dt)
+        if experiment.radius > 0:
+            separate(poses, experiment.radius, *experiment.spec.arena.size,
+                     np.zeros((experiment.n, experiment.n), bool))
     sim = simulate(experiment, rate_hz=rate, duration=duration + dt, dt=dt)
     np.testing.assert_allclose(poses, sim.poses[-1], atol=1e-9)
     # The simulator records after its tick at t = 5 s; the last tick here was at 4.9 s.
     np.testing.assert_allclose([c.dhat for c in ctrls], sim.dhat[-2], atol=1e-9)
+    assert reassigned_at == [when for when, _, _ in sim.experiment.phases[0].changes]
 
 
 def config(**kw):
@@ -196,7 +207,8 @@ def test_leader_news_propagates_and_its_loss_stops_followers_without_deadlock():
 
 
 def test_acceleration_limit_ramps_up_but_stops_at_once():
-    ctrl = ready(config(max_linear_accel=0.5, max_angular_accel=1.0, gains=Gains(5.0, 0.0, 0.1)))
+    ctrl = ready(config(limits=WheelLimits(max_linear_accel=0.5, max_angular_accel=1.0),
+                        gains=Gains(5.0, 0.0, 0.1)))
     first = ctrl.tick(10.0)
     assert abs(first.v) <= 0.05 + 1e-12 and abs(first.w) <= 0.1 + 1e-12   # 10 Hz ticks
     second = ctrl.tick(10.1)

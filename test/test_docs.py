@@ -28,9 +28,11 @@ def test_readme_node_reference_is_the_generated_one():
 def test_nodes_create_the_documented_topics(ros_domain, name, module):
     context = Context()
     rclpy.init(context=context)
-    params = {'formation_controller': dict(index=2, agent_count=3, in_neighbours=[1]),
-              'curve_server': dict(experiment='closed_curve'),
+    params = {'formation_controller': dict(index=2, agent_count=3, in_neighbours=[1],
+                                           avoidance=True),
+              'curve_server': dict(experiment='arena_demo'),   # re-assigns: robot poses
               'fake_robot': {},
+              'fake_arena': dict(experiment='arena_demo'),
               'camera_tracker': dict(experiment='arena_demo'),
               'fake_camera': dict(experiment='arena_demo')}[name]
     cls = getattr(module, NODE_CLASSES[module.__name__])

@@ -9,7 +9,7 @@ from scipy.linalg import expm
 
 from curve_formation.core import metrics
 from curve_formation.core.control import NO_LIMITS
-from curve_formation.core.experiment import load_experiment
+from curve_formation.core.experiment import load_experiment, point_robots
 from curve_formation.core.simulator import simulate
 from curve_formation.paths import resolve_config
 
@@ -19,7 +19,8 @@ CASES = ['closed_curve', 'open_curve', 'shape_change', 'mona_arena']
 
 @pytest.fixture(scope='module', params=CASES)
 def case(request):
-    return load_experiment(resolve_config(request.param))
+    """The paper's cases with the formation law alone (point robots: the law's proofs)."""
+    return point_robots(load_experiment(resolve_config(request.param)))
 
 
 LAWS = {
@@ -109,7 +110,7 @@ def test_zero_order_hold_at_10hz_needs_a_bounded_turn_rate():
         case.gains.paper_law(), k2=0.0), duration=60.0)
     free = simulate(case, limits=NO_LIMITS, **kw).error_norm
     assert not np.isfinite(free[-1]) or free[-1] > 0.5 * free[0]
-    bounded = simulate(case, limits=dataclasses.replace(NO_LIMITS, max_angular_rate=10.0),
+    bounded = simulate(case, limits=NO_LIMITS._replace(max_angular_rate=10.0),
                        **kw).error_norm
     assert bounded[-1] < 1e-3 * bounded[0]
 
@@ -151,10 +152,10 @@ def test_compiled_cache_is_dropped_when_a_law_source_changes(tmp_path):
 
     from curve_formation.core import simulator
     here = Path(simulator.__file__).parent
-    for name in ('control.py', 'dynamics.py', 'simulator.py'):
+    for name in simulator.SOURCES:
         shutil.copy(here / name, tmp_path / name)
-    cache = tmp_path / '__pycache__'
-    cache.mkdir()
+    cache = simulator.cache_folder(tmp_path)   # NUMBA_CACHE_DIR's, as bootstrap.sh sets it
+    cache.mkdir(parents=True)
     (cache / 'simulator._run-1.py311.nbi').write_text('compiled')
     assert simulator.drop_stale_cache(tmp_path)            # no record of the sources yet
     assert not list(cache.glob('*.nbi'))
@@ -164,3 +165,4 @@ def test_compiled_cache_is_dropped_when_a_law_source_changes(tmp_path):
         f.write('# edited\n')
     assert simulator.drop_stale_cache(tmp_path)
     assert not list(cache.glob('*.nbi'))
+    shutil.rmtree(cache)

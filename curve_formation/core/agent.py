@@ -22,20 +22,44 @@ import numpy as np
 
 from curve_formation.core.assignment import AssignmentError, check_assumptions
 from curve_formation.core.control import (
-    agent_input,
+    agent_command,
     body_velocity,
     follower_feedback,
     Gains,
     inside_fence,
     leader_feedback,
-    limit_acceleration,
     NO_LIMITS,
-    observer_input,
+    OBSERVER,
     observer_step,
     offset_point,
-    saturate,
     WheelLimits,
 )
+from curve_formation.core.safety import Avoidance, AVOIDANCE_OFF, STOPPED
+
+
+NO_OTHERS = np.zeros((0, 3))
+
+
+def agent_configs(experiment, rate_hz):
+    """Every agent's AgentConfig (agent 1 first) from an experiment, controlled at rate_hz:
+    its graph neighbours, gains, limits, safety timeouts and geofence, PC-injected
+    disturbance and safety filter.
+    """
+    spec = experiment.spec
+    on_pc = spec.disturbance.injected == 'on_pc'
+    fence = None
+    if spec.arena is not None:
+        m = spec.safety.geofence_margin
+        fence = (-m, -m, spec.arena.size[0] + m, spec.arena.size[1] + m)
+    return [AgentConfig(
+        index=i, agent_count=experiment.n, neighbours=tuple(experiment.graph.in_neighbours(i)),
+        pinning=experiment.graph.follower_pinning, gains=experiment.gains,
+        limits=experiment.limits, rate_hz=float(rate_hz),
+        pose_timeout=spec.safety.pose_timeout, neighbour_timeout=spec.safety.neighbour_timeout,
+        leader_timeout=spec.safety.leader_timeout, geofence=fence,
+        pc_disturbance=tuple(float(v) for v in experiment.disturbance[i - 1]) if on_pc
+        else (0.0, 0.0), avoidance=experiment.avoidance)
+        for i in range(1, experiment.n + 1)]
 
 
 def is_stale(stamp, now, timeout):
@@ -62,14 +86,18 @@ class AgentConfig:
     neighbour_timeout: float = 0.5  # s
     leader_timeout: float = 1.0     # s without news from the leader (followers)
     geofence: Optional[tuple] = None  # (xmin, ymin, xmax, ymax), arena frame (m)
-    max_linear_accel: float = math.inf   # m/s^2
-    max_angular_accel: float = math.inf  # rad/s^2
     pc_disturbance: tuple = (0.0, 0.0)  # added to the command before the limits (m/s, rad/s)
+    avoidance: Avoidance = AVOIDANCE_OFF   # the safety filter, from every robot's pose
 
     @property
     def is_leader(self):
         """The leader is the agent that receives from nobody."""
         return not self.neighbours
+
+    @property
+    def law(self):
+        """The control.Law of this agent's ticks."""
+        return self.gains.tick_law(self.rate_hz, on_pc=any(self.pc_disturbance))
 
 
 @dataclass
@@ -85,6 +113,7 @@ class Tick:
     dhat: tuple = (0.0, 0.0)
     feedback: Optional[tuple] = None
     neighbour_stamps: tuple = ()      # ((j, stamp s), ...) of the in-neighbour states used
+    filtered: bool = False            # the safety filter changed the law's command
 
 
 @dataclass(frozen=True)
@@ -124,6 +153,9 @@ class AgentController:
         self.pose_stamp = None
         self.neighbours = {j: _Neighbour() for j, _ in self.config.neighbours}
         self.rejected = 0
+        self.others = NO_OTHERS     # every robot's pose (n, 3), for the safety filter
+        self.others_stamp = None
+        self.filtered = 0           # ticks whose command the safety filter changed
         self.leader_stamp = None
         self.estop = False
         self.last_command = (0.0, 0.0)
@@ -177,6 +209,20 @@ class AgentController:
             self.leader_stamp = leader_stamp
         return True
 
+    def on_others(self, poses, stamp):
+        """Every robot's pose (n, 3; arena frame; NaN rows: not seen) at `stamp` (s), for the
+        safety filter. Returns False (and ignores it) if it does not hold n rows.
+        """
+        poses = np.asarray(poses, dtype=float)
+        if poses.shape != (self.config.agent_count, 3) or not math.isfinite(stamp):
+            self.rejected += 1
+            return False
+        # A robot not seen now keeps its last known pose: unseen, its controller stops it.
+        if self.others is not NO_OTHERS:
+            poses = np.where(np.isfinite(poses), poses, self.others)
+        self.others, self.others_stamp = poses, stamp
+        return True
+
     def set_estop(self, engaged):
         """Engage (True) or release (False) the e-stop."""
         self.estop = bool(engaged)
@@ -228,31 +274,27 @@ class AgentController:
             fx, fy = follower_feedback(ex, ey, [nb.error for nb in self.neighbours.values()],
                                        [w for _, w in cfg.neighbours], cfg.pinning)
             base.neighbour_stamps = tuple((j, nb.stamp) for j, nb in self.neighbours.items())
-        gains = cfg.gains
-        period = 1.0 / cfg.rate_hz
-        hold = gains.hold_period(cfg.rate_hz)
-        if gains.law == 'observer':
+        if cfg.avoidance.on and is_stale(self.others_stamp, now, cfg.pose_timeout):
+            return self._stop('no poses of the other robots yet' if self.others_stamp is None
+                              else f"other robots' poses stale "
+                              f'({now - self.others_stamp:.2f} s old)', base)
+        law = cfg.law
+        if law.code == OBSERVER:
             self._observe()
-            v, w = observer_input(fx, fy, self.pose[2], self.dhat[0], self.dhat[1], gains.k1,
-                                  gains.k2, gains.offset, hold, cfg.limits.wheel_base,
-                                  cfg.limits.max_wheel_speed, cfg.limits.max_angular_rate)
-        else:
-            v, w, ddv, ddw = agent_input(fx, fy, ex, ey, self.pose[2], self.dhat[0],
-                                         self.dhat[1], gains.k1, gains.k2, gains.offset,
-                                         *gains.estimator_gains(), hold)
-            self.dhat[0] += period * ddv
-            self.dhat[1] += period * ddw
-        law_command = (v, w)
-        v, w = limit_acceleration(v + cfg.pc_disturbance[0], w + cfg.pc_disturbance[1],
-                                  *self.last_command, period, cfg.max_linear_accel,
-                                  cfg.max_angular_accel)
-        # The wheel limits come last: whatever the ramp, no wheel exceeds its speed limit.
-        v, w = saturate(v, w, cfg.limits.wheel_base, cfg.limits.max_wheel_speed,
-                        cfg.limits.max_angular_rate)
+        v, w, ref_v, ref_w, ddv, ddw, code = agent_command(
+            fx, fy, ex, ey, *self.pose, self.dhat[0], self.dhat[1], *self.last_command,
+            *cfg.pc_disturbance, law, cfg.limits, self.others, cfg.index - 1, cfg.avoidance)
+        if law.code != OBSERVER:
+            self.dhat[0] += law.period * ddv
+            self.dhat[1] += law.period * ddw
+        if code == STOPPED:
+            return self._stop('safety filter: no motion keeps the robots apart', base)
+        self.filtered += code != 0
         self.anchor = (self.pose, self.pose_stamp)
-        self.reference = law_command if any(cfg.pc_disturbance) else (v, w)
+        self.reference = (ref_v, ref_w)
         self.last_command = (v, w)
         base.v, base.w, base.dhat, base.feedback = v, w, tuple(self.dhat), (fx, fy)
+        base.filtered = code != 0
         return base
 
     def _observe(self):

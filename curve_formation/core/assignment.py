@@ -78,6 +78,31 @@ def assigned_parameters(curve, s, points, assignment):
     raise AssignmentError(f'unknown assignment {assignment!r}; expected one of {ASSIGNMENTS}')
 
 
+# Re-assignment takes a new order only if it shortens the squared trips by this share.
+REASSIGN_IMPROVEMENT = 0.1
+
+
+def reassigned(curve, s, points, improvement=REASSIGN_IMPROVEMENT):
+    """The agents' parameters s (n,) permuted among them so that the agents at `points` (n, 2;
+    their control points, arena frame, m) go to the same n curve points with the smallest sum
+    of squared distances, if that sum is smaller than the current one by more than
+    `improvement` (a share); else s as it is.
+
+    The sum of squared trips is the assignment under which straight paths do not cross
+    (Turpin, Michael, Kumar: CAPT, 2014): re-assigning while robots travel swaps the targets of
+    robots whose ways have come to cross, as bodies push them off their straight paths.
+    """
+    from scipy.optimize import linear_sum_assignment
+    s = np.asarray(s, float)
+    points = np.asarray(points, float)
+    targets = curve.points(s)
+    cost = ((points[:, None, :] - targets[None, :, :]) ** 2).sum(axis=2)
+    rows, cols = linear_sum_assignment(cost)
+    if cost[rows, cols].sum() < (1.0 - improvement) * np.trace(cost):
+        return s[cols[np.argsort(rows)]]
+    return s
+
+
 def phase_parameters(curve, n, spacing, assignment, from_points):
     """The agents' curve parameters s (n,) for one curve of the schedule: the one source of s_i.
 

@@ -60,6 +60,17 @@ class Agents(Strict):
         'longest distance from where the agents are: their start for the first curve, the '
         "previous curve's targets after a switch)")
     initial: Initial
+    reassign_every: Optional[float] = Field(
+        None, gt=0, description='with nearest assignment: every this many seconds the targets '
+        'are re-assigned among the agents from where they are, if that shortens the squared '
+        'trips by 10 % (the curve server; robots whose ways cross swap targets); null = never')
+
+    @model_validator(mode='after')
+    def _reassign_nearest(self):
+        if self.reassign_every is not None and self.assignment != 'nearest':
+            raise ValueError('reassign_every needs assignment: nearest (with fixed assignment '
+                             'agent i keeps the i-th point)')
+        return self
 
 
 class EdgeSpec(Strict):
@@ -261,6 +272,31 @@ class CameraSpec(Strict):
         return self
 
 
+class RobotsSpec(Strict):
+    """The robots' bodies."""
+
+    radius: float = Field(0.0, ge=0, description='body radius (m): a disc around the axle '
+                          'centre that no other body or wall may enter; 0 = points that pass '
+                          'through each other (the paper)')
+
+
+class AvoidanceSpec(Strict):
+    """The safety filter in every controller (core.safety); `avoidance: on` takes these
+    defaults, `off` (or leaving the section out) the formation law alone.
+    """
+
+    margin: float = Field(0.02, ge=0, description='extra distance kept between two bodies and '
+                          'from the walls (m): covers pose latency and the arc a robot draws '
+                          'within a tick')
+    rate: float = Field(5.0, gt=0, description='barrier rate alpha (1/s): how fast a robot '
+                        'may close the distance to the safe one; at most the control rate')
+    passing: float = Field(1.0, ge=0, description='passing rule: sideways speed to the right '
+                           'per unit of approach speed towards a robot nearby (0 = none)')
+    passing_range: Optional[float] = Field(None, gt=0, description='gap above the safe '
+                                           'distance within which the passing rule acts (m); '
+                                           'default: one body diameter')
+
+
 class MetricsSpec(Strict):
     tolerance: float = Field(1e-3, gt=0, description='settling tolerance, relative to the '
                              'size (bounding-box diagonal) of the active curve')
@@ -280,3 +316,15 @@ class ExperimentSpec(Strict):
     safety: SafetySpec = SafetySpec()
     metrics: MetricsSpec = MetricsSpec()
     camera: Optional[CameraSpec] = None
+    robots: RobotsSpec = RobotsSpec()
+    avoidance: Optional[AvoidanceSpec] = None
+
+    @field_validator('avoidance', mode='before')
+    @classmethod
+    def _on_off(cls, value):
+        """`avoidance: on` (YAML true) = the defaults, `off` (false) = none."""
+        if value is True:
+            return {}
+        if value is False:
+            return None
+        return value

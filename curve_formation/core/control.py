@@ -11,15 +11,18 @@ controller node (plain Python) and inside the batch simulator's compiled kernel 
 import dataclasses
 from dataclasses import dataclass
 import math
+from typing import NamedTuple
 
 import numpy as np
 
 from curve_formation.core.dynamics import chord_ratio
+from curve_formation.core.safety import ADJUSTED, safe_command, shaped_feedback
 
 
 # Disturbance estimators, by name in the experiment YAML (`controller.law`) and by code in the
 # compiled simulator.
 LAWS = {'paper': 0, 'adaptive': 1, 'observer': 2}
+OBSERVER = LAWS['observer']
 # Share of the wheel and turn-rate limits the observer law's feedback may use (observer_input).
 FEEDBACK_HEADROOM = 0.95
 
@@ -62,20 +65,94 @@ class Gains:
         """(gamma_v, gamma_w): per-channel multipliers of the paper's estimator rate."""
         return self.adaptation if self.law == 'adaptive' else (1.0, 1.0)
 
+    def tick_law(self, rate_hz, on_pc=False):
+        """The Law of one control tick at rate_hz (None: continuous control)."""
+        gamma_v, gamma_w = self.estimator_gains()
+        return Law(self.law_code, self.k1, self.k2, self.offset, gamma_v, gamma_w,
+                   self.hold_period(rate_hz), 1.0 / rate_hz if rate_hz else 0.0,
+                   self.observer_rate, on_pc)
 
-@dataclass(frozen=True)
-class WheelLimits:
-    """Differential drive: wheel base (m), max wheel speed (m/s), optional max turn rate (rad/s).
 
-    A limit of 0 or infinity means unlimited.
+class Law(NamedTuple):
+    """Gains as agent_command takes them (one argument, also inside the compiled simulator).
+
+    code: LAWS; k1 (1/s), k2, offset l (m), per-channel estimator gains, hold: the period of
+    the sampled heading (s; 0: the paper's heading), period: the control period (s; 0:
+    continuous), observer_rate (1/s), on_pc: the disturbance is added on the PC.
+    """
+
+    code: int
+    k1: float
+    k2: float
+    offset: float
+    gamma_v: float
+    gamma_w: float
+    hold: float
+    period: float
+    observer_rate: float
+    on_pc: bool
+
+
+class WheelLimits(NamedTuple):
+    """Differential drive: wheel base (m), max wheel speed (m/s), optional max turn rate
+    (rad/s) and acceleration limits (m/s^2, rad/s^2). 0 or infinity means unlimited.
     """
 
     wheel_base: float = 0.0
     max_wheel_speed: float = math.inf
     max_angular_rate: float = math.inf
+    max_linear_accel: float = math.inf
+    max_angular_accel: float = math.inf
 
 
 NO_LIMITS = WheelLimits()
+
+
+def agent_command(fx, fy, ex, ey, x, y, theta, dhat_v, dhat_w, prev_v, prev_w, pc_v, pc_w,
+                  law, limits, others, me, avoidance):
+    """One control tick of one agent, from its inputs to the command sent: the one pipeline
+    the ROS controller (core.agent) and the batch simulator both run.
+
+    fx, fy: feedback (m; follower_feedback or leader_feedback); ex, ey: own target error (m);
+    x, y, theta: own pose; dhat: estimate; prev: the previous command sent (for the
+    acceleration limits); pc: disturbance added on the PC (the paper's arena experiment);
+    law: Law; limits: WheelLimits; others (n, 3), me, avoidance: safety.safe_command's.
+    The feedback shaped around robots and walls nearby, the law, then PC disturbance,
+    acceleration and wheel limits, then the safety filter.
+    Returns (v, w, ref_v, ref_w, ddhat_v, ddhat_w, code): the command, what the observer
+    compares the measured motion with (the law's command where the disturbance enters, plus
+    what the filter changed), the continuous-time estimator rate (paper and adaptive laws)
+    and the filter's outcome (safety.UNCHANGED, ADJUSTED, STOPPED).
+    """
+    fx, fy = shaped_feedback(fx, fy, x, y, others, me, law.k1, limits.max_wheel_speed,
+                             avoidance)
+    if law.code == OBSERVER:
+        u_v, u_w = observer_input(fx, fy, theta, dhat_v, dhat_w, law.k1, law.k2, law.offset,
+                                  law.hold, limits.wheel_base, limits.max_wheel_speed,
+                                  limits.max_angular_rate)
+        ddhat_v = 0.0
+        ddhat_w = 0.0
+    else:
+        u_v, u_w, ddhat_v, ddhat_w = agent_input(fx, fy, ex, ey, theta, dhat_v, dhat_w, law.k1,
+                                                 law.k2, law.offset, law.gamma_v, law.gamma_w,
+                                                 law.hold)
+    v, w = limit_acceleration(u_v + pc_v, u_w + pc_w, prev_v, prev_w, law.period,
+                              limits.max_linear_accel, limits.max_angular_accel)
+    # The wheel limits come last: whatever the ramp, no wheel exceeds its speed limit.
+    v, w = saturate(v, w, limits.wheel_base, limits.max_wheel_speed, limits.max_angular_rate)
+    # The robot drifts by the estimated disturbance unless it is added on the PC (then the
+    # command already carries it).
+    drift_v = 0.0 if law.on_pc else law.k2 * dhat_v
+    drift_w = 0.0 if law.on_pc else law.k2 * dhat_w
+    safe_v, safe_w, code = safe_command(v, w, x, y, theta, drift_v, drift_w, others, me,
+                                        law.offset, law.period, avoidance, limits.wheel_base,
+                                        limits.max_wheel_speed, limits.max_angular_rate)
+    if code == ADJUSTED:   # within the limits already, up to round-off
+        safe_v, safe_w = saturate(safe_v, safe_w, limits.wheel_base, limits.max_wheel_speed,
+                                  limits.max_angular_rate)
+    ref_v = (u_v if law.on_pc else v) + (safe_v - v)
+    ref_w = (u_w if law.on_pc else w) + (safe_w - w)
+    return safe_v, safe_w, ref_v, ref_w, ddhat_v, ddhat_w, code
 
 
 def offset_point(x, y, theta, offset):

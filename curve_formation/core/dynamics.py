@@ -23,3 +23,56 @@ def arc_step(x, y, theta, v, w, dt):
     chord = v * dt * chord_ratio(half)
     mid = theta + half
     return x + chord * math.cos(mid), y + chord * math.sin(mid), theta + w * dt
+
+
+class DrivenUnicycle:
+    """A robot driven by velocity commands, as its motor driver would move it (plain Python,
+    for the fake robot nodes; the batch simulator has its own compiled loop).
+
+    Commands are piecewise constant: advance(t) integrates exactly (arc_step) up to t,
+    switching to each command at its due time (received + latency). The disturbance (m/s,
+    rad/s) acts on a driven input only: a zero command means motors off, and so does a
+    command older than `timeout` s (a robot-side watchdog; 0 = none). Times in s.
+    """
+
+    def __init__(self, pose, disturbance=(0.0, 0.0), latency=0.0, timeout=0.0):
+        from collections import deque
+        self.pose = tuple(float(v) for v in pose)
+        self.disturbance = tuple(disturbance)
+        self.latency = latency
+        self.timeout = timeout
+        self.command = (0.0, 0.0)
+        self.pending = deque()
+        self.time = None
+        self.last_command_time = None
+
+    def drive(self, v, w, now):
+        """A command received at `now`; it takes effect `latency` s later."""
+        self.advance(now)
+        self.pending.append((now + self.latency, v, w))
+        self.last_command_time = now
+
+    def advance(self, until):
+        """Move exactly up to `until`, switching commands at their due times. Returns
+        True when the watchdog turned the motors off on the way.
+        """
+        if self.time is None:
+            self.time = until
+        while self.pending and self.pending[0][0] <= until:
+            due, v, w = self.pending.popleft()
+            self._move(max(due, self.time))
+            self.command = (v, w)
+        self._move(until)
+        if (self.timeout > 0 and self.command != (0.0, 0.0) and self.last_command_time
+                is not None and until - self.last_command_time > self.timeout + self.latency):
+            self.command = (0.0, 0.0)
+            return True
+        return False
+
+    def _move(self, until):
+        dt = until - self.time
+        v, w = self.command
+        if dt > 0 and (v != 0.0 or w != 0.0):
+            d = self.disturbance
+            self.pose = arc_step(*self.pose, v + d[0], w + d[1], dt)
+        self.time = max(self.time, until)

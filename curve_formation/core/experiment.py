@@ -10,16 +10,18 @@ from pathlib import Path
 
 import numpy as np
 from pydantic import ValidationError
+from scipy.spatial.distance import pdist
 import yaml
 
 from curve_formation.core import curve_sources
 from curve_formation.core.assignment import AssignmentError, phase_parameters
-from curve_formation.core.config_schema import ExperimentSpec
+from curve_formation.core.config_schema import ExperimentSpec, RobotsSpec
 from curve_formation.core.control import Gains, NO_LIMITS, WheelLimits
 from curve_formation.core.curves import CurveError, Fit, fit_curve, make_basis
 from curve_formation.core.expressions import ExpressionError
 from curve_formation.core.graph import DirectedGraph, Edge, GraphError
 from curve_formation.core.metrics import offset_points
+from curve_formation.core.safety import Avoidance, AVOIDANCE_OFF
 
 
 class ConfigError(ValueError):
@@ -40,6 +42,8 @@ class Phase:
     s: np.ndarray        # (n,) agent parameters
     targets: np.ndarray  # (n, 2) G(s_i) xi, arena frame (m)
     g_bar: np.ndarray    # (2n, 2H)
+    # Re-assignments while the phase was followed: ((t (s), s (n,), targets (n, 2)), ...)
+    changes: tuple = ()
 
     @property
     def curve(self):
@@ -58,6 +62,9 @@ class Experiment:
     disturbance: np.ndarray   # (n, 2) [d_v, d_w]
     initial_poses: np.ndarray  # (n, 3)
     phases: tuple
+    radius: float = 0.0        # bodies (m); 0: points
+    avoidance: Avoidance = AVOIDANCE_OFF
+    warnings: tuple = ()       # what `check` warns of: the run is possible but questionable
 
     @property
     def n(self):
@@ -161,9 +168,13 @@ def _build(spec, source):
     gains = _gains(spec.controller)
     initial = _initial_poses(spec, source)
     phases = tuple(_build_phases(spec, source, offset_points(initial, gains.offset)))
+    avoidance = _avoidance(spec, source)
+    _check_bodies(spec, source, initial, phases)
     return Experiment(spec=spec, source=source, graph=graph, gains=gains,
                       limits=_limits(spec), disturbance=_disturbance(spec, source),
-                      initial_poses=initial, phases=phases)
+                      initial_poses=initial, phases=phases, radius=spec.robots.radius,
+                      avoidance=avoidance,
+                      warnings=tuple(_body_warnings(spec, phases, avoidance, gains.offset)))
 
 
 def with_start(experiment, poses):
@@ -177,22 +188,44 @@ def with_start(experiment, poses):
     return dataclasses.replace(experiment, initial_poses=poses, phases=tuple(phases))
 
 
-def received_phases(experiment, curves):
-    """The phases a run followed, from the curves it received, in order: curves is a list of
-    (start, curve, s) with start in s since the first curve and s (n,) the agents' parameters
-    the curve message carried. A curve equal to the schedule's curve of the same index keeps
-    that phase's fit (residuals); any other (an observed curve) has no fit residual (NaN).
+def point_robots(experiment):
+    """The experiment with the formation law alone, as the paper has it: robots are points
+    that pass through each other (no bodies), no safety filter, no re-assignment.
     """
-    phases = []
-    for k, (start, curve, s) in enumerate(curves):
+    spec = experiment.spec
+    agents = spec.agents.model_copy(update={'reassign_every': None})
+    spec = spec.model_copy(update={'agents': agents, 'avoidance': None,
+                                   'robots': RobotsSpec()})
+    return dataclasses.replace(experiment, spec=spec, radius=0.0, avoidance=AVOIDANCE_OFF,
+                               warnings=())
+
+
+def received_phases(experiment, curves):
+    """The phases a run followed, from the curve messages it received, in order: curves is a
+    list of (t, curve id, curve, s) with t in s since the first curve and s (n,) the agents'
+    parameters the message carried. The first message of an id starts a phase; a later one
+    with the same id re-assigns its targets (Phase.changes). A curve equal to the schedule's
+    curve of the same index keeps that phase's fit (residuals); any other (an observed curve)
+    has no fit residual (NaN).
+    """
+    phases, ids = [], []
+    for when, curve_id, curve, s in curves:
         s = np.asarray(s, dtype=float)
+        if ids and curve_id == ids[-1]:
+            last = phases[-1]
+            if not np.array_equal(s, last.changes[-1][1] if last.changes else last.s):
+                phases[-1] = dataclasses.replace(
+                    last, changes=last.changes + ((float(when), s, curve.points(s)),))
+            continue
+        k = len(phases)
         scheduled = experiment.phases[k].fit if k < len(experiment.phases) else None
         same = (scheduled is not None and scheduled.curve.basis.describe()
                 == curve.basis.describe() and np.allclose(scheduled.curve.xi, curve.xi,
                                                           rtol=0, atol=1e-12))
         fit = scheduled if same else Fit(curve, math.nan, math.nan, 0)
         g_bar = curve.basis.G(s).reshape(2 * len(s), 2 * curve.basis.H)
-        phases.append(Phase(k, float(start), fit, s, curve.points(s), g_bar))
+        phases.append(Phase(k, float(when), fit, s, curve.points(s), g_bar))
+        ids.append(curve_id)
     return tuple(phases)
 
 
@@ -259,9 +292,89 @@ def _fit_phase_curve(curve_spec, source, key):
 def _limits(spec):
     if spec.limits is None:
         return NO_LIMITS
-    rate = spec.limits.max_angular_rate
-    return WheelLimits(spec.limits.wheel_base, spec.limits.max_wheel_speed,
-                       math.inf if rate is None else rate)
+    limits = spec.limits
+
+    def given(value):
+        return math.inf if value is None else value
+    return WheelLimits(limits.wheel_base, limits.max_wheel_speed,
+                       given(limits.max_angular_rate), given(limits.max_linear_accel),
+                       given(limits.max_angular_accel))
+
+
+def _avoidance(spec, source):
+    """The safety filter's settings (safety.AVOIDANCE_OFF without `avoidance`)."""
+    av = spec.avoidance
+    if av is None:
+        return AVOIDANCE_OFF
+    rate = spec.controller.rate_hz
+    if rate is not None and av.rate > rate:
+        raise ConfigError(source, 'avoidance.rate', f'the barrier rate must not exceed the '
+                          f'control rate ({rate:g} Hz), got {av.rate:g} /s: a robot could '
+                          'close more than the whole distance to the safe one in one tick')
+    radius = spec.robots.radius
+    width, height = spec.arena.size if spec.arena is not None else (0.0, 0.0)
+    passing_range = av.passing_range if av.passing_range is not None else 2.0 * radius
+    return Avoidance(True, radius, av.margin, av.rate, av.passing, passing_range,
+                     float(width), float(height))
+
+
+def _check_bodies(spec, source, poses, phases):
+    """Refuse bodies that start overlapping or through a wall, and curves outside the arena."""
+    radius = spec.robots.radius
+    if radius > 0 and len(poses) > 1:
+        gaps = pdist(poses[:, :2])
+        pairs = [(i, j) for i in range(len(poses)) for j in range(i + 1, len(poses))]
+        k = int(np.argmin(gaps))
+        if gaps[k] < 2 * radius:
+            i, j = pairs[k]
+            raise ConfigError(source, 'agents.initial', f'agents {i + 1} and {j + 1} start '
+                              f'{gaps[k]:.3f} m apart: their bodies (robots.radius {radius:g} '
+                              'm) overlap')
+    if spec.arena is None:
+        return
+    width, height = spec.arena.size
+    if radius > 0:
+        out = np.flatnonzero((poses[:, 0] < radius) | (poses[:, 0] > width - radius)
+                             | (poses[:, 1] < radius) | (poses[:, 1] > height - radius))
+        if out.size:
+            raise ConfigError(source, 'agents.initial', f'agent {out[0] + 1} starts at '
+                              f'{poses[out[0], :2].tolist()}: its body (robots.radius '
+                              f'{radius:g} m) crosses the arena wall')
+    for phase in phases:
+        _, points = phase.curve.sample(2000)
+        low, high = points.min(axis=0), points.max(axis=0)
+        if (low < radius).any() or high[0] > width - radius or high[1] > height - radius:
+            raise ConfigError(source, f'curves[{phase.index}]', f'the curve leaves the arena '
+                              f'[0, {width:g}] x [0, {height:g}] m (it spans x '
+                              f'{low[0]:.3f}..{high[0]:.3f}, y {low[1]:.3f}..{high[1]:.3f}'
+                              + (f', robots.radius {radius:g} m' if radius else '') + ')')
+
+
+def _body_warnings(spec, phases, avoidance, offset):
+    """Targets closer than the bodies allow: to each other, and to the walls."""
+    if not avoidance.on and spec.robots.radius <= 0:
+        return []
+    out = []
+    radius = spec.robots.radius
+    margin = avoidance.margin if avoidance.on else 0.0
+    apart = 2 * radius + 2 * abs(offset) + margin
+    for phase in phases:
+        if len(phase.targets) > 1:
+            gaps = pdist(phase.targets)
+            if gaps.min() < apart:
+                out.append(f'curves[{phase.index}]: two targets are {gaps.min():.3f} m apart, '
+                           f'less than bodies allow ({apart:.3f} m: 2 robots.radius + 2 |l| + '
+                           'avoidance.margin); those robots cannot both settle (try spacing: '
+                           'arc_length)')
+        if spec.arena is not None:
+            width, height = spec.arena.size
+            wall = radius + abs(offset) + 0.5 * margin
+            t = phase.targets
+            near = np.minimum.reduce([t[:, 0], width - t[:, 0], t[:, 1], height - t[:, 1]])
+            if near.min() < wall:
+                out.append(f'curves[{phase.index}]: a target is {near.min():.3f} m from a '
+                           f'wall, less than a body allows ({wall:.3f} m)')
+    return out
 
 
 def _disturbance(spec, source):

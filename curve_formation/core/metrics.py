@@ -21,11 +21,25 @@ def offset_points(poses, offset):
     return poses[..., :2] + offset * np.stack([np.cos(th), np.sin(th)], axis=-1)
 
 
-def target_errors(poses, phase, experiment, gains=None):
-    """(R, n, 2) e_i = xb_i - G(s_i) xi of the active curve (offset l from gains)."""
+def target_errors(poses, phase, experiment, gains=None, t=None):
+    """(R, n, 2) e_i = xb_i - G(s_i) xi of the active curve (offset l from gains).
+
+    t (R,) s: the sample times, needed when a phase's targets were re-assigned on the way
+    (Phase.changes).
+    """
     gains = experiment.gains if gains is None else gains
-    targets = np.stack([p.targets for p in experiment.phases])
-    return offset_points(poses, gains.offset) - targets[phase]
+    return offset_points(poses, gains.offset) - sample_targets(experiment, phase, t)
+
+
+def sample_targets(experiment, phase, t=None):
+    """(R, n, 2) every agent's target at each sample: its phase's, as re-assigned by then."""
+    targets = np.stack([p.targets for p in experiment.phases])[np.asarray(phase)]
+    for k, p in enumerate(experiment.phases):
+        if p.changes and t is None:
+            raise ValueError('targets were re-assigned: the sample times are needed')
+        for when, _, points in p.changes:
+            targets[(phase == k) & (np.asarray(t) >= when)] = points
+    return targets
 
 
 def error_norm(errors):
@@ -120,6 +134,55 @@ def closest_approach(poses):
     return float(per_row[k]), k
 
 
+def surface_gaps(poses, radius):
+    """(R,) smallest distance (m) between two bodies' surfaces at each sample (NaN: unknown)."""
+    if poses.shape[1] < 2:
+        return np.full(len(poses), np.inf)
+    return np.array([np.nan_to_num(pdist(row[:, :2]), nan=np.inf).min() for row in poses]) \
+        - 2 * radius
+
+
+def markers_covered(poses, radius, marker_offset, marker_size):
+    """(R,) whether some robot's body covers part of another robot's marker (a square of
+    marker_size at marker_offset, robot frame): its centre is within radius plus the marker's
+    half-diagonal of the marker's centre.
+    """
+    from curve_formation.core.bodies import marker_centres
+    centres = marker_centres(poses, marker_offset)
+    reach = radius + marker_size / np.sqrt(2)
+    near = np.linalg.norm(centres[:, :, None, :] - poses[:, None, :, :2], axis=3) < reach
+    n = poses.shape[1]
+    near[:, np.arange(n), np.arange(n)] = False
+    return near.any(axis=(1, 2))
+
+
+def body_metrics(experiment, t, poses, contacts=None, unseen=None):
+    """Bodies in the arena: contacts (count and total time, counted where the bodies are
+    simulated: `contacts`), the smallest gap between two surfaces (exact from `contacts`,
+    else from the samples), and how long some robot's marker was hidden: from `unseen`
+    (R, n), the robots a camera did not see, else where a body covered another's marker.
+    """
+    radius = experiment.radius
+    gaps = surface_gaps(poses, radius)
+    sampled = float(np.nanmin(gaps)) if len(gaps) else None
+    out = {'radius': radius, 'smallest_gap_sampled': sampled,
+           'contacts': None if contacts is None else {'count': contacts.get('count'),
+                                                      'time': contacts.get('time')},
+           'smallest_gap': (contacts.get('smallest_gap') if contacts is not None
+                            and contacts.get('smallest_gap') is not None else sampled)}
+    if unseen is not None and len(unseen) == len(t):
+        hidden = np.asarray(unseen).any(axis=1)
+    elif experiment.spec.camera is not None:
+        camera = experiment.spec.camera
+        hidden = markers_covered(poses, radius, camera.marker_offset, camera.marker_size)
+    else:
+        hidden = None
+    if hidden is not None:
+        period = np.diff(t, append=t[-1] + (t[-1] - t[-2] if len(t) > 1 else 0.0))
+        out['marker_hidden_time'] = float(period[hidden].sum())
+    return out
+
+
 def peak_speeds(commands, wheel_base):
     """Peak |v|, |w| and, with a wheel base, peak wheel speed of the sent commands."""
     if commands is None or len(commands) == 0:
@@ -132,16 +195,17 @@ def peak_speeds(commands, wheel_base):
 
 
 def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance=None,
-                gains=None, disturbance=None, limits=None):
+                gains=None, disturbance=None, limits=None, contacts=None, unseen=None):
     """All metrics of a run as a JSON-ready dict (one entry per curve phase).
 
     gains, disturbance and limits default to the experiment's; pass the ones the run used.
+    contacts, unseen: see body_metrics (experiments with bodies or avoidance).
     """
     tolerance = experiment.spec.metrics.tolerance if tolerance is None else tolerance
     gains = experiment.gains if gains is None else gains
     disturbance = experiment.disturbance if disturbance is None else disturbance
     limits = experiment.limits if limits is None else limits
-    errors = target_errors(poses, phase, experiment, gains)
+    errors = target_errors(poses, phase, experiment, gains, t)
     norm = error_norm(errors)
     ends = [p.start for p in experiment.phases[1:]] + [float('inf')]
     phases = []
@@ -163,6 +227,7 @@ def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance
             'final_max_agent_error': float(agent_err.max()),
             'spacing': spacing_uniformity(p.curve, offset_points(poses[last], gains.offset)),
             'target_spacing': spacing_uniformity(p.curve, p.targets),
+            'reassignments': len(p.changes),
         })
     cert = experiment.graph.certificate()
     out = {
@@ -182,6 +247,8 @@ def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance
         target = np.asarray(disturbance) / gains.k2
         out['final_estimate_error_max'] = float(np.linalg.norm(dhat[-1] - target, axis=1).max())
     out.update(peak_speeds(commands, limits.wheel_base))
+    if experiment.radius > 0 or experiment.avoidance.on:
+        out['bodies'] = body_metrics(experiment, t, poses, contacts, unseen)
     return out
 
 
@@ -189,7 +256,7 @@ def result_metrics(result, tolerance=None):
     """run_metrics for a simulator.SimResult."""
     out = run_metrics(result.experiment, result.t, result.poses, result.phase, result.dhat,
                       result.commands, tolerance, result.gains, result.disturbance,
-                      result.limits)
+                      result.limits, contacts=result.contacts)
     out['control'] = ('continuous' if result.rate_hz is None
                       else f'zero-order hold at {result.rate_hz:g} Hz')
     return out

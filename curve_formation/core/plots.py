@@ -97,7 +97,7 @@ def plot_lyapunov(path, experiment, t, value, title=None):
 def run_figures(out_dir, experiment, t, poses, phase, dhat=None, label='run'):
     """Write paths.png, error_norm.png, orientations.png (and lyapunov.png with dhat)."""
     out = Path(out_dir)
-    errors = metrics.target_errors(poses, phase, experiment)
+    errors = metrics.target_errors(poses, phase, experiment, t=t)
     norm = metrics.error_norm(errors)
     tol = experiment.spec.metrics.tolerance * experiment.phases[0].curve.size()
     written = [out / 'paths.png', out / 'error_norm.png', out / 'orientations.png']

@@ -14,29 +14,46 @@ The stepping loop is compiled with numba; it calls the same per-agent functions 
 controller (core.control), and its cost is linear in agents plus edges.
 """
 
+import dataclasses
 from dataclasses import dataclass
 import hashlib
 import math
 from pathlib import Path
 import types
+from typing import NamedTuple
 
 import numba
 import numpy as np
 
-from curve_formation.core import control, dynamics, metrics
+from curve_formation.core import bodies, control, dynamics, metrics
+from curve_formation.core.assignment import reassigned
+
+
+SOURCES = ('control.py', 'dynamics.py', 'safety.py', 'bodies.py', 'simulator.py')
+
+
+def cache_folder(folder):
+    """Where numba caches what it compiles from the sources in `folder`: __pycache__ beside
+    them, or under NUMBA_CACHE_DIR when that is set (as scripts/bootstrap.sh does), in the
+    subfolder numba itself derives from the sources' folder.
+    """
+    from numba.core import caching, config
+    if config.CACHE_DIR:
+        return Path(config.CACHE_DIR) / caching._CacheLocator.get_suitable_cache_subpath(
+            str(folder / 'simulator.py'))
+    return folder / '__pycache__'
 
 
 def drop_stale_cache(folder=Path(__file__).parent):
-    """Delete numba's compiled cache when control.py, dynamics.py or this file changed.
+    """Delete numba's compiled cache when a source it compiles in (SOURCES) changed.
 
     numba checks a cached function against its own source file only, not against the
     functions it compiled in from other modules: after an edit of control.py the stepping loop
     would run the old law. Installed copies never change; an unwritable cache is left alone.
     """
-    sources = b''.join((folder / name).read_bytes()
-                       for name in ('control.py', 'dynamics.py', 'simulator.py'))
+    sources = b''.join((folder / name).read_bytes() for name in SOURCES)
     digest = hashlib.sha256(sources).hexdigest()
-    cache = folder / '__pycache__'
+    cache = cache_folder(folder)
     stamp = cache / 'simulator.sources.sha256'
     try:
         if stamp.read_text() == digest:
@@ -46,7 +63,7 @@ def drop_stale_cache(folder=Path(__file__).parent):
     try:
         for path in cache.glob('*.nb[ic]'):
             path.unlink()
-        cache.mkdir(exist_ok=True)
+        cache.mkdir(parents=True, exist_ok=True)
         stamp.write_text(digest)
     except OSError:
         return False
@@ -55,42 +72,74 @@ def drop_stale_cache(folder=Path(__file__).parent):
 
 drop_stale_cache()
 
+_COMPILED = {}
 
-def _jit(function, **callees):
-    """numba-compile a core function, with the core functions it calls compiled as well."""
+
+def compiled(function):
+    """numba-compile a core function, after the core functions it calls (compiled in)."""
+    if function in _COMPILED:
+        return _COMPILED[function]
+    callees = {}
+    for name in function.__code__.co_names:
+        value = function.__globals__.get(name)
+        if (isinstance(value, types.FunctionType)
+                and value.__module__.startswith('curve_formation.core.')):
+            callees[name] = compiled(value)
     scope = dict(function.__globals__, **callees)
     copy = types.FunctionType(function.__code__, scope, function.__name__,
                               function.__defaults__)
-    return numba.njit(cache=True)(copy)
+    _COMPILED[function] = numba.njit(cache=True)(copy)
+    return _COMPILED[function]
 
 
-_agent_input = _jit(control.agent_input,
-                    sampled_feedback=numba.njit(cache=True)(control.sampled_feedback))
-_saturate = numba.njit(cache=True)(control.saturate)
-_observer_input = _jit(control.observer_input, agent_input=_agent_input, saturate=_saturate)
-_arc = _jit(dynamics.arc_step, chord_ratio=numba.njit(cache=True)(dynamics.chord_ratio))
-_observer_step = numba.njit(cache=True)(control.observer_step)
+_agent_command = compiled(control.agent_command)
+_arc = compiled(dynamics.arc_step)
+_observer_step = compiled(control.observer_step)
+separate = compiled(bodies.separate)
 OBSERVER = control.LAWS['observer']
 
 # Largest heading change (rad) of one RK4 substep in continuous mode.
 MAX_TURN_PER_SUBSTEP = 0.05
 
 
-@numba.njit(cache=True)
-def _controls(poses, dhat, targets, tgt, src, wts, pins, law, k1, k2, offset, gamma_v, gamma_w,
-              period, observer_rate, on_pc, d_pc, d_robot, wheel_base, vmax, wmax, err, fb,
-              motion, cmd, ref, ddhat):
-    """Evaluate the law for all agents: fills err, fb, cmd (sent), motion (actual), ref, ddhat.
-
-    d_pc (n, 2) is added to the command before the wheel limits (injected on the PC),
-    d_robot (n, 2) after them (physical). ref is what the observer compares the motion with:
-    the law's command where the disturbance enters (before the limits when on_pc, after them
-    otherwise); ddhat the continuous-time estimator rate.
+class Clock(NamedTuple):
+    """Fine steps of a simulation: dt (s); a control tick every control_every steps (0:
+    continuous control), a record every record_every steps.
     """
+
+    dt: float
+    control_every: int
+    record_every: int
+
+
+class Contacts(NamedTuple):
+    """Bodies (robots.radius, m; 0: points that pass through each other) in the arena
+    (width, height, m; <= 0: no walls), and the running tally of their contacts: touching
+    (n, n) bool, and tally [new contacts, steps with a contact, smallest surface gap (m)].
+    """
+
+    radius: float
+    width: float
+    height: float
+    touching: np.ndarray
+    tally: np.ndarray
+
+
+@numba.njit(cache=True)
+def _controls(poses, dhat, targets, graph, law, limits, avoidance, d_pc, d_robot, err, fb,
+              motion, cmd, ref, ddhat, codes):
+    """Evaluate every agent's tick (control.agent_command): fills err, fb, cmd (sent), motion
+    (actual), ref (the observer's reference), ddhat (continuous-time estimator rate) and
+    codes (the safety filter's outcome); cmd on entry holds each agent's previous command.
+
+    graph: (tgt, src, weights, pins) edge arrays. d_pc (n, 2) is added to the command before
+    the limits (injected on the PC), d_robot (n, 2) after them (physical).
+    """
+    tgt, src, wts, pins = graph
     n = poses.shape[0]
     for i in range(n):
-        err[i, 0] = poses[i, 0] + offset * math.cos(poses[i, 2]) - targets[i, 0]
-        err[i, 1] = poses[i, 1] + offset * math.sin(poses[i, 2]) - targets[i, 1]
+        err[i, 0] = poses[i, 0] + law.offset * math.cos(poses[i, 2]) - targets[i, 0]
+        err[i, 1] = poses[i, 1] + law.offset * math.sin(poses[i, 2]) - targets[i, 1]
         fb[i, 0] = pins[i] * err[i, 0]
         fb[i, 1] = pins[i] * err[i, 1]
     for k in range(tgt.shape[0]):
@@ -99,26 +148,20 @@ def _controls(poses, dhat, targets, tgt, src, wts, pins, law, k1, k2, offset, ga
         fb[i, 0] += wts[k] * (err[i, 0] - err[j, 0])
         fb[i, 1] += wts[k] * (err[i, 1] - err[j, 1])
     for i in range(n):
-        if law == OBSERVER:
-            u_v, u_w = _observer_input(fb[i, 0], fb[i, 1], poses[i, 2], dhat[i, 0], dhat[i, 1],
-                                       k1, k2, offset, period, wheel_base, vmax, wmax)
-            ddv = 0.0
-            ddw = 0.0
-        else:
-            u_v, u_w, ddv, ddw = _agent_input(fb[i, 0], fb[i, 1], err[i, 0], err[i, 1],
-                                              poses[i, 2], dhat[i, 0], dhat[i, 1], k1, k2,
-                                              offset, gamma_v, gamma_w, period)
-        v, w = _saturate(u_v + d_pc[i, 0], u_w + d_pc[i, 1], wheel_base, vmax, wmax)
+        v, w, ref_v, ref_w, ddv, ddw, code = _agent_command(
+            fb[i, 0], fb[i, 1], err[i, 0], err[i, 1], poses[i, 0], poses[i, 1], poses[i, 2],
+            dhat[i, 0], dhat[i, 1], cmd[i, 0], cmd[i, 1], d_pc[i, 0], d_pc[i, 1], law, limits,
+            poses, i, avoidance)
         motion[i, 0] = v + d_robot[i, 0]
         motion[i, 1] = w + d_robot[i, 1]
         cmd[i, 0] = v
         cmd[i, 1] = w
-        # On the robot the disturbance enters after the limits, so ref is the command sent.
-        ref[i, 0] = u_v if on_pc else v
-        ref[i, 1] = u_w if on_pc else w
-        if law == OBSERVER and k2 != 0.0:   # k2 = 0: estimator off
-            ddv = observer_rate * ((motion[i, 0] - ref[i, 0]) / k2 - dhat[i, 0])
-            ddw = observer_rate * ((motion[i, 1] - ref[i, 1]) / k2 - dhat[i, 1])
+        ref[i, 0] = ref_v
+        ref[i, 1] = ref_w
+        codes[i] = code
+        if law.code == OBSERVER and law.k2 != 0.0:   # k2 = 0: estimator off
+            ddv = law.observer_rate * ((motion[i, 0] - ref[i, 0]) / law.k2 - dhat[i, 0])
+            ddw = law.observer_rate * ((motion[i, 1] - ref[i, 1]) / law.k2 - dhat[i, 1])
         ddhat[i, 0] = ddv
         ddhat[i, 1] = ddw
 
@@ -132,24 +175,43 @@ def _arc_step(poses, motion, dt):
 
 
 @numba.njit(cache=True)
-def _run(poses, dhat, targets, tgt, src, wts, pins, law, k1, k2, offset, gamma_v, gamma_w,
-         period, observer_rate, on_pc, d_pc, d_robot, wheel_base, vmax, wmax, dt, step0, steps,
-         control_every, record_every, motion, cmd, ref, tick_offsets, start_steps, rec_poses,
-         rec_dhat, rec_cmd):
-    """Advance poses (n, 3) and dhat (n, 2) in place by `steps` fine steps from `step0`.
+def _touch(poses, contacts):
+    """Resolve contacts after a step (bodies only) and keep the tally."""
+    if contacts.radius <= 0.0:
+        return
+    new, now, gap = separate(poses, contacts.radius, contacts.width, contacts.height,
+                             contacts.touching)
+    contacts.tally[0] += new
+    if now:
+        contacts.tally[1] += 1
+    contacts.tally[2] = min(contacts.tally[2], gap)
 
-    motion, cmd and ref (n, 2) hold the zero-order-hold command across calls; agent i ticks
-    at the steps where (step - tick_offsets[i]) % control_every == 0, from step start_steps[i]
-    on. With the observer, a tick first updates dhat from the motion over the period just
-    ended (exact here: the held motion is what the pose difference would measure).
+
+@numba.njit(cache=True)
+def _run(state, targets, graph, law, limits, avoidance, d_pc, d_robot, clock, step0, steps,
+         schedule, contacts, record):
+    """Advance the state (poses (n, 3), dhat (n, 2), and the held motion, cmd, ref (n, 2))
+    in place by `steps` fine steps from `step0`.
+
+    schedule: (tick_offsets, start_steps): agent i ticks at the steps where
+    (step - tick_offsets[i]) % control_every == 0, from step start_steps[i] on. With the
+    observer, a tick first updates dhat from the motion over the period just ended (exact
+    here: the held motion is what the pose difference would measure). record: (poses, dhat,
+    cmd) arrays filled every record_every steps.
     """
+    poses, dhat, motion, cmd, ref = state
+    tick_offsets, start_steps = schedule
+    rec_poses, rec_dhat, rec_cmd = record
     n = poses.shape[0]
     err = np.zeros((n, 2))
     fb = np.zeros((n, 2))
     ddhat = np.zeros((n, 2))
+    codes = np.zeros(n, dtype=np.int64)
+    dt = clock.dt
+    control_every = clock.control_every
     if control_every > 0:
         dt_control = control_every * dt
-        blend = 1.0 - math.exp(-observer_rate * dt_control)
+        blend = 1.0 - math.exp(-law.observer_rate * dt_control)
         new_motion = np.zeros((n, 2))
         new_cmd = np.zeros((n, 2))
         new_ref = np.zeros((n, 2))
@@ -158,14 +220,14 @@ def _run(poses, dhat, targets, tgt, src, wts, pins, law, k1, k2, offset, gamma_v
             for i in range(n):
                 if (step - tick_offsets[i]) % control_every == 0:
                     ticking = True
-                    if law == OBSERVER and step >= start_steps[i]:
+                    if law.code == OBSERVER and step >= start_steps[i]:
                         dhat[i, 0], dhat[i, 1] = _observer_step(
                             dhat[i, 0], dhat[i, 1], motion[i, 0], motion[i, 1], ref[i, 0],
-                            ref[i, 1], k2, blend)
+                            ref[i, 1], law.k2, blend)
             if ticking:
-                _controls(poses, dhat, targets, tgt, src, wts, pins, law, k1, k2, offset,
-                          gamma_v, gamma_w, period, observer_rate, on_pc, d_pc, d_robot,
-                          wheel_base, vmax, wmax, err, fb, new_motion, new_cmd, new_ref, ddhat)
+                new_cmd[:] = cmd   # each agent's previous command
+                _controls(poses, dhat, targets, graph, law, limits, avoidance, d_pc, d_robot,
+                          err, fb, new_motion, new_cmd, new_ref, ddhat, codes)
                 for i in range(n):
                     if step < start_steps[i]:
                         continue   # not started yet: motors off, estimator idle
@@ -176,15 +238,16 @@ def _run(poses, dhat, targets, tgt, src, wts, pins, law, k1, k2, offset, gamma_v
                         cmd[i, 1] = new_cmd[i, 1]
                         ref[i, 0] = new_ref[i, 0]
                         ref[i, 1] = new_ref[i, 1]
-                        if law != OBSERVER:
+                        if law.code != OBSERVER:
                             dhat[i, 0] += dt_control * ddhat[i, 0]
                             dhat[i, 1] += dt_control * ddhat[i, 1]
-            if step % record_every == 0:
-                r = step // record_every
+            if step % clock.record_every == 0:
+                r = step // clock.record_every
                 rec_poses[r] = poses
                 rec_dhat[r] = dhat
                 rec_cmd[r] = cmd
             _arc_step(poses, motion, dt)
+            _touch(poses, contacts)
         return
     # Continuous control: RK4 on (poses, dhat) with the law evaluated at every stage. The
     # heading turns at up to k1 |e| / l (1000 rad/s at the paper's start), so each step is
@@ -194,11 +257,10 @@ def _run(poses, dhat, targets, tgt, src, wts, pins, law, k1, k2, offset, gamma_v
     p_stage = np.zeros((n, 3))
     d_stage = np.zeros((n, 2))
     for step in range(step0, step0 + steps):
-        _controls(poses, dhat, targets, tgt, src, wts, pins, law, k1, k2, offset, gamma_v,
-                  gamma_w, 0.0, observer_rate, on_pc, d_pc, d_robot, wheel_base, vmax, wmax,
-                  err, fb, motion, cmd, ref, ddhat)
-        if step % record_every == 0:
-            r = step // record_every
+        _controls(poses, dhat, targets, graph, law, limits, avoidance, d_pc, d_robot, err, fb,
+                  motion, cmd, ref, ddhat, codes)
+        if step % clock.record_every == 0:
+            r = step // clock.record_every
             rec_poses[r] = poses
             rec_dhat[r] = dhat
             rec_cmd[r] = cmd
@@ -215,9 +277,8 @@ def _run(poses, dhat, targets, tgt, src, wts, pins, law, k1, k2, offset, gamma_v
                         p_stage[i, c] = poses[i, c] + frac * kp[stage - 1, i, c]
                     for c in range(2):
                         d_stage[i, c] = dhat[i, c] + frac * kd[stage - 1, i, c]
-                _controls(p_stage, d_stage, targets, tgt, src, wts, pins, law, k1, k2,
-                          offset, gamma_v, gamma_w, 0.0, observer_rate, on_pc, d_pc, d_robot,
-                          wheel_base, vmax, wmax, err, fb, motion, cmd, ref, ddhat)
+                _controls(p_stage, d_stage, targets, graph, law, limits, avoidance, d_pc,
+                          d_robot, err, fb, motion, cmd, ref, ddhat, codes)
                 for i in range(n):
                     kp[stage, i, 0] = motion[i, 0] * math.cos(p_stage[i, 2])
                     kp[stage, i, 1] = motion[i, 0] * math.sin(p_stage[i, 2])
@@ -231,6 +292,7 @@ def _run(poses, dhat, targets, tgt, src, wts, pins, law, k1, k2, offset, gamma_v
                 for c in range(2):
                     dhat[i, c] += h / 6.0 * (kd[0, i, c] + 2.0 * kd[1, i, c]
                                              + 2.0 * kd[2, i, c] + kd[3, i, c])
+        _touch(poses, contacts)
 
 
 @dataclass
@@ -240,7 +302,8 @@ class SimResult:
     t: (R,) s.  poses: (R, n, 3) x, y, theta (arena frame).  dhat: (R, n, 2) estimates.
     commands: (R, n, 2) (v, w) sent to the robots (after limits; with an on_pc disturbance it
     includes d).  phase: (R,) index of the active curve.  gains, limits, disturbance (n, 2):
-    the settings the run used (the experiment's unless overridden).
+    the settings the run used (the experiment's unless overridden). contacts: counted at every
+    fine step (new contacts between two bodies, time with any, smallest surface gap).
     """
 
     experiment: object
@@ -253,11 +316,14 @@ class SimResult:
     dhat: np.ndarray
     commands: np.ndarray
     phase: np.ndarray
+    radius: float = 0.0      # bodies (m); 0: points
+    contacts: dict = None    # {'count', 'time' (s), 'smallest_gap' (m)} over every fine step
 
     @property
     def errors(self):
         """(R, n, 2) target errors e_i = xb_i - G(s_i) xi of the active curve."""
-        return metrics.target_errors(self.poses, self.phase, self.experiment, self.gains)
+        return metrics.target_errors(self.poses, self.phase, self.experiment, self.gains,
+                                     self.t)
 
     @property
     def error_norm(self):
@@ -273,7 +339,7 @@ class SimResult:
 
 def simulate(experiment, rate_hz='config', duration=None, dt=None, record_dt=None,
              disturbance=None, gains=None, limits=None, initial_poses=None, tick_phases=None,
-             start_delays=None):
+             start_delays=None, avoidance=None, radius=None):
     """Simulate an Experiment; keyword arguments override the file's settings.
 
     rate_hz: 'config' (the file's controller.rate_hz), None (continuous) or a rate (Hz).
@@ -281,6 +347,8 @@ def simulate(experiment, rate_hz='config', duration=None, dt=None, record_dt=Non
     (unsynchronised controllers, as the ROS nodes run); default all 0 (synchronous).
     start_delays: (n,) s before each agent's controller starts (zero-order hold only), as
     followers wait for news of the leader; default all 0.
+    avoidance: a safety.Avoidance (default the experiment's); radius: the bodies' radius (m;
+    default the experiment's robots.radius; 0: points that pass through each other).
     Returns a SimResult.
     """
     spec = experiment.spec
@@ -290,6 +358,8 @@ def simulate(experiment, rate_hz='config', duration=None, dt=None, record_dt=Non
     record_dt = spec.simulation.record_dt if record_dt is None else record_dt
     gains = experiment.gains if gains is None else gains
     limits = experiment.limits if limits is None else limits
+    avoidance = experiment.avoidance if avoidance is None else avoidance
+    radius = experiment.radius if radius is None else radius
     dist = experiment.disturbance if disturbance is None else np.asarray(disturbance, float)
     dist = np.broadcast_to(dist, (experiment.n, 2)).astype(float)
     on_pc = experiment.spec.disturbance.injected == 'on_pc'
@@ -298,35 +368,54 @@ def simulate(experiment, rate_hz='config', duration=None, dt=None, record_dt=Non
                      dtype=float)
     record_every = _ratio(record_dt, dt, 'record_dt')
     control_every = 0 if rate_hz is None else _ratio(1.0 / rate_hz, dt, 'control period')
+    if rate_hz is None:   # an acceleration limit needs a control period
+        limits = limits._replace(max_linear_accel=math.inf, max_angular_accel=math.inf)
     phases = np.zeros(experiment.n) if tick_phases is None else np.asarray(tick_phases, float)
     tick_offsets = np.floor(phases * max(control_every, 1)).astype(np.int64)
     delays = np.zeros(experiment.n) if start_delays is None else np.asarray(start_delays, float)
     start_steps = np.round(delays / dt).astype(np.int64)
     total = int(round(duration / dt))
     n_rec = (total - 1) // record_every + 1
-    rec_poses = np.zeros((n_rec, experiment.n, 3))
-    rec_dhat = np.zeros((n_rec, experiment.n, 2))
-    rec_cmd = np.zeros((n_rec, experiment.n, 2))
-    dhat = np.zeros((experiment.n, 2))
-    motion = np.zeros((experiment.n, 2))
-    cmd = np.zeros((experiment.n, 2))
-    ref = np.zeros((experiment.n, 2))
-    gamma_v, gamma_w = gains.estimator_gains()
-    tgt, src, wts = experiment.graph.edge_arrays()
+    record = (np.zeros((n_rec, experiment.n, 3)), np.zeros((n_rec, experiment.n, 2)),
+              np.zeros((n_rec, experiment.n, 2)))
+    n = experiment.n
+    state = (poses, np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 2)))
+    width, height = spec.arena.size if spec.arena is not None else (0.0, 0.0)
+    contacts = Contacts(float(radius), float(width), float(height), np.zeros((n, n), bool),
+                        np.array([0.0, 0.0, math.inf]))
+    law = gains.tick_law(rate_hz, on_pc)
+    graph = (*experiment.graph.edge_arrays(), experiment.graph.pins)
+    clock = Clock(dt, control_every, record_every)
+    schedule = (tick_offsets, start_steps)
+    every = experiment.spec.agents.reassign_every
+    period = 0 if every is None else _ratio(every, dt, 'agents.reassign_every')
     starts = [int(round(p.start / dt)) for p in experiment.phases] + [total]
+    followed = []
     for phase, a, b in zip(experiment.phases, starts[:-1], starts[1:], strict=True):
         if a >= total:
             break
-        _run(poses, dhat, np.ascontiguousarray(phase.targets), tgt, src, wts,
-             experiment.graph.pins, gains.law_code, gains.k1, gains.k2, gains.offset,
-             gamma_v, gamma_w, gains.hold_period(rate_hz), gains.observer_rate, on_pc, d_pc,
-             d_robot, limits.wheel_base, limits.max_wheel_speed, limits.max_angular_rate, dt, a,
-             min(b, total) - a, control_every, record_every, motion, cmd, ref, tick_offsets,
-             start_steps, rec_poses, rec_dhat, rec_cmd)
+        b = min(b, total)
+        s, targets, changes = phase.s, phase.targets, []
+        # The curve server's re-assignment instants, k * period from t = 0.
+        cuts = [] if not period else list(range((a // period + 1) * period, b, period))
+        for begin, end in zip([a] + cuts, cuts + [b], strict=True):
+            if begin > a:
+                points = metrics.offset_points(poses, gains.offset)
+                new = reassigned(phase.curve, s, points)
+                if new is not s:
+                    s, targets = new, phase.curve.points(new)
+                    changes.append((begin * dt, s, targets))
+            _run(state, np.ascontiguousarray(targets), graph, law, limits, avoidance, d_pc,
+                 d_robot, clock, begin, end - begin, schedule, contacts, record)
+        followed.append(dataclasses.replace(phase, changes=tuple(changes)))
     t = np.arange(n_rec) * record_every * dt
     phase_index = np.searchsorted(np.array(starts[1:-1]) * dt, t, side='right')
-    return SimResult(experiment, rate_hz, gains, limits, dist, t, rec_poses, rec_dhat, rec_cmd,
-                     phase_index)
+    new, steps, gap = contacts.tally
+    return SimResult(dataclasses.replace(experiment, phases=tuple(followed)
+                                         + experiment.phases[len(followed):]),
+                     rate_hz, gains, limits, dist, t, *record, phase_index,
+                     radius, {'count': int(new), 'time': float(steps * dt),
+                              'smallest_gap': float(gap) if radius > 0 else None})
 
 
 def _ratio(interval, dt, what):

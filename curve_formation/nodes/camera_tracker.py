@@ -22,7 +22,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseArray, PoseStamped
 import numpy as np
 from rclpy.node import Node
-from sensor_msgs.msg import Image
+from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import Float64MultiArray
 
 from curve_formation.nodes import messages, qos, topics
@@ -68,6 +68,8 @@ TOPICS = (
      "each robot's pose, stamped with its image"),
     ('pub', topics.CAMERA_POSES, 'geometry_msgs/PoseArray', 'SENSOR',
      'all robots in agent order, NaN when not seen'),
+    ('pub', topics.ROBOT_POSES, 'sensor_msgs/JointState', 'SENSOR',
+     "the same as x, y, theta per robot, for the controllers' safety filter"),
     ('pub', topics.DIAGNOSTICS, 'diagnostic_msgs/DiagnosticArray', 'EVENTS',
      'detection rate per robot, lost robots, frame latency, calibration (1 Hz)'),
     ('pub', topics.CAMERA_DEBUG, 'sensor_msgs/Image', 'IMAGE',
@@ -105,6 +107,7 @@ class CameraTracker(Node):
         self.pose_pubs = [self.create_publisher(PoseStamped, topics.robot_topic(i, topics.POSE),
                                                 qos.SENSOR) for i in range(1, self.n + 1)]
         self.array_pub = self.create_publisher(PoseArray, topics.CAMERA_POSES, qos.SENSOR)
+        self.robot_poses_pub = self.create_publisher(JointState, topics.ROBOT_POSES, qos.SENSOR)
         self.diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.EVENTS)
         self.debug_pub = self.create_publisher(Image, topics.CAMERA_DEBUG, qos.IMAGE)
         self.create_subscription(Float64MultiArray, topics.CURVE, self._on_curve, qos.LATCHED)
@@ -177,6 +180,11 @@ class CameraTracker(Node):
             self.seen_counts[agent] += 1
         self.array_pub.publish(messages.pose_array_to_msg(frame.poses, self.n, stamp,
                                                           self.params.frame_id))
+        every = np.full((self.n, 3), np.nan)
+        for agent, pose in frame.poses.items():
+            every[agent - 1] = pose
+        self.robot_poses_pub.publish(messages.robot_poses_to_msg(every, stamp,
+                                                                 self.params.frame_id))
         self.frames += 1
         self.latencies.append(now - stamp)
         self.process_times.append(time.perf_counter() - started)

@@ -3,6 +3,7 @@
 from curve_formation.nodes import (
     camera_tracker,
     curve_server,
+    fake_arena,
     fake_camera,
     fake_robot,
     formation_controller,
@@ -15,6 +16,7 @@ from curve_formation.nodes.params import markdown_table
 NODES = (('formation_controller', formation_controller),
          ('curve_server', curve_server),
          ('fake_robot', fake_robot),
+         ('fake_arena', fake_arena),
          ('formation_recorder', recorder),
          ('camera_tracker', camera_tracker),
          ('fake_camera', fake_camera))

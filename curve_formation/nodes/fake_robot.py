@@ -9,15 +9,13 @@ publication: no integration step. A zero command means motors off: the robot sta
 noise, a fixed command latency, and dropped poses (fault injection).
 """
 
-from collections import deque
 import math
 
 from geometry_msgs.msg import PoseStamped, Twist
 import numpy as np
 from rclpy.node import Node
 
-from curve_formation.core.agent import is_stale
-from curve_formation.core.dynamics import arc_step
+from curve_formation.core.dynamics import DrivenUnicycle
 from curve_formation.nodes import messages, qos, topics
 from curve_formation.nodes.params import declare_parameters, Param, ParameterError
 from curve_formation.nodes.runtime import now_seconds, run_node
@@ -53,7 +51,7 @@ TOPICS = (
 )
 
 class FakeRobot(Node):
-    """Unicycle integrated from cmd_vel; pure maths in core.dynamics.arc_step."""
+    """Unicycle integrated from cmd_vel; pure maths in core.dynamics.DrivenUnicycle."""
 
     def __init__(self, **kwargs):
         super().__init__('fake_robot', **kwargs)
@@ -62,52 +60,29 @@ class FakeRobot(Node):
             if len(getattr(p, name)) != size:
                 raise ParameterError(f'parameter {name!r} must have {size} values, got '
                                      f'{getattr(p, name)}')
-        self.pose = list(p.initial_pose)
-        self.command = (0.0, 0.0)
-        self.pending = deque()
+        self.robot = DrivenUnicycle(p.initial_pose, p.disturbance, p.command_latency,
+                                    p.command_timeout)
         self.rng = np.random.default_rng(p.seed)
-        self.last_time = None
-        self.last_command_time = None
         self.pose_pub = self.create_publisher(PoseStamped, p.pose_topic, qos.SENSOR)
         self.create_subscription(Twist, topics.CMD_VEL, self._on_cmd, qos.COMMAND)
         self.create_timer(1.0 / p.rate_hz, self._on_timer)
+
+    @property
+    def pose(self):
+        return self.robot.pose
 
     def _on_cmd(self, msg):
         v, w = messages.twist_from_msg(msg)
         if not (math.isfinite(v) and math.isfinite(w)):
             self.get_logger().warning('non-finite cmd_vel ignored', throttle_duration_sec=1.0)
             return
-        now = now_seconds(self)
-        self.pending.append((now + self.params.command_latency, v, w))
-        self._advance(now)
-        self.last_command_time = now
-
-    def _advance(self, now):
-        """Move exactly up to `now`, switching commands at their due times."""
-        if self.last_time is None:
-            self.last_time = now
-        while self.pending and self.pending[0][0] <= now:
-            due, v, w = self.pending.popleft()
-            self._move(max(due, self.last_time))
-            self.command = (v, w)
-        self._move(now)
-
-    def _move(self, until):
-        dt = until - self.last_time
-        v, w = self.command
-        if dt > 0 and (v != 0.0 or w != 0.0):
-            d = self.params.disturbance
-            self.pose = list(arc_step(*self.pose, v + d[0], w + d[1], dt))
-        self.last_time = max(self.last_time, until)
+        self.robot.drive(v, w, now_seconds(self))
 
     def _on_timer(self):
         now = now_seconds(self)
-        self._advance(now)
-        timeout = self.params.command_timeout
-        if (timeout > 0 and self.command != (0.0, 0.0)
-                and is_stale(self.last_command_time, now, timeout + self.params.command_latency)):
-            self.command = (0.0, 0.0)
-            self.get_logger().warning(f'no command for {timeout:g} s: motors off')
+        if self.robot.advance(now):
+            self.get_logger().warning(f'no command for {self.params.command_timeout:g} s: '
+                                      'motors off')
         if self.rng.random() < self.params.fault_pose_drop:
             return
         noise = self.params.pose_noise

@@ -19,6 +19,7 @@ from std_msgs.msg import Bool, Float64MultiArray
 from curve_formation.core.agent import AgentConfig, AgentController
 from curve_formation.core.assignment import AssignmentError
 from curve_formation.core.control import Gains, LAWS, WheelLimits
+from curve_formation.core.safety import Avoidance, AVOIDANCE_OFF
 from curve_formation.nodes import messages, qos, topics
 from curve_formation.nodes.params import declare_parameters, Param, ParameterError
 from curve_formation.nodes.runtime import now_seconds, run_node
@@ -66,6 +67,19 @@ PARAMETERS = (
           low=0.0),
     Param('max_angular_accel', 'double', 0.0, 'max change of w (rad/s^2); 0 = unlimited',
           low=0.0),
+    Param('radius', 'double', 0.0, "robots' body radius (m), for the safety filter", low=0.0),
+    Param('avoidance', 'bool', False, 'safety filter on: keep bodies apart and inside the '
+          "arena (core.safety), from every robot's pose on /formation/robot_poses"),
+    Param('avoidance_margin', 'double', 0.02, 'extra distance kept between bodies (m)',
+          low=0.0),
+    Param('avoidance_rate', 'double', 5.0, 'barrier rate alpha (1/s), at most rate_hz',
+          positive=True),
+    Param('passing', 'double', 1.0, 'passing rule: sideways speed to the right per unit of '
+          'approach speed', low=0.0),
+    Param('passing_range', 'double', 0.0, 'gap above the safe distance within which the law '
+          'is steered around robots (m); 0 = one body diameter', low=0.0),
+    Param('arena', 'double[]', [], '[width, height] (m) of the walls the filter keeps the '
+          'body inside; empty = no walls'),
     Param('fault_state_drop', 'double', 0.0, 'fault injection: probability of not publishing '
           'a formation_state message', low=0.0, high=1.0),
     Param('pc_disturbance', 'double[]', [0.0, 0.0], 'disturbance [d_v, d_w] added to the '
@@ -106,15 +120,31 @@ def agent_config(p):
                              f'xmin < xmax and ymin < ymax, got {p.geofence}')
     inf = float('inf')
     return AgentConfig(
+        avoidance=_avoidance(p),
         index=p.index, agent_count=p.agent_count,
         neighbours=tuple(zip(p.in_neighbours, weights, strict=True)), pinning=p.pinning,
         gains=Gains(p.k1, p.k2, p.offset, law=p.law, adaptation=tuple(p.adaptation),
                     observer_rate=p.observer_rate, sampled_heading=p.heading == 'sampled'),
-        limits=WheelLimits(p.wheel_base, p.max_wheel_speed or inf, p.max_angular_rate or inf),
+        limits=WheelLimits(p.wheel_base, p.max_wheel_speed or inf, p.max_angular_rate or inf,
+                           p.max_linear_accel or inf, p.max_angular_accel or inf),
         rate_hz=p.rate_hz, pose_timeout=p.pose_timeout, neighbour_timeout=p.neighbour_timeout,
         pc_disturbance=tuple(p.pc_disturbance), leader_timeout=p.leader_timeout,
-        geofence=None if fence is None else tuple(fence),
-        max_linear_accel=p.max_linear_accel or inf, max_angular_accel=p.max_angular_accel or inf)
+        geofence=None if fence is None else tuple(fence))
+
+
+def _avoidance(p):
+    """The safety filter's settings from the parameters (core.safety.Avoidance)."""
+    if not p.avoidance:
+        return AVOIDANCE_OFF
+    if len(p.arena) not in (0, 2) or (p.arena and min(p.arena) <= 0):
+        raise ParameterError(f"parameter 'arena' must be [width, height] > 0 or empty, got "
+                             f'{p.arena}')
+    if p.avoidance_rate > p.rate_hz:
+        raise ParameterError(f"parameter 'avoidance_rate' ({p.avoidance_rate:g}) must not "
+                             f"exceed 'rate_hz' ({p.rate_hz:g})")
+    width, height = p.arena or (0.0, 0.0)
+    return Avoidance(True, p.radius, p.avoidance_margin, p.avoidance_rate, p.passing,
+                     p.passing_range or 2.0 * p.radius, float(width), float(height))
 
 
 TOPICS = (
@@ -124,6 +154,8 @@ TOPICS = (
     ('sub', topics.CURVE, 'std_msgs/Float64MultiArray', 'LATCHED', 'the active curve'),
     ('sub', topics.ESTOP, 'std_msgs/Bool', 'LATCHED',
      'true stops every robot at once, false releases'),
+    ('sub', topics.ROBOT_POSES, 'sensor_msgs/JointState', 'SENSOR',
+     "every robot's pose (x, y, theta per robot), for the safety filter (with avoidance)"),
     ('pub', topics.CMD_VEL, 'geometry_msgs/Twist', 'COMMAND', 'velocity command at rate_hz'),
     ('pub', topics.STATE, 'sensor_msgs/JointState', 'STATE',
      'own state on every pose, for out-neighbours (names e_x, e_y, curve_id, leader_stamp)'),
@@ -158,6 +190,11 @@ class FormationController(Node):
         for j, _ in self.config.neighbours:
             self.create_subscription(JointState, topics.robot_topic(j, topics.STATE),
                                      lambda msg, j=j: self._on_neighbour(j, msg), qos.STATE)
+        self.others_msg = None
+        if self.config.avoidance.on:
+            # Kept as received; decoded at the tick (10 Hz), not for every message (30 Hz).
+            self.create_subscription(JointState, topics.ROBOT_POSES, self._on_others,
+                                     qos.SENSOR)
         self.create_timer(1.0 / self.config.rate_hz, self._on_timer)
         self.create_timer(1.0, self._publish_diagnostics)
         role = 'leader' if self.config.is_leader else (
@@ -194,12 +231,29 @@ class FormationController(Node):
             self.get_logger().warning(f'non-finite state from neighbour {j} rejected',
                                       throttle_duration_sec=1.0)
 
+    def _on_others(self, msg):
+        self.others_msg = msg
+
+    def _take_others(self):
+        msg, self.others_msg = self.others_msg, None
+        if msg is None:
+            return
+        try:
+            poses, stamp = messages.robot_poses_from_msg(msg)
+            accepted = self.controller.on_others(poses, stamp)
+        except messages.MessageError:
+            accepted = False
+        if not accepted:
+            self.get_logger().warning(f'robot poses refused: expected {self.config.agent_count}'
+                                      ' robots', throttle_duration_sec=1.0)
+
     def _on_estop(self, msg):
         self.controller.set_estop(msg.data)
         self.get_logger().warning('e-stop engaged' if msg.data else 'e-stop released')
 
     def _on_timer(self):
         now = now_seconds(self)
+        self._take_others()
         tick = self.controller.tick(now)
         self.cmd_pub.publish(messages.twist_to_msg(tick.v, tick.w))
         self.tick_pub.publish(messages.tick_to_msg(tick, now))
@@ -224,7 +278,8 @@ class FormationController(Node):
             values=[KeyValue(key='curve_id', value=str(c.curve_id)),
                     KeyValue(key='s', value=f'{c.s}'),
                     KeyValue(key='dhat', value=f'{c.dhat[0]:.6g} {c.dhat[1]:.6g}'),
-                    KeyValue(key='rejected_inputs', value=str(c.rejected))])
+                    KeyValue(key='rejected_inputs', value=str(c.rejected)),
+                    KeyValue(key='filtered_ticks', value=str(c.filtered))])
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = self.get_clock().now().to_msg()
         self.diag_pub.publish(msg)

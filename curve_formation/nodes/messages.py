@@ -3,6 +3,10 @@
 Curve message (std_msgs/Float64MultiArray on /formation/curve): data = xi (2H values, the
 paper's layout); layout.dim[0] = ('xi', 2H, 2H), dim[1] = ('basis=<fourier|polynomial>', H, 0),
 dim[2] = ('curve_id=<k>', 0, 0).
+Every robot's pose (sensor_msgs/JointState on /formation/robot_poses): header.stamp = when
+the poses were taken, position = x_1, y_1, theta_1, x_2, ... in agent order (m, rad, arena
+frame; NaN for a robot not seen), no names (a compact vector: 50 robots decode in 30 us, a
+PoseArray of 50 in 630 us).
 Neighbour state (sensor_msgs/JointState on /robot_<i>/formation_state, used as a labelled
 vector with a header): names STATE_FIELDS, positions their values: e_x, e_y (m, arena frame),
 the curve id, and the newest leader stamp the robot knows (s, -1 before any); header.stamp =
@@ -176,6 +180,25 @@ def gray_from_image_msg(msg):
     code = {('bgr8', 3): cv2.COLOR_BGR2GRAY, ('rgb8', 3): cv2.COLOR_RGB2GRAY,
             ('bgra8', 4): cv2.COLOR_BGRA2GRAY, ('rgba8', 4): cv2.COLOR_RGBA2GRAY}
     return cv2.cvtColor(np.ascontiguousarray(pixels), code[(msg.encoding, channels)])
+
+
+def robot_poses_to_msg(poses, stamp_s, frame_id='arena'):
+    """JointState of every robot's pose (n, 3) at stamp_s (the layout above)."""
+    msg = JointState()
+    msg.header.stamp = seconds_to_stamp(stamp_s)
+    msg.header.frame_id = frame_id
+    msg.position = np.asarray(poses, dtype=float).ravel().tolist()
+    return msg
+
+
+def robot_poses_from_msg(msg):
+    """(poses (n, 3), stamp_s) from a /formation/robot_poses message; MessageError if its
+    length is not a multiple of 3.
+    """
+    values = np.asarray(msg.position, dtype=float)
+    if values.size % 3:
+        raise MessageError(f'robot poses hold {values.size} values, not [x, y, theta] per robot')
+    return values.reshape(-1, 3), stamp_to_seconds(msg.header.stamp)
 
 
 def pose_array_to_msg(poses, count, stamp_s, frame_id='arena'):

@@ -7,6 +7,7 @@ t = 0 is when the first curve arrives. Rows are sampled at `record_hz` from the 
 from dataclasses import dataclass, field
 import time
 
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Twist, Vector3Stamped
 import numpy as np
 from rclpy.node import Node
@@ -27,10 +28,11 @@ class Recording:
     dhat: list = field(default_factory=list)
     curve_id: list = field(default_factory=list)
     true_poses: list = field(default_factory=list)   # fake robots' ground truth (camera runs)
+    unseen: list = field(default_factory=list)       # (n,) robots missing from the poses
 
     def arrays(self):
         return {name: np.array(getattr(self, name)) for name in
-                ('t', 'poses', 'commands', 'dhat', 'curve_id', 'true_poses')}
+                ('t', 'poses', 'commands', 'dhat', 'curve_id', 'true_poses', 'unseen')}
 
 
 class Monitor(Node):
@@ -49,7 +51,9 @@ class Monitor(Node):
         self.curve_id = None
         self.t0 = None
         self.curve_times = {}      # curve id -> time the monitor received it (s)
-        self.curves = {}           # curve id -> (Curve, agents' parameters s (n,) or None)
+        self.curves = []           # every curve message: (time s, curve id, Curve, s or None)
+        self.unseen = np.zeros(n, bool)   # robots missing from /formation/robot_poses now
+        self.contacts = None       # fake_arena's contact summary, as last reported
         # Per robot, one (published, received, handled) row per command (s, system clock):
         # the DDS source timestamp, the time DDS received it here, the time this callback ran.
         self.command_arrivals = [[] for _ in range(n)]
@@ -70,6 +74,8 @@ class Monitor(Node):
                 self._subscribe(PoseStamped, topics.robot_topic(i, topics.TRUE_POSE),
                                 lambda m, i=i: self._on_true_pose(i, m), qos.SENSOR)
         self._subscribe(Float64MultiArray, topics.CURVE, self._on_curve, qos.LATCHED)
+        self._subscribe(JointState, topics.ROBOT_POSES, self._on_robot_poses, qos.SENSOR)
+        self._subscribe(DiagnosticArray, topics.DIAGNOSTICS, self._on_diagnostics, qos.EVENTS)
         self.create_timer(1.0 / record_hz, self._sample)
 
     def _subscribe(self, msg_type, topic, callback, profile):
@@ -103,14 +109,30 @@ class Monitor(Node):
 
     def _on_curve(self, msg):
         curve, self.curve_id = messages.curve_from_msg(msg)
-        self.curves.setdefault(self.curve_id, (curve, messages.agent_parameters_from_msg(msg)))
-        self.curve_times.setdefault(self.curve_id, now_seconds(self))
+        now = now_seconds(self)
+        self.curves.append((now, self.curve_id, curve, messages.agent_parameters_from_msg(msg)))
+        self.curve_times.setdefault(self.curve_id, now)
         if self.t0 is None:
             self.t0 = now_seconds(self)
 
     def received_curves(self):
-        """[(start, curve, s)] of the curves received, by id (start in s since t = 0)."""
-        return [(self.curve_times[k] - self.t0, *self.curves[k]) for k in sorted(self.curves)]
+        """[(t, curve id, curve, s)] of every curve message received (t in s since t = 0)."""
+        return [(when - self.t0, k, curve, s) for when, k, curve, s in self.curves]
+
+    def _on_robot_poses(self, msg):
+        try:
+            poses, _ = messages.robot_poses_from_msg(msg)
+        except messages.MessageError:
+            return
+        if len(poses) == self.n:
+            self.unseen = ~np.isfinite(poses).all(axis=1)
+
+    def _on_diagnostics(self, msg):
+        for status in msg.status:
+            if status.hardware_id == 'fake_arena':
+                values = {kv.key: kv.value for kv in status.values}
+                self.contacts = {key: None if values[key] == 'None' else float(values[key])
+                                 for key in ('count', 'time', 'smallest_gap') if key in values}
 
     def ready(self):
         """Every robot's pose and every controller's command has been seen."""
@@ -130,5 +152,6 @@ class Monitor(Node):
         rec.commands.append(self.commands.copy())
         rec.dhat.append(self.dhat.copy())
         rec.curve_id.append(self.curve_id)
+        rec.unseen.append(self.unseen.copy())
         if self.true_poses is not None:
             rec.true_poses.append(self.true_poses.copy())

@@ -10,6 +10,8 @@ TRUE_POSE = 'true_pose'               # a fake robot's ground truth, when a came
 CAMERA_IMAGE = '/camera/image_raw'
 CAMERA_POSES = '/camera/robot_poses'  # all robots, agent order (NaN = not seen)
 CAMERA_DEBUG = '/camera/debug_image'
+# Every robot's pose in one message, for the safety filter and re-assignment (messages.py).
+ROBOT_POSES = '/formation/robot_poses'
 CMD_VEL = 'cmd_vel'
 STATE = 'formation_state'
 ESTIMATE = 'disturbance_estimate'

@@ -1,0 +1,176 @@
+"""Collision avoidance on the arena: settling, contacts and gaps from random starts; the dense
+and crossing cases; the filter's cost per robot per tick; the simulator's speed with it on.
+
+Run: scripts/bench collision_avoidance   (--seeds N; --quick: 5 seeds)
+
+For each arena experiment (the shipped mona_arena and arena_demo: 8 cm bodies, the safety
+filter, re-assignment) and each start (the file's random box, reseeded), per curve phase:
+settling time with avoidance; the same start with the law alone (point robots passing
+through each other: today's behaviour, `avoidance: off`), and their ratio where that settles;
+the physical lower bound, the longest straight trip of any robot from where the phase begins
+to its assigned target at the wheel limit, and the ratio to it; contacts between bodies and
+the smallest gap between two surfaces over the run.
+"""
+
+import argparse
+import math
+from pathlib import Path
+import time
+
+import numpy as np
+
+from curve_formation.core import metrics
+from curve_formation.core.agent import agent_configs
+from curve_formation.core.control import agent_command
+from curve_formation.core.experiment import (
+    load_experiment,
+    point_robots,
+    seeded_start,
+    with_start,
+)
+from curve_formation.core.safety import AVOIDANCE_OFF
+from curve_formation.core.simulator import simulate
+from curve_formation.paths import resolve_config
+
+
+DATA = Path(__file__).resolve().parent.parent / 'test' / 'data'
+ARENA_CASES = ('mona_arena', 'arena_demo')
+# 25 robots on a larger curve in the same arena, and a switch whose paths all cross.
+HARD_CASES = (DATA / 'dense_arena.yaml', DATA / 'crossing_switch.yaml')
+
+
+def lower_bounds(result):
+    """Per phase: the longest straight trip (m) of any robot's control point, from where it
+    is when the phase begins to its target then, over the wheel limit (s).
+    """
+    experiment = result.experiment
+    speed = experiment.limits.max_wheel_speed
+    points = metrics.offset_points(result.poses, experiment.gains.offset)
+    out = []
+    for p in experiment.phases:
+        k = int(np.searchsorted(result.t, p.start))
+        if k >= len(result.t):
+            break
+        out.append(float(np.linalg.norm(points[k] - p.targets, axis=1).max() / speed))
+    return out
+
+
+def settling(result):
+    data = metrics.result_metrics(result)
+    return [p['settle_time'] for p in data['phases']], data
+
+
+def arena_table(name, seeds):
+    case = load_experiment(resolve_config(name))
+    rows = []
+    for seed in seeds:
+        start = seeded_start(case, seed)
+        ours = simulate(with_start(case, start))
+        alone = simulate(with_start(point_robots(case), start))
+        times, data = settling(ours)
+        off, _ = settling(alone)
+        rows.append({'seed': seed, 'times': times, 'off': off, 'bound': lower_bounds(ours),
+                     'contacts': ours.contacts['count'], 'gap': ours.contacts['smallest_gap'],
+                     'off_gap': metrics.closest_approach(alone.poses)[0] - 2 * case.radius,
+                     'reassigned': [p['reassignments'] for p in data['phases']]})
+    phases = len(case.phases)
+    print(f'\n{name}: {len(seeds)} random starts, 10 Hz, bodies of radius {case.radius} m, '
+          f'margin {case.avoidance.margin} m')
+    print(f'{"phase":>5s} {"settled":>8s} {"median s":>9s} {"max s":>7s} '
+          f'{"vs alone: settled, worst ratio":>31s} {"vs bound: median, worst":>24s}')
+    for k in range(phases):
+        times = [r['times'][k] for r in rows]
+        done = [t for t in times if t is not None]
+        ratios = [r['times'][k] / r['off'][k] for r in rows
+                  if r['times'][k] is not None and r['off'][k] is not None]
+        bound = [r['times'][k] / r['bound'][k] for r in rows if r['times'][k] is not None]
+        alone = sum(r['off'][k] is not None for r in rows)
+        print(f'{k:5d} {len(done):4d}/{len(rows):<3d} {np.median(done):9.1f} {max(done):7.1f} '
+              f'{alone:10d}/{len(rows)}, {max(ratios) if ratios else math.nan:14.2f} '
+              f'{np.median(bound):13.2f}, {max(bound):8.2f}')
+    print(f'contacts: {sum(r["contacts"] for r in rows)} in all; smallest surface gap '
+          f'{min(r["gap"] for r in rows) * 1000:.2f} mm (law alone: '
+          f'{min(r["off_gap"] for r in rows) * 1000:.1f} mm, i.e. bodies overlapping); '
+          f're-assignments per run: median {np.median([sum(r["reassigned"]) for r in rows]):g},'
+          f' max {max(sum(r["reassigned"]) for r in rows)}')
+    return rows
+
+
+def hard_cases():
+    print('\nhard cases (simulator, the file\'s start)')
+    for path in HARD_CASES:
+        case = load_experiment(path)
+        result = simulate(case)
+        times, _ = settling(result)
+        bound = lower_bounds(result)
+        print(f'  {case.name} ({case.n} robots): settling per phase '
+              + ', '.join('-' if t is None else f'{t:.1f} s ({t / b:.1f}x bound)'
+                          for t, b in zip(times, bound, strict=False))
+              + f'; contacts {result.contacts["count"]}, smallest gap '
+              f'{result.contacts["smallest_gap"] * 1000:.2f} mm')
+
+
+def filter_cost(sizes=(9, 50), ticks=200):
+    """Per robot per tick (us): agent_command as the node runs it (plain Python), with the
+    safety filter on and off, robots packed in the arena at random (bodies apart).
+    """
+    case = load_experiment(resolve_config('arena_demo'))
+    law = case.gains.tick_law(10.0)
+    rng = np.random.default_rng(0)
+    print('\nfilter cost per robot per tick, plain Python as in formation_controller')
+    for n in sizes:
+        poses = _packed(rng, n, case)
+        config = agent_configs(case, 10.0)[0]
+        costs = {}
+        for label, avoidance in (('on', config.avoidance), ('off', AVOIDANCE_OFF)):
+            started = time.perf_counter()
+            for k in range(ticks):
+                i = k % n
+                agent_command(0.1, -0.05, 0.1, -0.05, *poses[i], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+                              law, case.limits, poses, i, avoidance)
+            costs[label] = (time.perf_counter() - started) / ticks * 1e6
+        print(f'  N = {n:3d}: {costs["on"]:7.1f} us with the filter, {costs["off"]:6.1f} us '
+              f'without ({costs["on"] - costs["off"]:.1f} us for the filter)')
+
+
+def _packed(rng, n, case):
+    """n poses in the arena, bodies at least 2 radius + margin apart (as the filter keeps)."""
+    width, height = case.spec.arena.size
+    safe = 2 * case.radius + case.avoidance.margin
+    points = []
+    while len(points) < n:
+        p = rng.uniform([case.radius, case.radius], [width - case.radius, height - case.radius])
+        if all(np.hypot(*(p - q)) >= safe for q in points):
+            points.append(p)
+    return np.column_stack([np.array(points), rng.uniform(-np.pi, np.pi, n)])
+
+
+def simulator_speed(repeats=3):
+    print('\nsimulator speed, mona_arena (120 s at 10 Hz, dt 1 ms)')
+    case = load_experiment(resolve_config('mona_arena'))
+    for label, experiment in (('avoidance on', case), ('law alone', point_robots(case))):
+        simulate(experiment, duration=1.0)   # compile
+        best = math.inf
+        for _ in range(repeats):
+            started = time.perf_counter()
+            simulate(experiment)
+            best = min(best, time.perf_counter() - started)
+        duration = experiment.spec.simulation.duration
+        print(f'  {label:13s}: {best:.3f} s, {duration / best:.0f}x real time')
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    parser.add_argument('--seeds', type=int, default=20)
+    parser.add_argument('--quick', action='store_true', help='5 seeds')
+    args = parser.parse_args()
+    seeds = range(5 if args.quick else args.seeds)
+    for name in ARENA_CASES:
+        arena_table(name, seeds)
+    hard_cases()
+    filter_cost()
+    simulator_speed()
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,184 @@
+"""fake_arena: every robot of an experiment as a body in one arena, standing in for Mona robots.
+
+Each robot moves as fake_robot's does (core.dynamics.DrivenUnicycle under its cmd_vel, with
+its disturbance, latency and watchdog), but all of them in one world: the world advances in
+steps of at most `physics_dt` and after each step bodies that overlap are pushed apart and
+bodies through a wall put back (core.bodies.separate, the batch simulator's code), so robots
+block and push each other as real ones do. Publishes every robot's pose on /robot_<i>/pose
+(or true_pose when a camera tracks them) and all of them on /formation/robot_poses (unless a
+camera tracker does), at `rate_hz`; /diagnostics reports the contacts: how many, for how long,
+and the smallest gap between two bodies.
+"""
+
+import math
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseStamped, Twist
+import numpy as np
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+
+from curve_formation.core.dynamics import DrivenUnicycle
+from curve_formation.nodes import messages, qos, topics
+from curve_formation.nodes.params import (
+    declare_parameters,
+    experiment_parameter,
+    Param,
+)
+from curve_formation.nodes.runtime import now_seconds, run_node
+
+
+PARAMETERS = (
+    Param('experiment', 'string', None, 'experiment YAML (path or shipped name): robots, '
+          'start poses, body radius, arena and disturbance'),
+    Param('rate_hz', 'double', 30.0, 'pose publishing rate (Hz), as an overhead camera',
+          positive=True),
+    Param('physics_dt', 'double', 0.005, 'longest step between two contact resolutions (s)',
+          positive=True),
+    Param('pose_noise', 'double[]', [0.0, 0.0], 'std of Gaussian noise on the published '
+          'positions (m) and headings (rad)'),
+    Param('command_latency', 'double', 0.0, 'delay before a command takes effect (s)',
+          low=0.0),
+    Param('command_timeout', 'double', 1.0, "a robot's motors stop when its last command is "
+          'older than this (s); 0 = never', low=0.0),
+    Param('fault_pose_drop', 'double', 0.0, 'fault injection: probability of not publishing '
+          'a pose', low=0.0, high=1.0),
+    Param('seed', 'int', 0, 'seed of the pose noise and drops'),
+    Param('frame_id', 'string', 'arena', 'frame of the published poses'),
+    Param('pose_topic', 'string', topics.POSE, f"per-robot topic of the published pose: "
+          f"'{topics.POSE}', or '{topics.TRUE_POSE}' when a camera tracks the robots",
+          choices=(topics.POSE, topics.TRUE_POSE)),
+    Param('publish_robot_poses', 'bool', True, 'publish all poses on /formation/robot_poses '
+          '(off when a camera tracker publishes them)'),
+)
+
+TOPICS = (
+    ('sub', '/robot_<i>/' + topics.CMD_VEL, 'geometry_msgs/Twist', 'COMMAND',
+     "each robot's velocity command"),
+    ('pub', '/robot_<i>/' + topics.POSE, 'geometry_msgs/PoseStamped', 'SENSOR',
+     f'each pose at rate_hz (on {topics.TRUE_POSE} instead with pose_topic)'),
+    ('pub', topics.ROBOT_POSES, 'sensor_msgs/JointState', 'SENSOR',
+     'every pose in one message (x, y, theta per robot), with publish_robot_poses'),
+    ('pub', topics.DIAGNOSTICS, 'diagnostic_msgs/DiagnosticArray', 'EVENTS',
+     'contacts: count, total time (s), smallest gap between two bodies (m); 1 Hz'),
+)
+
+
+class FakeArena(Node):
+    """All robots of an experiment as bodies that cannot overlap."""
+
+    def __init__(self, **kwargs):
+        super().__init__('fake_arena', **kwargs)
+        p = self.params = declare_parameters(self, PARAMETERS)
+        experiment = experiment_parameter(p.experiment)
+        spec = experiment.spec
+        on_robot = spec.disturbance.injected == 'on_robot'
+        self.robots = [DrivenUnicycle(pose, d if on_robot else (0.0, 0.0), p.command_latency,
+                                      p.command_timeout)
+                       for pose, d in zip(experiment.initial_poses, experiment.disturbance,
+                                          strict=True)]
+        self.n = experiment.n
+        self.radius = experiment.radius
+        self.size = tuple(spec.arena.size) if spec.arena is not None else (0.0, 0.0)
+        self.touching = np.zeros((self.n, self.n), bool)
+        if self.radius > 0:
+            separate(np.zeros((0, 3)), 0.0, 0.0, 0.0, self.touching[:0, :0])   # compile now
+        self.contacts = 0
+        self.contact_time = 0.0
+        self.smallest_gap = math.inf
+        self.time = None
+        self.rng = np.random.default_rng(p.seed)
+        self.pose_pubs = [self.create_publisher(PoseStamped, topics.robot_topic(i, p.pose_topic),
+                                                qos.SENSOR) for i in range(1, self.n + 1)]
+        self.all_pub = (self.create_publisher(JointState, topics.ROBOT_POSES, qos.SENSOR)
+                        if p.publish_robot_poses else None)
+        self.diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.EVENTS)
+        for i in range(1, self.n + 1):
+            self.create_subscription(Twist, topics.robot_topic(i, topics.CMD_VEL),
+                                     lambda msg, i=i: self._on_cmd(i, msg), qos.COMMAND)
+        self.create_timer(1.0 / p.rate_hz, self._on_timer)
+        self.create_timer(1.0, self._publish_diagnostics)
+        self.get_logger().info(f'{self.n} robots, bodies of radius {self.radius:g} m, arena '
+                               f'{self.size[0]:g} x {self.size[1]:g} m')
+
+    def _on_cmd(self, i, msg):
+        v, w = messages.twist_from_msg(msg)
+        if not (math.isfinite(v) and math.isfinite(w)):
+            self.get_logger().warning(f'robot {i}: non-finite cmd_vel ignored',
+                                      throttle_duration_sec=1.0)
+            return
+        now = now_seconds(self)
+        self.advance(now)
+        self.robots[i - 1].drive(v, w, now)
+
+    def advance(self, until):
+        """Move every robot up to `until` (s), resolving contacts every physics_dt."""
+        if self.time is None:
+            self.time = until
+        while self.time < until:
+            step = min(self.params.physics_dt, until - self.time)
+            self.time += step
+            for i, robot in enumerate(self.robots):
+                if robot.advance(self.time):
+                    self.get_logger().warning(f'robot {i + 1}: no command for '
+                                              f'{self.params.command_timeout:g} s: motors off')
+            self._touch(step)
+
+    def _touch(self, step):
+        if self.radius <= 0:
+            return
+        poses = np.array([r.pose for r in self.robots])
+        new, now, gap = separate(poses, self.radius, self.size[0], self.size[1],
+                                 self.touching)
+        self.contacts += new
+        self.contact_time += step if now else 0.0
+        self.smallest_gap = min(self.smallest_gap, gap)
+        for robot, pose in zip(self.robots, poses, strict=True):
+            robot.pose = tuple(pose)
+
+    def _on_timer(self):
+        now = now_seconds(self)
+        self.advance(now)
+        noise = self.params.pose_noise
+        poses = np.array([r.pose for r in self.robots])
+        if noise[0] > 0 or noise[1] > 0:
+            poses = poses + self.rng.normal(0.0, [noise[0], noise[0], noise[1]], poses.shape)
+        for pub, (x, y, th) in zip(self.pose_pubs, poses, strict=True):
+            if self.rng.random() >= self.params.fault_pose_drop:
+                pub.publish(messages.pose_to_msg(x, y, th, now, self.params.frame_id))
+        if self.all_pub is not None:
+            self.all_pub.publish(messages.robot_poses_to_msg(poses, now, self.params.frame_id))
+
+    def contact_summary(self):
+        """{'count', 'time' (s), 'smallest_gap' (m, None without bodies)} so far."""
+        return {'count': self.contacts, 'time': self.contact_time,
+                'smallest_gap': self.smallest_gap if math.isfinite(self.smallest_gap)
+                else None}
+
+    def _publish_diagnostics(self):
+        summary = self.contact_summary()
+        status = DiagnosticStatus(
+            level=DiagnosticStatus.WARN if summary['count'] else DiagnosticStatus.OK,
+            name=self.get_fully_qualified_name(), hardware_id='fake_arena',
+            message=f'{summary["count"]} contacts' if summary['count'] else 'no contact',
+            values=[KeyValue(key=key, value=repr(value)) for key, value in summary.items()])
+        msg = DiagnosticArray(status=[status])
+        msg.header.stamp = messages.seconds_to_stamp(now_seconds(self))
+        self.diag_pub.publish(msg)
+
+    def on_shutdown(self):
+        self._publish_diagnostics()
+
+
+def separate(poses, radius, width, height, touching):
+    """core.bodies.separate as the batch simulator compiles it (imported on first use)."""
+    from curve_formation.core.simulator import separate as compiled
+    return compiled(poses, radius, width, height, touching)
+
+
+def main(args=None):
+    return run_node(FakeArena, args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
