@@ -70,6 +70,7 @@ def arena_table(name, seeds):
         times, data = settling(ours)
         off, _ = settling(alone)
         rows.append({'seed': seed, 'times': times, 'off': off, 'bound': lower_bounds(ours),
+                     'off_bound': lower_bounds(alone),
                      'contacts': ours.contacts['count'], 'gap': ours.contacts['smallest_gap'],
                      'off_gap': metrics.closest_approach(alone.poses)[0] - 2 * case.radius,
                      'reassigned': [p['reassignments'] for p in data['phases']]})
@@ -77,17 +78,23 @@ def arena_table(name, seeds):
     print(f'\n{name}: {len(seeds)} random starts, 10 Hz, bodies of radius {case.radius} m, '
           f'margin {case.avoidance.margin} m')
     print(f'{"phase":>5s} {"settled":>8s} {"median s":>9s} {"max s":>7s} '
-          f'{"vs alone: settled, worst ratio":>31s} {"vs bound: median, worst":>24s}')
+          f'{"vs alone: settled, worst ratio":>31s} {"vs bound: median, worst":>24s} '
+          f'{"alone vs bound: median, worst":>30s}')
     for k in range(phases):
         times = [r['times'][k] for r in rows]
         done = [t for t in times if t is not None]
         ratios = [r['times'][k] / r['off'][k] for r in rows
                   if r['times'][k] is not None and r['off'][k] is not None]
         bound = [r['times'][k] / r['bound'][k] for r in rows if r['times'][k] is not None]
+        off_bound = [r['off'][k] / r['off_bound'][k] for r in rows if r['off'][k] is not None]
         alone = sum(r['off'][k] is not None for r in rows)
+        worst = max(range(len(rows)), key=lambda q: (rows[q]['times'][k] or math.inf)
+                    / rows[q]['bound'][k])
         print(f'{k:5d} {len(done):4d}/{len(rows):<3d} {np.median(done):9.1f} {max(done):7.1f} '
               f'{alone:10d}/{len(rows)}, {max(ratios) if ratios else math.nan:14.2f} '
-              f'{np.median(bound):13.2f}, {max(bound):8.2f}')
+              f'{np.median(bound):13.2f}, {max(bound):8.2f} '
+              f'{np.median(off_bound):19.2f}, {max(off_bound):8.2f}   (worst: seed '
+              f'{rows[worst]["seed"]})')
     print(f'contacts: {sum(r["contacts"] for r in rows)} in all; smallest surface gap '
           f'{min(r["gap"] for r in rows) * 1000:.2f} mm (law alone: '
           f'{min(r["off_gap"] for r in rows) * 1000:.1f} mm, i.e. bodies overlapping); '
@@ -97,7 +104,7 @@ def arena_table(name, seeds):
 
 
 def hard_cases():
-    print('\nhard cases (simulator, the file\'s start)')
+    print("\nhard cases (simulator, the file's start)")
     for path in HARD_CASES:
         case = load_experiment(path)
         result = simulate(case)

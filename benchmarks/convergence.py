@@ -80,13 +80,16 @@ def one_run(case, gains, rate, start, disturbance=None):
 
 def load_case(name):
     """A shipped experiment; 'mona_arena/paper' is the arena case with the paper's agents and
-    graph (fixed assignment, no follower pinning).
+    graph (fixed assignment, no follower pinning) and point robots (no bodies, no avoidance).
     """
     base, _, variant = name.partition('/')
     if not variant:
         return load_experiment(resolve_config(base))
     data = yaml.safe_load(resolve_config(base).read_text())
     data['agents']['assignment'] = 'fixed'
+    data['agents'].pop('reassign_every', None)
+    data.pop('robots', None)
+    data.pop('avoidance', None)
     data['graph']['pinning'] = 0.0
     return build_experiment(data, name)
 

@@ -1,6 +1,7 @@
 """ROS node graph timing: N fake robots + N controllers, one process each or all in one.
 
 Run: scripts/bench node_graph [--sizes 9 16 25 50] [--seconds 15] [--modes multi single]
+                              [--avoidance]
 
 For each N and mode it prints: cmd_vel rate per robot (Hz, mean over robots), period jitter
 |interval - 100 ms| (p50/p99 over all robots) of the commands as published (DDS source
@@ -10,7 +11,9 @@ scheduling), pose-to-command latency (arrival of a tick's output minus the stamp
 used, p50/p99) and CPU per robot (% of one core, all node processes, or the single process,
 divided by N). Goal (issue): 9 robots at 10 Hz with p99 jitter under 5 ms; the largest N that
 holds 10 Hz (every robot at least 9.9 Hz over the window). In single-process mode the nodes'
-log lines go to a file, not the terminal.
+log lines go to a file, not the terminal. --avoidance gives the robots bodies (0.2 m), wheels
+of 2 m/s and the safety filter: every controller then takes every robot's pose, 30 times a
+second, and filters every command, and one fake_arena simulates all the bodies.
 """
 
 import argparse
@@ -26,23 +29,33 @@ import yaml
 from curve_formation.runner import Run
 
 
-def experiment_file(n, folder):
-    """n agents on a closed curve at 10 Hz, chain + skip edges, converging settings."""
+def experiment_file(n, folder, avoidance=False):
+    """n agents on a closed curve at 10 Hz, chain + skip edges, converging settings; with
+    avoidance, bodies of 0.2 m kept 0.1 m apart.
+    """
     edges = [{'from': i, 'to': i + 1} for i in range(1, n)]
     edges += [{'from': i, 'to': i + 2} for i in range(1, n - 1, 3)]
     path = Path(folder) / f'bench_{n}.yaml'
+    bodies = {'robots': {'radius': 0.2}, 'avoidance': {'margin': 0.1}} if avoidance else {}
+    # With avoidance, wheels of 2 m/s (not 100): a robot's barriers then reach the robots
+    # within 4 v_max / alpha = 1.6 m, not all of them.
+    speed = 2.0 if avoidance else 100.0
     path.write_text(yaml.safe_dump({
-        'name': f'bench_{n}',
+        'name': f'bench_{n}', **bodies,
         'agents': {'count': n, 'initial': {'random': {'seed': 1, 'center': [0, 0],
-                                                      'half_width': [10, 10]}}},
+                                                      'half_width': [10, 10],
+                                                      'min_separation': 0.6}}},
         'graph': {'edges': edges},
         'controller': {'k1': 1.0, 'k2': 0.0, 'offset': 0.3, 'rate_hz': 10.0},
-        'limits': {'wheel_base': 0.1, 'max_wheel_speed': 100.0, 'max_angular_rate': 10.0},
+        'limits': {'wheel_base': 0.1, 'max_wheel_speed': speed, 'max_angular_rate': 10.0},
         'curves': [{'basis': 'fourier', 'harmonics': max(2, n // 2),
                     'samples': max(400, 3 * n + 3),
                     'x': '(8 + sin(6*pi*s)) * cos(2*pi*s)',
                     'y': '(8 + cos(4*pi*s)) * sin(2*pi*s)'}],
         'simulation': {'duration': 60.0},
+        # News of the leader crosses up to ~n / 1.3 hops, one pose period (33 ms) each: the
+        # default 1 s would stop the far followers of a 50-robot chain now and then.
+        'safety': {'leader_timeout': max(1.0, 0.05 * n)},
     }))
     return path
 
@@ -60,8 +73,8 @@ def cpu_seconds(pids):
     return total
 
 
-def measure(n, single_process, seconds, folder):
-    path = experiment_file(n, folder)
+def measure(n, single_process, seconds, folder, avoidance=False):
+    path = experiment_file(n, folder, avoidance)
     out = Path(folder) / f'run_{n}_{"single" if single_process else "multi"}'
     with quiet_stderr(Path(folder) / f'nodes_{n}.log'), \
             Run(path, out, single_process=single_process, log=lambda *_: None) as run:
@@ -109,6 +122,8 @@ def main():
     parser.add_argument('--seconds', type=float, default=15.0)
     parser.add_argument('--modes', nargs='+', default=['multi', 'single'],
                         choices=['multi', 'single'])
+    parser.add_argument('--avoidance', action='store_true',
+                        help='bodies and the safety filter in every controller')
     args = parser.parse_args()
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     print('jitter |interval - 100 ms| p50/p99 in ms as published, received and handled; '
@@ -119,7 +134,7 @@ def main():
         for n in args.sizes:
             for mode in args.modes:
                 try:
-                    r = measure(n, mode == 'single', args.seconds, folder)
+                    r = measure(n, mode == 'single', args.seconds, folder, args.avoidance)
                 except (TimeoutError, RuntimeError) as exc:
                     print(f'{n:4d} {mode:>6s} failed: {str(exc).splitlines()[0]}', flush=True)
                     continue

@@ -7,12 +7,10 @@ value, NaN before the first) from t = 0 at the first curve message.
 """
 
 from dataclasses import dataclass, replace
-import json
 from pathlib import Path
 import re
 
 import numpy as np
-import yaml
 
 from curve_formation.bag import bag_info, BagError, read_messages
 from curve_formation.core import metrics, plots
@@ -25,12 +23,18 @@ from curve_formation.core.experiment import (
     build_experiment,
     control_rate,
     load_experiment,
+    parse_experiment_text,
     received_phases,
 )
+from curve_formation.paths import resolve_config
 
 
 EXPERIMENT_KEY = 'curve_formation.experiment'
 _ROBOT_TOPIC = re.compile(r'^/robot_(\d+)/(pose|cmd_vel|disturbance_estimate)$')
+# The message type each topic the analysis reads must have (a bag of another tool may differ).
+TYPES = {'curve': 'std_msgs/msg/Float64MultiArray', 'pose': 'geometry_msgs/msg/PoseStamped',
+         'cmd_vel': 'geometry_msgs/msg/Twist',
+         'disturbance_estimate': 'geometry_msgs/msg/Vector3Stamped'}
 
 
 @dataclass
@@ -49,12 +53,20 @@ class BagRun:
 def load_bag_run(path, experiment_path=None, sample_hz=20.0):
     """Read a bag into a BagRun; BagError with a clear message if it cannot be used."""
     path = Path(path)
-    _, custom = bag_info(path)
+    topics, custom = bag_info(path)
+    for topic, (msgtype, _) in topics.items():
+        match = _ROBOT_TOPIC.match(topic)
+        kind = 'curve' if topic == '/formation/curve' else match and match.group(2)
+        if kind and msgtype != TYPES[kind]:
+            raise BagError(f'{path}: {topic} holds {msgtype}, expected {TYPES[kind]}: not a '
+                           "bag of this package's run (record one with `curve-formation run "
+                           '--bag`)')
     if experiment_path is not None:
-        experiment = load_experiment(experiment_path)
+        experiment = load_experiment(resolve_config(experiment_path))
     elif EXPERIMENT_KEY in custom:
-        experiment = build_experiment(yaml.safe_load(custom[EXPERIMENT_KEY]),
-                                      f'{path} (metadata)')
+        source = f'{path} (metadata)'
+        experiment = build_experiment(parse_experiment_text(custom[EXPERIMENT_KEY], source),
+                                      source)
     else:
         raise BagError(f'{path}: the bag does not carry its experiment; pass --experiment')
     n = experiment.n
@@ -148,7 +160,7 @@ def analyze_bag(path, out_dir, experiment_path=None, compare=None, compare_sim=F
                               [(Path(path).name, t, errors[0]), (label, o_t, errors[1])])
         plots.plot_paths(out / f'{stem}_paths.png', run.experiment, poses, phase,
                          overlay=(label, o_poses))
-    (out / 'metrics.json').write_text(json.dumps(result, indent=2) + '\n')
+    (out / 'metrics.json').write_text(metrics.strict_json(result))
     return result
 
 

@@ -8,6 +8,7 @@ Bad input ends with one line `error: FILE: KEY: ...` and exit status 2, never a 
 import argparse
 import dataclasses
 import json
+import os
 from pathlib import Path
 import sys
 
@@ -20,7 +21,8 @@ from curve_formation.paths import resolve_config, use_dds_profile
 
 def _write_json(path, data):
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(data, indent=2, default=float) + '\n')
+    from curve_formation.core.metrics import strict_json
+    path.write_text(strict_json(data))
 
 
 def simulate_to_dir(config, out_dir, rate='config', law=None, heading=None):
@@ -32,6 +34,7 @@ def simulate_to_dir(config, out_dir, rate='config', law=None, heading=None):
     from curve_formation.core.simulator import simulate
 
     experiment = load_experiment(resolve_config(config))
+    _warn(experiment)
     gains = experiment.gains
     if law is not None:
         gains = dataclasses.replace(gains, law=law)
@@ -55,8 +58,16 @@ def _summary_line(name, data):
             f'settling per curve: {settle}')
 
 
+def _warn(experiment):
+    """Print what the experiment allows but should not: `warning: FILE: ...` on stderr."""
+    for text in experiment.warnings:
+        print(f'warning: {experiment.source}: {text}', file=sys.stderr)
+
+
 def _cmd_check(args):
-    report = load_experiment(resolve_config(args.config)).report()
+    experiment = load_experiment(resolve_config(args.config))
+    _warn(experiment)
+    report = experiment.report()
     if args.json:
         print(json.dumps(report, indent=2))
         return
@@ -79,6 +90,7 @@ def _cmd_sim(args):
         rate = None
     elif args.rate is not None:
         rate = args.rate
+    _output_folder(args.out)
     data = simulate_to_dir(args.config, args.out, rate, args.law, args.heading)
     print(_summary_line(data['experiment'], data))
     print(f'wrote {args.out}/metrics.json and figures')
@@ -94,6 +106,7 @@ def _cmd_demo(args):
     out = Path(args.out)
     if out.exists() and any(out.iterdir()):
         raise FileExistsError(f'{out}: output folder is not empty; give a new one')
+    _output_folder(out)
     summary = {'paper_cases_batch_simulation': {}}
     print("1/2 batch simulation of the paper's cases, with the paper's law and with ours")
     for name in PAPER_CASES:
@@ -115,6 +128,8 @@ def _cmd_demo(args):
 
 def _cmd_run(args):
     from curve_formation.runner import run_experiment
+    _warn(load_experiment(resolve_config(args.config)))
+    _output_folder(args.out)
     result = run_experiment(args.config, args.out, args.duration, args.single_process,
                             with_robots=not args.no_sim, rate_hz=args.rate, bag_path=args.bag,
                             camera={} if args.camera else None, bag_images=args.bag_images,
@@ -125,6 +140,7 @@ def _cmd_run(args):
 
 def _cmd_analyze(args):
     from curve_formation.analysis import analyze_bag
+    _output_folder(args.out)
     result = analyze_bag(args.bag, args.out, args.experiment, args.compare, args.compare_sim)
     print(_summary_line(result['experiment'], result))
     if args.compare_sim:
@@ -298,18 +314,53 @@ def build_parser():
     return parser
 
 
+# An error line is cut to this many characters: a bad input can be long, the line is not.
+MAX_ERROR_LINE = 480
+
+
 def main(argv=None):
+    """Run one command; bad input ends in one `error:` line on stderr and exit status 2.
+
+    Anything else unexpected also ends in one line (exit status 1), naming it a bug, unless
+    CURVE_FORMATION_DEBUG is set (then the traceback).
+    """
     args = build_parser().parse_args(argv)
     use_dds_profile()   # before any ROS context exists in this process
     try:
         args.func(args)
-    except ConfigError as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        return 2
-    except (FileNotFoundError, FileExistsError, BagError) as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        return 2
+    except (ConfigError, BagError, ValueError) as exc:
+        return _error(exc, 2)
+    except OSError as exc:   # a file or folder that cannot be read or written
+        where = f'{exc.filename}: ' if exc.filename else ''
+        return _error(f'{where}{exc.strerror or exc}', 2)
+    except KeyboardInterrupt:
+        return _error('interrupted', 130)
+    except Exception as exc:  # noqa: BLE001 - one line, never a traceback, for any input
+        if os.environ.get('CURVE_FORMATION_DEBUG'):
+            raise
+        return _error(f'unexpected {type(exc).__name__}: {exc} (a bug: please report it with '
+                      'the command; CURVE_FORMATION_DEBUG=1 shows the traceback)', 1)
     return 0
+
+
+def _error(message, status):
+    text = ' '.join(str(message).split())
+    if len(text) > MAX_ERROR_LINE:
+        text = text[:MAX_ERROR_LINE - 3] + '...'
+    print(f'error: {text}', file=sys.stderr)
+    return status
+
+
+def _output_folder(path):
+    """Create the output folder now (not after a long run); OSError or FileExistsError."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise FileExistsError(f'{path}: exists and is not a folder; give a folder for --out')
+    path.mkdir(parents=True, exist_ok=True)
+    probe = path / '.curve_formation_write_test'
+    probe.write_text('')
+    probe.unlink()
+    return path
 
 
 if __name__ == '__main__':

@@ -450,7 +450,7 @@ class Run:
         if camera:
             result['ground_truth'] = ground_truth_metrics(experiment, data, phase)
         self.out.mkdir(parents=True, exist_ok=True)
-        (self.out / 'metrics.json').write_text(json.dumps(result, indent=2) + '\n')
+        (self.out / 'metrics.json').write_text(metrics.strict_json(result))
         plots.run_figures(self.out, experiment, data['t'], data['poses'], phase,
                           data['dhat'], label=label)
         np.savez_compressed(self.out / 'trajectory.npz', phase=phase, **data)
@@ -521,7 +521,7 @@ def run_experiment(config, out_dir, duration=None, single_process=False, with_ro
         result['bag'] = {'path': str(bag_path), 'messages': run.bag_writer.count,
                          **bag_accounting(bag_path, run.publications_dir, run.recorder.streams,
                                           run.best_effort_topics)}
-        (run.out / 'metrics.json').write_text(json.dumps(result, indent=2) + '\n')
+        (run.out / 'metrics.json').write_text(metrics.strict_json(result))
     return result
 
 

@@ -294,3 +294,26 @@ def test_replay_loops_until_stopped(tmp_path, ros):
         stop.set()
         player.join(5.0)
     assert not player.is_alive()   # and the stop event ended the loop
+
+
+def test_a_bag_of_another_tool_says_what_is_missing(tmp_path):
+    """`analyze` on bags it cannot use: one error line each, never a traceback."""
+    from rclpy.serialization import serialize_message
+    from std_msgs.msg import String
+
+    from curve_formation.bag import BagWriter, qos
+    other = tmp_path / 'other'
+    with BagWriter(other) as writer:      # /formation/curve of another type
+        writer.add_topic('/formation/curve', 'std_msgs/msg/String', qos())
+        writer.write('/formation/curve', 1_000_000_000, serialize_message(String(data='x')))
+    empty = tiny_bag(tmp_path / 'no_curve')   # a bag without curves or an experiment
+    for bag, expected in ((other, 'holds std_msgs/msg/String, expected'),
+                          (empty, 'pass --experiment')):
+        proc = subprocess.run([sys.executable, '-m', 'curve_formation.cli', 'analyze', str(bag),
+                               '--out', str(tmp_path / 'o')], capture_output=True, text=True)
+        assert proc.returncode == 2 and 'Traceback' not in proc.stderr, proc.stderr
+        assert expected in proc.stderr and len(proc.stderr.splitlines()) == 1, proc.stderr
+    proc = subprocess.run([sys.executable, '-m', 'curve_formation.cli', 'analyze', str(empty),
+                           '--experiment', 'closed_curve', '--out', str(tmp_path / 'o2')],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2 and 'no /formation/curve message' in proc.stderr, proc.stderr

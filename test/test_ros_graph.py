@@ -196,3 +196,28 @@ def test_a_start_that_times_out_stops_the_nodes_it_started(tmp_path, ros_domain,
             pass
     assert len(started) == 6   # the controllers; the curve server was never reached
     assert all(proc.poll() is not None for proc in started)
+
+
+def test_bodies_avoid_each_other_over_dds_as_the_simulator_predicts(ros_domain, tmp_path):
+    """Six 8 cm robots in one fake_arena, every one heading through the middle of the arena
+    to the point opposite: each controller's safety filter keeps them apart from the poses
+    on /formation/robot_poses, as in the batch simulator (the envelope test, with bodies).
+    """
+    with Run(DATA_DIR / 'arena_bodies.yaml', tmp_path, log=quiet) as run:
+        run.spin_for(27.0)
+        data = run.recording()
+        result = run.write_results()
+    experiment = run.experiment
+    followed, phase = run.followed(data['t'])
+    ros = metrics.error_norm(metrics.target_errors(data['poses'], phase, followed, t=data['t']))
+    low, high = simulated_envelope(experiment, data['t'], 28.0)
+    tolerance = 1e-3 * experiment.phases[0].curve.size()
+    assert_within_envelope(data['t'], ros, low, high, data['t'] > 0.5, tolerance)
+    assert result['all_settled'], result['phases']
+    bodies = result['bodies']
+    # Counted by fake_arena at every physics step: no two bodies ever touched.
+    assert bodies['contacts'] == {'count': 0, 'time': 0.0}, bodies
+    margin = experiment.avoidance.margin
+    assert bodies['smallest_gap'] > 0.9 * margin, bodies
+    cmd = data['commands']
+    assert np.nanmax(np.abs(cmd[..., 0]) + 0.04 * np.abs(cmd[..., 1])) <= 0.08 + 1e-9

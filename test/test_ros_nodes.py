@@ -14,6 +14,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 import yaml
 
+from conftest import DATA_DIR
 from curve_formation.core.agent import State
 from curve_formation.core.curve_sources import expression_samples
 from curve_formation.core.curves import fit_curve, FourierBasis
@@ -166,10 +167,17 @@ def test_curve_server_fits_and_publishes_an_observed_curve(ros):
     # Observed points are parameterised by chord length; an ellipse in that parameter is not a
     # finite Fourier series, so K = 6 leaves a small residual (measured 0.012, 0.3 % of size).
     assert np.abs((pts[:, 0] - 3) ** 2 / 4 + (pts[:, 1] - 1) ** 2 - 1).max() < 0.02
-    # Too few points for the basis: refused, the current curve stays.
-    msg.polygon.points = msg.polygon.points[:5]
-    pub.publish(msg)
-    deadline = time.monotonic() + 1.0
+    # Refused, the current curve staying: too few points for the basis, two points, a NaN,
+    # more points than MAX_OBSERVED_POINTS.
+    from curve_formation.nodes.curve_server import MAX_OBSERVED_POINTS
+    good = list(msg.polygon.points)
+    nan = good[:40] + [Point32(x=float('nan'), y=1.0)] + good[41:]
+    many = [Point32(x=float(np.cos(a)), y=float(np.sin(a)))
+            for a in np.linspace(0, 6.28, MAX_OBSERVED_POINTS + 1)]
+    for points in (good[:5], good[:2], nan, many):
+        msg.polygon.points = points
+        pub.publish(msg)
+    deadline = time.monotonic() + 2.0
     spin_until(lambda: time.monotonic() > deadline)
     assert server.next_id == 2
 
@@ -242,3 +250,75 @@ def test_a_node_hung_in_its_shutdown_still_ends_after_a_stop_signal(ros_domain):
         proc.kill()
     assert proc.returncode != 0
     assert 'Timeout' in err and 'on_shutdown' in err   # where it hung, from faulthandler
+
+
+def test_fake_arena_bodies_push_each_other_and_count_the_contact(ros):
+    """Two robots driven head-on at each other: they meet, push, and never overlap by more
+    than one physics step's travel; the contact is counted once and reported.
+    """
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import Twist
+
+    from curve_formation.nodes import topics
+    from curve_formation.nodes.fake_arena import FakeArena
+    context, add, spin_until = ros
+    arena = add(FakeArena(context=context, parameter_overrides=[
+        Parameter('experiment', value=str(DATA_DIR / 'arena_bodies.yaml'))]))
+    probe = add(rclpy.create_node('driver', context=context))
+    reports = []
+    probe.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, reports.append, 10)
+    # Robots 1 (1.1, 0.4) and 4 (0.7, 0.4) face each other across the middle.
+    pubs = {i: probe.create_publisher(Twist, topics.robot_topic(i, topics.CMD_VEL), 1)
+            for i in (1, 4)}
+    spin_until(lambda: all(p.get_subscription_count() for p in pubs.values()))
+    start = time.monotonic()
+    closest = np.inf
+    while time.monotonic() - start < 4.0:
+        for pub in pubs.values():
+            pub.publish(messages.twist_to_msg(0.08, 0.0))
+        pause = time.monotonic() + 0.05
+        spin_until(lambda pause=pause: time.monotonic() > pause)
+        a, b = arena.robots[0].pose, arena.robots[3].pose
+        closest = min(closest, np.hypot(a[0] - b[0], a[1] - b[1]))
+    # 0.4 m apart at 8 cm/s each (drifting with the file's disturbance), they met after about
+    # 2 s and pushed each other from then on, the bodies never overlapping.
+    assert closest >= 2 * arena.radius - 1e-9
+    assert arena.contacts == 1 and arena.contact_time > 0.25
+    spin_until(lambda: any(s.hardware_id == 'fake_arena' and s.message == '1 contacts'
+                           for r in reports for s in r.status), timeout=3.0)
+
+
+def test_a_double_parameter_takes_an_integer_and_a_wrong_type_is_named(ros):
+    """ROS users type `-p k1:=2`: an integer for a double is taken; a string is refused."""
+    context, add, _ = ros
+    ctrl = add(FormationController(context=context, namespace='/robot_1', parameter_overrides=(
+        overrides(index=1, agent_count=3, role='leader', k1=2, rate_hz=10, weights=[]))))
+    assert ctrl.config.gains.k1 == 2.0 and isinstance(ctrl.config.gains.k1, float)
+    with pytest.raises(ParameterError, match="'k1' has the wrong type"):
+        FormationController(context=context, namespace='/robot_2', parameter_overrides=(
+            overrides(index=1, agent_count=3, role='leader', k1='fast')))
+    with pytest.raises(ParameterError, match="'k2' must be in"):
+        FormationController(context=context, namespace='/robot_3', parameter_overrides=(
+            overrides(index=1, agent_count=3, role='leader', k2=-1)))
+
+
+def test_malformed_curve_messages_are_refused_and_the_curve_kept(ros):
+    context, add, spin_until = ros
+    ctrl = add(FormationController(context=context, namespace='/robot_2', parameter_overrides=(
+        overrides(index=2, agent_count=3, in_neighbours=[1]))))
+    probe = Probe(context, 2)
+    add(probe.node)
+    good = messages.curve_to_msg(circle_curve(), 0, [0.0, 1 / 3, 2 / 3])
+    probe.curve_pub.publish(good)
+    spin_until(lambda: ctrl.controller.curve_id == 0)
+    wrong_layout = Float64MultiArray(data=list(good.data))     # no layout at all
+    nan = messages.curve_to_msg(circle_curve(), 1, [0.0, 1 / 3, 2 / 3])
+    nan.data[0] = float('nan')
+    short = messages.curve_to_msg(circle_curve(), 2, [0.0, 1 / 3, 2 / 3])
+    short.data = short.data[:3]
+    no_s = messages.curve_to_msg(circle_curve(), 3)
+    for msg in (wrong_layout, nan, short, no_s):
+        probe.curve_pub.publish(msg)
+        deadline = time.monotonic() + 0.3
+        spin_until(lambda deadline=deadline: time.monotonic() > deadline)
+        assert ctrl.controller.curve_id == 0

@@ -15,9 +15,10 @@ MAX_FIT_ENTRIES = 50_000_000   # samples x basis functions of one fit (400 MB of
 
 
 class Strict(BaseModel):
-    """Base: unknown keys are errors; values are not silently coerced from strings."""
+    """Base: unknown keys are errors; numbers are finite (no NaN, no infinity)."""
 
-    model_config = ConfigDict(extra='forbid', strict=False, populate_by_name=True)
+    model_config = ConfigDict(extra='forbid', strict=False, populate_by_name=True,
+                              allow_inf_nan=False)
 
 
 class RandomStart(Strict):

@@ -50,11 +50,21 @@ class Basis:
     def G(self, s):  # noqa: N802 - the paper's name
         """The paper's G(s): array (m, 2, 2H) for s of shape (m,), built from the layout."""
         s = np.atleast_1d(np.asarray(s, dtype=float))
-        eye = np.eye(2 * self.H)
-        # Column k of G(s) is G(s) e_k = C_k^T phi(s) with C_k = to_matrix(e_k).
-        columns = np.stack([self.phi(s) @ self.to_matrix(eye[k]) for k in range(2 * self.H)],
-                           axis=-1)
-        return columns
+        # Column k of G(s) is G(s) e_k = C_k^T phi(s) with C_k = to_matrix(e_k), whose one
+        # non-zero entry (h_k, c_k) puts phi_{h_k}(s) in row c_k.
+        rows, coords = self._layout()
+        out = np.zeros((len(s), 2, 2 * self.H))
+        out[:, coords, np.arange(2 * self.H)] = self.phi(s)[:, rows]
+        return out
+
+    def _layout(self):
+        """(h_k, c_k) for each coefficient k: where to_matrix puts e_k (cached)."""
+        if getattr(self, '_layout_cache', None) is None:
+            eye = np.eye(2 * self.H)
+            where = [np.argwhere(self.to_matrix(eye[k]))[0] for k in range(2 * self.H)]
+            self._layout_cache = (np.array([w[0] for w in where]),
+                                  np.array([w[1] for w in where]))
+        return self._layout_cache
 
     def describe(self):
         """Short label such as 'fourier K=6 (H=13)'."""

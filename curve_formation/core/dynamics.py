@@ -46,9 +46,13 @@ class DrivenUnicycle:
         self.time = None
         self.last_command_time = None
 
-    def drive(self, v, w, now):
-        """A command received at `now`; it takes effect `latency` s later."""
-        self.advance(now)
+    def drive(self, v, w, now, advance=True):
+        """A command received at `now`; it takes effect `latency` s later. advance=False
+        leaves moving up to `now` to the caller's next advance() (a world that steps every
+        robot together).
+        """
+        if advance:
+            self.advance(now)
         self.pending.append((now + self.latency, v, w))
         self.last_command_time = now
 

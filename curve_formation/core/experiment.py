@@ -11,9 +11,8 @@ from pathlib import Path
 import numpy as np
 from pydantic import ValidationError
 from scipy.spatial.distance import pdist
-import yaml
 
-from curve_formation.core import curve_sources
+from curve_formation.core import curve_sources, safe_yaml
 from curve_formation.core.assignment import AssignmentError, phase_parameters
 from curve_formation.core.config_schema import ExperimentSpec, RobotsSpec
 from curve_formation.core.control import Gains, NO_LIMITS, WheelLimits
@@ -91,10 +90,30 @@ class Experiment:
             'curves': [{'start': p.start, 'basis': p.curve.basis.describe(),
                         'fit_rms_residual': p.fit.rms_residual,
                         'fit_max_residual': p.fit.max_residual, 'samples': p.fit.samples,
-                        'size': p.curve.size(), 'rank_G_bar': int(np.linalg.matrix_rank(
-                            p.g_bar)), 'n_le_H': self.n <= p.curve.basis.H,
+                        # full, as checked at load (assignment.check_assumptions)
+                        'size': p.curve.size(), 'rank_G_bar': min(2 * self.n,
+                                                                  2 * p.curve.basis.H),
+                        'n_le_H': self.n <= p.curve.basis.H,
                         's': p.s.tolist()} for p in self.phases],
+            'bodies': {'radius': self.radius, 'avoidance': self.avoidance.on,
+                       'margin': self.avoidance.margin if self.avoidance.on else None},
+            'warnings': list(self.warnings),
         }
+
+
+# What a simulation may ask for: fine steps (compute time), and recorded values (memory:
+# samples x agents; 7 float64 each, so 1.8e7 is 1 GB).
+MAX_STEPS = 100_000_000
+MAX_RECORDED = 18_000_000
+
+
+def whole_steps(interval, dt, what):
+    """interval (s) as a whole number (>= 1) of steps dt (s); ValueError naming `what`."""
+    steps = interval / dt
+    if not math.isfinite(steps) or abs(steps - round(steps)) > 1e-6 * max(1.0, steps) \
+            or round(steps) < 1:
+        raise ValueError(f'{what} ({interval:g} s) must be a whole multiple of dt ({dt:g} s)')
+    return int(round(steps))
 
 
 # Control rate (Hz) of the ROS controllers when the experiment gives none (continuous).
@@ -120,14 +139,19 @@ def load_experiment(path):
     """Read, validate and build an experiment from a YAML file path."""
     path = Path(path)
     try:
-        text = path.read_text()
+        with open(path, 'rb') as stream:
+            data = stream.read(safe_yaml.MAX_BYTES + 1)
     except OSError as exc:
         raise ConfigError(path, '', f'cannot read the file ({exc.strerror})') from None
+    return build_experiment(parse_experiment_text(data, path), path)
+
+
+def parse_experiment_text(data, source):
+    """The mapping of an experiment file's bytes or text (core.safe_yaml); ConfigError."""
     try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ConfigError(path, '', f'not valid YAML: {exc}') from None
-    return build_experiment(data, path)
+        return safe_yaml.load(data)
+    except safe_yaml.InputError as exc:
+        raise ConfigError(source, '', str(exc)) from None
 
 
 def build_experiment(data, source='<experiment>'):
@@ -140,8 +164,8 @@ def build_experiment(data, source='<experiment>'):
     except ValidationError as exc:
         err = exc.errors()[0]
         more = f' (and {exc.error_count() - 1} more problems)' if exc.error_count() > 1 else ''
-        got = f' (got {err["input"]!r})' if err['type'] != 'missing' and not isinstance(
-            err['input'], dict) else ''
+        got = (f' (got {safe_yaml.shorten(repr(err["input"]), 80)})'
+               if err['type'] != 'missing' and not isinstance(err['input'], dict) else '')
         raise ConfigError(source, _format_location(err['loc']), err['msg'] + got + more) from None
     return _build(spec, str(source))
 
@@ -165,6 +189,7 @@ def _build(spec, source):
             raise ConfigError(source, f'{key}.start', f'switch times must increase, got '
                               f'{curve_spec.start} after {spec.curves[k - 1].start}')
     _check_camera(spec, source)
+    _check_time(spec, source)
     gains = _gains(spec.controller)
     initial = _initial_poses(spec, source)
     phases = tuple(_build_phases(spec, source, offset_points(initial, gains.offset)))
@@ -252,6 +277,33 @@ def _assign_phases(spec, source, fits, start_points):
     return out
 
 
+def _check_time(spec, source):
+    """Refuse a simulation that cannot run: periods that are not whole steps, more steps or
+    recorded samples than a run can hold.
+    """
+    sim = spec.simulation
+    periods = [('simulation.record_dt', sim.record_dt, 'record_dt')]
+    if spec.controller.rate_hz is not None:
+        periods.append(('controller.rate_hz', 1.0 / spec.controller.rate_hz, 'the control '
+                        'period'))
+    if spec.agents.reassign_every is not None:
+        periods.append(('agents.reassign_every', spec.agents.reassign_every, 'reassign_every'))
+    for key, interval, what in periods:
+        try:
+            whole_steps(interval, sim.dt, what)
+        except ValueError as exc:
+            raise ConfigError(source, key, str(exc)) from None
+    steps = sim.duration / sim.dt
+    if steps > MAX_STEPS:
+        raise ConfigError(source, 'simulation', f'duration / dt = {steps:.3g} steps; at most '
+                          f'{MAX_STEPS:.0e} (raise dt or shorten the run)')
+    recorded = (sim.duration / sim.record_dt + 1) * spec.agents.count
+    if recorded > MAX_RECORDED:
+        raise ConfigError(source, 'simulation.record_dt', f'{recorded:.3g} recorded agent '
+                          f'samples (duration / record_dt x agents); at most '
+                          f'{MAX_RECORDED:.1e} (1 GB): raise record_dt')
+
+
 def _check_camera(spec, source):
     camera = spec.camera
     if camera is None:
@@ -284,9 +336,13 @@ def _fit_phase_curve(curve_spec, source, key):
             s, pts = curve_sources.bezier_samples(curve_spec.bezier, curve_spec.samples)
         else:
             s, pts = curve_sources.point_samples(curve_spec.points, closed)
-        return fit_curve(basis, s, pts)
+        fit = fit_curve(basis, s, pts)
     except (CurveError, ExpressionError) as exc:
         raise ConfigError(source, key, str(exc)) from None
+    if not fit.curve.size() > 1e-9:
+        raise ConfigError(source, key, 'the curve has zero size (all its points coincide): '
+                          'the agents would all share one target')
+    return fit
 
 
 def _limits(spec):

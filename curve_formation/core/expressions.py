@@ -29,6 +29,12 @@ _BINARY = {
 _UNARY = {ast.USub: np.negative, ast.UAdd: np.positive}
 
 
+# An expression's text and syntax tree are bounded; within them it is checked and evaluated
+# without recursion (a sum of a thousand terms is a tree a thousand deep).
+MAX_LENGTH = 5000
+MAX_NODES = 5000
+
+
 class ExpressionError(ValueError):
     """An expression that does not parse or uses something beyond arithmetic and math."""
 
@@ -38,69 +44,112 @@ class Expression:
 
     def __init__(self, text):
         if not isinstance(text, str) or not text.strip():
-            raise ExpressionError(f'expected a non-empty expression in s, got {text!r}')
+            raise ExpressionError(f'expected a non-empty expression in s, got '
+                                  f'{_short(repr(text))}')
         self.text = text
+        self.label = _short(repr(text.strip()))
+        if len(text) > MAX_LENGTH:
+            raise ExpressionError(f'{self.label}: {len(text)} characters; at most '
+                                  f'{MAX_LENGTH} expected')
         try:
             tree = ast.parse(text.strip(), mode='eval')
         except SyntaxError as exc:
-            raise ExpressionError(f'cannot parse {text!r}: {exc.msg}') from None
-        self._check(tree.body)
-        self._tree = tree.body
+            raise ExpressionError(f'cannot parse {self.label}: {exc.msg}') from None
+        except (RecursionError, MemoryError):
+            raise ExpressionError(f'{self.label}: nested too deeply to parse') from None
+        self._order = self._checked(tree.body)
 
     def __call__(self, s):
         """Evaluate on s (scalar or array); returns an array broadcast to s's shape."""
         s = np.asarray(s, dtype=float)
+        values = {}
         with np.errstate(all='ignore'):
-            value = np.broadcast_to(self._eval(self._tree, s), s.shape).astype(float)
+            for node in self._order:   # children before parents
+                values[id(node)] = self._value(node, s, values)
+            value = np.broadcast_to(values[id(self._order[-1])], s.shape).astype(float)
         if not np.all(np.isfinite(value)):
-            raise ExpressionError(f'{self.text!r} is not finite for some s in [0, 1]')
+            raise ExpressionError(f'{self.label} is not finite for some s in [0, 1]')
         return value
+
+    def _checked(self, root):
+        """The tree's nodes, each after its children; ExpressionError for what is not
+        allowed. Iterative (a stack), bounded by MAX_NODES.
+        """
+        order, stack = [], [(root, False)]
+        while stack:
+            node, expanded = stack.pop()
+            if expanded:
+                order.append(node)
+                continue
+            if len(order) + len(stack) > MAX_NODES:
+                raise ExpressionError(f'{self.label}: more than {MAX_NODES} terms')
+            self._check(node)
+            stack.append((node, True))
+            stack.extend((child, False) for child in reversed(_children(node)))
+        return order
 
     def _check(self, node):
         if isinstance(node, ast.Constant):
             if isinstance(node.value, bool) or not isinstance(node.value, (int, float)):
-                raise ExpressionError(f'{self.text!r}: only numbers are allowed as constants, '
-                                      f'not {node.value!r}')
+                raise ExpressionError(f'{self.label}: only numbers are allowed as constants, '
+                                      f'not {_short(repr(node.value))}')
+            try:
+                number = float(node.value)
+            except OverflowError:
+                number = math.inf
+            if not math.isfinite(number):
+                raise ExpressionError(f'{self.label}: the number {_short(str(node.value))} '
+                                      'is too large')
         elif isinstance(node, ast.Name):
             if node.id != VARIABLE and node.id not in CONSTANTS:
                 raise ExpressionError(
-                    f'{self.text!r}: unknown name {node.id!r}; expected s or one of '
+                    f'{self.label}: unknown name {_short(node.id)!r}; expected s or one of '
                     f'{sorted(CONSTANTS)}')
         elif isinstance(node, ast.BinOp):
             if type(node.op) not in _BINARY:
-                raise ExpressionError(f'{self.text!r}: operator {type(node.op).__name__} '
+                raise ExpressionError(f'{self.label}: operator {type(node.op).__name__} '
                                       'is not allowed (use + - * / **)')
-            self._check(node.left)
-            self._check(node.right)
         elif isinstance(node, ast.UnaryOp):
             if type(node.op) not in _UNARY:
-                raise ExpressionError(f'{self.text!r}: operator {type(node.op).__name__} '
+                raise ExpressionError(f'{self.label}: operator {type(node.op).__name__} '
                                       'is not allowed')
-            self._check(node.operand)
         elif isinstance(node, ast.Call):
             if not isinstance(node.func, ast.Name) or node.func.id not in FUNCTIONS:
-                name = getattr(node.func, 'id', ast.unparse(node.func))
-                raise ExpressionError(f'{self.text!r}: function {name!r} is not allowed; '
-                                      f'allowed: {sorted(FUNCTIONS)}')
+                name = getattr(node.func, 'id', None) or type(node.func).__name__
+                raise ExpressionError(f'{self.label}: function {_short(name)!r} is not '
+                                      f'allowed; allowed: {sorted(FUNCTIONS)}')
             if node.keywords:
-                raise ExpressionError(f'{self.text!r}: keyword arguments are not allowed')
-            for arg in node.args:
-                self._check(arg)
+                raise ExpressionError(f'{self.label}: keyword arguments are not allowed')
         else:
-            raise ExpressionError(f'{self.text!r}: {type(node).__name__} is not allowed '
+            raise ExpressionError(f'{self.label}: {type(node).__name__} is not allowed '
                                   '(only arithmetic and math functions of s)')
 
-    def _eval(self, node, s):
+    def _value(self, node, s, values):
         if isinstance(node, ast.Constant):
             return float(node.value)
         if isinstance(node, ast.Name):
             return s if node.id == VARIABLE else CONSTANTS[node.id]
         if isinstance(node, ast.BinOp):
-            return _BINARY[type(node.op)](self._eval(node.left, s), self._eval(node.right, s))
+            return _BINARY[type(node.op)](values[id(node.left)], values[id(node.right)])
         if isinstance(node, ast.UnaryOp):
-            return _UNARY[type(node.op)](self._eval(node.operand, s))
-        args = [self._eval(arg, s) for arg in node.args]
+            return _UNARY[type(node.op)](values[id(node.operand)])
+        args = [values[id(arg)] for arg in node.args]
         try:
             return FUNCTIONS[node.func.id](*args)
         except TypeError as exc:
-            raise ExpressionError(f'{self.text!r}: {node.func.id}(): {exc}') from None
+            raise ExpressionError(f'{self.label}: {node.func.id}(): {exc}') from None
+
+
+def _children(node):
+    """The sub-expressions of an allowed node, in evaluation order."""
+    if isinstance(node, ast.BinOp):
+        return [node.left, node.right]
+    if isinstance(node, ast.UnaryOp):
+        return [node.operand]
+    if isinstance(node, ast.Call):
+        return list(node.args)
+    return []
+
+
+def _short(text, limit=60):
+    return text if len(text) <= limit else text[:limit - 3] + '...'

@@ -9,6 +9,29 @@ import numpy as np
 from scipy.spatial.distance import pdist
 
 
+def strict_json(data):
+    """JSON text of a metrics dict: every number that is not finite becomes null (JSON has no
+    NaN or Infinity; a bare NaN would make the file unreadable by strict parsers).
+    """
+    import json
+
+    def clean(value):
+        if isinstance(value, dict):
+            return {key: clean(v) for key, v in value.items()}
+        if isinstance(value, (list, tuple)):
+            return [clean(v) for v in value]
+        if isinstance(value, (float, np.floating)):
+            return float(value) if np.isfinite(value) else None
+        if isinstance(value, np.integer):
+            return int(value)
+        if isinstance(value, np.bool_):
+            return bool(value)
+        if isinstance(value, np.ndarray):
+            return clean(value.tolist())
+        return value
+    return json.dumps(clean(data), indent=2, allow_nan=False) + '\n'
+
+
 def finite_or_none(value):
     """value as a float, or None when it is NaN or infinite (JSON has no NaN)."""
     value = float(value)
@@ -81,7 +104,8 @@ def settle_time(t, norm, tolerance, start, end):
     window = (t >= start) & (t < end)
     if not window.any():
         return None
-    above = np.flatnonzero(norm[window] >= tolerance)
+    # NaN compares false: a sample whose error is not finite counts as not settled.
+    above = np.flatnonzero(~(norm[window] < tolerance))
     times = t[window]
     if above.size == 0:
         return float(times[0] - start)
@@ -217,12 +241,17 @@ def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance
         last = np.flatnonzero(window)[-1]
         agent_err = np.linalg.norm(errors[last], axis=1)
         settle = settle_time(t, norm, tolerance * size, p.start, end)
+        finite = bool(np.isfinite(norm[window]).all())
         phases.append({
             'index': p.index, 'start': p.start, 'curve_size': size,
             'basis': p.curve.basis.describe(),
             'fit_rms_residual': finite_or_none(p.fit.rms_residual),
             'tolerance': tolerance * size, 'settled': settle is not None,
-            'settle_time': settle, 'initial_error_norm': float(norm[window][0]),
+            'settle_time': settle,
+            'not_settled_because': None if settle is not None else (
+                'the error is not finite (NaN or infinite)' if not finite
+                else 'the error does not stay below the tolerance'),
+            'initial_error_norm': float(norm[window][0]),
             'final_error_norm': float(norm[last]),
             'final_max_agent_error': float(agent_err.max()),
             'spacing': spacing_uniformity(p.curve, offset_points(poses[last], gains.offset)),

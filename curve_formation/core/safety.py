@@ -316,12 +316,13 @@ def _closest(planes, count, mx, my):
     Exact: the point itself if inside; else, for a half-plane it violates, its projection
     onto that edge if inside (then it is the closest point of that half-plane, so of the
     polygon); else the closest vertex on such an edge (at the optimum one of the two active
-    half-planes is violated by (mx, my), by the optimality conditions).
+    half-planes is violated by (mx, my), by the optimality conditions): the candidates are
+    tried nearest first, so only a few are checked against every half-plane.
     """
     if _inside(planes, count, mx, my):
         return True, mx, my
-    best = math.inf
-    bx = by = 0.0
+    candidates = np.empty((count * count, 3))
+    found = 0
     for k in range(count):
         excess = planes[k, 0] * mx + planes[k, 1] * my - planes[k, 2]
         if excess <= TOLERANCE:
@@ -331,14 +332,16 @@ def _closest(planes, count, mx, my):
         if _inside(planes, count, px, py):
             return True, px, py
         for j in range(count):
-            if j == k:
-                continue
             det = planes[k, 0] * planes[j, 1] - planes[k, 1] * planes[j, 0]
-            if abs(det) < 1e-12:
+            if j == k or abs(det) < 1e-12:
                 continue
             vx = (planes[k, 2] * planes[j, 1] - planes[k, 1] * planes[j, 2]) / det
             vy = (planes[k, 0] * planes[j, 2] - planes[k, 2] * planes[j, 0]) / det
-            cost = (vx - mx) ** 2 + (vy - my) ** 2
-            if cost < best and _inside(planes, count, vx, vy):
-                best, bx, by = cost, vx, vy
-    return best < math.inf, bx, by
+            candidates[found, 0] = (vx - mx) ** 2 + (vy - my) ** 2
+            candidates[found, 1] = vx
+            candidates[found, 2] = vy
+            found += 1
+    for q in np.argsort(candidates[:found, 0]):
+        if _inside(planes, count, candidates[q, 1], candidates[q, 2]):
+            return True, candidates[q, 1], candidates[q, 2]
+    return False, 0.0, 0.0

@@ -27,6 +27,7 @@ import numpy as np
 
 from curve_formation.core import bodies, control, dynamics, metrics
 from curve_formation.core.assignment import reassigned
+from curve_formation.core.experiment import whole_steps
 
 
 SOURCES = ('control.py', 'dynamics.py', 'safety.py', 'bodies.py', 'simulator.py')
@@ -366,8 +367,8 @@ def simulate(experiment, rate_hz='config', duration=None, dt=None, record_dt=Non
     d_pc, d_robot = (dist, np.zeros_like(dist)) if on_pc else (np.zeros_like(dist), dist)
     poses = np.array(experiment.initial_poses if initial_poses is None else initial_poses,
                      dtype=float)
-    record_every = _ratio(record_dt, dt, 'record_dt')
-    control_every = 0 if rate_hz is None else _ratio(1.0 / rate_hz, dt, 'control period')
+    record_every = whole_steps(record_dt, dt, 'record_dt')
+    control_every = 0 if rate_hz is None else whole_steps(1.0 / rate_hz, dt, 'control period')
     if rate_hz is None:   # an acceleration limit needs a control period
         limits = limits._replace(max_linear_accel=math.inf, max_angular_accel=math.inf)
     phases = np.zeros(experiment.n) if tick_phases is None else np.asarray(tick_phases, float)
@@ -388,7 +389,7 @@ def simulate(experiment, rate_hz='config', duration=None, dt=None, record_dt=Non
     clock = Clock(dt, control_every, record_every)
     schedule = (tick_offsets, start_steps)
     every = experiment.spec.agents.reassign_every
-    period = 0 if every is None else _ratio(every, dt, 'agents.reassign_every')
+    period = 0 if every is None else whole_steps(every, dt, 'agents.reassign_every')
     starts = [int(round(p.start / dt)) for p in experiment.phases] + [total]
     followed = []
     for phase, a, b in zip(experiment.phases, starts[:-1], starts[1:], strict=True):
@@ -416,10 +417,3 @@ def simulate(experiment, rate_hz='config', duration=None, dt=None, record_dt=Non
                      rate_hz, gains, limits, dist, t, *record, phase_index,
                      radius, {'count': int(new), 'time': float(steps * dt),
                               'smallest_gap': float(gap) if radius > 0 else None})
-
-
-def _ratio(interval, dt, what):
-    steps = interval / dt
-    if abs(steps - round(steps)) > 1e-6 * max(1.0, steps) or round(steps) < 1:
-        raise ValueError(f'{what} ({interval} s) must be a whole multiple of dt ({dt} s)')
-    return int(round(steps))

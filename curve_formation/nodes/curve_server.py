@@ -66,6 +66,8 @@ TOPICS = (
 )
 
 WAIT_POLL = 0.05   # s, how often the subscriber count is checked before the first curve
+# An observed curve of more points than this is refused (the fit costs points x basis size).
+MAX_OBSERVED_POINTS = 20_000
 
 
 class CurveServer(Node):
@@ -187,6 +189,11 @@ class CurveServer(Node):
         return MarkerArray(markers=[line, dots])
 
     def _on_observed(self, msg):
+        count = len(msg.polygon.points)
+        if count > MAX_OBSERVED_POINTS:
+            self.get_logger().error(f'observed curve refused: {count} points, at most '
+                                    f'{MAX_OBSERVED_POINTS}')
+            return
         points = np.array([[p.x, p.y] for p in msg.polygon.points], dtype=float)
         try:
             basis = make_basis(self.params.observed_basis, self.params.observed_size)

@@ -107,9 +107,8 @@ class FakeArena(Node):
             self.get_logger().warning(f'robot {i}: non-finite cmd_vel ignored',
                                       throttle_duration_sec=1.0)
             return
-        now = now_seconds(self)
-        self.advance(now)
-        self.robots[i - 1].drive(v, w, now)
+        # Taken up, at its time, by the next step of the world (the pose timer's).
+        self.robots[i - 1].drive(v, w, now_seconds(self), advance=False)
 
     def advance(self, until):
         """Move every robot up to `until` (s), resolving contacts every physics_dt."""

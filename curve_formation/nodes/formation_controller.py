@@ -13,6 +13,7 @@ from geometry_msgs.msg import PoseStamped, Twist, Vector3Stamped
 import numpy as np
 from rclpy.duration import Duration
 from rclpy.node import Node
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64MultiArray
 
@@ -169,6 +170,13 @@ TOPICS = (
 )
 
 
+def reason_kind(reason):
+    """Why a robot is stopped, without the numbers: 'own pose stale' of 'own pose stale
+    (0.61 s old)'; None while driving.
+    """
+    return None if reason is None else reason.split(' (')[0]
+
+
 class FormationController(Node):
     """Thin ROS layer over core.agent.AgentController."""
 
@@ -192,9 +200,10 @@ class FormationController(Node):
                                      lambda msg, j=j: self._on_neighbour(j, msg), qos.STATE)
         self.others_msg = None
         if self.config.avoidance.on:
-            # Kept as received; decoded at the tick (10 Hz), not for every message (30 Hz).
+            # Kept as the bytes received; decoded at the tick (10 Hz), not for every message
+            # (30 Hz), the latest only.
             self.create_subscription(JointState, topics.ROBOT_POSES, self._on_others,
-                                     qos.SENSOR)
+                                     qos.SENSOR, raw=True)
         self.create_timer(1.0 / self.config.rate_hz, self._on_timer)
         self.create_timer(1.0, self._publish_diagnostics)
         role = 'leader' if self.config.is_leader else (
@@ -235,11 +244,11 @@ class FormationController(Node):
         self.others_msg = msg
 
     def _take_others(self):
-        msg, self.others_msg = self.others_msg, None
-        if msg is None:
+        raw, self.others_msg = self.others_msg, None
+        if raw is None:
             return
         try:
-            poses, stamp = messages.robot_poses_from_msg(msg)
+            poses, stamp = messages.robot_poses_from_msg(deserialize_message(raw, JointState))
             accepted = self.controller.on_others(poses, stamp)
         except messages.MessageError:
             accepted = False
@@ -260,13 +269,17 @@ class FormationController(Node):
         # Stamped with the pose this tick used, so pose-to-command latency can be measured.
         used = tick.error_stamp if tick.error_stamp is not None else now
         self.estimate_pub.publish(messages.estimate_to_msg(tick.dhat, used))
-        if tick.stopped != self._last_reason:
+        # Logged when the reason changes, not its numbers ('pose stale (0.61 s old)'): a
+        # reason whose age grows every tick would log, and publish diagnostics, every tick.
+        if reason_kind(tick.stopped) != reason_kind(self._last_reason):
             if tick.stopped:
                 self.get_logger().warning(f'stopped: {tick.stopped}')
             elif self._last_reason is not None:
                 self.get_logger().info('driving')
             self._last_reason = tick.stopped
             self._publish_diagnostics()
+        else:
+            self._last_reason = tick.stopped
 
     def _publish_diagnostics(self):
         c = self.controller

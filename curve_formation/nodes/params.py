@@ -45,7 +45,10 @@ class Param:
     read_only: bool = True
 
     def descriptor(self):
-        desc = ParameterDescriptor(description=self.description, read_only=self.read_only)
+        # A double also takes an integer (`-p k1:=2`, `k1: 2` in a parameters file): typed
+        # dynamically, converted and range-checked in _validate.
+        desc = ParameterDescriptor(description=self.description, read_only=self.read_only,
+                                   dynamic_typing=self.kind in ('double', 'double[]'))
         if self.choices:
             desc.additional_constraints = f'one of {", ".join(self.choices)}'
         if self.low is not None or self.high is not None:
@@ -73,11 +76,15 @@ def declare_parameters(node, table):
     values = {}
     for p in table:
         default = p.default
+        dynamic = p.descriptor().dynamic_typing
         if default is None or (isinstance(default, list) and not default):
-            default = _ARRAY_TYPES.get(p.kind) or _scalar_type(p.kind)
+            # no value to declare with: the type (a dynamically typed one takes none)
+            default = None if dynamic else _ARRAY_TYPES.get(p.kind) or _scalar_type(p.kind)
         try:
             node.declare_parameter(p.name, default, p.descriptor())
             value = node.get_parameter(p.name).value
+            if value is None:   # declared without a value and given none
+                raise ParameterUninitializedException(p.name)
         except ParameterUninitializedException:
             if p.default is None:
                 raise ParameterError(
@@ -98,8 +105,13 @@ def _scalar_type(kind):
 
 
 def _validate(p, value):
+    if p.kind in ('double', 'double[]'):
+        value = _as_doubles(p, value)
     items = list(value) if p.kind.endswith('[]') else [value]
     for item in items:
+        if (p.low is not None and item < p.low) or (p.high is not None and item > p.high):
+            raise ParameterError(f'parameter {p.name!r} must be in [{p.low}, {p.high}], got '
+                                 f'{value!r} ({p.description})')
         if isinstance(item, float) and not math.isfinite(item):
             raise ParameterError(f'parameter {p.name!r} must be finite, got {value!r}')
         if p.positive and not item > 0:
@@ -109,6 +121,21 @@ def _validate(p, value):
             raise ParameterError(f'parameter {p.name!r} must be one of {list(p.choices)}, got '
                                  f'{value!r}')
     return list(value) if p.kind.endswith('[]') else value
+
+
+def _as_doubles(p, value):
+    """A double (or double array) parameter's value as float(s): integers are accepted."""
+    def number(item):
+        if isinstance(item, bool) or not isinstance(item, (int, float)):
+            raise ParameterError(f'parameter {p.name!r} has the wrong type, expected '
+                                 f'{p.kind} ({p.description}), got {item!r}')
+        return float(item)
+    if p.kind == 'double[]':
+        if isinstance(value, (str, bytes)) or not hasattr(value, '__iter__'):
+            raise ParameterError(f'parameter {p.name!r} has the wrong type, expected '
+                                 f'{p.kind} ({p.description}), got {value!r}')
+        return [number(item) for item in value]
+    return number(value)
 
 
 def markdown_table(table):
