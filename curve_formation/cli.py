@@ -8,6 +8,7 @@ Bad input ends with one line `error: FILE: KEY: ...` and exit status 2, never a 
 import argparse
 import dataclasses
 import json
+import math
 import os
 from pathlib import Path
 import sys
@@ -226,9 +227,42 @@ def _cmd_nodes_doc(args):
     print(nodes_markdown())
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, with a misuse reported as one `error:` line (exit status 2)."""
+
+    def error(self, message):
+        self.exit(2, f'error: {self.prog}: {message} (see {self.prog} --help)\n')
+
+
+def _number(text):
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected a number, got {text!r}') from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f'expected a finite number, got {text!r}')
+    return value
+
+
+def positive(text):
+    """argparse type: a finite number > 0."""
+    value = _number(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f'expected a number > 0, got {text!r}')
+    return value
+
+
+def not_negative(text):
+    """argparse type: a finite number >= 0."""
+    value = _number(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f'expected a number >= 0, got {text!r}')
+    return value
+
+
 def build_parser():
-    parser = argparse.ArgumentParser(prog='curve-formation', description=__doc__.split('\n')[0])
-    sub = parser.add_subparsers(dest='command', required=True)
+    parser = _Parser(prog='curve-formation', description=__doc__.split('\n')[0])
+    sub = parser.add_subparsers(dest='command', required=True, parser_class=_Parser)
     check = sub.add_parser('check', help='validate an experiment and report what was checked')
     check.add_argument('config', help='experiment YAML path or shipped name')
     check.add_argument('--json', action='store_true', help='print the report as JSON')
@@ -241,14 +275,14 @@ def build_parser():
     sim.add_argument('--heading', choices=('paper', 'sampled'),
                      help='override controller.heading')
     mode = sim.add_mutually_exclusive_group()
-    mode.add_argument('--rate', type=float, help='zero-order-hold control rate (Hz)')
+    mode.add_argument('--rate', type=positive, help='zero-order-hold control rate (Hz)')
     mode.add_argument('--continuous', action='store_true', help='continuous control')
     sim.set_defaults(func=_cmd_sim)
     run = sub.add_parser('run', help='run the experiment as a ROS 2 node graph')
     run.add_argument('config', help='experiment YAML path or shipped name')
     run.add_argument('--out', default='out/run', help='output folder')
-    run.add_argument('--duration', type=float, help="seconds to run (default: the file's)")
-    run.add_argument('--rate', type=float, help="control rate (Hz; default: the file's or 10)")
+    run.add_argument('--duration', type=positive, help="seconds to run (default: the file's)")
+    run.add_argument('--rate', type=positive, help="control rate (Hz; default: the file's or 10)")
     run.add_argument('--single-process', action='store_true',
                      help='all nodes in one process and executor')
     run.add_argument('--bag', help='record a ROS 2 bag at this new path')
@@ -274,7 +308,7 @@ def build_parser():
                          'curves: paths, error norms, settling per phase')
     analyze.set_defaults(func=_cmd_analyze)
     bag = sub.add_parser('bag', help='inspect or repair a bag (no ROS CLI needed)')
-    bag_sub = bag.add_subparsers(dest='bag_command', required=True)
+    bag_sub = bag.add_subparsers(dest='bag_command', required=True, parser_class=_Parser)
     info = bag_sub.add_parser('info', help='what `ros2 bag info` prints: storage, duration, '
                               'topics with types, counts and QoS')
     info.add_argument('bag', help='bag folder')
@@ -287,18 +321,18 @@ def build_parser():
     fix.set_defaults(func=_cmd_bag_repair)
     rep = sub.add_parser('replay', help='publish a bag with its original timing and types')
     rep.add_argument('bag', help='bag folder')
-    rep.add_argument('--rate', type=float, default=1.0, help='speed factor (2 = twice as fast)')
+    rep.add_argument('--rate', type=positive, default=1.0, help='speed factor (2 = twice as fast)')
     rep.add_argument('--topics', nargs='+', help='only these topics')
     rep.add_argument('--loop', action='store_true', help='start again at the end')
-    rep.add_argument('--start', type=float, default=0.0, help='skip this many seconds')
+    rep.add_argument('--start', type=not_negative, default=0.0, help='skip this many seconds')
     rep.add_argument('--no-clock', action='store_true', help='do not publish /clock')
-    rep.add_argument('--wait', type=float, default=5.0,
+    rep.add_argument('--wait', type=not_negative, default=5.0,
                      help='seconds to wait for subscribers before starting')
     rep.set_defaults(func=_cmd_replay)
     estop = sub.add_parser('estop', help='engage (on) or release (off) the e-stop of every '
                            'robot on this ROS_DOMAIN_ID')
     estop.add_argument('state', choices=['on', 'off'])
-    estop.add_argument('--wait', type=float, default=2.0,
+    estop.add_argument('--wait', type=not_negative, default=2.0,
                        help='seconds to wait for controllers to be reached')
     estop.add_argument('--hold', action='store_true',
                        help='stay up so late-starting controllers get it too')
@@ -309,7 +343,7 @@ def build_parser():
     demo = sub.add_parser('demo', help='the headless demo: paper cases simulated, then a ROS '
                           'run with fake robots recorded to a bag')
     demo.add_argument('--out', default='out/demo')
-    demo.add_argument('--duration', type=float, default=90.0, help='ROS run length (s)')
+    demo.add_argument('--duration', type=positive, default=90.0, help='ROS run length (s)')
     demo.set_defaults(func=_cmd_demo)
     return parser
 

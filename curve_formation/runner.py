@@ -26,7 +26,9 @@ import yaml
 from curve_formation.analysis import EXPERIMENT_KEY
 from curve_formation.bag import DEFAULT_STORAGE
 from curve_formation.core import metrics, plots
+from curve_formation.core.agent import agent_configs
 from curve_formation.core.experiment import control_rate, load_experiment, received_phases
+from curve_formation.nodes.formation_controller import node_parameters
 from curve_formation.nodes.runtime import (
     make_executor,
     PublicationCounter,
@@ -75,46 +77,17 @@ def node_launches(experiment, experiment_path, with_robots=True, rate_hz=None,
                else camera_launches(experiment, experiment_path, with_robots, camera))
     rate = control_rate(experiment, rate_hz)
     on_pc = spec.disturbance.injected == 'on_pc'
-    limits = experiment.limits
     one_world = uses_fake_arena(experiment)
     # The curve server waits for the n controllers, the runner's monitor and the camera nodes
     # (they draw the curve).
     launches = [NodeLaunch('curve_formation.nodes.curve_server', '/', 'curve_server',
                            {'experiment': str(Path(experiment_path).resolve()),
                             'wait_for_subscribers': experiment.n + 1 + len(cameras)})]
-    for i in range(1, experiment.n + 1):
+    for i, config in enumerate(agent_configs(experiment, rate), 1):
         ns = f'/robot_{i}'
-        nbrs = experiment.graph.in_neighbours(i)
         d = [float(v) for v in experiment.disturbance[i - 1]]
-        controller = {
-            'index': i, 'agent_count': experiment.n,
-            'role': 'follower' if nbrs else 'leader',
-            'k1': experiment.gains.k1, 'k2': experiment.gains.k2,
-            'offset': experiment.gains.offset, 'rate_hz': float(rate),
-            'law': experiment.gains.law,
-            'adaptation': [float(g) for g in experiment.gains.adaptation],
-            'observer_rate': float(experiment.gains.observer_rate),
-            'pinning': float(experiment.graph.follower_pinning),
-            'heading': 'sampled' if experiment.gains.sampled_heading else 'paper',
-            'wheel_base': float(limits.wheel_base),
-            'max_wheel_speed': _finite_or_zero(limits.max_wheel_speed),
-            'max_angular_rate': _finite_or_zero(limits.max_angular_rate),
-            'pc_disturbance': d if on_pc else [0.0, 0.0],
-            'pose_timeout': spec.safety.pose_timeout,
-            'neighbour_timeout': spec.safety.neighbour_timeout,
-            'leader_timeout': spec.safety.leader_timeout,
-            'geofence': _geofence(spec),
-            'fault_state_drop': float(faults.get('state_drop', 0.0)),
-            'max_linear_accel': float(spec.limits.max_linear_accel or 0.0) if spec.limits else 0.0,
-            'max_angular_accel': (float(spec.limits.max_angular_accel or 0.0) if spec.limits
-                                  else 0.0),
-            **avoidance_parameters(experiment),
-        }
-        if nbrs:
-            controller['in_neighbours'] = [j for j, _ in nbrs]
-            controller['weights'] = [w for _, w in nbrs]
-        # An empty list has no ROS parameter type: leave it out and let the default apply.
-        controller = {k: v for k, v in controller.items() if v != []}
+        controller = {**node_parameters(config),
+                      'fault_state_drop': float(faults.get('state_drop', 0.0))}
         launches.append(NodeLaunch('curve_formation.nodes.formation_controller', ns,
                                    'formation_controller', controller))
         if with_robots and not one_world:
@@ -144,16 +117,6 @@ def uses_fake_arena(experiment):
     return experiment.radius > 0 or experiment.avoidance.on
 
 
-def avoidance_parameters(experiment):
-    """The formation_controller parameters of the experiment's safety filter."""
-    av = experiment.avoidance
-    if not av.on:
-        return {}
-    return {'avoidance': True, 'radius': float(av.radius), 'avoidance_margin': av.margin,
-            'avoidance_rate': av.alpha, 'passing': av.bias, 'passing_range': av.bias_range,
-            'arena': [av.width, av.height] if av.width > 0 else []}
-
-
 def camera_launches(experiment, experiment_path, with_fake_camera, overrides):
     """camera_tracker, and fake_camera (with the experiment's fake settings) when simulated."""
     cam = experiment.spec.camera
@@ -168,19 +131,6 @@ def camera_launches(experiment, experiment_path, with_fake_camera, overrides):
             'height': float(fake.height), 'noise': float(fake.noise),
             'blur': float(fake.blur), 'brightness': float(fake.brightness), **overrides}))
     return launches
-
-
-def _geofence(spec):
-    """[xmin, ymin, xmax, ymax]: the arena grown by the safety margin; [] without an arena."""
-    if spec.arena is None:
-        return []
-    m = spec.safety.geofence_margin
-    width, height = spec.arena.size
-    return [-m, -m, width + m, height + m]
-
-
-def _finite_or_zero(value):
-    return float(value) if np.isfinite(value) else 0.0
 
 
 def write_params_files(launches, folder):

@@ -174,3 +174,15 @@ def test_mutated_experiment_text_is_refused_cleanly_or_runs(data):
     result = simulate(experiment, duration=max(sim.record_dt, sim.dt) * 3)
     assert np.isfinite(result.poses[0]).all()
     assert math.isfinite(result.t[-1])
+
+
+@pytest.mark.parametrize('argv', [['sim', 'closed_curve', '--rate', '0', '--out', 'x'],
+                                  ['run', 'closed_curve', '--duration', '-5'],
+                                  ['sim', 'closed_curve', '--rate', 'nan', '--out', 'x'],
+                                  ['replay', 'bag', '--start', '-1'], ['bogus'], ['bag']])
+def test_command_line_misuse_is_one_error_line(argv, capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and err.startswith('error: curve-formation'), err

@@ -322,3 +322,24 @@ def test_malformed_curve_messages_are_refused_and_the_curve_kept(ros):
         deadline = time.monotonic() + 0.3
         spin_until(lambda deadline=deadline: time.monotonic() > deadline)
         assert ctrl.controller.curve_id == 0
+
+
+@pytest.mark.parametrize('name', ['closed_curve', 'mona_arena', 'arena_demo',
+                                  str(DATA_DIR / 'fast_disturbed.yaml')])
+def test_agent_settings_survive_the_trip_through_node_parameters(ros, name):
+    """Experiment -> AgentConfig (core.agent.agent_configs) -> node parameters (what the runner
+    writes) -> the node's AgentConfig: the same settings, for every agent.
+    """
+    from rclpy.parameter import Parameter
+
+    from curve_formation.core.agent import agent_configs
+    from curve_formation.nodes.formation_controller import agent_config, node_parameters
+    from curve_formation.paths import resolve_config
+    context, add, _ = ros
+    experiment = load_experiment(resolve_config(name))
+    for config in agent_configs(experiment, 10.0):
+        params = [Parameter(k, value=v) for k, v in node_parameters(config).items()]
+        node = add(FormationController(context=context, namespace=f'/robot_{config.index}',
+                                       parameter_overrides=params))
+        assert node.config == config
+        assert agent_config(node.params) == config

@@ -176,3 +176,21 @@ def test_padded_rows_and_bad_images_are_handled():
     msg.encoding, msg.height = 'mono8', 10
     with pytest.raises(messages.MessageError, match='does not hold'):
         messages.gray_from_image_msg(msg)
+
+
+def test_the_cores_aruco_table_is_opencvs():
+    """core.aruco lets the experiment loader check marker ids without OpenCV; it must be
+    what cv2.aruco holds.
+    """
+    import subprocess
+    import sys
+
+    from curve_formation.core.aruco import MARKER_IDS
+    from curve_formation.vision.markers import DICTIONARIES, dictionary_size
+    assert {name: dictionary_size(name) for name in DICTIONARIES} == MARKER_IDS
+    # Loading a camera experiment imports no OpenCV.
+    code = ('import sys; from curve_formation.core.experiment import load_experiment; '
+            'from curve_formation.paths import resolve_config; '
+            'load_experiment(resolve_config("arena_demo")); print("cv2" in sys.modules)')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True)
+    assert out.stdout.strip() == 'False', out.stdout + out.stderr

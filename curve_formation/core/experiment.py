@@ -13,6 +13,7 @@ from pydantic import ValidationError
 from scipy.spatial.distance import pdist
 
 from curve_formation.core import curve_sources, safe_yaml
+from curve_formation.core.aruco import MARKER_IDS
 from curve_formation.core.assignment import AssignmentError, phase_parameters
 from curve_formation.core.config_schema import ExperimentSpec, RobotsSpec
 from curve_formation.core.control import Gains, NO_LIMITS, WheelLimits
@@ -313,11 +314,11 @@ def _check_camera(spec, source):
     if len(camera.robot_ids) != spec.agents.count:
         raise ConfigError(source, 'camera.robot_ids', f'expected {spec.agents.count} marker '
                           f'ids (one per agent), got {len(camera.robot_ids)}')
-    from curve_formation.vision.markers import DICTIONARIES, dictionary_size
-    if camera.dictionary not in DICTIONARIES:
+    if camera.dictionary not in MARKER_IDS:
         raise ConfigError(source, 'camera.dictionary', f'unknown ArUco dictionary '
-                          f'{camera.dictionary!r}; one of {", ".join(DICTIONARIES)}')
-    size = dictionary_size(camera.dictionary)
+                          f'{safe_yaml.shorten(camera.dictionary)!r}; one of '
+                          f'{", ".join(sorted(MARKER_IDS))}')
+    size = MARKER_IDS[camera.dictionary]
     too_big = [i for i in camera.robot_ids + [c.id for c in camera.corners] if i >= size]
     if too_big:
         raise ConfigError(source, 'camera', f'marker ids {too_big} do not exist in '

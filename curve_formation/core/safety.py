@@ -92,21 +92,13 @@ def safe_command(v, w, x, y, theta, drift_v, drift_w, others, me, offset, period
     m0x = c * pv - offset * s * pw
     m0y = s * pv + offset * c * pw
     safe = 2.0 * avoidance.radius + avoidance.margin
-    reach = _reach(avoidance, max_wheel_speed, drift_v)
-    n = others.shape[0]
-    planes = np.empty((n + FIXED_CONSTRAINTS, 3))
+    near = _near(others, me, x, y, safe, _reach(avoidance, max_wheel_speed, drift_v))
+    planes = np.empty((near.shape[0] + FIXED_CONSTRAINTS, 3))
     count = 0
-    for j in range(n):
-        if j == me or not (math.isfinite(others[j, 0]) and math.isfinite(others[j, 1])):
-            continue
-        dx = x - others[j, 0]
-        dy = y - others[j, 1]
-        dist = math.hypot(dx, dy)
-        gap = dist - safe
-        if gap > reach or dist == 0.0:
-            continue
-        count = _pair_barrier(planes, count, c, s, dx * c + dy * s, gap * (dist + safe),
-                              avoidance.alpha, period, c * m0x + s * m0y)
+    for k in range(near.shape[0]):
+        ux, uy, dist, gap = near[k, 0], near[k, 1], near[k, 2], near[k, 3]
+        count = _pair_barrier(planes, count, c, s, dist * (ux * c + uy * s),
+                              gap * (dist + safe), avoidance.alpha, period, c * m0x + s * m0y)
     low = avoidance.radius + 0.5 * avoidance.margin
     if avoidance.width > 0.0:
         count = _forward_barrier(planes, count, c, s, c, avoidance.alpha * (x - low))
@@ -155,20 +147,12 @@ def shaped_feedback(fx, fy, x, y, others, me, k1, speed, avoidance):
     dx, dy = dx * scale, dy * scale
     safe = 2.0 * avoidance.radius + avoidance.margin
     reach = max(4.0 * math.hypot(dx, dy) / avoidance.alpha, avoidance.bias_range)
-    n = others.shape[0]
-    planes = np.empty((n + 4, 3))
+    near = _near(others, me, x, y, safe, reach)
+    planes = np.empty((near.shape[0] + 4, 3))
     count = 0
     gx, gy = dx, dy
-    for j in range(n):
-        if j == me or not (math.isfinite(others[j, 0]) and math.isfinite(others[j, 1])):
-            continue
-        ox = x - others[j, 0]
-        oy = y - others[j, 1]
-        dist = math.hypot(ox, oy)
-        gap = dist - safe
-        if gap >= reach or dist == 0.0:
-            continue
-        ux, uy = ox / dist, oy / dist
+    for k in range(near.shape[0]):
+        ux, uy, dist, gap = near[k, 0], near[k, 1], near[k, 2], near[k, 3]
         approach = -(ux * dx + uy * dy)
         if gap < avoidance.bias_range and approach > abs(ux * dy - uy * dx):
             push = avoidance.bias * approach * (1.0 - max(gap, 0.0) / avoidance.bias_range)
@@ -263,6 +247,29 @@ def _forward_barrier(planes, count, c, s, k, b):
         return count   # moving along the heading does not change this distance
     sign = 1.0 if k > 0.0 else -1.0
     return _plane(planes, count, -sign * c, -sign * s, b / abs(k))
+
+
+def _near(others, me, x, y, safe, reach):
+    """(k, 4) [ux, uy, dist, gap] of the robots whose gap (distance - safe, m) is below
+    `reach`: u the unit vector from each to (x, y), dist their distance (m). Skips row `me`,
+    rows not finite and a robot at the very same point.
+    """
+    out = np.empty((others.shape[0], 4))
+    count = 0
+    for j in range(others.shape[0]):
+        if j == me or not (math.isfinite(others[j, 0]) and math.isfinite(others[j, 1])):
+            continue
+        dx = x - others[j, 0]
+        dy = y - others[j, 1]
+        dist = math.hypot(dx, dy)
+        if dist - safe >= reach or dist == 0.0:
+            continue
+        out[count, 0] = dx / dist
+        out[count, 1] = dy / dist
+        out[count, 2] = dist
+        out[count, 3] = dist - safe
+        count += 1
+    return out[:count]
 
 
 def _reach(avoidance, max_wheel_speed, drift_v):

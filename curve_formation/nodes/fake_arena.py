@@ -20,6 +20,7 @@ from sensor_msgs.msg import JointState
 
 from curve_formation.core.dynamics import DrivenUnicycle
 from curve_formation.nodes import messages, qos, topics
+from curve_formation.nodes.fake_robot import ROBOT_PARAMETERS
 from curve_formation.nodes.params import (
     declare_parameters,
     experiment_parameter,
@@ -35,22 +36,9 @@ PARAMETERS = (
           positive=True),
     Param('physics_dt', 'double', 0.005, 'longest step between two contact resolutions (s)',
           positive=True),
-    Param('pose_noise', 'double[]', [0.0, 0.0], 'std of Gaussian noise on the published '
-          'positions (m) and headings (rad)'),
-    Param('command_latency', 'double', 0.0, 'delay before a command takes effect (s)',
-          low=0.0),
-    Param('command_timeout', 'double', 1.0, "a robot's motors stop when its last command is "
-          'older than this (s); 0 = never', low=0.0),
-    Param('fault_pose_drop', 'double', 0.0, 'fault injection: probability of not publishing '
-          'a pose', low=0.0, high=1.0),
-    Param('seed', 'int', 0, 'seed of the pose noise and drops'),
-    Param('frame_id', 'string', 'arena', 'frame of the published poses'),
-    Param('pose_topic', 'string', topics.POSE, f"per-robot topic of the published pose: "
-          f"'{topics.POSE}', or '{topics.TRUE_POSE}' when a camera tracks the robots",
-          choices=(topics.POSE, topics.TRUE_POSE)),
     Param('publish_robot_poses', 'bool', True, 'publish all poses on /formation/robot_poses '
           '(off when a camera tracker publishes them)'),
-)
+) + ROBOT_PARAMETERS
 
 TOPICS = (
     ('sub', '/robot_<i>/' + topics.CMD_VEL, 'geometry_msgs/Twist', 'COMMAND',

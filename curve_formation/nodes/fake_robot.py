@@ -21,14 +21,9 @@ from curve_formation.nodes.params import declare_parameters, Param, ParameterErr
 from curve_formation.nodes.runtime import now_seconds, run_node
 
 
-PARAMETERS = (
-    Param('index', 'int', 1, 'robot number i (for logs)', low=1),
-    Param('initial_pose', 'double[]', [0.0, 0.0, 0.0], 'start pose [x, y, theta] (m, rad)'),
-    Param('rate_hz', 'double', 30.0, 'pose publishing rate (Hz), as an overhead camera',
-          positive=True),
-    Param('disturbance', 'double[]', [0.0, 0.0], 'constant input disturbance [d_v, d_w] '
-          '(m/s, rad/s) added to a non-zero command'),
-    Param('pose_noise', 'double[]', [0.0, 0.0], 'std of Gaussian noise on the published '
+# How a simulated robot moves and is seen (fake_robot, and every robot of fake_arena).
+ROBOT_PARAMETERS = (
+    Param('pose_noise', 'double[]', [0.0, 0.0], 'std of Gaussian noise on a published pose: '
           'position (m) and heading (rad)'),
     Param('command_latency', 'double', 0.0, 'delay before a command takes effect (s)',
           low=0.0),
@@ -37,11 +32,20 @@ PARAMETERS = (
     Param('fault_pose_drop', 'double', 0.0, 'fault injection: probability of not publishing '
           'a pose', low=0.0, high=1.0),
     Param('seed', 'int', 0, 'seed of the pose noise and drops'),
-    Param('frame_id', 'string', 'arena', 'frame of the published pose'),
-    Param('pose_topic', 'string', topics.POSE, f"topic of the published pose: "
-          f"'{topics.POSE}', or '{topics.TRUE_POSE}' when a camera tracks the robot",
+    Param('frame_id', 'string', 'arena', 'frame of the published poses'),
+    Param('pose_topic', 'string', topics.POSE, f"per-robot topic of the published pose: "
+          f"'{topics.POSE}', or '{topics.TRUE_POSE}' when a camera tracks the robots",
           choices=(topics.POSE, topics.TRUE_POSE)),
 )
+
+PARAMETERS = (
+    Param('index', 'int', 1, 'robot number i (for logs)', low=1),
+    Param('initial_pose', 'double[]', [0.0, 0.0, 0.0], 'start pose [x, y, theta] (m, rad)'),
+    Param('rate_hz', 'double', 30.0, 'pose publishing rate (Hz), as an overhead camera',
+          positive=True),
+    Param('disturbance', 'double[]', [0.0, 0.0], 'constant input disturbance [d_v, d_w] '
+          '(m/s, rad/s) added to a non-zero command'),
+) + ROBOT_PARAMETERS
 
 
 TOPICS = (

@@ -8,6 +8,8 @@ stale input gives a zero Twist and a warning, never a stale command. All the mat
 core.agent.AgentController.
 """
 
+import math
+
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, Twist, Vector3Stamped
 import numpy as np
@@ -87,6 +89,44 @@ PARAMETERS = (
           "command before the wheel limits (the paper's arena experiment); normally zero"),
     Param('frame_id', 'string', 'arena', 'frame of poses and errors'),
 )
+
+
+def node_parameters(config):
+    """The parameters {name: value} of a node that runs AgentConfig `config`: agent_config of
+    them gives `config` back (a test checks it for every agent of every shipped experiment).
+    Unlimited values are written as 0; empty lists are left out (a ROS parameter needs a type).
+    """
+    gains, limits, av = config.gains, config.limits, config.avoidance
+
+    def limit(value):
+        return float(value) if math.isfinite(value) else 0.0
+    params = {
+        'index': config.index, 'agent_count': config.agent_count,
+        'role': 'leader' if config.is_leader else 'follower',
+        'pinning': float(config.pinning),
+        'k1': float(gains.k1), 'k2': float(gains.k2), 'offset': float(gains.offset),
+        'rate_hz': float(config.rate_hz), 'law': gains.law,
+        'adaptation': [float(g) for g in gains.adaptation],
+        'observer_rate': float(gains.observer_rate),
+        'heading': 'sampled' if gains.sampled_heading else 'paper',
+        'wheel_base': float(limits.wheel_base), 'max_wheel_speed': limit(limits.max_wheel_speed),
+        'max_angular_rate': limit(limits.max_angular_rate),
+        'max_linear_accel': limit(limits.max_linear_accel),
+        'max_angular_accel': limit(limits.max_angular_accel),
+        'pose_timeout': float(config.pose_timeout),
+        'neighbour_timeout': float(config.neighbour_timeout),
+        'leader_timeout': float(config.leader_timeout),
+        'geofence': [float(v) for v in config.geofence or ()],
+        'pc_disturbance': [float(v) for v in config.pc_disturbance],
+        'in_neighbours': [int(j) for j, _ in config.neighbours],
+        'weights': [float(w) for _, w in config.neighbours],
+    }
+    if av.on:
+        params.update({'avoidance': True, 'radius': float(av.radius),
+                       'avoidance_margin': float(av.margin), 'avoidance_rate': float(av.alpha),
+                       'passing': float(av.bias), 'passing_range': float(av.bias_range),
+                       'arena': [float(av.width), float(av.height)] if av.width > 0 else []})
+    return {name: value for name, value in params.items() if value != []}
 
 
 def agent_config(p):
