@@ -98,7 +98,7 @@ def test_dropped_messages_and_latency_still_converge_at_arena_speeds(ros_domain,
     (Mona wheel limits, 10 Hz, robots drifting with d = [5 mm/s, 0.1 rad/s]). Tolerance: the
     error never exceeds its start by more than 1 % (the drift acts before the observer has
     learnt it) and after 30 s is within 25 % of the fault-free batch simulation.
-    At the fast test case's ~10 m/s the same faults make the law diverge (README).
+    At the fast test case's ~10 m/s the same faults make the law diverge (docs/safety.md).
     """
     with Run('arena_demo', tmp_path, command_latency=0.2, bag_path=tmp_path / 'bag',
              faults={'pose_drop': 0.2, 'state_drop': 0.2}, log=quiet) as run:

@@ -41,7 +41,8 @@ def load(data):
     """The Python value of YAML `data` (bytes or str); InputError if it is not acceptable."""
     if isinstance(data, bytes):
         if len(data) > MAX_BYTES:
-            raise InputError(f'the file has {len(data)} bytes; at most {MAX_BYTES} expected')
+            raise InputError(f'the file holds more than {MAX_BYTES} bytes; at most that '
+                             'expected')
         try:
             text = data.decode('utf-8-sig')
         except UnicodeDecodeError as exc:
