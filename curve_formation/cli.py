@@ -234,7 +234,7 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f'error: {self.prog}: {message} (see {self.prog} --help)\n')
 
 
-def _number(text):
+def _finite_number(text):
     try:
         value = float(text)
     except ValueError:
@@ -246,7 +246,7 @@ def _number(text):
 
 def positive(text):
     """argparse type: a finite number > 0."""
-    value = _number(text)
+    value = _finite_number(text)
     if value <= 0:
         raise argparse.ArgumentTypeError(f'expected a number > 0, got {text!r}')
     return value
@@ -254,7 +254,7 @@ def positive(text):
 
 def not_negative(text):
     """argparse type: a finite number >= 0."""
-    value = _number(text)
+    value = _finite_number(text)
     if value < 0:
         raise argparse.ArgumentTypeError(f'expected a number >= 0, got {text!r}')
     return value

@@ -15,6 +15,7 @@ import math
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, Twist
 import numpy as np
+from rclpy.duration import Duration
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
@@ -154,7 +155,9 @@ class FakeArena(Node):
         self.diag_pub.publish(msg)
 
     def on_shutdown(self):
+        """The final contact tally, acknowledged (1 s at most) so that a recorder has it."""
         self._publish_diagnostics()
+        self.diag_pub.wait_for_all_acked(Duration(seconds=1.0))
 
 
 def separate(poses, radius, width, height, touching):
