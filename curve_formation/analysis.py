@@ -48,6 +48,7 @@ class BagRun:
     dhat: np.ndarray       # (R, n, 2)
     phase: np.ndarray      # (R,)
     counts: dict           # {topic: messages read}
+    contacts: dict = None  # fake_arena's last contact report, if the bag has one
 
 
 def load_bag_run(path, experiment_path=None, sample_hz=20.0):
@@ -72,10 +73,16 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0):
     n = experiment.n
     events = {'pose': [[] for _ in range(n)], 'cmd_vel': [[] for _ in range(n)],
               'disturbance_estimate': [[] for _ in range(n)]}
-    curves, counts = [], {}
+    curves, counts, contacts = [], {}, None
     for topic, _, stamp, msg in read_messages(path):
         counts[topic] = counts.get(topic, 0) + 1
         t = stamp * 1e-9
+        if topic == '/diagnostics':
+            for status in msg.status:
+                if status.hardware_id == metrics.CONTACT_REPORTER:
+                    contacts = metrics.contacts_from_report(
+                        {kv.key: kv.value for kv in status.values})
+            continue
         if topic == '/formation/curve':
             dims = [(d.label, d.size) for d in msg.layout.dim]
             curve, curve_id = decode_curve(dims, msg.data)
@@ -110,7 +117,7 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0):
     phase = np.searchsorted(starts, grid, side='right') - 1
     return BagRun(replace(experiment, phases=phases), grid - t0,
                   _sample(events['pose'], grid, 3), _sample(events['cmd_vel'], grid, 2),
-                  _sample(events['disturbance_estimate'], grid, 2), phase, counts)
+                  _sample(events['disturbance_estimate'], grid, 2), phase, counts, contacts)
 
 
 def _sample(per_robot, grid, width):
@@ -134,7 +141,7 @@ def analyze_bag(path, out_dir, experiment_path=None, compare=None, compare_sim=F
     run = load_bag_run(path, experiment_path)
     t, poses, phase, dhat, commands = _known(run, path)
     result = metrics.run_metrics(run.experiment, t, poses, phase, np.nan_to_num(dhat),
-                                 np.nan_to_num(commands))
+                                 np.nan_to_num(commands), contacts=run.contacts)
     result['bag'] = {'path': str(path), 'messages': run.counts}
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -116,7 +116,7 @@ def _cmd_demo(args):
                                    heading=heading)
             summary['paper_cases_batch_simulation'].setdefault(name, {})[law] = data
             print('    ' + _summary_line(f'{name} ({law})', data))
-    print(f'2/2 ROS 2 run of {DEMO_RUN}: 9 fake robots, 9 controllers, curve server, '
+    print(f'2/2 ROS 2 run of {DEMO_RUN}: 9 robots in one fake arena, 9 controllers, curve server, '
           f'one process each ({args.duration:g} s)')
     result = run_experiment(DEMO_RUN, out / DEMO_RUN, duration=args.duration,
                             bag_path=out / DEMO_RUN / 'bag', log=lambda m: print('    ' + m))

@@ -180,6 +180,18 @@ def markers_covered(poses, radius, marker_offset, marker_size):
     return near.any(axis=(1, 2))
 
 
+# The hardware id under which fake_arena reports its contact tally on /diagnostics.
+CONTACT_REPORTER = 'fake_arena'
+
+
+def contacts_from_report(values):
+    """The contact tally {'count', 'time', 'smallest_gap'} of a fake_arena diagnostic status
+    given as {key: text} (None for a value it reports as None).
+    """
+    return {key: None if values[key] == 'None' else float(values[key])
+            for key in ('count', 'time', 'smallest_gap') if key in values}
+
+
 def body_metrics(experiment, t, poses, contacts=None, unseen=None):
     """Bodies in the arena: contacts (count and total time, counted where the bodies are
     simulated: `contacts`), the smallest gap between two surfaces (exact from `contacts`,

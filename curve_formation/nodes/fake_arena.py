@@ -19,6 +19,7 @@ from rclpy.duration import Duration
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
+from curve_formation.core import metrics
 from curve_formation.core.dynamics import DrivenUnicycle
 from curve_formation.nodes import messages, qos, topics
 from curve_formation.nodes.fake_robot import ROBOT_PARAMETERS
@@ -147,7 +148,7 @@ class FakeArena(Node):
         summary = self.contact_summary()
         status = DiagnosticStatus(
             level=DiagnosticStatus.WARN if summary['count'] else DiagnosticStatus.OK,
-            name=self.get_fully_qualified_name(), hardware_id='fake_arena',
+            name=self.get_fully_qualified_name(), hardware_id=metrics.CONTACT_REPORTER,
             message=f'{summary["count"]} contacts' if summary['count'] else 'no contact',
             values=[KeyValue(key=key, value=repr(value)) for key, value in summary.items()])
         msg = DiagnosticArray(status=[status])

@@ -14,6 +14,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
+from curve_formation.core import metrics
 from curve_formation.nodes import messages, qos, topics
 from curve_formation.nodes.runtime import now_seconds, WithMessageInfo
 
@@ -129,10 +130,9 @@ class Monitor(Node):
 
     def _on_diagnostics(self, msg):
         for status in msg.status:
-            if status.hardware_id == 'fake_arena':
-                values = {kv.key: kv.value for kv in status.values}
-                self.contacts = {key: None if values[key] == 'None' else float(values[key])
-                                 for key in ('count', 'time', 'smallest_gap') if key in values}
+            if status.hardware_id == metrics.CONTACT_REPORTER:
+                self.contacts = metrics.contacts_from_report(
+                    {kv.key: kv.value for kv in status.values})
 
     def ready(self):
         """Every robot's pose and every controller's command has been seen."""
