@@ -218,7 +218,8 @@ def ros_env(ros_domain):
 
 
 @pytest.mark.ros
-@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+@pytest.mark.parametrize('sig', [signal.SIGINT, pytest.param(
+    signal.SIGTERM, marks=pytest.mark.slow)])   # 16 s each: the default run stays under 10 min
 def test_interrupted_run_leaves_a_closed_valid_bag(tmp_path, ros_env, sig):
     """SIGTERM comes as to a background job of a non-interactive shell (SIGINT inherited
     ignored): the run must still stop every node promptly, each sending its zero command.
@@ -259,7 +260,7 @@ def test_interrupted_run_leaves_a_closed_valid_bag(tmp_path, ros_env, sig):
 
 
 @pytest.mark.ros
-@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+@pytest.mark.parametrize('storage', ['mcap', pytest.param('sqlite3', marks=pytest.mark.slow)])
 def test_hard_killed_run_loses_at_most_the_last_second(tmp_path, ros_env, storage):
     """Killed hard, the bag holds all but the last second, and `bag repair` makes a complete
     bag of it that our reader (and, for MCAP, the independent mcap reader) reads whole.

@@ -204,13 +204,13 @@ def test_bodies_avoid_each_other_over_dds_as_the_simulator_predicts(ros_domain, 
     on /formation/robot_poses, as in the batch simulator (the envelope test, with bodies).
     """
     with Run(DATA_DIR / 'arena_bodies.yaml', tmp_path, log=quiet) as run:
-        run.spin_for(27.0)
+        run.spin_for(25.0)
         data = run.recording()
         result = run.write_results()
     experiment = run.experiment
     followed, phase = run.followed(data['t'])
     ros = metrics.error_norm(metrics.target_errors(data['poses'], phase, followed, t=data['t']))
-    low, high = simulated_envelope(experiment, data['t'], 28.0)
+    low, high = simulated_envelope(experiment, data['t'], 26.0)
     tolerance = 1e-3 * experiment.phases[0].curve.size()
     assert_within_envelope(data['t'], ros, low, high, data['t'] > 0.5, tolerance)
     assert result['all_settled'], result['phases']
