@@ -2,6 +2,7 @@
 
 import dataclasses
 import json
+import re
 import signal
 
 import numpy as np
@@ -154,17 +155,21 @@ def test_followers_of_a_silent_neighbour_stop_within_the_timeout(ros_domain, tmp
         moving = np.abs(run.monitor.commands).sum(axis=1) > 0
         assert moving[[0, 2, 3]].all()
         run.kill('robot_2.formation_controller', signal.SIGKILL)
-        start = run.monitor.get_clock().now().nanoseconds * 1e-9
-        # Out-neighbours of 2 are 3 and 4: zero commands within timeout + one period.
-        run.spin_until(lambda: np.all(run.monitor.commands[[2, 3]] == 0.0), 0.5 + 0.1 + 0.3,
+        # Out-neighbours of 2 are 3 and 4. The wall-clock bound here only proves they stop:
+        # how late they stop is read below from their own clocks, which a loaded machine
+        # delaying this monitor cannot falsify.
+        run.spin_until(lambda: np.all(run.monitor.commands[[2, 3]] == 0.0), 5.0,
                        'robots 3 and 4 to stop')
-        stopped_after = run.monitor.get_clock().now().nanoseconds * 1e-9 - start
         run.spin_for(1.0)
         assert np.all(run.monitor.commands[[2, 3]] == 0.0)        # and they stay stopped
         assert np.abs(run.monitor.commands[0]).sum() > 0           # the leader drives on
-    assert stopped_after < 0.9
-    log = (tmp_path / 'logs' / 'robot_3.formation_controller.log').read_text()
-    assert 'neighbour 2 stale' in log
+    timeout, period = 0.5, 0.1
+    for robot in (3, 4):
+        log = (tmp_path / 'logs' / f'robot_{robot}.formation_controller.log').read_text()
+        ages = re.findall(r'stopped: neighbour 2 stale \((\d+\.\d+) s old\)', log)
+        assert ages, log
+        # stopped at its first tick after the timeout (one period late at most, plus jitter)
+        assert timeout < float(ages[0]) <= timeout + 2 * period, ages
 
 
 def test_runner_writes_params_metrics_and_figures_single_process(ros_domain, tmp_path):
