@@ -20,7 +20,7 @@ setup(
     name=PACKAGE,
     version='0.1.0',
     packages=find_packages(exclude=['test', 'benchmarks']),
-    package_data={PACKAGE: ['fastdds_large_data.xml']},
+    package_data={PACKAGE: ['fastdds_large_data.xml', 'fastdds_udp.xml']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),

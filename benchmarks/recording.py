@@ -96,7 +96,7 @@ def main():
     if args.dds_defaults:
         os.environ.pop(DDS_PROFILE_ENV, None)
     else:
-        use_dds_profile()
+        use_dds_profile(large_data=True)
     os.environ.setdefault('ROS_DOMAIN_ID', '96')
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     images = not args.no_images

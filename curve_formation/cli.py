@@ -359,7 +359,8 @@ def main(argv=None):
     CURVE_FORMATION_DEBUG is set (then the traceback).
     """
     args = build_parser().parse_args(argv)
-    use_dds_profile()   # before any ROS context exists in this process
+    # before any ROS context exists in this process; a run recording frames receives them
+    use_dds_profile(large_data=getattr(args, 'bag_images', False))
     try:
         args.func(args)
     except (ConfigError, BagError, ValueError) as exc:

@@ -6,16 +6,28 @@ import sys
 
 
 PACKAGE = 'curve_formation'
-# Fast DDS profile (shared memory with large segments, large UDP buffers); see the file.
+# Fast DDS profiles (see the files): shared memory with large segments plus large UDP buffers
+# for the nodes that move camera frames; UDP only for every other process, so that a process
+# killed hard cannot stall the others' publish() in the shared-memory port health check.
 DDS_PROFILE = Path(__file__).resolve().parent / 'fastdds_large_data.xml'
+DDS_PROFILE_UDP = Path(__file__).resolve().parent / 'fastdds_udp.xml'
 DDS_PROFILE_ENV = 'FASTRTPS_DEFAULT_PROFILES_FILE'
+# A profile the user chose (kept everywhere when set); one of ours inherited from a parent
+# process is not a choice: each process picks its own.
+USER_PROFILE = (None if os.environ.get(DDS_PROFILE_ENV) in (None, '', str(DDS_PROFILE),
+                                                             str(DDS_PROFILE_UDP))
+                else os.environ[DDS_PROFILE_ENV])
 
 
-def use_dds_profile(env=None):
-    """Point Fast DDS at DDS_PROFILE in `env` (default: this process's, which must happen
-    before the process creates its first ROS context), unless a profile is already chosen.
+def use_dds_profile(env=None, large_data=False):
+    """Point Fast DDS at our profile in `env` (default: this process's, which must happen
+    before the process creates its first ROS context), unless the user chose one.
+
+    large_data: the process sends or receives camera frames (shared memory); otherwise UDP.
     """
-    (os.environ if env is None else env).setdefault(DDS_PROFILE_ENV, str(DDS_PROFILE))
+    env = os.environ if env is None else env
+    if USER_PROFILE is None:
+        env[DDS_PROFILE_ENV] = str(DDS_PROFILE if large_data else DDS_PROFILE_UDP)
 
 
 def config_dirs():

@@ -36,7 +36,7 @@ from curve_formation.nodes.runtime import (
     spin_until_quiet,
     stream_topic,
 )
-from curve_formation.paths import resolve_config, use_dds_profile
+from curve_formation.paths import resolve_config
 
 
 # Keys of the bag metadata (custom_data) that make a bag self-describing.
@@ -259,7 +259,6 @@ class Run:
         logs = self.out / 'logs'
         logs.mkdir(parents=True, exist_ok=True)
         env = dict(os.environ, ROS_DOMAIN_ID=str(self.domain_id), PYTHONUNBUFFERED='1')
-        use_dds_profile(env)
         if self.bag_writer is not None:   # each node reports what it published
             env[PUBLICATIONS_ENV] = str(self.publications_dir)
         cmd = [sys.executable, '-m', launch.module, '--ros-args', '-r',

@@ -128,7 +128,10 @@ def test_curve_switch_is_picked_up_within_one_control_period(ros_domain, tmp_pat
         data = run.recording()
         monitor = run.monitor
     switch = monitor.curve_times[1]
+    # publication times on the senders' clocks: from the curve server publishing the new
+    # curve to each controller publishing its first state on it
     delays = [monitor.adopted[(i, 1)] - switch for i in range(1, 10)]
+    print('adoption delays (s):', np.round(delays, 4))
     period = 1.0 / 10.0
     assert max(delays) < period, delays
     ros = ros_error_norm(run, data)
@@ -169,7 +172,7 @@ def test_followers_of_a_silent_neighbour_stop_within_the_timeout(ros_domain, tmp
         ages = re.findall(r'stopped: neighbour 2 stale \((\d+\.\d+) s old\)', log)
         assert ages, log
         # stopped at its first tick after the timeout (one period late at most, plus jitter)
-        assert timeout < float(ages[0]) <= timeout + 2 * period, ages
+        assert timeout <= float(ages[-1]) <= timeout + 2 * period, log
 
 
 def test_runner_writes_params_metrics_and_figures_single_process(ros_domain, tmp_path):

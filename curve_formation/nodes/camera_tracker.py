@@ -267,7 +267,7 @@ class CameraTracker(Node):
 
 
 def main(args=None):
-    return run_node(CameraTracker, args)
+    return run_node(CameraTracker, args, large_data=True)   # camera frames
 
 
 if __name__ == '__main__':

@@ -120,7 +120,7 @@ class FakeCamera(Node):
 
 
 def main(args=None):
-    return run_node(FakeCamera, args)
+    return run_node(FakeCamera, args, large_data=True)   # camera frames
 
 
 if __name__ == '__main__':

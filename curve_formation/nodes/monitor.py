@@ -51,7 +51,7 @@ class Monitor(Node):
         self.dhat = np.full((n, 2), np.nan)
         self.curve_id = None
         self.t0 = None
-        self.curve_times = {}      # curve id -> time the monitor received it (s)
+        self.curve_times = {}      # curve id -> DDS source timestamp of its first message (s)
         self.curves = []           # every curve message: (time s, curve id, Curve, s or None)
         self.unseen = np.zeros(n, bool)   # robots missing from /formation/robot_poses now
         self.contacts = None       # fake_arena's contact summary, as last reported
@@ -59,7 +59,8 @@ class Monitor(Node):
         # the DDS source timestamp, the time DDS received it here, the time this callback ran.
         self.command_arrivals = [[] for _ in range(n)]
         self.tick_latencies = [[] for _ in range(n)]     # estimate arrival - pose stamp (s)
-        self.adopted = {}          # (robot, curve id) -> first state on that curve (s)
+        # (robot, curve id) -> DDS source timestamp of its first state on that curve (s)
+        self.adopted = {}
         self.recording = Recording()
         for i in range(1, n + 1):
             self._subscribe(PoseStamped, topics.robot_topic(i, topics.POSE),
@@ -70,11 +71,13 @@ class Monitor(Node):
             self._subscribe(Vector3Stamped, topics.robot_topic(i, topics.ESTIMATE),
                             lambda m, i=i: self._on_estimate(i, m), qos.STATE)
             self._subscribe(JointState, topics.robot_topic(i, topics.STATE),
-                            lambda m, i=i: self._on_state(i, m), qos.STATE)
+                            WithMessageInfo(lambda m, info, i=i: self._on_state(i, m, info)),
+                            qos.STATE)
             if ground_truth:
                 self._subscribe(PoseStamped, topics.robot_topic(i, topics.TRUE_POSE),
                                 lambda m, i=i: self._on_true_pose(i, m), qos.SENSOR)
-        self._subscribe(Float64MultiArray, topics.CURVE, self._on_curve, qos.LATCHED)
+        self._subscribe(Float64MultiArray, topics.CURVE, WithMessageInfo(self._on_curve),
+                        qos.LATCHED)
         self._subscribe(JointState, topics.ROBOT_POSES, self._on_robot_poses, qos.SENSOR)
         self._subscribe(DiagnosticArray, topics.DIAGNOSTICS, self._on_diagnostics, qos.EVENTS)
         self.create_timer(1.0 / record_hz, self._sample)
@@ -104,15 +107,15 @@ class Monitor(Node):
             self.tick_latencies[i - 1].append(
                 now_seconds(self) - messages.stamp_to_seconds(msg.header.stamp))
 
-    def _on_state(self, i, msg):
+    def _on_state(self, i, msg, info):
         curve_id = messages.state_from_msg(msg)[2]
-        self.adopted.setdefault((i, curve_id), now_seconds(self))
+        self.adopted.setdefault((i, curve_id), info['source_timestamp'] * 1e-9)
 
-    def _on_curve(self, msg):
+    def _on_curve(self, msg, info):
         curve, self.curve_id = messages.curve_from_msg(msg)
         now = now_seconds(self)
         self.curves.append((now, self.curve_id, curve, messages.agent_parameters_from_msg(msg)))
-        self.curve_times.setdefault(self.curve_id, now)
+        self.curve_times.setdefault(self.curve_id, info['source_timestamp'] * 1e-9)
         if self.t0 is None:
             self.t0 = now_seconds(self)
 

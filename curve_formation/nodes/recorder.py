@@ -157,7 +157,7 @@ class RecorderNode(Recorder):
 
 
 def main(args=None):
-    return run_node(RecorderNode, args)
+    return run_node(RecorderNode, args, large_data=True)   # camera frames
 
 
 if __name__ == '__main__':

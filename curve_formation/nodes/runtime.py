@@ -83,7 +83,7 @@ def now_seconds(node):
     return node.get_clock().now().nanoseconds * 1e-9
 
 
-def run_node(node_factory, args=None):
+def run_node(node_factory, args=None, large_data=False):
     """Create the node, spin it until Ctrl-C, SIGTERM or shutdown, then shut it down cleanly.
 
     A ParameterError at start ends the process with one line on stderr and exit status 2.
@@ -93,7 +93,7 @@ def run_node(node_factory, args=None):
     the spin loop: an exception raised inside an rclpy call (e.g. while a message is being
     converted) would come out as a RuntimeError, not as an interrupt.
     """
-    use_dds_profile()   # large messages over shared memory, unless a profile is chosen
+    use_dds_profile(large_data=large_data)   # before the first ROS context; see paths
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop = threading.Event()
     # Installed explicitly: a process started from a background job inherits SIGINT ignored.
