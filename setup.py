@@ -11,6 +11,7 @@ NODES = {
     'formation_controller': 'curve_formation.nodes.formation_controller:main',
     'fake_robot': 'curve_formation.nodes.fake_robot:main',
     'fake_arena': 'curve_formation.nodes.fake_arena:main',
+    'robot_bridge': 'curve_formation.nodes.robot_bridge:main',
     'formation_recorder': 'curve_formation.nodes.recorder:main',
     'camera_tracker': 'curve_formation.nodes.camera_tracker:main',
     'fake_camera': 'curve_formation.nodes.fake_camera:main',
@@ -29,7 +30,8 @@ setup(
     # What `sim`, `run --bag`, `analyze` and the nodes need at run time (requirements.txt
     # pins the ROS 2 wheels and the test tools; package.xml names the same with rosdep keys).
     install_requires=['setuptools', 'numpy', 'scipy', 'numba', 'matplotlib', 'PyYAML',
-                      'pydantic>=2', 'opencv-python-headless', 'rosbags>=0.11', 'mcap>=1.2'],
+                      'pydantic>=2', 'opencv-python-headless', 'rosbags>=0.11', 'mcap>=1.2',
+                      'pyserial'],
     zip_safe=True,
     maintainer='curve_formation maintainers',
     maintainer_email='curve-formation@example.org',

@@ -129,12 +129,15 @@ def _cmd_demo(args):
 
 def _cmd_run(args):
     from curve_formation.runner import run_experiment
+    if args.bridge and args.no_sim:
+        raise ValueError('--bridge drives emulated robots and --no-sim has none; for real '
+                         'robots start one robot_bridge per robot (docs/connecting-robots.md)')
     _warn(load_experiment(resolve_config(args.config)))
     _output_folder(args.out)
     result = run_experiment(args.config, args.out, args.duration, args.single_process,
                             with_robots=not args.no_sim, rate_hz=args.rate, bag_path=args.bag,
                             camera={} if args.camera else None, bag_images=args.bag_images,
-                            bag_storage=args.bag_storage)
+                            bag_storage=args.bag_storage, bridge=args.bridge)
     print(_summary_line(result['experiment'], result))
     print(f'wrote {args.out}/metrics.json, figures, params/ and logs/')
 
@@ -294,6 +297,10 @@ def build_parser():
                      help='poses from camera_tracker (the experiment needs `camera`): fed by '
                      'fake_camera rendering the fake robots, or with --no-sim by a real camera '
                      'driver on /camera/image_raw')
+    run.add_argument('--bridge', choices=('udp', 'pty'),
+                     help='the real path to a robot: each cmd_vel through a robot_bridge, as '
+                     "wheel speeds in the robot's wire format, over UDP or a serial line (a "
+                     'pseudo-terminal) to emulated Mona robots (fake_arena)')
     run.add_argument('--bag-images', action='store_true',
                      help='with --bag and --camera: record the camera frames as well (about '
                      '27 MB/s at 1280x720 and 30 Hz)')

@@ -61,10 +61,14 @@ class NodeLaunch:
 
 
 def node_launches(experiment, experiment_path, with_robots=True, rate_hz=None,
-                  pose_noise=(0.0, 0.0), command_latency=0.0, faults=None, camera=None):
+                  pose_noise=(0.0, 0.0), command_latency=0.0, faults=None, camera=None,
+                  bridge=None, links_dir=None):
     """The node graph of an experiment: curve server, controllers and (optionally) fake robots.
 
-    faults: fault injection, {'pose_drop': p, 'state_drop': p} (probabilities).
+    faults: fault injection, {'pose_drop': p, 'state_drop': p, 'link_down': [robot, from,
+    for]}.
+    bridge: None, or 'udp' or 'pty': every controller's cmd_vel goes through a robot_bridge
+    over a UDP port or a pseudo-terminal (in links_dir) to the emulated robots of fake_arena.
     camera: None, or fake_camera parameter overrides ({} for none): poses then come from
     camera_tracker, fed by fake_camera rendering the fake robots (with_robots) or by a real
     camera driver on /camera/image_raw.
@@ -77,7 +81,8 @@ def node_launches(experiment, experiment_path, with_robots=True, rate_hz=None,
                else camera_launches(experiment, experiment_path, with_robots, camera))
     rate = control_rate(experiment, rate_hz)
     on_pc = spec.disturbance.injected == 'on_pc'
-    one_world = uses_fake_arena(experiment)
+    one_world = uses_fake_arena(experiment) or bridge is not None
+    links = robot_links(experiment.n, bridge, links_dir) if bridge and with_robots else []
     # The curve server waits for the n controllers, the runner's monitor and the camera nodes
     # (they draw the curve).
     launches = [NodeLaunch('curve_formation.nodes.curve_server', '/', 'curve_server',
@@ -90,6 +95,10 @@ def node_launches(experiment, experiment_path, with_robots=True, rate_hz=None,
                       'fault_state_drop': float(faults.get('state_drop', 0.0))}
         launches.append(NodeLaunch('curve_formation.nodes.formation_controller', ns,
                                    'formation_controller', controller))
+        if links:
+            launches.append(NodeLaunch('curve_formation.nodes.robot_bridge', ns,
+                                       'robot_bridge', bridge_parameters(experiment, rate,
+                                                                         links[i - 1])))
         if with_robots and not one_world:
             launches.append(NodeLaunch('curve_formation.nodes.fake_robot', ns, 'fake_robot', {
                 'index': i,
@@ -100,14 +109,49 @@ def node_launches(experiment, experiment_path, with_robots=True, rate_hz=None,
                 'fault_pose_drop': float(faults.get('pose_drop', 0.0)),
                 'pose_topic': 'pose' if camera is None else 'true_pose'}))
     if with_robots and one_world:
-        launches.append(NodeLaunch('curve_formation.nodes.fake_arena', '/', 'fake_arena', {
-            'experiment': str(Path(experiment_path).resolve()),
-            'pose_noise': [float(v) for v in pose_noise],
-            'command_latency': float(command_latency),
-            'fault_pose_drop': float(faults.get('pose_drop', 0.0)),
-            'pose_topic': 'pose' if camera is None else 'true_pose',
-            'publish_robot_poses': camera is None}))
+        arena = {'experiment': str(Path(experiment_path).resolve()),
+                 'pose_noise': [float(v) for v in pose_noise],
+                 'command_latency': float(command_latency),
+                 'fault_pose_drop': float(faults.get('pose_drop', 0.0)),
+                 'pose_topic': 'pose' if camera is None else 'true_pose',
+                 'publish_robot_poses': camera is None}
+        if links:   # emulated robots behind their links
+            arena['links'] = links
+            if 'link_down' in faults:
+                arena['fault_link_down'] = [float(v) for v in faults['link_down']]
+        launches.append(NodeLaunch('curve_formation.nodes.fake_arena', '/', 'fake_arena',
+                                   arena))
     return launches + cameras
+
+
+def robot_links(n, bridge, folder):
+    """Each robot's link, as the emulated robot listens on it: a free UDP port on this
+    machine, or a pseudo-terminal at folder/robot_<i>.
+    """
+    if bridge == 'pty':
+        return [f'pty:{Path(folder).resolve() / f"robot_{i}"}' for i in range(1, n + 1)]
+    if bridge != 'udp':
+        raise ValueError(f"bridge must be 'udp' or 'pty', got {bridge!r}")
+    import socket
+    ports = []
+    for _ in range(n):
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+            probe.bind(('127.0.0.1', 0))
+            ports.append(probe.getsockname()[1])
+    return [f'udp:127.0.0.1:{port}' for port in ports]
+
+
+def bridge_parameters(experiment, rate, link):
+    """robot_bridge parameters for a robot behind `link` (the emulated robot's end of it)."""
+    limits = experiment.limits
+    kind, _, where = link.partition(':')
+    return {'link': link if kind == 'udp' else f'serial:{where}',
+            'wheel_base': float(limits.wheel_base or 0.08),
+            'wheel_radius': float(experiment.spec.limits.wheel_radius if experiment.spec.limits
+                                  else 0.015),
+            'max_wheel_speed': float(limits.max_wheel_speed)
+            if limits.max_wheel_speed < float('inf') else 0.0,
+            'rate_hz': float(rate)}
 
 
 def uses_fake_arena(experiment):
@@ -159,7 +203,7 @@ class Run:
     def __init__(self, experiment_path, out_dir, single_process=False, with_robots=True,
                  rate_hz=None, record_hz=20.0, pose_noise=(0.0, 0.0), command_latency=0.0,
                  bag_path=None, faults=None, camera=None, bag_images=False, log=print,
-                 bag_storage=DEFAULT_STORAGE):
+                 bag_storage=DEFAULT_STORAGE, bridge=None):
         self.experiment_path = resolve_config(experiment_path)
         self.bag_images = bag_images
         self.experiment = load_experiment(self.experiment_path)
@@ -170,7 +214,8 @@ class Run:
         self.camera = camera
         self.with_robots = with_robots
         self.launches = node_launches(self.experiment, self.experiment_path, with_robots,
-                                      rate_hz, pose_noise, command_latency, faults, camera)
+                                      rate_hz, pose_noise, command_latency, faults, camera,
+                                      bridge, self.out / 'links')
         self.param_files = write_params_files(self.launches, self.out / 'params')
         self.domain_id = private_domain_id()
         self.record_hz = record_hz
@@ -394,6 +439,9 @@ class Run:
             result['bodies'] = metrics.body_metrics(experiment, data['t'], truth,
                                                     self.monitor.contacts,
                                                     data['unseen'] if camera else None)
+        if self.monitor.links:   # robot_bridge's link reports, per robot
+            result['links'] = {name.strip('/').split('/')[0]: metrics.link_summary(reports)
+                               for name, reports in sorted(self.monitor.links.items())}
         result['control'] = f'ROS nodes at {self.rate_hz:g} Hz'
         result['mode'] = 'single process' if self.single_process else 'one process per node'
         if camera:
@@ -426,6 +474,7 @@ NODE_CLASSES = {'curve_formation.nodes.curve_server': 'CurveServer',
                 'curve_formation.nodes.formation_controller': 'FormationController',
                 'curve_formation.nodes.fake_robot': 'FakeRobot',
                 'curve_formation.nodes.fake_arena': 'FakeArena',
+                'curve_formation.nodes.robot_bridge': 'RobotBridge',
                 'curve_formation.nodes.camera_tracker': 'CameraTracker',
                 'curve_formation.nodes.fake_camera': 'FakeCamera'}
 
@@ -442,14 +491,15 @@ def _overrides(parameters):
 
 def run_experiment(config, out_dir, duration=None, single_process=False, with_robots=True,
                    rate_hz=None, bag_path=None, camera=None, bag_images=False, log=print,
-                   bag_storage=DEFAULT_STORAGE):
+                   bag_storage=DEFAULT_STORAGE, bridge=None):
     """Run an experiment's node graph for `duration` s (default: the file's) and measure it.
 
     Ctrl-C (SIGINT) and SIGTERM stop every node and close the bag; both only set
     Run.stop_requested, acted on between callbacks (see Run.spin_until).
     """
     run = Run(config, out_dir, single_process, with_robots, rate_hz, bag_path=bag_path,
-              camera=camera, bag_images=bag_images, log=log, bag_storage=bag_storage)
+              camera=camera, bag_images=bag_images, log=log, bag_storage=bag_storage,
+              bridge=bridge)
     duration = run.experiment.spec.simulation.duration if duration is None else duration
     previous = {sig: signal.signal(sig, lambda *_: run.stop_requested.set())
                 for sig in (signal.SIGINT, signal.SIGTERM)}

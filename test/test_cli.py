@@ -32,3 +32,10 @@ def test_check_reports_certificate_assumptions_and_fit(capsys):
     assert report['theorem1']['min_eig_P'] > 0 and report['theorem1']['min_eig_Q'] > 0
     assert [c['rank_G_bar'] for c in report['curves']] == [18, 18]
     assert all(c['n_le_H'] and c['fit_rms_residual'] < 1e-9 for c in report['curves'])
+
+
+def test_a_bridge_without_simulated_robots_is_refused_with_the_way_to_real_ones(tmp_path,
+                                                                                capsys):
+    assert main(['run', 'arena_demo', '--no-sim', '--bridge', 'udp',
+                 '--out', str(tmp_path)]) == 2
+    assert 'one robot_bridge per robot' in capsys.readouterr().err

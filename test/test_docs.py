@@ -34,7 +34,8 @@ def test_nodes_create_the_documented_topics(ros_domain, name, module):
               'fake_robot': {},
               'fake_arena': dict(experiment='arena_demo'),
               'camera_tracker': dict(experiment='arena_demo'),
-              'fake_camera': dict(experiment='arena_demo')}[name]
+              'fake_camera': dict(experiment='arena_demo'),
+              'robot_bridge': dict(link='udp:127.0.0.1:9')}[name]
     cls = getattr(module, NODE_CLASSES[module.__name__])
     node = cls(context=context, namespace='/robot_2',
                parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])

@@ -144,6 +144,8 @@ class DisturbanceSpec(Strict):
 class LimitsSpec(Strict):
     wheel_base: float = Field(gt=0, description='distance between the wheels (m)')
     max_wheel_speed: float = Field(gt=0, description='max linear speed of each wheel (m/s)')
+    wheel_radius: float = Field(0.015, gt=0, description='wheel radius (m): the wheel speeds in '
+                                'rad/s a robot bridge sends (Mona: 15 mm)')
     max_angular_rate: Optional[float] = Field(None, gt=0, description='max |w| (rad/s)')
     max_linear_accel: Optional[float] = Field(None, gt=0, description='max dv/dt (m/s^2)')
     max_angular_accel: Optional[float] = Field(None, gt=0, description='max dw/dt (rad/s^2)')

@@ -184,6 +184,26 @@ def markers_covered(poses, radius, marker_offset, marker_size):
 CONTACT_REPORTER = 'fake_arena'
 
 
+# The node name under which each robot_bridge reports its link on /diagnostics.
+LINK_REPORTER = '/robot_bridge'
+LINK_COUNTS = ('sent', 'failed', 'stops', 'replies', 'malformed', 'dropped_lines')
+
+
+def link_summary(reports):
+    """One robot link from its robot_bridge's reports [(t s, level, message, {key: text})]:
+    the counts and latency percentiles (ms) of the last report, and the times (s) of reports
+    of a lost link or an error (level 2).
+    """
+    last = reports[-1][3]
+    summary = {key: int(last[key]) for key in LINK_COUNTS if key in last}
+    for key in ('latency_ms_p50', 'latency_ms_p99'):
+        if key in last:
+            summary[key] = float(last[key])
+    summary['last_error'] = last.get('last_error', '')
+    summary['lost_at'] = [round(t, 3) for t, level, _, _ in reports if level >= 2]
+    return summary
+
+
 def contacts_from_report(values):
     """The contact tally {'count', 'time', 'smallest_gap'} of a fake_arena diagnostic status
     given as {key: text} (None for a value it reports as None).

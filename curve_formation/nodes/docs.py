@@ -9,6 +9,7 @@ from curve_formation.nodes import (
     formation_controller,
     qos,
     recorder,
+    robot_bridge,
 )
 from curve_formation.nodes.params import markdown_table
 
@@ -17,6 +18,7 @@ NODES = (('formation_controller', formation_controller),
          ('curve_server', curve_server),
          ('fake_robot', fake_robot),
          ('fake_arena', fake_arena),
+         ('robot_bridge', robot_bridge),
          ('formation_recorder', recorder),
          ('camera_tracker', camera_tracker),
          ('fake_camera', fake_camera))

@@ -7,7 +7,10 @@ bodies through a wall put back (core.bodies.separate, the batch simulator's code
 block and push each other as real ones do. Publishes every robot's pose on /robot_<i>/pose
 (or true_pose when a camera tracks them) and all of them on /formation/robot_poses (unless a
 camera tracker does), at `rate_hz`; /diagnostics reports the contacts: how many, for how long,
-and the smallest gap between two bodies.
+and the smallest gap between two bodies. With `links`, the robots are emulated Mona robots
+behind their last link: each reads wheel speeds in its wire format from a UDP port or a
+pseudo-terminal, as its firmware would (with the firmware's watchdog: `command_timeout`), and
+answers each line 'ok' or 'err'; no cmd_vel is read (robot_bridge writes those links).
 """
 
 import math
@@ -19,16 +22,23 @@ from rclpy.duration import Duration
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
-from curve_formation.core import metrics
+from curve_formation.core import metrics, wire
 from curve_formation.core.dynamics import DrivenUnicycle
+from curve_formation.links import robot_endpoint
 from curve_formation.nodes import messages, qos, topics
 from curve_formation.nodes.fake_robot import ROBOT_PARAMETERS
 from curve_formation.nodes.params import (
     declare_parameters,
     experiment_parameter,
     Param,
+    ParameterError,
 )
+from curve_formation.nodes.robot_bridge import wire_format_parameter, WIRE_PARAMETERS
 from curve_formation.nodes.runtime import now_seconds, run_node
+
+
+# How often the emulated robots' firmware reads its links (s).
+FIRMWARE_POLL = 0.005
 
 
 PARAMETERS = (
@@ -40,7 +50,12 @@ PARAMETERS = (
           positive=True),
     Param('publish_robot_poses', 'bool', True, 'publish all poses on /formation/robot_poses '
           '(off when a camera tracker publishes them)'),
-) + ROBOT_PARAMETERS
+    Param('links', 'string[]', [], "emulated robots: each robot's link ('udp:HOST:PORT' or "
+          "'pty:PATH'), read as its firmware would, wheel speeds in wire_format, instead of "
+          'cmd_vel; empty = cmd_vel'),
+    Param('fault_link_down', 'double[]', [], 'fault injection: [robot (0 = all), from (s), '
+          'for (s)] after the first line received: the firmware hears nothing'),
+) + ROBOT_PARAMETERS + WIRE_PARAMETERS
 
 TOPICS = (
     ('sub', '/robot_<i>/' + topics.CMD_VEL, 'geometry_msgs/Twist', 'COMMAND',
@@ -83,13 +98,63 @@ class FakeArena(Node):
         self.all_pub = (self.create_publisher(JointState, topics.ROBOT_POSES, qos.SENSOR)
                         if p.publish_robot_poses else None)
         self.diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.EVENTS)
-        for i in range(1, self.n + 1):
-            self.create_subscription(Twist, topics.robot_topic(i, topics.CMD_VEL),
-                                     lambda msg, i=i: self._on_cmd(i, msg), qos.COMMAND)
+        self.endpoints = self._endpoints(p, experiment)
+        if self.endpoints:
+            self.create_timer(FIRMWARE_POLL, self._on_lines)
+        else:
+            for i in range(1, self.n + 1):
+                self.create_subscription(Twist, topics.robot_topic(i, topics.CMD_VEL),
+                                         lambda msg, i=i: self._on_cmd(i, msg), qos.COMMAND)
         self.create_timer(1.0 / p.rate_hz, self._on_timer)
         self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(f'{self.n} robots, bodies of radius {self.radius:g} m, arena '
                                f'{self.size[0]:g} x {self.size[1]:g} m')
+
+    def _endpoints(self, p, experiment):
+        """The emulated robots' links, with their wire format; [] to read cmd_vel."""
+        if not p.links:
+            return []
+        if len(p.links) != self.n:
+            raise ParameterError(f"parameter 'links' has {len(p.links)} entries for {self.n} "
+                                 'robots')
+        if len(p.fault_link_down) not in (0, 3):
+            raise ParameterError("parameter 'fault_link_down' must be [robot, from, for]")
+        self.format = wire_format_parameter(p)
+        self.wheel_base = experiment.limits.wheel_base or 0.08
+        self.first_line = None
+        self.malformed = 0
+        try:
+            return [robot_endpoint(link) for link in p.links]
+        except (ValueError, OSError) as exc:
+            raise ParameterError(f"parameter 'links': {exc}") from None
+
+    def _deaf(self, i, now):
+        """Fault injection: robot i's firmware hears nothing now."""
+        fault = self.params.fault_link_down
+        if not fault or self.first_line is None or fault[0] not in (0, i):
+            return False
+        return fault[1] <= now - self.first_line < fault[1] + fault[2]
+
+    def _on_lines(self):
+        """Each emulated robot's firmware: wheel speeds in, 'ok' or 'err' out."""
+        now = now_seconds(self)
+        for i, endpoint in enumerate(self.endpoints, 1):
+            for line in endpoint.lines():
+                if self.first_line is None:
+                    self.first_line = now
+                if self._deaf(i, now):
+                    continue
+                said = wire.decode(self.format, line, self.params.wheel_radius)
+                if said is None:
+                    self.malformed += 1
+                    endpoint.send(b'err\n')
+                    continue
+                if said[0] == 'command':
+                    v, w = wire.body_velocity(said[1], said[2], self.wheel_base)
+                else:
+                    v, w = 0.0, 0.0
+                self.robots[i - 1].drive(v, w, now, advance=False)
+                endpoint.send(b'ok\n')
 
     def _on_cmd(self, i, msg):
         v, w = messages.twist_from_msg(msg)
@@ -159,6 +224,8 @@ class FakeArena(Node):
         """The final contact tally, acknowledged (1 s at most) so that a recorder has it."""
         self._publish_diagnostics()
         self.diag_pub.wait_for_all_acked(Duration(seconds=1.0))
+        for endpoint in self.endpoints:
+            endpoint.close()
 
 
 def separate(poses, radius, width, height, touching):

@@ -55,6 +55,7 @@ class Monitor(Node):
         self.curves = []           # every curve message: (time s, curve id, Curve, s or None)
         self.unseen = np.zeros(n, bool)   # robots missing from /formation/robot_poses now
         self.contacts = None       # fake_arena's contact summary, as last reported
+        self.links = {}            # robot_bridge name -> [(t s, level, message, {key: value})]
         # Per robot, one (published, received, handled) row per command (s, system clock):
         # the DDS source timestamp, the time DDS received it here, the time this callback ran.
         self.command_arrivals = [[] for _ in range(n)]
@@ -136,6 +137,11 @@ class Monitor(Node):
             if status.hardware_id == metrics.CONTACT_REPORTER:
                 self.contacts = metrics.contacts_from_report(
                     {kv.key: kv.value for kv in status.values})
+            elif status.name.endswith(metrics.LINK_REPORTER) and self.t0 is not None:
+                level = status.level[0] if isinstance(status.level, bytes) else status.level
+                self.links.setdefault(status.name, []).append(
+                    (messages.stamp_to_seconds(msg.header.stamp) - self.t0, int(level),
+                     status.message, {kv.key: kv.value for kv in status.values}))
 
     def ready(self):
         """Every robot's pose and every controller's command has been seen."""

@@ -1,0 +1,257 @@
+"""robot_bridge: one robot's cmd_vel as wheel speeds on its serial line or UDP link, in
+namespace /robot_<i>.
+
+Each cmd_vel becomes the rim speeds of the two wheels (wheel base from the parameters), scaled
+down together, keeping the curvature, when a wheel would exceed `max_wheel_speed`, and is
+written at once as a line of the robot's wire format (core.wire), at most `rate_hz` lines a
+second (see _may_send: a command that comes sooner waits, and a newer command replaces it).
+The stop line is sent while cmd_vel is older than `command_timeout`, while the e-stop is
+engaged, and `stop_repeats` times on shutdown (a UDP datagram can be lost). Lines from the
+robot (its replies) are counted; what is not a reply is counted as malformed and dropped.
+/diagnostics (1 Hz): sent, failed, malformed, last error, time since the robot last answered
+(a link lost for longer than `reply_timeout` is reported), and the bridge's latency
+from a cmd_vel received to its bytes written.
+"""
+
+import collections
+import math
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import Twist
+import numpy as np
+from rclpy.node import Node
+from std_msgs.msg import Bool
+
+from curve_formation.core import wire
+from curve_formation.core.agent import is_stale
+from curve_formation.links import LinkError, parse_address, robot_link
+from curve_formation.nodes import messages, qos, topics
+from curve_formation.nodes.params import declare_parameters, Param, ParameterError
+from curve_formation.nodes.runtime import now_seconds, run_node
+
+
+# How the robot's firmware reads its lines (robot_bridge, and fake_arena's emulated robots).
+WIRE_PARAMETERS = (
+    Param('wire_format', 'string', 'mona-serial', 'a preset of core.wire.PRESETS, or empty '
+          'for command_template and stop_template', choices=('',) + tuple(wire.PRESETS)),
+    Param('command_template', 'string', '', "wire_format '': the command line, with {left} "
+          'and {right} (wheel speeds) and optionally {seq}, terminator included'),
+    Param('stop_template', 'string', '', "wire_format '': the stop line"),
+    Param('unit', 'string', 'rad/s', "wire_format '': wheel speeds in 'rad/s' or 'm/s'",
+          choices=('rad/s', 'm/s')),
+    Param('wheel_radius', 'double', 0.015, 'wheel radius (m), for rad/s', positive=True),
+)
+
+
+def wire_format_parameter(p):
+    """The WireFormat of WIRE_PARAMETERS' values; ParameterError naming wire_format."""
+    try:
+        return wire.wire_format(p.wire_format, p.command_template, p.stop_template, p.unit)
+    except wire.WireError as exc:
+        raise ParameterError(f"parameter 'wire_format': {exc}") from None
+
+
+PARAMETERS = (
+    Param('link', 'string', None, "where the robot is: 'udp:HOST:PORT' or 'serial:DEVICE'"),
+    Param('baud', 'int', 115200, 'serial line speed (bits/s)', low=1),
+    Param('wheel_base', 'double', 0.08, 'distance between the wheels (m)', positive=True),
+    Param('max_wheel_speed', 'double', 0.0, 'max rim speed of a wheel (m/s); 0 = no limit',
+          low=0.0),
+    Param('rate_hz', 'double', 10.0, 'the most lines a second the robot takes (two may come '
+          'half a period apart)', positive=True),
+    Param('command_timeout', 'double', 0.5, 'cmd_vel older than this sends the stop line '
+          '(s)', positive=True),
+    Param('reply_timeout', 'double', 1.0, 'no line from the robot for this long is reported '
+          'as a lost link (s); 0 = the robot does not answer', low=0.0),
+    Param('stop_repeats', 'int', 3, 'stop lines sent on shutdown', low=1),
+) + WIRE_PARAMETERS
+
+TOPICS = (
+    ('sub', topics.CMD_VEL, 'geometry_msgs/Twist', 'COMMAND', 'velocity command'),
+    ('sub', topics.ESTOP, 'std_msgs/Bool', 'LATCHED', 'true sends the stop line until released'),
+    ('pub', topics.DIAGNOSTICS, 'diagnostic_msgs/DiagnosticArray', 'EVENTS',
+     'link: sent, failed, malformed, last error, reply age, latency (1 Hz)'),
+)
+
+LATENCY_WINDOW = 1000   # latencies kept for the diagnostics' percentiles
+WAIT_POLL = 0.001       # s between checks while a command waits for the robot's rate
+
+
+class RobotBridge(Node):
+    """cmd_vel -> wheel speeds -> the robot's wire format over its link."""
+
+    def __init__(self, **kwargs):
+        super().__init__('robot_bridge', **kwargs)
+        p = self.params = declare_parameters(self, PARAMETERS)
+        try:
+            parse_address(p.link)
+        except ValueError as exc:
+            raise ParameterError(f"parameter 'link': {exc}") from None
+        self.format = wire_format_parameter(p)
+        self.link = robot_link(p.link, p.baud)
+        self.command = None           # (left, right, received at, perf counter) not yet sent
+        self.command_time = None
+        # write times of the last lines (s, perf counter), as many as one window allows
+        self.window = max(1, round(p.rate_hz))
+        self.written = collections.deque(maxlen=self.window + 1)
+        self.estop = False
+        self.seq = 0
+        self.counts = {'sent': 0, 'failed': 0, 'stops': 0, 'replies': 0, 'malformed': 0}
+        self.last_error = ''          # the latest send error, kept for the diagnostics
+        self.failing = False          # the latest send failed
+        self.last_reply = None
+        self.latencies = []
+        self.diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.EVENTS)
+        self.create_subscription(Twist, topics.CMD_VEL, self._on_cmd, qos.COMMAND)
+        self.create_subscription(Bool, topics.ESTOP, self._on_estop, qos.LATCHED)
+        self.create_timer(1.0 / p.rate_hz, self._on_timer)
+        # A command that came too soon after the last line is written as soon as it may be
+        # (this timer runs only while one waits), not at the next tick of the timer above:
+        # that would delay every command by the phase between the controller's timer and ours.
+        self.waiting = self.create_timer(WAIT_POLL, self._on_waiting)
+        self.waiting.cancel()
+        self.create_timer(1.0, self._publish_diagnostics)
+        self.get_logger().info(f'bridge to {p.link} ({p.wire_format or "custom format"})')
+
+    def _on_cmd(self, msg):
+        v, w = messages.twist_from_msg(msg)
+        if not (math.isfinite(v) and math.isfinite(w)):
+            self.get_logger().warning('non-finite cmd_vel ignored', throttle_duration_sec=1.0)
+            return
+        received = time.perf_counter()
+        left, right = wire.wheel_speeds(v, w, self.params.wheel_base,
+                                        self.params.max_wheel_speed or math.inf)
+        self.command = (left, right, received)
+        self.command_time = now_seconds(self)
+        if self.estop:
+            return
+        if self._may_send():
+            self._send_command()
+        elif self.waiting.is_canceled():
+            self.waiting.reset()
+
+    def _on_waiting(self):
+        if self.command is None or self.estop:
+            self.waiting.cancel()
+        elif self._may_send():
+            self.waiting.cancel()
+            self._send_command()
+
+    def _on_estop(self, msg):
+        self.estop = bool(msg.data)
+        if self.estop:
+            self._send(wire.encode_stop(self.format, self._next_seq()), stop=True)
+
+    def _may_send(self):
+        """A line may go now: at most N + 1 lines in any N periods (N = rate_hz rounded,
+        about a second), i.e. one more than rate_hz lines a second.
+
+        A controller at the robot's own rate is then never held back, not even when a late
+        tick and the next one come back to back; any gap between lines (one period, half a
+        period, measured from the last line or from the last command's arrival, or a token
+        bucket at the same rate) held commands of a 10 Hz controller back by 2 to 90 ms,
+        and a strict one locked later commands into waits of their own. While cmd_vel flows
+        (or stop lines are sent) at the robot's rate the window is nearly full, so at most
+        two lines come back to back; a runaway publisher gets (N + 1) / N x rate_hz lines a
+        second.
+        """
+        if len(self.written) < self.written.maxlen:
+            return True
+        return time.perf_counter() - self.written[0] >= self.window / self.params.rate_hz
+
+    def _on_timer(self):
+        self._read_replies()
+        now = now_seconds(self)
+        if self.estop or is_stale(self.command_time, now, self.params.command_timeout):
+            if self._may_send():
+                self._send(wire.encode_stop(self.format, self._next_seq()), stop=True)
+        elif self.command is not None and self._may_send():
+            self._send_command()
+
+    def _send_command(self):
+        left, right, received = self.command
+        self.command = None
+        data = wire.encode(self.format, left, right, self._next_seq(), self.params.wheel_radius)
+        if self._send(data):
+            self.latencies.append(time.perf_counter() - received)
+            del self.latencies[:-LATENCY_WINDOW]
+
+    def _next_seq(self):
+        self.seq += 1
+        return self.seq
+
+    def _send(self, data, stop=False):
+        try:
+            self.link.send(data)
+        except LinkError as exc:
+            self.counts['failed'] += 1
+            if str(exc) != self.last_error or not self.failing:
+                self.get_logger().error(f'link: {exc}')
+            self.last_error = str(exc)
+            self.failing = True
+            return False
+        if self.failing:
+            self.get_logger().info('link: sending again')
+            self.failing = False
+        self.written.append(time.perf_counter())
+        self.counts['sent'] += 1
+        self.counts['stops'] += stop
+        return True
+
+    def _read_replies(self):
+        for line in self.link.lines():
+            text = line.decode(errors='replace').strip()
+            if text in ('ok', 'err') or text.startswith('ok '):
+                self.counts['replies'] += 1
+                self.last_reply = now_seconds(self)
+            else:
+                self.counts['malformed'] += 1
+
+    def link_lost(self, now):
+        """True when the robot has not answered for reply_timeout (s)."""
+        timeout = self.params.reply_timeout
+        return timeout > 0 and self.counts['sent'] > 0 and is_stale(self.last_reply, now,
+                                                                      timeout)
+
+    def _publish_diagnostics(self):
+        now = now_seconds(self)
+        self._read_replies()
+        lost = self.link_lost(now)
+        age = 'never' if self.last_reply is None else f'{now - self.last_reply:.2f}'
+        latency = (np.percentile(self.latencies, [50, 99]) * 1e3 if self.latencies
+                   else [math.nan, math.nan])
+        status = DiagnosticStatus(
+            level=DiagnosticStatus.ERROR if lost
+            else DiagnosticStatus.WARN if self.failing else DiagnosticStatus.OK,
+            name=self.get_fully_qualified_name(), hardware_id=self.params.link,
+            message=('no reply from the robot' if lost else self.last_error if self.failing
+                     else 'ok'),
+            values=[KeyValue(key=k, value=str(v)) for k, v in self.counts.items()]
+            + [KeyValue(key='dropped_lines', value=str(self.link.dropped)),
+               KeyValue(key='last_error', value=self.last_error),
+               KeyValue(key='reply_age_s', value=age),
+               KeyValue(key='latency_ms_p50', value=f'{latency[0]:.3f}'),
+               KeyValue(key='latency_ms_p99', value=f'{latency[1]:.3f}')])
+        msg = DiagnosticArray(status=[status])
+        msg.header.stamp = messages.seconds_to_stamp(now)
+        self.diag_pub.publish(msg)
+        if lost:
+            self.get_logger().warning('no reply from the robot yet' if self.last_reply is None
+                                      else f'no reply from the robot for {age} s',
+                                      throttle_duration_sec=5.0)
+
+    def on_shutdown(self):
+        """Leave the robot stopped: the stop line stop_repeats times, 20 ms apart."""
+        for _ in range(self.params.stop_repeats):
+            self._send(wire.encode_stop(self.format, self._next_seq()), stop=True)
+            time.sleep(0.02)
+        self.link.close()
+
+
+def main(args=None):
+    return run_node(RobotBridge, args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

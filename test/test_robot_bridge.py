@@ -1,0 +1,272 @@
+"""robot_bridge in-process: cmd_vel in over DDS, bytes out to an emulated robot's end of the
+link (links.UdpEndpoint or PtyEndpoint, read here as the robot's firmware would).
+"""
+
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import Twist
+import numpy as np
+import pytest
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from std_msgs.msg import Bool
+
+from curve_formation import links
+from curve_formation.core import wire
+from curve_formation.nodes import qos, topics
+from curve_formation.nodes.params import ParameterError
+from curve_formation.nodes.robot_bridge import RobotBridge
+
+
+pytestmark = pytest.mark.ros
+
+MONA = wire.PRESETS['mona-serial']
+RADIUS, BASE = 0.015, 0.08
+
+
+class Robot:
+    """The robot's end of a link: every line with its arrival time; answers 'ok' if told to."""
+
+    def __init__(self, endpoint, answer=True):
+        self.endpoint, self.answer = endpoint, answer
+        self.lines = []
+
+    def poll(self):
+        for line in self.endpoint.lines():
+            self.lines.append((time.monotonic(), wire.decode(MONA, line, RADIUS)))
+            if self.answer:
+                self.endpoint.send(b'ok\n')
+
+    def said(self, since=0.0):
+        return [said for t, said in self.lines if t >= since]
+
+
+class Operator(Node):
+    """Publishes robot 1's cmd_vel and the e-stop, and keeps the bridge's link reports."""
+
+    def __init__(self, context):
+        super().__init__('operator', context=context)
+        self.cmd = self.create_publisher(Twist, topics.robot_topic(1, topics.CMD_VEL),
+                                         qos.COMMAND)
+        self.estop = self.create_publisher(Bool, topics.ESTOP, qos.LATCHED)
+        self.reports = []
+        self.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._on_diag,
+                                 qos.EVENTS)
+
+    def _on_diag(self, msg):
+        for status in msg.status:
+            self.reports.append((status.level[0], status.message,
+                                 {kv.key: kv.value for kv in status.values}))
+
+    def send(self, v, w):
+        msg = Twist()
+        msg.linear.x, msg.angular.z = float(v), float(w)
+        self.cmd.publish(msg)
+
+
+@pytest.fixture
+def bench(ros):
+    """(bridge factory, robot, operator, spin_until) over a UDP link on this machine."""
+    context, add, spin_until = ros
+    endpoint = links.UdpEndpoint(('127.0.0.1', 0))
+    robot = Robot(endpoint)
+    operator = add(Operator(context))
+    bridges = []
+
+    def make(link=None, **params):
+        link = link or f'udp:127.0.0.1:{endpoint.socket.getsockname()[1]}'
+        values = {'link': link, 'wheel_base': BASE, 'rate_hz': 10.0, **params}
+        bridge = add(RobotBridge(context=context, namespace='/robot_1', parameter_overrides=[
+            Parameter(k, value=v) for k, v in values.items()]))
+        bridges.append(bridge)
+        return bridge
+
+    def spin(predicate=lambda: False, timeout=10.0, duration=None):
+        """Spin (polling the robot) until predicate() or, with duration, for that long."""
+        end = time.monotonic() + duration if duration else None
+
+        def done():
+            robot.poll()
+            return time.monotonic() >= end if end else predicate()
+        spin_until(done, timeout=max(timeout, duration or 0) + 1.0)
+
+    yield make, robot, operator, spin
+    for bridge in bridges:
+        bridge.link.close()
+    endpoint.close()
+
+
+def connected(operator, spin):
+    spin(lambda: operator.cmd.get_subscription_count() > 0)
+
+
+def test_a_cmd_vel_goes_out_at_once_as_wheel_speeds_and_a_wheel_limit_keeps_the_curvature(
+        bench):
+    make, robot, operator, spin = bench
+    make(max_wheel_speed=0.04)
+    connected(operator, spin)
+    operator.send(0.03, 0.5)           # wheels 0.01 and 0.05 m/s: 0.05 > 0.04
+    spin(lambda: robot.said())
+    kind, left, right, _ = robot.said()[0]
+    assert kind == 'command'
+    assert max(abs(left), abs(right)) == pytest.approx(0.04, abs=2e-5)
+    v, w = wire.body_velocity(left, right, BASE)
+    assert w / v == pytest.approx(0.5 / 0.03, rel=1e-3)
+    spin(duration=0.3)
+    operator.send(0.02, 0.0)
+    spin(lambda: len(robot.said()) >= 2 and robot.said()[-1][1] == pytest.approx(0.02, 1e-3))
+
+
+def test_a_stale_cmd_vel_sends_the_stop_line_at_the_robot_rate(bench):
+    make, robot, operator, spin = bench
+    make(command_timeout=0.3, rate_hz=10.0)
+    connected(operator, spin)
+    operator.send(0.02, 0.0)
+    spin(lambda: robot.said())
+    sent = time.monotonic()
+    spin(duration=1.5)
+    stops = [(t, said) for t, said in robot.lines if said == ('stop', None)]
+    assert stops, robot.lines
+    # first stop once the command is 0.3 s old (at the next 10 Hz tick), then at 10 Hz
+    assert 0.3 <= stops[0][0] - sent < 0.3 + 0.25
+    assert all(said[0] == 'stop' for t, said in robot.lines if t > stops[0][0])
+    assert 8 <= len(stops) <= 13
+
+
+def test_the_bridge_never_sends_faster_than_the_robot_takes(bench):
+    make, robot, operator, spin = bench
+    make(rate_hz=10.0)
+    connected(operator, spin)
+    start = time.monotonic()
+    while time.monotonic() - start < 2.0:        # cmd_vel at about 100 Hz for 2 s
+        operator.send(0.02, 0.1)
+        spin(duration=0.01)
+    spin(duration=0.2)
+    commands = [said for said in robot.said(start) if said[0] == 'command']
+    # never the 100 Hz it was given: at most 11 lines in any second (10 Hz and one more, so
+    # that a 10 Hz controller's jitter is never held back)
+    assert 15 <= len(commands) <= 2 * 11 + 1, len(commands)
+    times = np.array([t for t, said in robot.lines if t >= start and said[0] == 'command'])
+    in_a_second = [np.sum((times >= t) & (times < t + 0.99)) for t in times]
+    assert max(in_a_second) <= 11, in_a_second
+
+
+def test_e_stop_stops_the_robot_until_released(bench):
+    make, robot, operator, spin = bench
+    make()
+    connected(operator, spin)
+    operator.send(0.02, 0.0)
+    spin(lambda: robot.said())
+    operator.estop.publish(Bool(data=True))
+    spin(lambda: robot.said()[-1][0] == 'stop')
+    engaged = time.monotonic()
+    for _ in range(10):
+        operator.send(0.02, 0.0)
+        spin(duration=0.1)
+    assert all(said[0] == 'stop' for said in robot.said(engaged))
+    operator.estop.publish(Bool(data=False))
+    spin(lambda: robot.said()[-1][0] == 'command', timeout=2.0)
+    spin(lambda: operator.estop.get_subscription_count() > 0)
+
+
+def test_shutdown_sends_the_stop_line_several_times(bench):
+    make, robot, operator, spin = bench
+    bridge = make(stop_repeats=3)
+    connected(operator, spin)
+    operator.send(0.02, 0.0)
+    spin(lambda: robot.said())
+    before = len(robot.lines)
+    bridge.on_shutdown()
+    spin(lambda: len(robot.lines) >= before + 3, timeout=2.0)
+    assert [said for _, said in robot.lines[before:]] == [('stop', None)] * 3
+
+
+def test_non_finite_cmd_vel_is_never_sent(bench):
+    make, robot, operator, spin = bench
+    make()
+    connected(operator, spin)
+    operator.send(float('nan'), 0.0)
+    operator.send(0.01, float('inf'))
+    spin(duration=0.3)
+    assert all(said[0] == 'stop' for said in robot.said())   # nothing but stale stops
+
+
+def test_garbage_from_the_robot_is_counted_and_never_stops_the_bridge(bench):
+    make, robot, operator, spin = bench
+    robot.answer = False
+    make()
+    connected(operator, spin)
+    operator.send(0.02, 0.0)
+    spin(lambda: robot.said())
+    junk = [bytes(range(256)), b'\xff' * 70000, b'x' * (links.MAX_LINE + 10) + b'\n',
+            b'ok\n', b'\x00\n', b'err\n', b'okay\n']
+    for data in junk:
+        robot.endpoint.send(data[:65000])
+    for _ in range(5):
+        operator.send(0.02, 0.0)
+        spin(duration=0.15)
+    spin(lambda: operator.reports and int(operator.reports[-1][2]['replies']) == 2)
+    counts = operator.reports[-1][2]
+    assert int(counts['malformed']) >= 3 and int(counts['dropped_lines']) >= 1, counts
+    assert robot.said()[-1][0] == 'command'     # still forwarding
+
+
+def test_a_silent_robot_is_reported_as_a_lost_link_and_recovers(bench):
+    make, robot, operator, spin = bench
+    robot.answer = False
+    make(reply_timeout=0.5)
+    connected(operator, spin)
+    for _ in range(15):
+        operator.send(0.02, 0.0)
+        spin(duration=0.1)
+    spin(lambda: operator.reports and operator.reports[-1][0] == 2)
+    assert operator.reports[-1][1] == 'no reply from the robot'
+    robot.answer = True
+    for _ in range(25):
+        operator.send(0.02, 0.0)
+        spin(duration=0.1)
+    level, message, values = operator.reports[-1]
+    assert (level, message) == (0, 'ok'), operator.reports[-1]
+    assert float(values['reply_age_s']) < 0.5
+    assert float(values['latency_ms_p99']) > 0
+
+
+def test_a_serial_robot_that_appears_later_is_reached(bench, tmp_path):
+    """The bridge starts before the robot's serial port exists (robot off): link errors are
+    reported, and commands go through once the port is there.
+    """
+    make, robot, operator, spin = bench
+    path = tmp_path / 'robot_1'
+    make(link=f'serial:{path}', command_timeout=5.0)
+    connected(operator, spin)
+    operator.send(0.02, 0.0)
+    spin(lambda: operator.reports and operator.reports[-1][0] == 1, timeout=3.0)
+    level, message, values = operator.reports[-1]
+    assert 'No such file' in message and int(values['failed']) >= 1
+    robot.endpoint.close()
+    robot.endpoint = links.PtyEndpoint(path)
+    for _ in range(30):
+        operator.send(0.02, 0.0)
+        spin(duration=0.1)
+        if robot.said():
+            break
+    assert robot.said() and robot.said()[-1][0] == 'command'
+    # once it sends again the link is reported ok, the past error still named
+    count = len(operator.reports)
+    spin(lambda: len(operator.reports) > count and operator.reports[-1][0] == 0, timeout=3.0)
+    level, message, values = operator.reports[-1]
+    assert message == 'ok' and 'No such file' in values['last_error']
+    robot.endpoint.close()
+
+
+@pytest.mark.parametrize(('params', 'says'), [
+    ({'link': 'tcp:robot:1'}, "parameter 'link': expected udp:HOST:PORT"),
+    ({'wire_format': '', 'command_template': 'go {left}\n', 'stop_template': 'x\n'},
+     "parameter 'wire_format': the command template 'go {left}\\n' lacks ['right']"),
+])
+def test_bad_bridge_parameters_are_refused_naming_the_parameter(bench, params, says):
+    make, *_ = bench
+    with pytest.raises(ParameterError) as error:
+        make(**params)
+    assert says in str(error.value)
