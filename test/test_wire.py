@@ -101,18 +101,23 @@ def wait_lines(source, count=1, timeout=2.0):
     return got
 
 
-def test_udp_link_carries_lines_both_ways():
-    robot = links.UdpEndpoint(('127.0.0.1', 0))
-    port = robot.socket.getsockname()[1]
-    bridge = links.robot_link(f'udp:127.0.0.1:{port}')
+def lines_cross_both_ways(robot, bridge, line):
+    """A line from the bridge reaches the robot, and the robot's reply the bridge."""
     try:
-        bridge.send(b'set 1.000 2.000\n')
-        assert wait_lines(robot) == [b'set 1.000 2.000\n']
+        bridge.send(line)
+        assert wait_lines(robot) == [line]
         robot.send(b'ok\n')
         assert wait_lines(bridge) == [b'ok\n']
     finally:
         bridge.close()
         robot.close()
+
+
+def test_udp_link_carries_lines_both_ways():
+    robot = links.UdpEndpoint(('127.0.0.1', 0))
+    port = robot.socket.getsockname()[1]
+    lines_cross_both_ways(robot, links.robot_link(f'udp:127.0.0.1:{port}'),
+                          b'set 1.000 2.000\n')
 
 
 def test_over_long_and_split_lines():
@@ -128,15 +133,8 @@ def test_over_long_and_split_lines():
 
 def test_serial_link_over_a_pseudo_terminal(tmp_path):
     robot = links.robot_endpoint(f'pty:{tmp_path / "robot_1"}')
-    bridge = links.robot_link(f'serial:{tmp_path / "robot_1"}')
-    try:
-        bridge.send(b'set 0.500 0.500\n')
-        assert wait_lines(robot) == [b'set 0.500 0.500\n']
-        robot.send(b'ok\n')
-        assert wait_lines(bridge) == [b'ok\n']
-    finally:
-        bridge.close()
-        robot.close()
+    lines_cross_both_ways(robot, links.robot_link(f'serial:{tmp_path / "robot_1"}'),
+                          b'set 0.500 0.500\n')
     assert not (tmp_path / 'robot_1').exists()
 
 
