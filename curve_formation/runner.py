@@ -124,21 +124,35 @@ def node_launches(experiment, experiment_path, with_robots=True, rate_hz=None,
     return launches + cameras
 
 
-def robot_links(n, bridge, folder):
+# Ports for the emulated robots' UDP links: below the kernel's ephemeral range (32768 and up
+# here), where a socket bound to port 0 (each bridge's own) could take a probed port before
+# fake_arena binds it (seen once in a full test run), and below Fast DDS's ports (7400 + 250
+# x domain id and up).
+LINK_PORTS = range(6000, 7400)
+
+
+def robot_links(n, bridge, folder, rng=None):
     """Each robot's link, as the emulated robot listens on it: a free UDP port on this
-    machine, or a pseudo-terminal at folder/robot_<i>.
+    machine (from LINK_PORTS), or a pseudo-terminal at folder/robot_<i>.
     """
     if bridge == 'pty':
         return [f'pty:{Path(folder).resolve() / f"robot_{i}"}' for i in range(1, n + 1)]
     if bridge != 'udp':
         raise ValueError(f"bridge must be 'udp' or 'pty', got {bridge!r}")
+    import random
     import socket
+    rng = rng or random.SystemRandom()
     ports = []
-    for _ in range(n):
+    for port in rng.sample(LINK_PORTS, len(LINK_PORTS)):
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
-            probe.bind(('127.0.0.1', 0))
-            ports.append(probe.getsockname()[1])
-    return [f'udp:127.0.0.1:{port}' for port in ports]
+            try:
+                probe.bind(('127.0.0.1', port))
+            except OSError:
+                continue
+        ports.append(port)
+        if len(ports) == n:
+            return [f'udp:127.0.0.1:{port}' for port in ports]
+    raise RuntimeError(f'no {n} free UDP ports in {LINK_PORTS}')
 
 
 def bridge_parameters(experiment, rate, link):

@@ -2,6 +2,7 @@
 link (links.UdpEndpoint or PtyEndpoint, read here as the robot's firmware would).
 """
 
+from pathlib import Path
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -12,7 +13,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import Bool
 
-from curve_formation import links
+from curve_formation import links, runner
 from curve_formation.core import wire
 from curve_formation.nodes import qos, topics
 from curve_formation.nodes.params import ParameterError
@@ -270,3 +271,15 @@ def test_bad_bridge_parameters_are_refused_naming_the_parameter(bench, params, s
     with pytest.raises(ParameterError) as error:
         make(**params)
     assert says in str(error.value)
+
+
+def test_emulated_robots_listen_outside_the_ephemeral_ports(tmp_path):
+    """A bridge's own socket takes an ephemeral port; a robot's port probed from that range
+    could be taken before fake_arena binds it (it was, once, in a full test run).
+    """
+    low = int(Path('/proc/sys/net/ipv4/ip_local_port_range').read_text().split()[0])
+    found = runner.robot_links(9, 'udp', tmp_path)
+    ports = [int(link.rsplit(':', 1)[1]) for link in found]
+    assert len(set(ports)) == 9 and max(ports) < min(low, 7400)
+    assert runner.robot_links(2, 'pty', tmp_path) == [f'pty:{tmp_path.resolve()}/robot_{i}'
+                                                      for i in (1, 2)]
