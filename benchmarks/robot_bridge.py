@@ -63,6 +63,11 @@ def main():
             p99 = max(s['latency_ms_p99'] for s in links.values())
             row += f' {sent:6d} {replies:9d} {failed:6d} {p50:8.3f} {p99:10.3f}'
         print(row)
+    for link, result in results.items():
+        if result.get('links'):
+            p99 = sorted(s['latency_ms_p99'] for s in result['links'].values())
+            print(f'{link}: latency p99 per robot (ms), sorted: '
+                  + ' '.join(f'{v:.2f}' for v in p99))
     bridged = [r for link, r in results.items() if link != 'fake' and r.get('links')]
     if bridged:
         worst = max(s['latency_ms_p99'] for r in bridged for s in r['links'].values())
