@@ -27,6 +27,7 @@ from curve_formation.analysis import EXPERIMENT_KEY
 from curve_formation.bag import DEFAULT_STORAGE
 from curve_formation.core import metrics, plots
 from curve_formation.core.agent import agent_configs
+from curve_formation.core.config_schema import LimitsSpec
 from curve_formation.core.experiment import control_rate, load_experiment, received_phases
 from curve_formation.nodes.formation_controller import node_parameters
 from curve_formation.nodes.runtime import (
@@ -115,8 +116,9 @@ def node_launches(experiment, experiment_path, with_robots=True, rate_hz=None,
                  'fault_pose_drop': float(faults.get('pose_drop', 0.0)),
                  'pose_topic': 'pose' if camera is None else 'true_pose',
                  'publish_robot_poses': camera is None}
-        if links:   # emulated robots behind their links
+        if links:   # emulated robots behind their links, reading what the bridges write
             arena['links'] = links
+            arena['wheel_radius'] = wheel_radius(experiment)
             if 'link_down' in faults:
                 arena['fault_link_down'] = [float(v) for v in faults['link_down']]
         launches.append(NodeLaunch('curve_formation.nodes.fake_arena', '/', 'fake_arena',
@@ -155,14 +157,20 @@ def robot_links(n, bridge, folder, rng=None):
     raise RuntimeError(f'no {n} free UDP ports in {LINK_PORTS}')
 
 
+def wheel_radius(experiment):
+    """The experiment's wheel radius (m; the schema's default without a limits section)."""
+    limits = experiment.spec.limits
+    return float(limits.wheel_radius if limits
+                 else LimitsSpec.model_fields['wheel_radius'].default)
+
+
 def bridge_parameters(experiment, rate, link):
     """robot_bridge parameters for a robot behind `link` (the emulated robot's end of it)."""
     limits = experiment.limits
     kind, _, where = link.partition(':')
     return {'link': link if kind == 'udp' else f'serial:{where}',
             'wheel_base': float(limits.wheel_base or 0.08),
-            'wheel_radius': float(experiment.spec.limits.wheel_radius if experiment.spec.limits
-                                  else 0.015),
+            'wheel_radius': wheel_radius(experiment),
             'max_wheel_speed': float(limits.max_wheel_speed)
             if limits.max_wheel_speed < float('inf') else 0.0,
             'rate_hz': float(rate)}

@@ -15,6 +15,7 @@ from std_msgs.msg import Bool
 
 from curve_formation import links, runner
 from curve_formation.core import wire
+from curve_formation.core.experiment import load_experiment
 from curve_formation.nodes import qos, topics
 from curve_formation.nodes.params import ParameterError
 from curve_formation.nodes.robot_bridge import RobotBridge
@@ -283,3 +284,20 @@ def test_emulated_robots_listen_outside_the_ephemeral_ports(tmp_path):
     assert len(set(ports)) == 9 and max(ports) < min(low, 7400)
     assert runner.robot_links(2, 'pty', tmp_path) == [f'pty:{tmp_path.resolve()}/robot_{i}'
                                                       for i in (1, 2)]
+
+
+def test_bridges_and_emulated_robots_share_the_experiments_wheel_radius(tmp_path):
+    """In rad/s formats the radius turns rim speeds into wheel speeds and back: the emulated
+    robots must read with the radius the bridges write with (it used to be their default).
+    """
+    experiment_path = tmp_path / 'radius.yaml'
+    text = (Path(__file__).parent / 'data' / 'arena_bodies.yaml').read_text()
+    experiment_path.write_text(text.replace('limits: {wheel_base: 0.08, max_wheel_speed: 0.08}',
+                                            'limits: {wheel_base: 0.08, max_wheel_speed: 0.08, '
+                                            'wheel_radius: 0.02}'))
+    experiment = load_experiment(experiment_path)
+    launches = runner.node_launches(experiment, experiment_path, bridge='pty',
+                                    links_dir=tmp_path)
+    radii = {launch.key: launch.parameters['wheel_radius'] for launch in launches
+             if 'wheel_radius' in launch.parameters}
+    assert len(radii) == experiment.n + 1 and set(radii.values()) == {0.02}, radii
