@@ -43,6 +43,19 @@ class _Lines:
         return out
 
 
+def _datagram_lines(sock, lines):
+    """(complete lines, last sender) of every datagram waiting on non-blocking `sock`, fed to
+    `lines` (a _Lines); a datagram ends its line even without a terminator.
+    """
+    out, sender = [], None
+    while True:
+        try:
+            data, sender = sock.recvfrom(65536)
+        except OSError:   # none left (BlockingIOError), or e.g. ICMP port unreachable
+            return out, sender
+        out += lines.feed(data if data.endswith(b'\n') else data + b'\n')
+
+
 def parse_address(text):
     """('udp', (host, port)), ('serial', device) or ('pty', path) of 'udp:HOST:PORT',
     'serial:DEVICE' or 'pty:PATH'; ValueError if it is none of them.
@@ -74,15 +87,7 @@ class UdpLink:
             raise LinkError(f'udp {self.peer[0]}:{self.peer[1]}: {exc.strerror or exc}') from None
 
     def lines(self):
-        out = []
-        while True:
-            try:
-                data = self.socket.recv(65536)
-            except (BlockingIOError, InterruptedError):
-                return out
-            except OSError:   # e.g. ICMP port unreachable reported on the next call
-                return out
-            out += self._lines.feed(data if data.endswith(b'\n') else data + b'\n')
+        return _datagram_lines(self.socket, self._lines)[0]
 
     @property
     def dropped(self):
@@ -169,13 +174,9 @@ class UdpEndpoint:
         self._lines = _Lines()
 
     def lines(self):
-        out = []
-        while True:
-            try:
-                data, self.sender = self.socket.recvfrom(65536)
-            except (BlockingIOError, InterruptedError):
-                return out
-            out += self._lines.feed(data if data.endswith(b'\n') else data + b'\n')
+        out, sender = _datagram_lines(self.socket, self._lines)
+        self.sender = sender or self.sender
+        return out
 
     def send(self, data):
         if self.sender is not None:

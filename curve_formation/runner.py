@@ -15,6 +15,7 @@ import os
 from pathlib import Path
 import random
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -141,8 +142,6 @@ def robot_links(n, bridge, folder, rng=None):
         return [f'pty:{Path(folder).resolve() / f"robot_{i}"}' for i in range(1, n + 1)]
     if bridge != 'udp':
         raise ValueError(f"bridge must be 'udp' or 'pty', got {bridge!r}")
-    import random
-    import socket
     rng = rng or random.SystemRandom()
     ports = []
     for port in rng.sample(LINK_PORTS, len(LINK_PORTS)):

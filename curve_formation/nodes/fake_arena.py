@@ -122,7 +122,6 @@ class FakeArena(Node):
         self.format = wire_format_parameter(p)
         self.wheel_base = experiment.limits.wheel_base or 0.08
         self.first_line = None
-        self.malformed = 0
         try:
             return [robot_endpoint(link) for link in p.links]
         except (ValueError, OSError) as exc:
@@ -146,7 +145,6 @@ class FakeArena(Node):
                     continue
                 said = wire.decode(self.format, line, self.params.wheel_radius)
                 if said is None:
-                    self.malformed += 1
                     endpoint.send(b'err\n')
                     continue
                 if said[0] == 'command':

@@ -25,7 +25,7 @@ from std_msgs.msg import Bool
 
 from curve_formation.core import wire
 from curve_formation.core.agent import is_stale
-from curve_formation.links import LinkError, parse_address, robot_link
+from curve_formation.links import LinkError, robot_link
 from curve_formation.nodes import messages, qos, topics
 from curve_formation.nodes.params import declare_parameters, Param, ParameterError
 from curve_formation.nodes.runtime import now_seconds, run_node
@@ -85,12 +85,11 @@ class RobotBridge(Node):
         super().__init__('robot_bridge', **kwargs)
         p = self.params = declare_parameters(self, PARAMETERS)
         try:
-            parse_address(p.link)
+            self.link = robot_link(p.link, p.baud)
         except ValueError as exc:
             raise ParameterError(f"parameter 'link': {exc}") from None
         self.format = wire_format_parameter(p)
-        self.link = robot_link(p.link, p.baud)
-        self.command = None           # (left, right, received at, perf counter) not yet sent
+        self.command = None           # (left, right, perf counter at arrival) not yet sent
         self.command_time = None
         # write times of the last lines (s, perf counter), as many as one window allows
         self.window = max(1, round(p.rate_hz))
@@ -101,7 +100,7 @@ class RobotBridge(Node):
         self.last_error = ''          # the latest send error, kept for the diagnostics
         self.failing = False          # the latest send failed
         self.last_reply = None
-        self.latencies = []
+        self.latencies = collections.deque(maxlen=LATENCY_WINDOW)
         self.diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.EVENTS)
         self.create_subscription(Twist, topics.CMD_VEL, self._on_cmd, qos.COMMAND)
         self.create_subscription(Bool, topics.ESTOP, self._on_estop, qos.LATCHED)
@@ -121,7 +120,7 @@ class RobotBridge(Node):
             return
         received = time.perf_counter()
         left, right = wire.wheel_speeds(v, w, self.params.wheel_base,
-                                        self.params.max_wheel_speed or math.inf)
+                                        self.params.max_wheel_speed)
         self.command = (left, right, received)
         self.command_time = now_seconds(self)
         if self.estop:
@@ -141,7 +140,7 @@ class RobotBridge(Node):
     def _on_estop(self, msg):
         self.estop = bool(msg.data)
         if self.estop:
-            self._send(wire.encode_stop(self.format, self._next_seq()), stop=True)
+            self._send_stop()
 
     def _may_send(self):
         """A line may go now: at most N + 1 lines in any N periods (N = rate_hz rounded,
@@ -165,7 +164,7 @@ class RobotBridge(Node):
         now = now_seconds(self)
         if self.estop or is_stale(self.command_time, now, self.params.command_timeout):
             if self._may_send():
-                self._send(wire.encode_stop(self.format, self._next_seq()), stop=True)
+                self._send_stop()
         elif self.command is not None and self._may_send():
             self._send_command()
 
@@ -175,7 +174,9 @@ class RobotBridge(Node):
         data = wire.encode(self.format, left, right, self._next_seq(), self.params.wheel_radius)
         if self._send(data):
             self.latencies.append(time.perf_counter() - received)
-            del self.latencies[:-LATENCY_WINDOW]
+
+    def _send_stop(self):
+        self._send(wire.encode_stop(self.format, self._next_seq()), stop=True)
 
     def _next_seq(self):
         self.seq += 1
@@ -244,7 +245,7 @@ class RobotBridge(Node):
     def on_shutdown(self):
         """Leave the robot stopped: the stop line stop_repeats times, 20 ms apart."""
         for _ in range(self.params.stop_repeats):
-            self._send(wire.encode_stop(self.format, self._next_seq()), stop=True)
+            self._send_stop()
             time.sleep(0.02)
         self.link.close()
 
