@@ -85,11 +85,11 @@ def node_launches(experiment, experiment_path, with_robots=True, rate_hz=None,
     on_pc = spec.disturbance.injected == 'on_pc'
     one_world = uses_fake_arena(experiment) or bridge is not None
     links = robot_links(experiment.n, bridge, links_dir) if bridge and with_robots else []
-    # The curve server waits for the n controllers, the runner's monitor and the camera nodes
-    # (they draw the curve).
+    # The curve server waits until the n controllers, the runner's monitor and the camera nodes
+    # (they draw the curve) can receive from it (nodes/readiness.py).
     launches = [NodeLaunch('curve_formation.nodes.curve_server', '/', 'curve_server',
                            {'experiment': str(Path(experiment_path).resolve()),
-                            'wait_for_subscribers': experiment.n + 1 + len(cameras)})]
+                            'wait_for_ready': experiment.n + 1 + len(cameras)})]
     for i, config in enumerate(agent_configs(experiment, rate), 1):
         ns = f'/robot_{i}'
         d = [float(v) for v in experiment.disturbance[i - 1]]

@@ -23,6 +23,7 @@ from curve_formation.nodes import messages, qos, topics
 from curve_formation.nodes.curve_server import CurveServer
 from curve_formation.nodes.formation_controller import FormationController
 from curve_formation.nodes.params import ParameterError
+from curve_formation.nodes.readiness import ReadyReport
 from curve_formation.paths import resolve_config
 
 
@@ -75,6 +76,32 @@ def test_late_starting_controller_still_receives_the_current_curve(ros, tmp_path
         overrides(index=1, agent_count=6, role='leader'))))
     spin_until(lambda: ctrl.controller.curve is not None)
     np.testing.assert_allclose(ctrl.controller.target, server.experiment.phases[0].targets[0])
+
+
+def test_curve_server_starts_once_the_awaited_subscribers_say_they_receive(ros):
+    """The schedule starts (curve 0 published) only once wait_for_ready nodes have reported,
+    each once its own subscription counts the server's publisher (nodes/readiness.py).
+    """
+    context, add, spin_until = ros
+    server = add(CurveServer(context=context, parameter_overrides=overrides(
+        experiment='closed_curve', wait_for_ready=2)))
+    received = []
+
+    def reader(name):
+        node = add(rclpy.create_node(name, context=context))
+        sub = node.create_subscription(Float64MultiArray, topics.CURVE,
+                                       lambda m: received.append(name), qos.LATCHED)
+        report = ReadyReport(node, sub)
+        spin_until(lambda: report.reported)
+
+    reader('first')
+    deadline = time.monotonic() + 1.0
+    spin_until(lambda: time.monotonic() > deadline)
+    assert server.ready.names == {'/first'}
+    assert server.next_id == 0 and received == []   # one of two: not started
+    reader('second')
+    spin_until(lambda: sorted(received) == ['first', 'second'])
+    assert server.ready.names == {'/first', '/second'} and server.next_id == 1
 
 
 def test_follower_drives_only_while_its_inputs_are_fresh(ros):

@@ -32,6 +32,7 @@ from curve_formation.nodes.params import (
     Param,
     ParameterError,
 )
+from curve_formation.nodes.readiness import ReadyReport, REPORTED
 from curve_formation.nodes.runtime import now_seconds, run_node
 from curve_formation.vision.camera import apply_homography
 from curve_formation.vision.markers import MarkerLayout
@@ -74,6 +75,7 @@ TOPICS = (
      'detection rate per robot, lost robots, frame latency, calibration (1 Hz)'),
     ('pub', topics.CAMERA_DEBUG, 'sensor_msgs/Image', 'IMAGE',
      'annotated frame (bgr8) while subscribed'),
+    REPORTED,
 )
 
 
@@ -110,7 +112,8 @@ class CameraTracker(Node):
         self.robot_poses_pub = self.create_publisher(JointState, topics.ROBOT_POSES, qos.SENSOR)
         self.diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.EVENTS)
         self.debug_pub = self.create_publisher(Image, topics.CAMERA_DEBUG, qos.IMAGE)
-        self.create_subscription(Float64MultiArray, topics.CURVE, self._on_curve, qos.LATCHED)
+        self.ready_report = ReadyReport(self, self.create_subscription(
+            Float64MultiArray, topics.CURVE, self._on_curve, qos.LATCHED))
         self.curve = None
         self.targets = None
         self.last_seen = {}

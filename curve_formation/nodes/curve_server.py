@@ -29,6 +29,7 @@ from curve_formation.nodes.params import (
     experiment_parameter,
     Param,
 )
+from curve_formation.nodes.readiness import ReadyCount
 from curve_formation.nodes.runtime import now_seconds, run_node
 
 
@@ -46,9 +47,9 @@ PARAMETERS = (
           "negative = the experiment's agents.reassign_every (0 = never)"),
     Param('pose_timeout', 'double', 0.5, 'robot poses older than this are not used to '
           're-assign (s)', positive=True),
-    Param('wait_for_subscribers', 'int', 0, 'start the schedule (t = 0) only once this many '
-          'subscriptions to /formation/curve are matched, so all robots start together',
-          low=0),
+    Param('wait_for_ready', 'int', 0, 'start the schedule (t = 0) only once this many nodes '
+          'have said on /formation/ready that they receive /formation/curve from this server, '
+          'so all robots start together (readiness.py)', low=0),
 )
 
 
@@ -63,9 +64,12 @@ TOPICS = (
      'a newly observed curve as ordered points, fitted and published as the next curve'),
     ('sub', topics.ROBOT_POSES, 'sensor_msgs/JointState', 'SENSOR',
      "every robot's pose, to re-assign targets (with reassign_every)"),
+    ('sub', topics.READY, 'std_msgs/String', 'ROLL_CALL',
+     'names of the nodes that receive the curve, counted before the first curve '
+     '(wait_for_ready)'),
 )
 
-WAIT_POLL = 0.05   # s, how often the subscriber count is checked before the first curve
+WAIT_POLL = 0.05   # s, how often readiness is checked before the first curve
 # An observed curve of more points than this is refused (the fit costs points x basis size).
 MAX_OBSERVED_POINTS = 20_000
 
@@ -98,16 +102,17 @@ class CurveServer(Node):
         if every > 0:
             self.create_subscription(JointState, topics.ROBOT_POSES, self._on_poses, qos.SENSOR)
         # Polls for subscribers every WAIT_POLL s until the start, then wakes at each switch.
+        self.ready = ReadyCount(self)
         self.timer = self.create_timer(WAIT_POLL, self._on_timer)
         self._on_timer()
 
     def _on_timer(self):
         if self.start is None:
-            have = self.curve_pub.get_subscription_count()
-            if have < self.params.wait_for_subscribers:
+            if len(self.ready) < self.params.wait_for_ready:
                 self.get_logger().warn(
-                    f'waiting for {self.params.wait_for_subscribers} curve subscribers, '
-                    f'{have} so far', skip_first=True, throttle_duration_sec=5.0)
+                    f'waiting for {self.params.wait_for_ready} curve subscribers to be ready, '
+                    f'{len(self.ready)} so far: {sorted(self.ready.names)}', skip_first=True,
+                    throttle_duration_sec=5.0)
                 return
             self.start = now_seconds(self)
             if self.reassign_every > 0:

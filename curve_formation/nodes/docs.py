@@ -29,6 +29,7 @@ QOS_TEXT = {
     'STATE': f'reliable, keep last {qos.STATE.depth}',
     'LATCHED': f'reliable, transient local, keep last {qos.LATCHED.depth}',
     'EVENTS': f'reliable, keep last {qos.EVENTS.depth}',
+    'ROLL_CALL': 'reliable, transient local, keep all',
     'IMAGE': f'best effort, keep last {qos.IMAGE.depth}',
 }
 

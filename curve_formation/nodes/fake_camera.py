@@ -20,6 +20,7 @@ from curve_formation.nodes.params import (
     Param,
     ParameterError,
 )
+from curve_formation.nodes.readiness import ReadyReport, REPORTED
 from curve_formation.nodes.runtime import now_seconds, run_node
 from curve_formation.vision.camera import overhead_camera
 from curve_formation.vision.markers import MarkerLayout
@@ -55,6 +56,7 @@ TOPICS = (
     ('sub', topics.CURVE, 'std_msgs/Float64MultiArray', 'LATCHED',
      'the first curve starts the fault clock'),
     ('pub', topics.CAMERA_IMAGE, 'sensor_msgs/Image', 'IMAGE', 'mono8 frames at rate_hz'),
+    REPORTED,
 )
 
 
@@ -83,7 +85,8 @@ class FakeCamera(Node):
                                       RenderOptions(p.noise, p.blur, p.brightness), seed=p.seed)
         self.poses = {}
         self.first_curve = None
-        self.create_subscription(Float64MultiArray, topics.CURVE, self._on_curve, qos.LATCHED)
+        self.ready_report = ReadyReport(self, self.create_subscription(
+            Float64MultiArray, topics.CURVE, self._on_curve, qos.LATCHED))
         for i in range(1, n + 1):
             self.create_subscription(PoseStamped, topics.robot_topic(i, topics.TRUE_POSE),
                                      lambda m, i=i: self._on_pose(i, m), qos.SENSOR)

@@ -25,6 +25,7 @@ from curve_formation.core.control import Gains, LAWS, WheelLimits
 from curve_formation.core.safety import Avoidance, AVOIDANCE_OFF
 from curve_formation.nodes import messages, qos, topics
 from curve_formation.nodes.params import declare_parameters, Param, ParameterError
+from curve_formation.nodes.readiness import ReadyReport, REPORTED
 from curve_formation.nodes.runtime import now_seconds, run_node
 
 
@@ -207,6 +208,7 @@ TOPICS = (
      'disturbance estimate (x = d_v, y = d_w) every tick, stamped with the pose used'),
     ('pub', topics.DIAGNOSTICS, 'diagnostic_msgs/DiagnosticArray', 'EVENTS',
      'driving or why stopped; curve id, s_i, estimate, rejected inputs'),
+    REPORTED,
 )
 
 
@@ -233,7 +235,8 @@ class FormationController(Node):
         self.tick_pub = self.create_publisher(JointState, topics.TICK, qos.STATE)
         self.diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.EVENTS)
         self.create_subscription(PoseStamped, topics.POSE, self._on_pose, qos.SENSOR)
-        self.create_subscription(Float64MultiArray, topics.CURVE, self._on_curve, qos.LATCHED)
+        self.ready_report = ReadyReport(self, self.create_subscription(
+            Float64MultiArray, topics.CURVE, self._on_curve, qos.LATCHED))
         self.create_subscription(Bool, topics.ESTOP, self._on_estop, qos.LATCHED)
         for j, _ in self.config.neighbours:
             self.create_subscription(JointState, topics.robot_topic(j, topics.STATE),

@@ -16,6 +16,7 @@ from std_msgs.msg import Float64MultiArray
 
 from curve_formation.core import metrics
 from curve_formation.nodes import messages, qos, topics
+from curve_formation.nodes.readiness import ReadyReport
 from curve_formation.nodes.runtime import now_seconds, WithMessageInfo
 
 
@@ -77,14 +78,15 @@ class Monitor(Node):
             if ground_truth:
                 self._subscribe(PoseStamped, topics.robot_topic(i, topics.TRUE_POSE),
                                 lambda m, i=i: self._on_true_pose(i, m), qos.SENSOR)
-        self._subscribe(Float64MultiArray, topics.CURVE, WithMessageInfo(self._on_curve),
-                        qos.LATCHED)
+        self.ready_report = ReadyReport(self, self._subscribe(
+            Float64MultiArray, topics.CURVE, WithMessageInfo(self._on_curve), qos.LATCHED),
+            log=False)
         self._subscribe(JointState, topics.ROBOT_POSES, self._on_robot_poses, qos.SENSOR)
         self._subscribe(DiagnosticArray, topics.DIAGNOSTICS, self._on_diagnostics, qos.EVENTS)
         self.create_timer(1.0 / record_hz, self._sample)
 
     def _subscribe(self, msg_type, topic, callback, profile):
-        self.create_subscription(msg_type, topic, callback, profile,
+        return self.create_subscription(msg_type, topic, callback, profile,
                                  event_callbacks=qos.observer_events())
 
     def _on_pose(self, i, msg):

@@ -22,6 +22,12 @@ STATE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2,
 LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                      reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# The start-up handshake (readiness.py): one message from each of many writers, all kept (a
+# reader's KEEP_LAST history is shared by every writer of a topic, so a shallow one would
+# drop some), and latched for a curve server that starts late.
+ROLL_CALL = QoSProfile(history=HistoryPolicy.KEEP_ALL,
+                       reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # Diagnostics and the e-stop: reliable, a few deep.
 EVENTS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5,
                     reliability=ReliabilityPolicy.RELIABLE)

@@ -3,6 +3,8 @@
 CURVE = '/formation/curve'
 OBSERVED_CURVE = '/formation/observed_curve'
 ESTOP = '/formation/estop'
+# Curve subscribers that can receive from the curve server (readiness.py).
+READY = '/formation/ready'
 CURVE_PATH = '/formation/curve_path'
 CURVE_MARKERS = '/formation/markers'
 POSE = 'pose'

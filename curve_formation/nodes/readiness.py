@@ -1,0 +1,61 @@
+"""Start-up handshake: the curve's subscribers say when they can receive from the curve server.
+
+A subscription the curve server counts as matched (`get_subscription_count`, the writer's
+side) can still be seconds from receiving: its own side may not have discovered the server's
+writer yet, and data from an undiscovered writer is dropped until it has. Measured on the
+fault run of the arena demo (9 controllers, recorder, monitor): in 6 of 30 starts one
+controller, the leader in two, got curve 0 0.8-1.9 s after the others, each time just after its
+subscription first counted a publisher. So every node that should start with the schedule
+says so on /formation/ready (std_msgs/String, its node name, latched) once its own subscription
+to /formation/curve counts a publisher, and the curve server starts the schedule once enough
+have.
+"""
+
+from std_msgs.msg import String
+
+from curve_formation.nodes import qos, topics
+
+
+POLL = 0.05   # s, how often a node checks whether its curve subscription has a publisher
+
+
+class ReadyReport:
+    """Publishes the node's name on /formation/ready once `subscription` has a publisher.
+
+    log: say so in the node's log (the runner's own monitor does not, to keep a terminal quiet).
+    """
+
+    def __init__(self, node, subscription, log=True):
+        self._node = node
+        self._log = log
+        self._subscription = subscription
+        self._pub = node.create_publisher(String, topics.READY, qos.ROLL_CALL)
+        self._timer = node.create_timer(POLL, self._poll)
+        self.reported = False
+
+    def _poll(self):
+        if self._subscription.get_publisher_count() > 0:
+            self.reported = True
+            self._pub.publish(String(data=self._node.get_fully_qualified_name()))
+            self._timer.cancel()
+            if self._log:
+                self._node.get_logger().info('ready: /formation/curve has a publisher')
+
+
+class ReadyCount:
+    """The names of the nodes that have reported ready (read by the curve server)."""
+
+    def __init__(self, node):
+        self.names = set()
+        node.create_subscription(String, topics.READY, self._on_ready, qos.ROLL_CALL)
+
+    def _on_ready(self, msg):
+        self.names.add(msg.data)
+
+    def __len__(self):
+        return len(self.names)
+
+
+# The line a reporting node adds to its TOPICS (nodes/docs.py).
+REPORTED = ('pub', topics.READY, 'std_msgs/String', 'ROLL_CALL',
+            "this node's name, once it can receive /formation/curve (start-up handshake)")
