@@ -97,7 +97,10 @@ def test_dropped_messages_and_latency_still_converge_at_arena_speeds(ros_domain,
     """20 % of poses and of neighbour states dropped, commands delayed 200 ms, on the arena demo
     (Mona wheel limits, 10 Hz, robots drifting with d = [5 mm/s, 0.1 rad/s]). Tolerance: the
     error never exceeds its start by more than 1 % (the drift acts before the observer has
-    learnt it) and after 30 s is within 25 % of the fault-free batch simulation.
+    learnt it), and it comes down to 30 %, 10 % and 3 % of its start at most 1 s later than in
+    the fault-free batch simulation (measured 0.08-0.31 s over 7 runs).
+    Not a ratio of errors at a fixed time: at 30 s the simulated error falls threefold per
+    second (0.025 at 29 s, 0.0086 at 30 s), so such a ratio only measures a 0.2 s timing.
     At the fast test case's ~10 m/s the same faults make the law diverge (docs/safety.md).
     """
     with Run('arena_demo', tmp_path, command_latency=0.2, bag_path=tmp_path / 'bag',
@@ -114,8 +117,14 @@ def test_dropped_messages_and_latency_still_converge_at_arena_speeds(ros_domain,
     errors = metrics.target_errors(data['poses'], phase, followed, t=data['t'])
     norm = metrics.error_norm(errors)
     assert norm.max() <= norm[0] * 1.01
-    expected = simulate(run.experiment, duration=30.0).error_norm[-1]
-    # On failure: which robot lagged, and its log (a stop for stale inputs shows there).
+    sim = simulate(run.experiment, duration=30.0)
+    lags = {}
+    for fraction in (0.3, 0.1, 0.03):
+        tolerance = fraction * norm[0]
+        faulty = metrics.settle_time(data['t'], norm, tolerance, 0.0, np.inf)
+        clean = metrics.settle_time(sim.t, sim.error_norm, tolerance, 0.0, np.inf)
+        lags[fraction] = None if faulty is None else round(faulty - clean, 2)
+    # On failure: how late, which robot lagged, and the logs (a stop for stale inputs shows).
     per_robot = np.linalg.norm(errors[-1], axis=1).round(4).tolist()
-    assert norm[-1] < 1.25 * expected, (per_robot, tmp_path / 'logs')
-    assert norm[-1] < 0.4 * norm[0]      # simulated: 0.93 -> 0.026 in 30 s (settles at 34 s)
+    assert all(lag is not None and lag <= 1.0 for lag in lags.values()), (
+        lags, per_robot, tmp_path / 'logs')
