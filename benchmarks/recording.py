@@ -64,7 +64,7 @@ while time.monotonic() - start < duration:
         sent[(i, 'pose')] += 1
         if tick % 3 == 0:
             pubs[(i, 'cmd_vel')].publish(messages.twist_to_msg(0.01, tick))
-            pubs[(i, 'state')].publish(messages.state_to_msg(State((0.1, 0.2), 0, now, now)))
+            pubs[(i, 'state')].publish(messages.state_to_msg(State((0.1, 0.2), 0, now, 0.0)))
             pubs[(i, 'estimate')].publish(messages.estimate_to_msg((0.0, tick), now))
             for k in ('cmd_vel', 'state', 'estimate'):
                 sent[(i, k)] += 1

@@ -64,7 +64,7 @@ def test_node_controllers_reproduce_the_simulator_exactly(name):
                 for c in ctrls:
                     for j, _ in c.config.neighbours:
                         st = states[j]
-                        c.on_neighbour(j, *st.error, st.curve_id, st.stamp, st.leader_stamp)
+                        c.on_neighbour(j, *st.error, st.curve_id, st.stamp, st.leader_age)
             for k, c in enumerate(ctrls):
                 tick = c.tick(now)
                 assert tick.stopped is None
@@ -103,7 +103,7 @@ def ready(cfg=None):
     ctrl = AgentController(cfg or config())
     ctrl.set_curve(circle(), 0, THIRDS)
     ctrl.on_pose(0.0, 0.0, 0.0, 10.0)
-    ctrl.on_neighbour(1, 0.2, 0.0, 0, 10.0, 10.0)
+    ctrl.on_neighbour(1, 0.2, 0.0, 0, 10.0, 0.0)   # leader news of age 0
     return ctrl
 
 
@@ -137,7 +137,7 @@ def test_missing_neighbour_stops_until_it_reports():
     ctrl.set_curve(circle(), 0, THIRDS)
     ctrl.on_pose(0.0, 0.0, 0.0, 10.0)
     assert 'no news from the leader' in ctrl.tick(10.0).stopped
-    ctrl.leader_stamp = 10.0
+    ctrl.leader_heard = 10.0
     assert 'no state from neighbour 1' in ctrl.tick(10.0).stopped
     ctrl.on_neighbour(1, 0.0, 0.0, 0, 10.0)
     assert ctrl.tick(10.0).stopped is None
@@ -195,7 +195,7 @@ def test_leader_news_propagates_and_its_loss_stops_followers_without_deadlock():
                 for j, _ in c.config.neighbours:
                     st = ctrls[j].state()
                     if j != 1 or leader_alive:
-                        c.on_neighbour(j, *st.error, st.curve_id, st.stamp, st.leader_stamp)
+                        c.on_neighbour(j, *st.error, st.curve_id, st.stamp, st.leader_age)
         return {i: c.tick(now).stopped for i, c in ctrls.items()}
 
     assert exchange(0.0) == {1: None, 2: None, 3: None}
@@ -252,3 +252,39 @@ def test_curve_parameters_from_the_sender_are_used_and_checked():
     with pytest.raises(AssignmentError, match='no agent parameters'):
         ctrl.set_curve(circle(), 1, None)      # agents never derive s_i themselves
     assert ctrl.curve_id == 0                  # a refused curve leaves the previous one
+
+
+def test_clocks_that_differ_between_hosts_neither_stop_nor_keep_robots_driving():
+    """Chain 1 -> 2 -> 3, each controller on its own host whose clock is off by `skew` (s)
+    from the camera's, which stamps every pose: ages are judged on receipt, so skews far
+    beyond every timeout change nothing; when the leader's poses stop, both followers stop
+    after the leader timeout, on their own clocks.
+    """
+    skew = {1: -30.0, 2: 45.0, 3: 7.0}
+    graph = {1: (), 2: ((1, 1.0),), 3: ((2, 1.0),)}
+    ctrls = {i: AgentController(config(index=i, neighbours=nbrs, leader_timeout=1.0))
+             for i, nbrs in graph.items()}
+    for c in ctrls.values():
+        c.set_curve(circle(), 0, THIRDS)
+
+    def exchange(camera_time, leader_seen=True):
+        for i, c in ctrls.items():
+            if i != 1 or leader_seen:
+                c.on_pose(0.1 * i, 0.0, 0.0, camera_time, received=camera_time + skew[i])
+        for i in (2, 3):   # a state is sent when its robot's pose arrives, down the chain
+            if i == 2 and not leader_seen:
+                continue
+            st = ctrls[i - 1].state()
+            ctrls[i].on_neighbour(i - 1, *st.error, st.curve_id, st.stamp, st.leader_age,
+                                  received=camera_time + skew[i])
+        return {i: c.tick(camera_time + skew[i]).stopped for i, c in ctrls.items()}
+
+    for t in np.arange(0.0, 3.0, 0.1):
+        assert exchange(t) == {1: None, 2: None, 3: None}, t
+    for t in np.arange(3.0, 3.95, 0.1):          # the leader's marker is lost at 3 s
+        assert exchange(t, leader_seen=False)[3] is None, t
+    stopped = exchange(4.05, leader_seen=False)
+    assert stopped[2] == 'no news from the leader for 1.15 s'   # last seen at 2.9 s
+    assert stopped[3] == 'no news from the leader for 1.15 s'
+    # The pose stamps' clock still serves the observer: differences of one source.
+    assert ctrls[2].pose_stamp == pytest.approx(4.05)

@@ -42,8 +42,9 @@ def circle_curve():
 class Probe:
     """A helper node: publishes poses/states/curves and records cmd_vel of one robot."""
 
-    def __init__(self, context, robot):
+    def __init__(self, context, robot, skew=0.0):
         self.node = rclpy.create_node('probe', context=context)
+        self.skew = skew   # s, how far the probe's stamps lag the controller's clock
         self.pose_pub = self.node.create_publisher(
             messages.PoseStamped, topics.robot_topic(robot, topics.POSE), qos.SENSOR)
         self.curve_pub = self.node.create_publisher(Float64MultiArray, topics.CURVE,
@@ -62,8 +63,8 @@ class Probe:
         if j not in self.state_pubs:
             self.state_pubs[j] = self.node.create_publisher(
                 JointState, topics.robot_topic(j, topics.STATE), qos.STATE)
-        now = self.now()
-        self.state_pubs[j].publish(messages.state_to_msg(State(error, curve_id, now, now)))
+        stamp = self.now() - self.skew
+        self.state_pubs[j].publish(messages.state_to_msg(State(error, curve_id, stamp, 0.0)))
 
 
 def test_late_starting_controller_still_receives_the_current_curve(ros, tmp_path):
@@ -134,6 +135,29 @@ def test_follower_drives_only_while_its_inputs_are_fresh(ros):
     assert zero_since - silent_from < 0.3 + 0.1 + 0.1
     assert all((v, w) == (0, 0) for t, v, w in probe.commands if t > zero_since)
     assert 'neighbour 1 stale' in ctrl._last_reason
+
+
+def test_stamps_from_a_clock_far_behind_do_not_stop_a_follower(ros):
+    """Poses and states stamped by hosts whose clocks lag this one by 20 s (no time sync):
+    inputs are judged by when they arrive, so the robot drives; when they stop, it stops.
+    """
+    context, add, spin_until = ros
+    ctrl = add(FormationController(context=context, namespace='/robot_2', parameter_overrides=(
+        overrides(index=2, agent_count=3, in_neighbours=[1], weights=[1.0], k2=0.0))))
+    probe = Probe(context, 2, skew=20.0)
+    add(probe.node)
+    probe.curve_pub.publish(messages.curve_to_msg(circle_curve(), 0, [0.0, 1 / 3, 2 / 3]))
+    spin_until(lambda: ctrl.controller.curve is not None)
+    end = time.monotonic() + 1.0
+    while time.monotonic() < end:
+        probe.pose_pub.publish(messages.pose_to_msg(0.0, 0.0, 0.0, probe.now() - probe.skew))
+        probe.state(1, (0.1, 0.0))
+        for _ in range(5):
+            ctrl.executor.spin_once(timeout_sec=0.01)
+    assert ctrl._last_reason is None and probe.commands[-1][1:] != (0.0, 0.0)
+    deadline = time.monotonic() + 1.0
+    spin_until(lambda: time.monotonic() > deadline)          # inputs stop
+    assert 'stale' in ctrl._last_reason and probe.commands[-1][1:] == (0.0, 0.0)
 
 
 def test_nan_inputs_are_rejected_not_forwarded(ros):

@@ -1,17 +1,24 @@
 """One robot's controller, free of ROS: what a formation_controller node runs each tick.
 
-Inputs arrive as plain numbers with stamps in seconds (any common clock): the active curve,
-the robot's own pose (arena frame, m and rad), its in-neighbours' target errors and the e-stop.
+Inputs arrive as plain numbers with stamps in seconds: the active curve, the robot's own pose
+(arena frame, m and rad), its in-neighbours' target errors and the e-stop. How old an input is,
+is judged by when it was received on this controller's clock (`received`; the stamp when not
+given): stamps come from other hosts' clocks (the camera PC's, the neighbours'), which on lab
+PCs without time sync can differ by more than any timeout. Stamps serve only differences
+between samples of one source (the observer's elapsed time).
 Each tick either computes a command with the paper's local law, or stops the robot (zero
 velocity, at once: stopping is never rate-limited) and says why: e-stop, no curve yet, own
 pose stale, outside the geofence, no news from the leader, a neighbour missing, stale or on
 another curve. While stopped the disturbance estimate is frozen, so it does not wind up, and
 with an acceleration limit the robot ramps up again from rest.
 
-Leader heartbeat: the leader's state carries its pose stamp; every follower forwards the newest
-leader stamp it has received from any in-neighbour. Since the leader reaches every agent, each
-agent learns within a few hops when the leader is gone (and stops after `leader_timeout`), and
-learns again when it is back: no stop can lock itself in through a cycle of followers.
+Leader heartbeat: every state carries the age of the newest news of the leader its sender has
+(the leader: 0, its pose just received); a receiver dates that news on its own clock (receipt
+time minus the age) and keeps the newest. Since the leader reaches every agent, each agent
+learns within a few hops when the leader is gone (and stops after `leader_timeout`), and learns
+again when it is back: ages only grow around a cycle of followers (each hop adds the time the
+news was held, and leaves out only the transit, milliseconds), so no stop can lock itself in,
+and no cycle can keep a dead leader alive.
 """
 
 from dataclasses import dataclass, field
@@ -120,21 +127,22 @@ class Tick:
 class State:
     """What an agent tells its out-neighbours.
 
-    error e_i (m), curve id, pose stamp (s), and the newest leader stamp it knows (s, None
-    before any news).
+    error e_i (m), curve id, pose stamp (s, the pose source's clock), and the age of the newest
+    news of the leader it has (s, when the state was made; None before any news).
     """
 
     error: tuple
     curve_id: int
     stamp: float
-    leader_stamp: Optional[float]
+    leader_age: Optional[float]
 
 
 @dataclass
 class _Neighbour:
     error: tuple = (0.0, 0.0)
     curve_id: Optional[int] = None
-    stamp: Optional[float] = None
+    stamp: Optional[float] = None       # s, the sender's pose source's clock
+    received: Optional[float] = None    # s, this controller's clock
 
 
 @dataclass
@@ -151,12 +159,13 @@ class AgentController:
         self.target = None
         self.pose = None
         self.pose_stamp = None
+        self.pose_received = None   # s, this controller's clock (as every *_received)
         self.neighbours = {j: _Neighbour() for j, _ in self.config.neighbours}
         self.rejected = 0
         self.others = NO_OTHERS     # every robot's pose (n, 3), for the safety filter
-        self.others_stamp = None
+        self.others_received = None
         self.filtered = 0           # ticks whose command the safety filter changed
-        self.leader_stamp = None
+        self.leader_heard = None    # when the newest news of the leader was made, our clock
         self.estop = False
         self.last_command = (0.0, 0.0)
         # Observer law: the pose and stamp of the previous command's tick, and that command
@@ -183,44 +192,55 @@ class AgentController:
         self.s = float(s_all[self.config.index - 1])
         self.target = tuple(curve.points([self.s])[0])
 
-    def on_pose(self, x, y, theta, stamp):
-        """Own pose (arena frame). Returns False (and ignores it) if not finite."""
-        if not all_finite(x, y, theta, stamp):
+    def on_pose(self, x, y, theta, stamp, received=None):
+        """Own pose (arena frame) taken at `stamp` (s, its source's clock), received at
+        `received` (s, this controller's clock; default: stamp). Returns False (and ignores it)
+        if not finite.
+        """
+        received = stamp if received is None else received
+        if not all_finite(x, y, theta, stamp, received):
             self.rejected += 1
             return False
-        self.pose, self.pose_stamp = (x, y, theta), stamp
+        self.pose, self.pose_stamp, self.pose_received = (x, y, theta), stamp, received
         if self.config.is_leader:
-            self.leader_stamp = stamp
+            self.leader_heard = received
         return True
 
-    def on_neighbour(self, j, ex, ey, curve_id, stamp, leader_stamp=None):
-        """In-neighbour j's error e_j (m) w.r.t. curve_id, and the newest leader stamp it knows.
+    def on_neighbour(self, j, ex, ey, curve_id, stamp, leader_age=None, received=None):
+        """In-neighbour j's error e_j (m) w.r.t. curve_id, from its pose at `stamp` (s, its
+        clock), the age of its newest news of the leader (s), received at `received` (s, this
+        controller's clock; default: stamp).
 
         Returns False (and ignores the message) if j is not an in-neighbour or a value is not
         finite.
         """
-        values = (ex, ey, stamp) + (() if leader_stamp is None else (leader_stamp,))
+        received = stamp if received is None else received
+        values = (ex, ey, stamp, received) + (() if leader_age is None else (leader_age,))
         if j not in self.neighbours or not all_finite(*values):
             self.rejected += 1
             return False
-        self.neighbours[j] = _Neighbour((ex, ey), int(curve_id), stamp)
-        if leader_stamp is not None and (self.leader_stamp is None
-                                         or leader_stamp > self.leader_stamp):
-            self.leader_stamp = leader_stamp
+        self.neighbours[j] = _Neighbour((ex, ey), int(curve_id), stamp, received)
+        if leader_age is not None:
+            heard = received - max(0.0, leader_age)
+            if self.leader_heard is None or heard > self.leader_heard:
+                self.leader_heard = heard
         return True
 
-    def on_others(self, poses, stamp):
-        """Every robot's pose (n, 3; arena frame; NaN rows: not seen) at `stamp` (s), for the
-        safety filter. Returns False (and ignores it) if it does not hold n rows.
+    def on_others(self, poses, stamp, received=None):
+        """Every robot's pose (n, 3; arena frame; NaN rows: not seen) at `stamp` (s), received
+        at `received` (s, this controller's clock; default: stamp), for the safety filter.
+        Returns False (and ignores it) if it does not hold n rows.
         """
         poses = np.asarray(poses, dtype=float)
-        if poses.shape != (self.config.agent_count, 3) or not math.isfinite(stamp):
+        received = stamp if received is None else received
+        if (poses.shape != (self.config.agent_count, 3)
+                or not all_finite(stamp, received)):
             self.rejected += 1
             return False
         # A robot not seen now keeps its last known pose: unseen, its controller stops it.
         if self.others is not NO_OTHERS:
             poses = np.where(np.isfinite(poses), poses, self.others)
-        self.others, self.others_stamp = poses, stamp
+        self.others, self.others_received = poses, received
         return True
 
     def set_estop(self, engaged):
@@ -232,7 +252,9 @@ class AgentController:
         error = self.own_error()
         if error is None:
             return None
-        return State(error, self.curve_id, self.pose_stamp, self.leader_stamp)
+        age = (None if self.leader_heard is None
+               else max(0.0, self.pose_received - self.leader_heard))
+        return State(error, self.curve_id, self.pose_stamp, age)
 
     def own_error(self):
         """e_i = xb_i - G(s_i) xi (m) from the latest pose, or None."""
@@ -248,9 +270,9 @@ class AgentController:
             return self._stop('e-stop engaged')
         if self.curve is None:
             return self._stop('no curve received yet')
-        if is_stale(self.pose_stamp, now, cfg.pose_timeout):
-            return self._stop('no pose received yet' if self.pose_stamp is None else
-                              f'own pose stale ({now - self.pose_stamp:.2f} s old)')
+        if is_stale(self.pose_received, now, cfg.pose_timeout):
+            return self._stop('no pose received yet' if self.pose_received is None else
+                              f'own pose stale ({now - self.pose_received:.2f} s old)')
         if not inside_fence(self.pose[0], self.pose[1], cfg.geofence):
             return self._stop(f'outside the geofence at ({self.pose[0]:.3f}, '
                               f'{self.pose[1]:.3f}) m')
@@ -259,25 +281,26 @@ class AgentController:
         if cfg.is_leader:
             fx, fy = leader_feedback(ex, ey)
         else:
-            if is_stale(self.leader_stamp, now, cfg.leader_timeout):
-                return self._stop('no news from the leader yet' if self.leader_stamp is None
+            if is_stale(self.leader_heard, now, cfg.leader_timeout):
+                return self._stop('no news from the leader yet' if self.leader_heard is None
                                   else f'no news from the leader for '
-                                  f'{now - self.leader_stamp:.2f} s', base)
+                                  f'{now - self.leader_heard:.2f} s', base)
             for j, nb in self.neighbours.items():
-                if nb.stamp is None:
+                if nb.received is None:
                     return self._stop(f'no state from neighbour {j} yet', base)
-                if is_stale(nb.stamp, now, cfg.neighbour_timeout):
-                    return self._stop(f'neighbour {j} stale ({now - nb.stamp:.2f} s old)', base)
+                if is_stale(nb.received, now, cfg.neighbour_timeout):
+                    return self._stop(f'neighbour {j} stale ({now - nb.received:.2f} s old)',
+                                      base)
                 if nb.curve_id != self.curve_id:
                     return self._stop(f'neighbour {j} is on curve {nb.curve_id}, this robot on '
                                       f'{self.curve_id}', base)
             fx, fy = follower_feedback(ex, ey, [nb.error for nb in self.neighbours.values()],
                                        [w for _, w in cfg.neighbours], cfg.pinning)
             base.neighbour_stamps = tuple((j, nb.stamp) for j, nb in self.neighbours.items())
-        if cfg.avoidance.on and is_stale(self.others_stamp, now, cfg.pose_timeout):
-            return self._stop('no poses of the other robots yet' if self.others_stamp is None
+        if cfg.avoidance.on and is_stale(self.others_received, now, cfg.pose_timeout):
+            return self._stop('no poses of the other robots yet' if self.others_received is None
                               else f"other robots' poses stale "
-                              f'({now - self.others_stamp:.2f} s old)', base)
+                              f'({now - self.others_received:.2f} s old)', base)
         law = cfg.law
         if law.code == OBSERVER:
             self._observe()

@@ -192,7 +192,7 @@ def _avoidance(p):
 TOPICS = (
     ('sub', topics.POSE, 'geometry_msgs/PoseStamped', 'SENSOR', 'own pose, arena frame'),
     ('sub', '/robot_<j>/' + topics.STATE, 'sensor_msgs/JointState', 'STATE',
-     "each in-neighbour's state: e_x, e_y, curve_id, leader_stamp"),
+     "each in-neighbour's state: e_x, e_y, curve_id, leader_age"),
     ('sub', topics.CURVE, 'std_msgs/Float64MultiArray', 'LATCHED', 'the active curve'),
     ('sub', topics.ESTOP, 'std_msgs/Bool', 'LATCHED',
      'true stops every robot at once, false releases'),
@@ -200,7 +200,7 @@ TOPICS = (
      "every robot's pose (x, y, theta per robot), for the safety filter (with avoidance)"),
     ('pub', topics.CMD_VEL, 'geometry_msgs/Twist', 'COMMAND', 'velocity command at rate_hz'),
     ('pub', topics.STATE, 'sensor_msgs/JointState', 'STATE',
-     'own state on every pose, for out-neighbours (names e_x, e_y, curve_id, leader_stamp)'),
+     'own state on every pose, for out-neighbours (names e_x, e_y, curve_id, leader_age)'),
     ('pub', topics.TICK, 'sensor_msgs/JointState', 'STATE',
      'every tick: the command sent (v, w) and the stamps of the inputs it came from (own '
      'pose, each in-neighbour state), to trace or replay a command'),
@@ -265,7 +265,7 @@ class FormationController(Node):
                                f's_i = {self.controller.s:.4f}')
 
     def _on_pose(self, msg):
-        if not self.controller.on_pose(*messages.pose_from_msg(msg)):
+        if not self.controller.on_pose(*messages.pose_from_msg(msg), now_seconds(self)):
             self.get_logger().warning('non-finite pose rejected', throttle_duration_sec=1.0)
             return
         state = self.controller.state()
@@ -274,7 +274,8 @@ class FormationController(Node):
 
     def _on_neighbour(self, j, msg):
         try:
-            accepted = self.controller.on_neighbour(j, *messages.state_from_msg(msg))
+            accepted = self.controller.on_neighbour(j, *messages.state_from_msg(msg),
+                                                    now_seconds(self))
         except messages.MessageError as exc:
             accepted = False
             self.get_logger().warning(f'state from neighbour {j}: {exc}',
@@ -284,15 +285,16 @@ class FormationController(Node):
                                       throttle_duration_sec=1.0)
 
     def _on_others(self, msg):
-        self.others_msg = msg
+        self.others_msg = (msg, now_seconds(self))
 
     def _take_others(self):
-        raw, self.others_msg = self.others_msg, None
-        if raw is None:
+        latest, self.others_msg = self.others_msg, None
+        if latest is None:
             return
+        raw, received = latest
         try:
             poses, stamp = messages.robot_poses_from_msg(deserialize_message(raw, JointState))
-            accepted = self.controller.on_others(poses, stamp)
+            accepted = self.controller.on_others(poses, stamp, received)
         except messages.MessageError:
             accepted = False
         if not accepted:

@@ -9,8 +9,9 @@ frame; NaN for a robot not seen), no names (a compact vector: 50 robots decode i
 PoseArray of 50 in 630 us).
 Neighbour state (sensor_msgs/JointState on /robot_<i>/formation_state, used as a labelled
 vector with a header): names STATE_FIELDS, positions their values: e_x, e_y (m, arena frame),
-the curve id, and the newest leader stamp the robot knows (s, -1 before any); header.stamp =
-stamp of the pose the error was computed from.
+the curve id, and the age of the newest news of the leader the robot has (s, -1 before any;
+an age, not a stamp, so that hosts' clocks need not agree); header.stamp = stamp of the pose
+the error was computed from.
 """
 
 import math
@@ -89,7 +90,7 @@ def twist_from_msg(msg):
     return msg.linear.x, msg.angular.z
 
 
-STATE_FIELDS = ('e_x', 'e_y', 'curve_id', 'leader_stamp')
+STATE_FIELDS = ('e_x', 'e_y', 'curve_id', 'leader_age')
 
 
 def state_to_msg(state, frame_id='arena'):
@@ -98,18 +99,18 @@ def state_to_msg(state, frame_id='arena'):
     msg.header.stamp = seconds_to_stamp(state.stamp)
     msg.header.frame_id = frame_id
     msg.name = list(STATE_FIELDS)
-    leader = -1.0 if state.leader_stamp is None else float(state.leader_stamp)
+    leader = -1.0 if state.leader_age is None else float(state.leader_age)
     msg.position = [float(state.error[0]), float(state.error[1]), float(state.curve_id), leader]
     return msg
 
 
 def state_from_msg(msg):
-    """(ex, ey, curve_id, stamp_s, leader_stamp_s or None); MessageError if malformed."""
+    """(ex, ey, curve_id, stamp_s, leader_age_s or None); MessageError if malformed."""
     values = dict(zip(msg.name, msg.position, strict=False))
     missing = [f for f in STATE_FIELDS if f not in values]
     if missing:
         raise MessageError(f'formation state lacks {missing}')
-    leader = values['leader_stamp']
+    leader = values['leader_age']
     return (values['e_x'], values['e_y'], int(round(values['curve_id'])),
             stamp_to_seconds(msg.header.stamp), None if leader < 0 else leader)
 
