@@ -26,11 +26,12 @@ import yaml
 
 from curve_formation.analysis import EXPERIMENT_KEY
 from curve_formation.bag import DEFAULT_STORAGE
-from curve_formation.core import metrics, plots
+from curve_formation.core import metrics, plots, wire
 from curve_formation.core.agent import agent_configs
 from curve_formation.core.config_schema import LimitsSpec
 from curve_formation.core.experiment import control_rate, load_experiment, received_phases
 from curve_formation.nodes.formation_controller import node_parameters
+from curve_formation.nodes.params import limit_parameter
 from curve_formation.nodes.runtime import (
     make_executor,
     PublicationCounter,
@@ -168,10 +169,9 @@ def bridge_parameters(experiment, rate, link):
     limits = experiment.limits
     kind, _, where = link.partition(':')
     return {'link': link if kind == 'udp' else f'serial:{where}',
-            'wheel_base': float(limits.wheel_base or 0.08),
+            'wheel_base': float(limits.wheel_base or wire.MONA_WHEEL_BASE),
             'wheel_radius': wheel_radius(experiment),
-            'max_wheel_speed': float(limits.max_wheel_speed)
-            if limits.max_wheel_speed < float('inf') else 0.0,
+            'max_wheel_speed': limit_parameter(limits.max_wheel_speed),
             'rate_hz': float(rate)}
 
 

@@ -120,7 +120,7 @@ class FakeArena(Node):
         if len(p.fault_link_down) not in (0, 3):
             raise ParameterError("parameter 'fault_link_down' must be [robot, from, for]")
         self.format = wire_format_parameter(p)
-        self.wheel_base = experiment.limits.wheel_base or 0.08
+        self.wheel_base = experiment.limits.wheel_base or wire.MONA_WHEEL_BASE
         self.first_line = None
         try:
             return [robot_endpoint(link) for link in p.links]

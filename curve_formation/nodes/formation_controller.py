@@ -8,8 +8,6 @@ stale input gives a zero Twist and a warning, never a stale command. All the mat
 core.agent.AgentController.
 """
 
-import math
-
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, Twist, Vector3Stamped
 import numpy as np
@@ -24,7 +22,12 @@ from curve_formation.core.assignment import AssignmentError
 from curve_formation.core.control import Gains, LAWS, WheelLimits
 from curve_formation.core.safety import Avoidance, AVOIDANCE_OFF
 from curve_formation.nodes import messages, qos, topics
-from curve_formation.nodes.params import declare_parameters, Param, ParameterError
+from curve_formation.nodes.params import (
+    declare_parameters,
+    limit_parameter,
+    Param,
+    ParameterError,
+)
 from curve_formation.nodes.readiness import ReadyReport, REPORTED
 from curve_formation.nodes.runtime import now_seconds, run_node
 
@@ -99,8 +102,7 @@ def node_parameters(config):
     """
     gains, limits, av = config.gains, config.limits, config.avoidance
 
-    def limit(value):
-        return float(value) if math.isfinite(value) else 0.0
+    limit = limit_parameter
     params = {
         'index': config.index, 'agent_count': config.agent_count,
         'role': 'leader' if config.is_leader else 'follower',

@@ -55,7 +55,8 @@ def wire_format_parameter(p):
 PARAMETERS = (
     Param('link', 'string', None, "where the robot is: 'udp:HOST:PORT' or 'serial:DEVICE'"),
     Param('baud', 'int', 115200, 'serial line speed (bits/s)', low=1),
-    Param('wheel_base', 'double', 0.08, 'distance between the wheels (m)', positive=True),
+    Param('wheel_base', 'double', wire.MONA_WHEEL_BASE, 'distance between the wheels (m)',
+          positive=True),
     Param('max_wheel_speed', 'double', 0.0, 'max rim speed of a wheel (m/s); 0 = no limit',
           low=0.0),
     Param('rate_hz', 'double', 10.0, 'the most lines a second the robot takes (two may come '
