@@ -134,6 +134,8 @@ def _cmd_run(args):
                          'robots start one robot_bridge per robot (docs/connecting-robots.md)')
     _warn(load_experiment(resolve_config(args.config)))
     _output_folder(args.out)
+    if args.discovery_server:
+        os.environ['ROS_DISCOVERY_SERVER'] = args.discovery_server
     result = run_experiment(args.config, args.out, args.duration, args.single_process,
                             with_robots=not args.no_sim, rate_hz=args.rate, bag_path=args.bag,
                             camera={} if args.camera else None, bag_images=args.bag_images,
@@ -194,6 +196,12 @@ def _cmd_replay(args):
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
+
+
+def _cmd_discovery_server(args):
+    from curve_formation.paths import discovery_server_command
+    argv, env = discovery_server_command(args.address, args.port)
+    os.execve(argv[0], argv, env)
 
 
 def _cmd_estop(args):
@@ -304,6 +312,10 @@ def build_parser():
     run.add_argument('--bag-images', action='store_true',
                      help='with --bag and --camera: record the camera frames as well (about '
                      '27 MB/s at 1280x720 and 30 Hz)')
+    run.add_argument('--discovery-server', metavar='HOST:PORT',
+                     help='discover through this Fast DDS discovery server (sets '
+                     'ROS_DISCOVERY_SERVER; for networks where multicast fails, '
+                     'docs/arena-setup.md)')
     run.set_defaults(func=_cmd_run)
     analyze = sub.add_parser('analyze', help='metrics and figures from a recorded bag')
     analyze.add_argument('bag', help='bag folder')
@@ -344,6 +356,13 @@ def build_parser():
     estop.add_argument('--hold', action='store_true',
                        help='stay up so late-starting controllers get it too')
     estop.set_defaults(func=_cmd_estop)
+    server = sub.add_parser('discovery-server', help='run a Fast DDS discovery server (for '
+                            'networks where multicast fails; runs use it with '
+                            '--discovery-server HOST:PORT)')
+    server.add_argument('--address', default='127.0.0.1',
+                        help="this PC's address the robots' PCs reach it at")
+    server.add_argument('--port', type=int, default=11811)
+    server.set_defaults(func=_cmd_discovery_server)
     nodes_doc = sub.add_parser('nodes-doc', help="print the README's node reference "
                                '(parameters, topics, QoS) from the code')
     nodes_doc.set_defaults(func=_cmd_nodes_doc)

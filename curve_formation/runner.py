@@ -218,6 +218,27 @@ def private_domain_id():
     return int(given) if given else random.SystemRandom().randint(1, 101)
 
 
+DISCOVERY_SERVER_ENV = 'ROS_DISCOVERY_SERVER'
+RANGE_ENV = 'ROS_AUTOMATIC_DISCOVERY_RANGE'
+
+
+def use_discovery(env):
+    """Sets the run's discovery in `env`: limited to this machine (LOCALHOST) unless
+    ROS_AUTOMATIC_DISCOVERY_RANGE says otherwise; with ROS_DISCOVERY_SERVER (a Fast DDS
+    discovery server, for networks where multicast fails), SUBNET: with LOCALHOST or OFF the
+    server's clients discovered nothing (measured: a run's start timed out). A server with
+    one of those ranges is a ValueError naming both variables.
+    """
+    if env.get(DISCOVERY_SERVER_ENV):
+        chosen = env.setdefault(RANGE_ENV, 'SUBNET')
+        if chosen in ('LOCALHOST', 'OFF'):
+            raise ValueError(f'{DISCOVERY_SERVER_ENV}={env[DISCOVERY_SERVER_ENV]} with '
+                             f'{RANGE_ENV}={chosen}: Fast DDS discovery-server clients '
+                             'discover nothing in that range; unset it or set SUBNET')
+    else:
+        env.setdefault(RANGE_ENV, 'LOCALHOST')
+
+
 class Run:
     """A running node graph: start(), spin_until(...), stop(). Use as a context manager."""
 
@@ -269,8 +290,8 @@ class Run:
         self.stop()
 
     def start(self):
+        use_discovery(os.environ)
         os.environ['ROS_DOMAIN_ID'] = str(self.domain_id)
-        os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 
         import rclpy
         from rclpy.context import Context
