@@ -174,17 +174,24 @@ def test_a_curve_breaking_the_assumptions_is_refused():
     assert ctrl.curve is None
 
 
+def team(graph):
+    """{i: AgentController} of the agents of `graph` ({i: in-neighbours}), 1 s leader
+    timeout, on the circle.
+    """
+    ctrls = {i: AgentController(config(index=i, neighbours=nbrs, leader_timeout=1.0))
+             for i, nbrs in graph.items()}
+    for c in ctrls.values():
+        c.set_curve(circle(), 0, THIRDS)
+    return ctrls
+
+
 def test_leader_news_propagates_and_its_loss_stops_followers_without_deadlock():
     """Chain 1 -> 2 -> 3 plus a follower cycle 3 -> 2.
 
     News of the leader flows down; when it stops, everyone stops; when it is back, everyone
     drives again (no stop locks itself in through the cycle).
     """
-    graph = {1: (), 2: ((1, 1.0), (3, 1.0)), 3: ((2, 1.0),)}
-    ctrls = {i: AgentController(config(index=i, neighbours=nbrs, leader_timeout=1.0))
-             for i, nbrs in graph.items()}
-    for c in ctrls.values():
-        c.set_curve(circle(), 0, THIRDS)
+    ctrls = team({1: (), 2: ((1, 1.0), (3, 1.0)), 3: ((2, 1.0),)})
 
     def exchange(now, leader_alive=True):
         for i, c in ctrls.items():
@@ -261,11 +268,7 @@ def test_clocks_that_differ_between_hosts_neither_stop_nor_keep_robots_driving()
     after the leader timeout, on their own clocks.
     """
     skew = {1: -30.0, 2: 45.0, 3: 7.0}
-    graph = {1: (), 2: ((1, 1.0),), 3: ((2, 1.0),)}
-    ctrls = {i: AgentController(config(index=i, neighbours=nbrs, leader_timeout=1.0))
-             for i, nbrs in graph.items()}
-    for c in ctrls.values():
-        c.set_curve(circle(), 0, THIRDS)
+    ctrls = team({1: (), 2: ((1, 1.0),), 3: ((2, 1.0),)})
 
     def exchange(camera_time, leader_seen=True):
         for i, c in ctrls.items():
