@@ -260,6 +260,7 @@ class Run:
                                       bridge, self.out / 'links')
         self.param_files = write_params_files(self.launches, self.out / 'params')
         self.domain_id = private_domain_id()
+        self._saved_env = {}   # environment variables start() set, with their old values
         self.record_hz = record_hz
         self.processes = {}
         self.stop_requested = threading.Event()   # set by run_experiment's signal handlers
@@ -290,6 +291,8 @@ class Run:
         self.stop()
 
     def start(self):
+        # Set for this process's own context and the nodes', given back at stop().
+        self._saved_env = {k: os.environ.get(k) for k in ('ROS_DOMAIN_ID', RANGE_ENV)}
         use_discovery(os.environ)
         os.environ['ROS_DOMAIN_ID'] = str(self.domain_id)
 
@@ -418,6 +421,15 @@ class Run:
         finally:
             if self.bag_writer is not None:
                 self.bag_writer.close()
+            self._restore_env()
+
+    def _restore_env(self):
+        for key, value in self._saved_env.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
+        self._saved_env = {}
 
     def _stop_nodes(self):
         # Controllers first, so that their last ticks and zero commands are acknowledged by

@@ -2,6 +2,7 @@
 through a Fast DDS discovery server (for networks where multicast fails).
 """
 
+import os
 import random
 import subprocess
 import sys
@@ -82,6 +83,8 @@ def test_a_run_discovers_through_a_discovery_server_and_only_through_it(ros_doma
         with runner.Run(DATA_DIR / 'fast_closed.yaml', tmp_path / 'served', log=quiet) as run:
             run.spin_for(2.0)
             assert (np.abs(run.monitor.commands).sum(axis=1) > 0).all()
+            assert os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'SUBNET'
+        assert 'ROS_AUTOMATIC_DISCOVERY_RANGE' not in os.environ   # given back at stop
         monkeypatch.setenv('ROS_DISCOVERY_SERVER', f'127.0.0.1:{port + 1}')
         monkeypatch.setattr(runner, 'READY_TIMEOUT', 8.0)
         with pytest.raises(TimeoutError, match='pose'):
