@@ -327,7 +327,10 @@ class Run:
             self.recorder = Recorder(self.bag_writer, recorded, context=self.context)
             self.executor.add_node(self.recorder)
             self.log(f'recording {self.bag_writer.path}')
-        self.log(f'ROS_DOMAIN_ID={self.domain_id}; parameters in {self.out / "params"}')
+        server = os.environ.get(DISCOVERY_SERVER_ENV)
+        discovery = os.environ[RANGE_ENV] + (f' through the server {server}' if server else '')
+        self.log(f'ROS_DOMAIN_ID={self.domain_id}, discovery {discovery}; parameters in '
+                 f'{self.out / "params"}')
         robots = [launch for launch in self.launches if launch.name != 'curve_server']
         for launch in robots:
             self._start_node(launch)
