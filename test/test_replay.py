@@ -236,11 +236,13 @@ def law_on_bag_inputs(bag):
             rate_hz=experiment.spec.controller.rate_hz))
         ctrl.set_curve(phase.curve, 0, phase.s)
         pose = poses[i, round(tick['pose_stamp'], 9)]
-        ctrl.on_pose(*pose)
+        # Freshness was the node's to judge, on receipt (core.agent): here every input the
+        # tick named counts as just received.
+        ctrl.on_pose(*pose, received=pose[3])
         for name, stamp in tick.items():
             if name.startswith('stamp_'):
                 j = int(name.split('_')[1])
-                ctrl.on_neighbour(j, *states[j, round(stamp, 9)])
+                ctrl.on_neighbour(j, *states[j, round(stamp, 9)], received=pose[3])
         out = ctrl.tick(pose[3])
         assert out.stopped is None, out.stopped
         return out.v, out.w
