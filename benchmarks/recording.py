@@ -122,11 +122,10 @@ def measure(storage, duration, resolution, images):
     """Record the publisher's load into a new bag of `storage`; what was sent and recorded."""
     import rclpy
     from rclpy.context import Context
-    from sensor_msgs.msg import Image
 
     from curve_formation.bag import bag_summary, BagWriter
-    from curve_formation.nodes import qos, topics
-    from curve_formation.nodes.recorder import formation_topics, Recorder
+    from curve_formation.nodes import topics
+    from curve_formation.nodes.recorder import Recorder
     from curve_formation.nodes.runtime import make_executor
 
     folder = Path(tempfile.mkdtemp(prefix='recording-bench-'))
@@ -134,8 +133,8 @@ def measure(storage, duration, resolution, images):
     context = Context()
     rclpy.init(context=context)
     executor = make_executor(context)   # as the runner hosts the recorder
-    topic_list = formation_topics(9) + ([(topics.CAMERA_IMAGE, Image, qos.IMAGE)]
-                                        if images else [])
+    topic_list = topics.recorded(9) + ([topics.REGISTRY[topics.CAMERA_IMAGE]]
+                                       if images else [])
     publisher = subprocess.Popen(
         [sys.executable, '-c', PUBLISHER, str(duration), str(resolution[0]),
          str(resolution[1]), '1' if images else '0'], stdout=subprocess.PIPE, text=True)

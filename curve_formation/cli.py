@@ -210,11 +210,11 @@ def _cmd_estop(args):
     import rclpy
     from std_msgs.msg import Bool
 
-    from curve_formation.nodes import qos, topics
+    from curve_formation.nodes import topics
     rclpy.init()
     node = rclpy.create_node('estop')
     try:
-        pub = node.create_publisher(Bool, topics.ESTOP, qos.LATCHED)
+        pub = topics.publisher(node, topics.ESTOP)
         pub.publish(Bool(data=args.state == 'on'))
         deadline = time.monotonic() + args.wait
         while pub.get_subscription_count() == 0 and time.monotonic() < deadline:

@@ -314,16 +314,15 @@ class Run:
         self.executor = make_executor(self.context)
         self.executor.add_node(self.monitor)
         if self.bag_writer is not None:
-            from curve_formation.nodes.recorder import camera_topics, formation_topics, Recorder
+            from curve_formation.nodes import topics
+            from curve_formation.nodes.recorder import Recorder
             self.bag_writer.__enter__()
             self.bag_writer.set_custom(EXPERIMENT_KEY, self.experiment_path.read_text())
             self.bag_writer.set_custom(PARAMETERS_KEY, '\n'.join(
                 path.read_text() for path in self.param_files.values()))
-            recorded = formation_topics(self.experiment.n)
-            if self.bag_images:
-                recorded += camera_topics()
-            self.best_effort_topics = {topic for topic, _, profile in recorded
-                                       if profile.reliability == ReliabilityPolicy.BEST_EFFORT}
+            recorded = topics.recorded(self.experiment.n, self.bag_images)
+            self.best_effort_topics = {t.name for t in recorded
+                                       if t.profile.reliability == ReliabilityPolicy.BEST_EFFORT}
             self.recorder = Recorder(self.bag_writer, recorded, context=self.context)
             self.executor.add_node(self.recorder)
             self.log(f'recording {self.bag_writer.path}')

@@ -122,7 +122,7 @@ def test_a_late_recorder_accounts_exactly_over_dds(ros, tmp_path):
     """
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-    from curve_formation.nodes import qos as node_qos
+    from curve_formation.nodes import topics
     from curve_formation.nodes.recorder import Recorder
     context, add, spin_until = ros
     node = add(rclpy.create_node('talker', context=context))
@@ -133,7 +133,8 @@ def test_a_late_recorder_accounts_exactly_over_dds(ros, tmp_path):
     for _ in range(5):
         publisher.publish(Twist())
     with BagWriter(tmp_path / 'bag') as writer:
-        recorder = add(Recorder(writer, [(cmd, Twist, node_qos.COMMAND)], context=context))
+        recorder = add(Recorder(writer, [t for t in topics.recorded(1) if t.name == cmd],
+                                context=context))
         spin_until(lambda: publisher.get_subscription_count() == 1)
         for _ in range(20):
             publisher.publish(Twist())

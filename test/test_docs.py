@@ -7,7 +7,7 @@ import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 
-from curve_formation.nodes import docs
+from curve_formation.nodes import docs, topics
 from curve_formation.runner import NODE_CLASSES
 
 
@@ -21,6 +21,16 @@ def test_readme_node_reference_is_the_generated_one():
     current = text.split(begin, 1)[1].split(end, 1)[0]
     assert current == docs.nodes_markdown(), (
         'README node reference is stale: regenerate with `curve-formation nodes-doc`')
+
+
+def test_a_run_records_every_robots_topics_once_with_their_registered_types():
+    recorded = topics.recorded(3)
+    names = [t.name for t in recorded]
+    assert len(names) == len(set(names)) == 4 + 5 * 3
+    assert '/robot_3/cmd_vel' in names and '/formation/curve' in names
+    assert topics.REGISTRY['cmd_vel'].type_name == 'geometry_msgs/msg/Twist'
+    with_images = [t.name for t in topics.recorded(3, images=True)]
+    assert set(with_images) - set(names) == {topics.CAMERA_IMAGE, topics.CAMERA_POSES}
 
 
 @pytest.mark.ros
@@ -42,12 +52,18 @@ def test_nodes_create_the_documented_topics(ros_domain, name, module):
     try:
         pubs = dict(node.get_publisher_names_and_types_by_node(node.get_name(), '/robot_2'))
         subs = dict(node.get_subscriber_names_and_types_by_node(node.get_name(), '/robot_2'))
-        for direction, topic, msg_type, _, _ in module.TOPICS:
-            resolved = (topic.replace('<j>', '1').replace('<i>', '1') if topic.startswith('/')
-                        else f'/robot_2/{topic}')
-            found = (pubs if direction == 'pub' else subs).get(resolved)
-            package, name = msg_type.split('/')
-            assert found == [f'{package}/msg/{name}'], (direction, resolved, found)
+        for use in module.TOPICS:
+            shown = use.shown_name
+            resolved = (shown.replace('<j>', '1').replace('<i>', '1') if shown.startswith('/')
+                        else f'/robot_2/{shown}')
+            found = (pubs if use.direction == 'pub' else subs).get(resolved)
+            registered = topics.REGISTRY[use.name]
+            assert found == [registered.type_name], (use.direction, resolved, found)
+            infos = (node.get_publishers_info_by_topic if use.direction == 'pub'
+                     else node.get_subscriptions_info_by_topic)(resolved)
+            mine = [info.qos_profile for info in infos if info.node_name == node.get_name()]
+            assert [(q.reliability, q.durability) for q in mine] == [
+                (registered.profile.reliability, registered.profile.durability)], resolved
     finally:
         node.destroy_node()
         rclpy.try_shutdown(context=context)

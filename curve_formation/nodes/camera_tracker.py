@@ -19,21 +19,19 @@ import time
 
 import cv2
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import PoseArray, PoseStamped
 import numpy as np
 from rclpy.node import Node
-from sensor_msgs.msg import Image, JointState
-from std_msgs.msg import Float64MultiArray
 
-from curve_formation.nodes import messages, qos, topics
+from curve_formation.nodes import messages, topics
 from curve_formation.nodes.params import (
     declare_parameters,
     experiment_parameter,
     Param,
     ParameterError,
 )
-from curve_formation.nodes.readiness import ReadyReport, REPORTED
+from curve_formation.nodes.readiness import REPORTED, subscribe_to_curve
 from curve_formation.nodes.runtime import now_seconds, run_node
+from curve_formation.nodes.topics import Use
 from curve_formation.vision.camera import apply_homography
 from curve_formation.vision.markers import MarkerLayout
 from curve_formation.vision.tracker import Calibration, CalibrationError, MarkerTracker
@@ -61,20 +59,16 @@ PARAMETERS = (
 
 
 TOPICS = (
-    ('sub', topics.CAMERA_IMAGE, 'sensor_msgs/Image', 'IMAGE',
-     'camera frames (mono8, bgr8, rgb8, ...); not used when `source` is set'),
-    ('sub', topics.CURVE, 'std_msgs/Float64MultiArray', 'LATCHED',
-     'desired curve, drawn in the debug image'),
-    ('pub', f'/robot_<i>/{topics.POSE}', 'geometry_msgs/PoseStamped', 'SENSOR',
-     "each robot's pose, stamped with its image"),
-    ('pub', topics.CAMERA_POSES, 'geometry_msgs/PoseArray', 'SENSOR',
-     'all robots in agent order, NaN when not seen'),
-    ('pub', topics.ROBOT_POSES, 'sensor_msgs/JointState', 'SENSOR',
-     "the same as x, y, theta per robot, for the controllers' safety filter"),
-    ('pub', topics.DIAGNOSTICS, 'diagnostic_msgs/DiagnosticArray', 'EVENTS',
-     'detection rate per robot, lost robots, frame latency, calibration (1 Hz)'),
-    ('pub', topics.CAMERA_DEBUG, 'sensor_msgs/Image', 'IMAGE',
-     'annotated frame (bgr8) while subscribed'),
+    Use('sub', topics.CAMERA_IMAGE, 'camera frames (mono8, bgr8, rgb8, ...); not used when '
+        '`source` is set'),
+    Use('sub', topics.CURVE, 'desired curve, drawn in the debug image'),
+    Use('pub', topics.POSE, "each robot's pose, stamped with its image", '<i>'),
+    Use('pub', topics.CAMERA_POSES, 'all robots in agent order, NaN when not seen'),
+    Use('pub', topics.ROBOT_POSES, "the same as x, y, theta per robot, for the controllers' "
+        'safety filter'),
+    Use('pub', topics.DIAGNOSTICS, 'detection rate per robot, lost robots, frame latency, '
+        'calibration (1 Hz)'),
+    Use('pub', topics.CAMERA_DEBUG, 'annotated frame (bgr8) while subscribed'),
     REPORTED,
 )
 
@@ -106,14 +100,13 @@ class CameraTracker(Node):
             intrinsics = (camera.intrinsics.camera_matrix, camera.intrinsics.distortion)
         self.layout = MarkerLayout.from_spec(camera)
         self.tracker = MarkerTracker(self.layout, calibration, mode == 'continuous', intrinsics)
-        self.pose_pubs = [self.create_publisher(PoseStamped, topics.robot_topic(i, topics.POSE),
-                                                qos.SENSOR) for i in range(1, self.n + 1)]
-        self.array_pub = self.create_publisher(PoseArray, topics.CAMERA_POSES, qos.SENSOR)
-        self.robot_poses_pub = self.create_publisher(JointState, topics.ROBOT_POSES, qos.SENSOR)
-        self.diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.EVENTS)
-        self.debug_pub = self.create_publisher(Image, topics.CAMERA_DEBUG, qos.IMAGE)
-        self.ready_report = ReadyReport(self, self.create_subscription(
-            Float64MultiArray, topics.CURVE, self._on_curve, qos.LATCHED))
+        self.pose_pubs = [topics.publisher(self, topics.POSE, robot=i)
+                          for i in range(1, self.n + 1)]
+        self.array_pub = topics.publisher(self, topics.CAMERA_POSES)
+        self.robot_poses_pub = topics.publisher(self, topics.ROBOT_POSES)
+        self.diag_pub = topics.publisher(self, topics.DIAGNOSTICS)
+        self.debug_pub = topics.publisher(self, topics.CAMERA_DEBUG)
+        subscribe_to_curve(self, self._on_curve)
         self.curve = None
         self.targets = None
         self.last_seen = {}
@@ -132,7 +125,7 @@ class CameraTracker(Node):
                 raise ParameterError(f"parameter 'source': cannot open {p.source!r}")
             self.create_timer(1.0 / p.rate_hz, self._on_capture)
         else:
-            self.create_subscription(Image, topics.CAMERA_IMAGE, self._on_image, qos.IMAGE)
+            topics.subscription(self, topics.CAMERA_IMAGE, self._on_image)
         self.create_timer(1.0, self._publish_diagnostics)
 
     def _calibration_path(self, camera):

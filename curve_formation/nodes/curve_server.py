@@ -11,19 +11,18 @@ is published again (same id) whenever re-assigning its targets among the robots,
 poses on /formation/robot_poses, shortens their squared trips by 10 %.
 """
 
-from geometry_msgs.msg import Point, PolygonStamped, PoseStamped
+from geometry_msgs.msg import Point, PoseStamped
 from nav_msgs.msg import Path
 import numpy as np
 from rclpy.node import Node
-from sensor_msgs.msg import JointState
-from std_msgs.msg import ColorRGBA, Float64MultiArray
+from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
 from curve_formation.core.assignment import AssignmentError, phase_parameters, reassigned
 from curve_formation.core.curve_sources import point_samples
 from curve_formation.core.curves import CurveError, fit_curve, make_basis
 from curve_formation.core.metrics import offset_points
-from curve_formation.nodes import messages, qos, topics
+from curve_formation.nodes import messages, topics
 from curve_formation.nodes.params import (
     declare_parameters,
     experiment_parameter,
@@ -31,6 +30,7 @@ from curve_formation.nodes.params import (
 )
 from curve_formation.nodes.readiness import ReadyCount
 from curve_formation.nodes.runtime import now_seconds, run_node
+from curve_formation.nodes.topics import Use
 
 
 PARAMETERS = (
@@ -54,19 +54,15 @@ PARAMETERS = (
 
 
 TOPICS = (
-    ('pub', topics.CURVE, 'std_msgs/Float64MultiArray', 'LATCHED',
-     "coefficients xi, then each agent's s_i; layout labels: basis kind and size, curve id, "
-     'number of agents'),
-    ('pub', topics.CURVE_PATH, 'nav_msgs/Path', 'LATCHED', 'the curve, sampled, for RViz'),
-    ('pub', topics.CURVE_MARKERS, 'visualization_msgs/MarkerArray', 'LATCHED',
-     "curve line and each agent's target point"),
-    ('sub', topics.OBSERVED_CURVE, 'geometry_msgs/PolygonStamped', 'EVENTS',
-     'a newly observed curve as ordered points, fitted and published as the next curve'),
-    ('sub', topics.ROBOT_POSES, 'sensor_msgs/JointState', 'SENSOR',
-     "every robot's pose, to re-assign targets (with reassign_every)"),
-    ('sub', topics.READY, 'std_msgs/String', 'ROLL_CALL',
-     'names of the nodes that receive the curve, counted before the first curve '
-     '(wait_for_ready)'),
+    Use('pub', topics.CURVE),
+    Use('pub', topics.CURVE_PATH),
+    Use('pub', topics.CURVE_MARKERS),
+    Use('sub', topics.OBSERVED_CURVE, 'a newly observed curve as ordered points, fitted and '
+        'published as the next curve'),
+    Use('sub', topics.ROBOT_POSES, "every robot's pose, to re-assign targets (with "
+        'reassign_every)'),
+    Use('sub', topics.READY, 'names of the nodes that receive the curve, counted before the '
+        'first curve (wait_for_ready)'),
 )
 
 WAIT_POLL = 0.05   # s, how often readiness is checked before the first curve
@@ -81,11 +77,10 @@ class CurveServer(Node):
         super().__init__('curve_server', **kwargs)
         self.params = declare_parameters(self, PARAMETERS)
         self.experiment = experiment_parameter(self.params.experiment)
-        self.curve_pub = self.create_publisher(Float64MultiArray, topics.CURVE, qos.LATCHED)
-        self.path_pub = self.create_publisher(Path, topics.CURVE_PATH, qos.LATCHED)
-        self.marker_pub = self.create_publisher(MarkerArray, topics.CURVE_MARKERS, qos.LATCHED)
-        self.create_subscription(PolygonStamped, topics.OBSERVED_CURVE, self._on_observed,
-                                 qos.EVENTS)
+        self.curve_pub = topics.publisher(self, topics.CURVE)
+        self.path_pub = topics.publisher(self, topics.CURVE_PATH)
+        self.marker_pub = topics.publisher(self, topics.CURVE_MARKERS)
+        topics.subscription(self, topics.OBSERVED_CURVE, self._on_observed)
         self.next_id = 0
         self.next_phase = 0
         # Where the agents are headed: the last published targets (m, arena frame), from
@@ -100,7 +95,7 @@ class CurveServer(Node):
             every = self.experiment.spec.agents.reassign_every or 0.0
         self.reassign_every = every
         if every > 0:
-            self.create_subscription(JointState, topics.ROBOT_POSES, self._on_poses, qos.SENSOR)
+            topics.subscription(self, topics.ROBOT_POSES, self._on_poses)
         # Polls for subscribers every WAIT_POLL s until the start, then wakes at each switch.
         self.ready = ReadyCount(self)
         self.timer = self.create_timer(WAIT_POLL, self._on_timer)

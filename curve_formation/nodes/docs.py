@@ -10,6 +10,7 @@ from curve_formation.nodes import (
     qos,
     recorder,
     robot_bridge,
+    topics,
 )
 from curve_formation.nodes.params import markdown_table
 
@@ -34,12 +35,15 @@ QOS_TEXT = {
 }
 
 
-def topic_table(table):
+def topic_table(uses):
+    """Markdown table of a node's topics (topics.Use rows), types and QoS from the registry."""
     rows = ['| | topic | type | QoS | meaning |', '| --- | --- | --- | --- | --- |']
-    for direction, topic, msg_type, qos_name, meaning in table:
-        meaning = meaning.replace('|', '\\|')
-        rows.append(f'| {direction} | `{topic}` | {msg_type} | {QOS_TEXT[qos_name]} | '
-                    f'{meaning} |')
+    for use in uses:
+        topic = topics.REGISTRY[use.name]
+        meaning = (use.meaning or topic.meaning).replace('|', '\\|')
+        shown_type = topic.type_name.replace('/msg/', '/')
+        rows.append(f'| {use.direction} | `{use.shown_name}` | {shown_type} | '
+                    f'{QOS_TEXT[topic.qos_name]} | {meaning} |')
     return '\n'.join(rows)
 
 

@@ -16,16 +16,14 @@ answers each line 'ok' or 'err'; no cmd_vel is read (robot_bridge writes those l
 import math
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import PoseStamped, Twist
 import numpy as np
 from rclpy.duration import Duration
 from rclpy.node import Node
-from sensor_msgs.msg import JointState
 
 from curve_formation.core import metrics, wire
 from curve_formation.core.dynamics import DrivenUnicycle
 from curve_formation.links import robot_endpoint
-from curve_formation.nodes import messages, qos, topics
+from curve_formation.nodes import messages, topics
 from curve_formation.nodes.fake_robot import ROBOT_PARAMETERS
 from curve_formation.nodes.params import (
     declare_parameters,
@@ -35,6 +33,7 @@ from curve_formation.nodes.params import (
 )
 from curve_formation.nodes.robot_bridge import wire_format_parameter, WIRE_PARAMETERS
 from curve_formation.nodes.runtime import now_seconds, run_node
+from curve_formation.nodes.topics import Use
 
 
 # How often the emulated robots' firmware reads its links (s).
@@ -58,14 +57,13 @@ PARAMETERS = (
 ) + ROBOT_PARAMETERS + WIRE_PARAMETERS
 
 TOPICS = (
-    ('sub', '/robot_<i>/' + topics.CMD_VEL, 'geometry_msgs/Twist', 'COMMAND',
-     "each robot's velocity command"),
-    ('pub', '/robot_<i>/' + topics.POSE, 'geometry_msgs/PoseStamped', 'SENSOR',
-     f'each pose at rate_hz (on {topics.TRUE_POSE} instead with pose_topic)'),
-    ('pub', topics.ROBOT_POSES, 'sensor_msgs/JointState', 'SENSOR',
-     'every pose in one message (x, y, theta per robot), with publish_robot_poses'),
-    ('pub', topics.DIAGNOSTICS, 'diagnostic_msgs/DiagnosticArray', 'EVENTS',
-     'contacts: count, total time (s), smallest gap between two bodies (m); 1 Hz'),
+    Use('sub', topics.CMD_VEL, "each robot's velocity command", '<i>'),
+    Use('pub', topics.POSE, f'each pose at rate_hz (on {topics.TRUE_POSE} instead with '
+        'pose_topic)', '<i>'),
+    Use('pub', topics.ROBOT_POSES, 'every pose in one message (x, y, theta per robot), with '
+        'publish_robot_poses'),
+    Use('pub', topics.DIAGNOSTICS, 'contacts: count, total time (s), smallest gap between '
+        'two bodies (m); 1 Hz'),
 )
 
 
@@ -93,18 +91,18 @@ class FakeArena(Node):
         self.smallest_gap = math.inf
         self.time = None
         self.rng = np.random.default_rng(p.seed)
-        self.pose_pubs = [self.create_publisher(PoseStamped, topics.robot_topic(i, p.pose_topic),
-                                                qos.SENSOR) for i in range(1, self.n + 1)]
-        self.all_pub = (self.create_publisher(JointState, topics.ROBOT_POSES, qos.SENSOR)
+        self.pose_pubs = [topics.publisher(self, p.pose_topic, robot=i)
+                          for i in range(1, self.n + 1)]
+        self.all_pub = (topics.publisher(self, topics.ROBOT_POSES)
                         if p.publish_robot_poses else None)
-        self.diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.EVENTS)
+        self.diag_pub = topics.publisher(self, topics.DIAGNOSTICS)
         self.endpoints = self._endpoints(p, experiment)
         if self.endpoints:
             self.create_timer(FIRMWARE_POLL, self._on_lines)
         else:
             for i in range(1, self.n + 1):
-                self.create_subscription(Twist, topics.robot_topic(i, topics.CMD_VEL),
-                                         lambda msg, i=i: self._on_cmd(i, msg), qos.COMMAND)
+                topics.subscription(self, topics.CMD_VEL, lambda msg, i=i: self._on_cmd(i, msg),
+                                    robot=i)
         self.create_timer(1.0 / p.rate_hz, self._on_timer)
         self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(f'{self.n} robots, bodies of radius {self.radius:g} m, arena '

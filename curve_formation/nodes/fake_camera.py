@@ -8,20 +8,18 @@ time window counted from the first curve: cover some robots' markers, or show a 
 with a robot's id.
 """
 
-from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
-from sensor_msgs.msg import Image
-from std_msgs.msg import Float64MultiArray
 
-from curve_formation.nodes import messages, qos, topics
+from curve_formation.nodes import messages, topics
 from curve_formation.nodes.params import (
     declare_parameters,
     experiment_parameter,
     Param,
     ParameterError,
 )
-from curve_formation.nodes.readiness import ReadyReport, REPORTED
+from curve_formation.nodes.readiness import REPORTED, subscribe_to_curve
 from curve_formation.nodes.runtime import now_seconds, run_node
+from curve_formation.nodes.topics import Use
 from curve_formation.vision.camera import overhead_camera
 from curve_formation.vision.markers import MarkerLayout
 from curve_formation.vision.render import ArenaRenderer, RenderOptions
@@ -51,11 +49,9 @@ PARAMETERS = (
 
 
 TOPICS = (
-    ('sub', f'/robot_<i>/{topics.TRUE_POSE}', 'geometry_msgs/PoseStamped', 'SENSOR',
-     "each fake robot's ground-truth pose"),
-    ('sub', topics.CURVE, 'std_msgs/Float64MultiArray', 'LATCHED',
-     'the first curve starts the fault clock'),
-    ('pub', topics.CAMERA_IMAGE, 'sensor_msgs/Image', 'IMAGE', 'mono8 frames at rate_hz'),
+    Use('sub', topics.TRUE_POSE, "each fake robot's ground-truth pose", '<i>'),
+    Use('sub', topics.CURVE, 'the first curve starts the fault clock'),
+    Use('pub', topics.CAMERA_IMAGE, 'mono8 frames at rate_hz'),
     REPORTED,
 )
 
@@ -85,12 +81,11 @@ class FakeCamera(Node):
                                       RenderOptions(p.noise, p.blur, p.brightness), seed=p.seed)
         self.poses = {}
         self.first_curve = None
-        self.ready_report = ReadyReport(self, self.create_subscription(
-            Float64MultiArray, topics.CURVE, self._on_curve, qos.LATCHED))
+        subscribe_to_curve(self, self._on_curve)
         for i in range(1, n + 1):
-            self.create_subscription(PoseStamped, topics.robot_topic(i, topics.TRUE_POSE),
-                                     lambda m, i=i: self._on_pose(i, m), qos.SENSOR)
-        self.image_pub = self.create_publisher(Image, topics.CAMERA_IMAGE, qos.IMAGE)
+            topics.subscription(self, topics.TRUE_POSE, lambda m, i=i: self._on_pose(i, m),
+                                robot=i)
+        self.image_pub = topics.publisher(self, topics.CAMERA_IMAGE)
         self.create_timer(1.0 / p.rate_hz, self._on_timer)
 
     def _on_pose(self, i, msg):

@@ -11,14 +11,14 @@ noise, a fixed command latency, and dropped poses (fault injection).
 
 import math
 
-from geometry_msgs.msg import PoseStamped, Twist
 import numpy as np
 from rclpy.node import Node
 
 from curve_formation.core.dynamics import DrivenUnicycle
-from curve_formation.nodes import messages, qos, topics
+from curve_formation.nodes import messages, topics
 from curve_formation.nodes.params import declare_parameters, Param, ParameterError
 from curve_formation.nodes.runtime import now_seconds, run_node
+from curve_formation.nodes.topics import Use
 
 
 # How a simulated robot moves and is seen (fake_robot, and every robot of fake_arena).
@@ -49,9 +49,8 @@ PARAMETERS = (
 
 
 TOPICS = (
-    ('sub', topics.CMD_VEL, 'geometry_msgs/Twist', 'COMMAND', 'velocity command'),
-    ('pub', topics.POSE, 'geometry_msgs/PoseStamped', 'SENSOR', 'pose at rate_hz (on '
-     f'{topics.TRUE_POSE} instead with pose_topic)'),
+    Use('sub', topics.CMD_VEL, 'velocity command'),
+    Use('pub', topics.POSE, f'pose at rate_hz (on {topics.TRUE_POSE} instead with pose_topic)'),
 )
 
 class FakeRobot(Node):
@@ -67,8 +66,8 @@ class FakeRobot(Node):
         self.robot = DrivenUnicycle(p.initial_pose, p.disturbance, p.command_latency,
                                     p.command_timeout)
         self.rng = np.random.default_rng(p.seed)
-        self.pose_pub = self.create_publisher(PoseStamped, p.pose_topic, qos.SENSOR)
-        self.create_subscription(Twist, topics.CMD_VEL, self._on_cmd, qos.COMMAND)
+        self.pose_pub = topics.publisher(self, p.pose_topic)
+        topics.subscription(self, topics.CMD_VEL, self._on_cmd)
         self.create_timer(1.0 / p.rate_hz, self._on_timer)
 
     @property

@@ -9,27 +9,27 @@ core.agent.AgentController.
 """
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import PoseStamped, Twist, Vector3Stamped
+from geometry_msgs.msg import Twist
 import numpy as np
 from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Bool, Float64MultiArray
 
 from curve_formation.core.agent import AgentConfig, AgentController
 from curve_formation.core.assignment import AssignmentError
 from curve_formation.core.control import Gains, LAWS, WheelLimits
 from curve_formation.core.safety import Avoidance, AVOIDANCE_OFF
-from curve_formation.nodes import messages, qos, topics
+from curve_formation.nodes import messages, topics
 from curve_formation.nodes.params import (
     declare_parameters,
     limit_parameter,
     Param,
     ParameterError,
 )
-from curve_formation.nodes.readiness import ReadyReport, REPORTED
+from curve_formation.nodes.readiness import REPORTED, subscribe_to_curve
 from curve_formation.nodes.runtime import now_seconds, run_node
+from curve_formation.nodes.topics import Use
 
 
 PARAMETERS = (
@@ -192,24 +192,20 @@ def _avoidance(p):
 
 
 TOPICS = (
-    ('sub', topics.POSE, 'geometry_msgs/PoseStamped', 'SENSOR', 'own pose, arena frame'),
-    ('sub', '/robot_<j>/' + topics.STATE, 'sensor_msgs/JointState', 'STATE',
-     "each in-neighbour's state: e_x, e_y, curve_id, leader_age"),
-    ('sub', topics.CURVE, 'std_msgs/Float64MultiArray', 'LATCHED', 'the active curve'),
-    ('sub', topics.ESTOP, 'std_msgs/Bool', 'LATCHED',
-     'true stops every robot at once, false releases'),
-    ('sub', topics.ROBOT_POSES, 'sensor_msgs/JointState', 'SENSOR',
-     "every robot's pose (x, y, theta per robot), for the safety filter (with avoidance)"),
-    ('pub', topics.CMD_VEL, 'geometry_msgs/Twist', 'COMMAND', 'velocity command at rate_hz'),
-    ('pub', topics.STATE, 'sensor_msgs/JointState', 'STATE',
-     'own state on every pose, for out-neighbours (names e_x, e_y, curve_id, leader_age)'),
-    ('pub', topics.TICK, 'sensor_msgs/JointState', 'STATE',
-     'every tick: the command sent (v, w) and the stamps of the inputs it came from (own '
-     'pose, each in-neighbour state), to trace or replay a command'),
-    ('pub', topics.ESTIMATE, 'geometry_msgs/Vector3Stamped', 'STATE',
-     'disturbance estimate (x = d_v, y = d_w) every tick, stamped with the pose used'),
-    ('pub', topics.DIAGNOSTICS, 'diagnostic_msgs/DiagnosticArray', 'EVENTS',
-     'driving or why stopped; curve id, s_i, estimate, rejected inputs'),
+    Use('sub', topics.POSE, 'own pose, arena frame'),
+    Use('sub', topics.STATE, "each in-neighbour's state: e_x, e_y, curve_id, leader_age", '<j>'),
+    Use('sub', topics.CURVE, 'the active curve'),
+    Use('sub', topics.ESTOP),
+    Use('sub', topics.ROBOT_POSES, "every robot's pose (x, y, theta per robot), for the "
+        'safety filter (with avoidance)'),
+    Use('pub', topics.CMD_VEL, 'velocity command at rate_hz'),
+    Use('pub', topics.STATE, 'own state on every pose, for out-neighbours (names e_x, e_y, '
+        'curve_id, leader_age)'),
+    Use('pub', topics.TICK, 'every tick: the command sent (v, w) and the stamps of the inputs '
+        'it came from (own pose, each in-neighbour state), to trace or replay a command'),
+    Use('pub', topics.ESTIMATE),
+    Use('pub', topics.DIAGNOSTICS, 'driving or why stopped; curve id, s_i, estimate, rejected '
+        'inputs'),
     REPORTED,
 )
 
@@ -230,25 +226,23 @@ class FormationController(Node):
         self.config = agent_config(self.params)
         self.controller = AgentController(self.config)
         self._last_reason = None
-        self.cmd_pub = self.create_publisher(Twist, topics.CMD_VEL, qos.COMMAND)
-        self.state_pub = self.create_publisher(JointState, topics.STATE, qos.STATE)
         self.rng = np.random.default_rng()
-        self.estimate_pub = self.create_publisher(Vector3Stamped, topics.ESTIMATE, qos.STATE)
-        self.tick_pub = self.create_publisher(JointState, topics.TICK, qos.STATE)
-        self.diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.EVENTS)
-        self.create_subscription(PoseStamped, topics.POSE, self._on_pose, qos.SENSOR)
-        self.ready_report = ReadyReport(self, self.create_subscription(
-            Float64MultiArray, topics.CURVE, self._on_curve, qos.LATCHED))
-        self.create_subscription(Bool, topics.ESTOP, self._on_estop, qos.LATCHED)
+        self.cmd_pub = topics.publisher(self, topics.CMD_VEL)
+        self.state_pub = topics.publisher(self, topics.STATE)
+        self.estimate_pub = topics.publisher(self, topics.ESTIMATE)
+        self.tick_pub = topics.publisher(self, topics.TICK)
+        self.diag_pub = topics.publisher(self, topics.DIAGNOSTICS)
+        topics.subscription(self, topics.POSE, self._on_pose)
+        subscribe_to_curve(self, self._on_curve)
+        topics.subscription(self, topics.ESTOP, self._on_estop)
         for j, _ in self.config.neighbours:
-            self.create_subscription(JointState, topics.robot_topic(j, topics.STATE),
-                                     lambda msg, j=j: self._on_neighbour(j, msg), qos.STATE)
+            topics.subscription(self, topics.STATE, lambda msg, j=j: self._on_neighbour(j, msg),
+                                robot=j)
         self.others_msg = None
         if self.config.avoidance.on:
             # Kept as the bytes received; decoded at the tick (10 Hz), not for every message
             # (30 Hz), the latest only.
-            self.create_subscription(JointState, topics.ROBOT_POSES, self._on_others,
-                                     qos.SENSOR, raw=True)
+            topics.subscription(self, topics.ROBOT_POSES, self._on_others, raw=True)
         self.create_timer(1.0 / self.config.rate_hz, self._on_timer)
         self.create_timer(1.0, self._publish_diagnostics)
         role = 'leader' if self.config.is_leader else (

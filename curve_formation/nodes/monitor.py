@@ -7,16 +7,12 @@ t = 0 is when the first curve arrives. Rows are sampled at `record_hz` from the 
 from dataclasses import dataclass, field
 import time
 
-from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import PoseStamped, Twist, Vector3Stamped
 import numpy as np
 from rclpy.node import Node
-from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray
 
 from curve_formation.core import metrics
 from curve_formation.nodes import messages, qos, topics
-from curve_formation.nodes.readiness import ReadyReport
+from curve_formation.nodes.readiness import subscribe_to_curve
 from curve_formation.nodes.runtime import now_seconds, WithMessageInfo
 
 
@@ -65,29 +61,23 @@ class Monitor(Node):
         self.adopted = {}
         self.recording = Recording()
         for i in range(1, n + 1):
-            self._subscribe(PoseStamped, topics.robot_topic(i, topics.POSE),
-                            lambda m, i=i: self._on_pose(i, m), qos.SENSOR)
-            self._subscribe(Twist, topics.robot_topic(i, topics.CMD_VEL),
-                            WithMessageInfo(lambda m, info, i=i: self._on_cmd(i, m, info)),
-                            qos.COMMAND)
-            self._subscribe(Vector3Stamped, topics.robot_topic(i, topics.ESTIMATE),
-                            lambda m, i=i: self._on_estimate(i, m), qos.STATE)
-            self._subscribe(JointState, topics.robot_topic(i, topics.STATE),
-                            WithMessageInfo(lambda m, info, i=i: self._on_state(i, m, info)),
-                            qos.STATE)
+            self._subscribe(topics.POSE, lambda m, i=i: self._on_pose(i, m), i)
+            self._subscribe(topics.CMD_VEL,
+                            WithMessageInfo(lambda m, info, i=i: self._on_cmd(i, m, info)), i)
+            self._subscribe(topics.ESTIMATE, lambda m, i=i: self._on_estimate(i, m), i)
+            self._subscribe(topics.STATE,
+                            WithMessageInfo(lambda m, info, i=i: self._on_state(i, m, info)), i)
             if ground_truth:
-                self._subscribe(PoseStamped, topics.robot_topic(i, topics.TRUE_POSE),
-                                lambda m, i=i: self._on_true_pose(i, m), qos.SENSOR)
-        self.ready_report = ReadyReport(self, self._subscribe(
-            Float64MultiArray, topics.CURVE, WithMessageInfo(self._on_curve), qos.LATCHED),
-            log=False)
-        self._subscribe(JointState, topics.ROBOT_POSES, self._on_robot_poses, qos.SENSOR)
-        self._subscribe(DiagnosticArray, topics.DIAGNOSTICS, self._on_diagnostics, qos.EVENTS)
+                self._subscribe(topics.TRUE_POSE, lambda m, i=i: self._on_true_pose(i, m), i)
+        subscribe_to_curve(self, WithMessageInfo(self._on_curve), log=False,
+                           event_callbacks=qos.observer_events())
+        self._subscribe(topics.ROBOT_POSES, self._on_robot_poses)
+        self._subscribe(topics.DIAGNOSTICS, self._on_diagnostics)
         self.create_timer(1.0 / record_hz, self._sample)
 
-    def _subscribe(self, msg_type, topic, callback, profile):
-        return self.create_subscription(msg_type, topic, callback, profile,
-                                 event_callbacks=qos.observer_events())
+    def _subscribe(self, name, callback, robot=None):
+        return topics.subscription(self, name, callback, robot,
+                                   event_callbacks=qos.observer_events())
 
     def _on_pose(self, i, msg):
         x, y, th, stamp = messages.pose_from_msg(msg)

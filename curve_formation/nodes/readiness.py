@@ -13,7 +13,7 @@ have.
 
 from std_msgs.msg import String
 
-from curve_formation.nodes import qos, topics
+from curve_formation.nodes import topics
 
 
 POLL = 0.05   # s, how often a node checks whether its curve subscription has a publisher
@@ -29,7 +29,7 @@ class ReadyReport:
         self._node = node
         self._log = log
         self._subscription = subscription
-        self._pub = node.create_publisher(String, topics.READY, qos.ROLL_CALL)
+        self._pub = topics.publisher(node, topics.READY)
         self._timer = node.create_timer(POLL, self._poll)
         self.reported = False
 
@@ -42,12 +42,21 @@ class ReadyReport:
                 self._node.get_logger().info('ready: /formation/curve has a publisher')
 
 
+def subscribe_to_curve(node, callback, log=True, **kwargs):
+    """node's subscription to /formation/curve, reported ready once it has a publisher
+    (kwargs go to create_subscription).
+    """
+    subscription = topics.subscription(node, topics.CURVE, callback, **kwargs)
+    ReadyReport(node, subscription, log)   # kept alive by its timer, which the node holds
+    return subscription
+
+
 class ReadyCount:
     """The names of the nodes that have reported ready (read by the curve server)."""
 
     def __init__(self, node):
         self.names = set()
-        node.create_subscription(String, topics.READY, self._on_ready, qos.ROLL_CALL)
+        topics.subscription(node, topics.READY, self._on_ready)
 
     def _on_ready(self, msg):
         self.names.add(msg.data)
@@ -57,5 +66,6 @@ class ReadyCount:
 
 
 # The line a reporting node adds to its TOPICS (nodes/docs.py).
-REPORTED = ('pub', topics.READY, 'std_msgs/String', 'ROLL_CALL',
-            "this node's name, once it can receive /formation/curve (start-up handshake)")
+REPORTED = topics.Use('pub', topics.READY,
+                      "this node's name, once it can receive /formation/curve (start-up "
+                      'handshake)')

@@ -6,13 +6,10 @@ and at the end of the run; killed hard, it loses at most the last second.
 """
 
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import PoseArray, PoseStamped, Twist, Vector3Stamped
-from nav_msgs.msg import Path
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
-from sensor_msgs.msg import Image, JointState
-from std_msgs.msg import Bool, Float64MultiArray
+from sensor_msgs.msg import Image
 
 from curve_formation import bag
 from curve_formation.nodes import qos, topics
@@ -24,32 +21,6 @@ from curve_formation.nodes.runtime import (
     WithMessageInfo,
     writer_key,
 )
-
-
-def formation_topics(n):
-    """[(topic, message class, QoSProfile)] of an n-robot formation."""
-    out = [(topics.CURVE, Float64MultiArray, qos.LATCHED),
-           (topics.ESTOP, Bool, qos.LATCHED),
-           (topics.CURVE_PATH, Path, qos.LATCHED),
-           (topics.DIAGNOSTICS, DiagnosticArray, qos.EVENTS)]
-    for i in range(1, n + 1):
-        out += [(topics.robot_topic(i, topics.POSE), PoseStamped, qos.SENSOR),
-                (topics.robot_topic(i, topics.CMD_VEL), Twist, qos.COMMAND),
-                (topics.robot_topic(i, topics.STATE), JointState, qos.STATE),
-                (topics.robot_topic(i, topics.ESTIMATE), Vector3Stamped, qos.STATE),
-                (topics.robot_topic(i, topics.TICK), JointState, qos.STATE)]
-    return out
-
-
-def camera_topics():
-    """[(topic, message class, QoSProfile)] of the overhead camera: frames and all poses."""
-    return [(topics.CAMERA_IMAGE, Image, qos.IMAGE),
-            (topics.CAMERA_POSES, PoseArray, qos.SENSOR)]
-
-
-def type_name(msg_class):
-    """'geometry_msgs/msg/PoseStamped' for geometry_msgs.msg.PoseStamped."""
-    return f'{msg_class.__module__.split(".")[0]}/msg/{msg_class.__name__}'
 
 
 def bag_qos(profile):
@@ -72,12 +43,14 @@ class Recorder(Node):
     """
 
     def __init__(self, writer, topic_list, **kwargs):
+        """topic_list: [topics.Topic] by absolute names (topics.recorded)."""
         super().__init__(RECORDER_NODE, start_parameter_services=False, **kwargs)
         self.writer = writer
         self.received = {}
         self.streams = {}
-        for topic, msg_class, profile in topic_list:
-            writer.add_topic(topic, type_name(msg_class), bag_qos(profile))
+        for recorded in topic_list:
+            topic, msg_class, profile = recorded.name, recorded.msg_class, recorded.profile
+            writer.add_topic(topic, recorded.type_name, bag_qos(profile))
             self.received[topic] = 0
             deep = QoSProfile(depth=RECORD_DEPTH, reliability=profile.reliability,
                               durability=profile.durability)
@@ -112,13 +85,8 @@ PARAMETERS = (
           'sqlite3', choices=tuple(bag.STORAGES)),
 )
 
-TOPICS = (
-    ('sub', '/robot_<i>/{pose,cmd_vel,control_tick,formation_state,disturbance_estimate}',
-     'various', 'SENSOR',
-     "every robot's topics, with their own QoS, queue depth 500"),
-    ('sub', '/formation/{curve,curve_path,estop}, /diagnostics', 'various', 'LATCHED',
-     'the curve, its path, the e-stop and diagnostics'),
-)
+TOPICS = tuple(topics.Use('sub', t.name, robot='<i>' if t.per_robot else None)
+               for t in topics.REGISTRY.values() if t.recorded == topics.EVERY_BAG)
 
 
 class RecorderNode(Recorder):
@@ -137,8 +105,8 @@ class RecorderNode(Recorder):
             raise ParameterError(f"parameter 'bag': {exc}") from None
         writer.__enter__()
         try:   # a signal may come while the node is built: the bag is closed even then
-            extra = [(t, Image, qos.SENSOR) for t in p.image_topics]
-            super().__init__(writer, formation_topics(p.agent_count) + extra, **kwargs)
+            extra = [topics.Topic(t, Image, 'SENSOR', 'a camera image') for t in p.image_topics]
+            super().__init__(writer, topics.recorded(p.agent_count) + extra, **kwargs)
         except BaseException:
             writer.close()
             raise

@@ -18,17 +18,16 @@ import math
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import Twist
 import numpy as np
 from rclpy.node import Node
-from std_msgs.msg import Bool
 
 from curve_formation.core import wire
 from curve_formation.core.agent import is_stale
 from curve_formation.links import LinkError, robot_link
-from curve_formation.nodes import messages, qos, topics
+from curve_formation.nodes import messages, topics
 from curve_formation.nodes.params import declare_parameters, Param, ParameterError
 from curve_formation.nodes.runtime import now_seconds, run_node
+from curve_formation.nodes.topics import Use
 
 
 # How the robot's firmware reads its lines (robot_bridge, and fake_arena's emulated robots).
@@ -69,10 +68,10 @@ PARAMETERS = (
 ) + WIRE_PARAMETERS
 
 TOPICS = (
-    ('sub', topics.CMD_VEL, 'geometry_msgs/Twist', 'COMMAND', 'velocity command'),
-    ('sub', topics.ESTOP, 'std_msgs/Bool', 'LATCHED', 'true sends the stop line until released'),
-    ('pub', topics.DIAGNOSTICS, 'diagnostic_msgs/DiagnosticArray', 'EVENTS',
-     'link: sent, failed, malformed, last error, reply age, latency (1 Hz)'),
+    Use('sub', topics.CMD_VEL, 'velocity command'),
+    Use('sub', topics.ESTOP, 'true sends the stop line until released'),
+    Use('pub', topics.DIAGNOSTICS, 'link: sent, failed, malformed, last error, reply age, '
+        'latency (1 Hz)'),
 )
 
 LATENCY_WINDOW = 1000   # latencies kept for the diagnostics' percentiles
@@ -102,9 +101,9 @@ class RobotBridge(Node):
         self.failing = False          # the latest send failed
         self.last_reply = None
         self.latencies = collections.deque(maxlen=LATENCY_WINDOW)
-        self.diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.EVENTS)
-        self.create_subscription(Twist, topics.CMD_VEL, self._on_cmd, qos.COMMAND)
-        self.create_subscription(Bool, topics.ESTOP, self._on_estop, qos.LATCHED)
+        self.diag_pub = topics.publisher(self, topics.DIAGNOSTICS)
+        topics.subscription(self, topics.CMD_VEL, self._on_cmd)
+        topics.subscription(self, topics.ESTOP, self._on_estop)
         self.create_timer(1.0 / p.rate_hz, self._on_timer)
         # A command that came too soon after the last line is written as soon as it may be
         # (this timer runs only while one waits), not at the next tick of the timer above:
