@@ -16,6 +16,7 @@ import os
 from pathlib import Path
 import tempfile
 
+from curve_formation.run_options import RunOptions
 from curve_formation.runner import run_experiment
 
 
@@ -25,8 +26,8 @@ def quiet(*_):
 
 def measure(experiment, duration, link, folder):
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    return run_experiment(experiment, Path(folder) / link, duration=duration, log=quiet,
-                          bridge=None if link == 'fake' else link)
+    options = RunOptions(bridge=None if link == 'fake' else link)
+    return run_experiment(experiment, Path(folder) / link, duration, options, log=quiet)
 
 
 def settling(result):

@@ -7,12 +7,13 @@ value, NaN before the first) from t = 0 at the first curve message.
 """
 
 from dataclasses import dataclass, replace
+import json
 from pathlib import Path
 import re
 
 import numpy as np
 
-from curve_formation.bag import bag_info, BagError, read_messages
+from curve_formation.bag import bag_info, bag_summary, BagError, read_messages, stream_topic
 from curve_formation.core import metrics, plots
 from curve_formation.core.curve_codec import (
     decode_agent_parameters,
@@ -29,7 +30,10 @@ from curve_formation.core.experiment import (
 from curve_formation.paths import resolve_config
 
 
+# Keys of the bag metadata (custom_data) that make a bag self-describing: the experiment file
+# and every node's parameters file.
 EXPERIMENT_KEY = 'curve_formation.experiment'
+PARAMETERS_KEY = 'curve_formation.parameters'
 _ROBOT_TOPIC = re.compile(r'^/robot_(\d+)/(pose|cmd_vel|disturbance_estimate)$')
 # The message type each topic the analysis reads must have (a bag of another tool may differ).
 TYPES = {'curve': 'std_msgs/msg/Float64MultiArray', 'pose': 'geometry_msgs/msg/PoseStamped',
@@ -224,3 +228,44 @@ def settling_table(real, simulated):
                      'final_error_norm': p['final_error_norm'],
                      'final_error_norm_sim': other.get('final_error_norm')})
     return rows
+
+
+def bag_accounting(bag_path, publications_dir, streams, best_effort=()):
+    """Per recorded topic: messages the nodes published, should have recorded, and recorded.
+
+    A DDS writer numbers its samples 1, 2, ... in publish order, so a writer stream (see
+    bag.stream_key) of N publications whose first received sample was number f should have
+    put N - f + 1 in the bag, however late the recorder was matched. `streams` is the
+    recorder's tally (Recorder.streams). A stream never received counts whole, and so does
+    one with several writers or out of order. `lost`: expected but not in the bag, summed over
+    the reliable topics; `lost_best_effort`: the same over the `best_effort` topics (poses,
+    images), whose samples DDS may drop by design.
+    """
+    published, writers = {}, {}
+    for path in Path(publications_dir).glob('*.json'):
+        for key, count in json.loads(path.read_text()).items():
+            published[key] = published.get(key, 0) + count
+            writers[key] = writers.get(key, 0) + 1
+    recorded = {topic: count for topic, (_, count) in bag_summary(bag_path).items()}
+
+    topics = {t: {'published': 0, 'expected': 0, 'recorded': n, 'lost': 0,
+                  'best_effort': t in best_effort} for t, n in sorted(recorded.items())}
+    for key, count in published.items():
+        name = stream_topic(key)
+        if name not in recorded:   # a topic the bag does not record, e.g. RViz markers
+            continue
+        stream = streams.get(key, {'first': 1, 'received': 0, 'in_order': True})
+        exact = writers[key] == 1 and stream['in_order']
+        expected = count - stream['first'] + 1 if exact else count
+        topic = topics[name]
+        topic['published'] += count
+        topic['expected'] += expected
+        topic['lost'] += max(0, expected - stream['received'])
+    for name, topic in topics.items():   # received but not written: the bag writer failed
+        received = sum(s['received'] for s in streams.values() if s['topic'] == name)
+        topic['lost'] += max(0, received - topic['recorded'])
+
+    def lost(effort):
+        return sum(v['lost'] for v in topics.values() if v['best_effort'] == effort)
+    return {'topics': topics, 'lost': lost(False), 'lost_best_effort': lost(True),
+            'published': sum(v['published'] for v in topics.values())}

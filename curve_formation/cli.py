@@ -103,6 +103,7 @@ DEMO_RUN = 'arena_demo'
 
 def _cmd_demo(args):
     """Batch-simulate the paper's cases, then run the arena demo as ROS nodes with a bag."""
+    from curve_formation.run_options import RunOptions
     from curve_formation.runner import run_experiment
     out = Path(args.out)
     if out.exists() and any(out.iterdir()):
@@ -118,8 +119,9 @@ def _cmd_demo(args):
             print('    ' + _summary_line(f'{name} ({law})', data))
     print(f'2/2 ROS 2 run of {DEMO_RUN}: 9 robots in one fake arena, 9 controllers, curve server, '
           f'one process each ({args.duration:g} s)')
-    result = run_experiment(DEMO_RUN, out / DEMO_RUN, duration=args.duration,
-                            bag_path=out / DEMO_RUN / 'bag', log=lambda m: print('    ' + m))
+    result = run_experiment(DEMO_RUN, out / DEMO_RUN, args.duration,
+                            RunOptions(bag_path=out / DEMO_RUN / 'bag'),
+                            log=lambda m: print('    ' + m))
     summary[DEMO_RUN] = result
     print('    ' + _summary_line(DEMO_RUN, result))
     _write_json(out / 'summary.json', summary)
@@ -128,18 +130,19 @@ def _cmd_demo(args):
 
 
 def _cmd_run(args):
+    from curve_formation.run_options import RunOptions
     from curve_formation.runner import run_experiment
     if args.bridge and args.no_sim:
         raise ValueError('--bridge drives emulated robots and --no-sim has none; for real '
                          'robots start one robot_bridge per robot (docs/connecting-robots.md)')
     _warn(load_experiment(resolve_config(args.config)))
     _output_folder(args.out)
-    if args.discovery_server:
-        os.environ['ROS_DISCOVERY_SERVER'] = args.discovery_server
-    result = run_experiment(args.config, args.out, args.duration, args.single_process,
-                            with_robots=not args.no_sim, rate_hz=args.rate, bag_path=args.bag,
-                            camera={} if args.camera else None, bag_images=args.bag_images,
-                            bag_storage=args.bag_storage, bridge=args.bridge)
+    options = RunOptions(single_process=args.single_process, with_robots=not args.no_sim,
+                         rate_hz=args.rate, bag_path=args.bag,
+                         camera={} if args.camera else None, bag_images=args.bag_images,
+                         bag_storage=args.bag_storage, bridge=args.bridge,
+                         discovery_server=args.discovery_server)
+    result = run_experiment(args.config, args.out, args.duration, options)
     print(_summary_line(result['experiment'], result))
     print(f'wrote {args.out}/metrics.json, figures, params/ and logs/')
 

@@ -1,5 +1,6 @@
 """Where the shipped experiment files are, and the DDS settings every process of a run uses."""
 
+from contextlib import contextmanager
 import os
 from pathlib import Path
 import sys
@@ -28,6 +29,57 @@ def use_dds_profile(env=None, large_data=False):
     env = os.environ if env is None else env
     if USER_PROFILE is None:
         env[DDS_PROFILE_ENV] = str(DDS_PROFILE if large_data else DDS_PROFILE_UDP)
+
+
+DOMAIN_ENV = 'ROS_DOMAIN_ID'
+DISCOVERY_SERVER_ENV = 'ROS_DISCOVERY_SERVER'
+RANGE_ENV = 'ROS_AUTOMATIC_DISCOVERY_RANGE'
+
+
+def use_discovery(env):
+    """Sets a run's discovery in `env`: limited to this machine (LOCALHOST) unless
+    ROS_AUTOMATIC_DISCOVERY_RANGE says otherwise; with ROS_DISCOVERY_SERVER (a Fast DDS
+    discovery server, for networks where multicast fails), SUBNET: with LOCALHOST or OFF the
+    server's clients discovered nothing (measured: a run's start timed out). A server with
+    one of those ranges is a ValueError naming both variables.
+    """
+    if env.get(DISCOVERY_SERVER_ENV):
+        chosen = env.setdefault(RANGE_ENV, 'SUBNET')
+        if chosen in ('LOCALHOST', 'OFF'):
+            raise ValueError(f'{DISCOVERY_SERVER_ENV}={env[DISCOVERY_SERVER_ENV]} with '
+                             f'{RANGE_ENV}={chosen}: Fast DDS discovery-server clients '
+                             'discover nothing in that range; unset it or set SUBNET')
+    else:
+        env.setdefault(RANGE_ENV, 'LOCALHOST')
+
+
+@contextmanager
+def ros_environment(domain_id, discovery_server=None):
+    """Within the block, this process (and the processes it starts) use ROS_DOMAIN_ID =
+    domain_id and the discovery of use_discovery (through `discovery_server`, HOST:PORT, if
+    given); the variables' old values are given back after it.
+    """
+    keys = (DOMAIN_ENV, RANGE_ENV, DISCOVERY_SERVER_ENV)
+    saved = {key: os.environ.get(key) for key in keys}
+    try:
+        if discovery_server:
+            os.environ[DISCOVERY_SERVER_ENV] = discovery_server
+        use_discovery(os.environ)
+        os.environ[DOMAIN_ENV] = str(domain_id)
+        yield
+    finally:
+        for key, value in saved.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
+
+
+def discovery_text():
+    """How this process discovers, e.g. 'LOCALHOST' or 'SUBNET through the server H:P'."""
+    server = os.environ.get(DISCOVERY_SERVER_ENV)
+    return os.environ.get(RANGE_ENV, 'SUBNET') + (f' through the server {server}'
+                                                  if server else '')
 
 
 def discovery_server_command(address='127.0.0.1', port=11811, server_id=0):

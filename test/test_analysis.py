@@ -14,6 +14,7 @@ import yaml
 
 from conftest import DATA_DIR
 from curve_formation.analysis import analyze_bag, load_bag_run
+from curve_formation.run_options import RunOptions
 from curve_formation.runner import Run
 
 
@@ -29,8 +30,8 @@ def switched(tmp_path_factory):
     os.environ['ROS_DOMAIN_ID'] = str(random.SystemRandom().randint(1, 101))
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     try:
-        with Run(DATA_DIR / 'nearest_switch.yaml', folder / 'run', bag_path=folder / 'bag',
-                 log=lambda *_: None) as run:
+        with Run(DATA_DIR / 'nearest_switch.yaml', folder / 'run',
+                 RunOptions(bag_path=folder / 'bag'), log=lambda *_: None) as run:
             run.spin_for(12.0)
             live = run.write_results()
     finally:

@@ -10,6 +10,7 @@ import pytest
 from conftest import DATA_DIR
 from curve_formation.core import metrics
 from curve_formation.core.simulator import simulate
+from curve_formation.run_options import RunOptions
 from curve_formation.runner import phases_of, Run
 
 
@@ -28,7 +29,7 @@ def error_norms(run, data, key):
 
 
 def test_closed_loop_through_the_camera_converges(ros_domain, tmp_path):
-    with Run(EXPERIMENT, tmp_path, camera={}, log=quiet) as run:
+    with Run(EXPERIMENT, tmp_path, RunOptions(camera={}), log=quiet) as run:
         run.spin_for(40.0)
         data = run.recording()
     t = data['t']
@@ -67,7 +68,7 @@ def commands_during(data, robot, start, end):
 def test_a_lost_marker_stops_its_robot_for_as_long_and_only_it(ros_domain, tmp_path, fault):
     """Robot 9 (a leaf: nobody follows it) loses its pose for 2 s from t = 4 s."""
     camera = dict(fault, fault_from=4.0, fault_for=2.0)
-    with Run(EXPERIMENT, tmp_path, camera=camera, log=quiet) as run:
+    with Run(EXPERIMENT, tmp_path, RunOptions(camera=camera), log=quiet) as run:
         run.spin_for(9.0)
         data = run.recording()
     # The fault clock starts when fake_camera gets the curve, the monitor's a little later.
@@ -94,7 +95,7 @@ def test_the_mona_arena_case_through_the_camera_never_deadlocks(ros_domain, tmp_
     not settle to it: the fast observer this case needs passes camera noise into the commands,
     docs/collision-avoidance.md).
     """
-    with Run('mona_arena', tmp_path, camera={}, log=quiet) as run:
+    with Run('mona_arena', tmp_path, RunOptions(camera={}), log=quiet) as run:
         run.spin_for(121.0)
         result = run.write_results()
     bodies = result['bodies']

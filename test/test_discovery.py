@@ -13,7 +13,7 @@ import pytest
 import rclpy
 
 from conftest import DATA_DIR
-from curve_formation import runner
+from curve_formation import paths
 from curve_formation.paths import discovery_server_command
 
 
@@ -82,7 +82,7 @@ except TimeoutError as exc:
 
 def test_a_run_discovers_through_a_discovery_server_and_only_through_it(ros_domain, tmp_path):
     """`run --discovery-server` sets ROS_DISCOVERY_SERVER: every node is the server's client
-    and finds the others through it, with the range SUBNET (runner.use_discovery). Pointed
+    and finds the others through it, with the range SUBNET (paths.use_discovery). Pointed
     at a port where no server listens, nothing is found: discovery went through the server.
     Traffic stays on this machine (the server on 127.0.0.1, the peers' own addresses).
     """
@@ -116,12 +116,30 @@ def test_a_run_discovers_through_a_discovery_server_and_only_through_it(ros_doma
 def test_a_discovery_server_with_a_local_range_is_refused():
     env = {'ROS_DISCOVERY_SERVER': '10.0.0.2:11811', 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
     with pytest.raises(ValueError, match='ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST'):
-        runner.use_discovery(env)
+        paths.use_discovery(env)
     env = {'ROS_DISCOVERY_SERVER': '10.0.0.2:11811'}
-    runner.use_discovery(env)
+    paths.use_discovery(env)
     assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'SUBNET'
     env = {}
-    runner.use_discovery(env)
+    paths.use_discovery(env)
     assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
 
 
+
+
+def test_a_runs_environment_is_given_back_after_it(monkeypatch):
+    monkeypatch.setenv('ROS_DOMAIN_ID', '7')
+    monkeypatch.delenv('ROS_AUTOMATIC_DISCOVERY_RANGE', raising=False)
+    monkeypatch.delenv('ROS_DISCOVERY_SERVER', raising=False)
+    with paths.ros_environment(42, '127.0.0.1:11811'):
+        assert os.environ['ROS_DOMAIN_ID'] == '42'
+        assert os.environ['ROS_DISCOVERY_SERVER'] == '127.0.0.1:11811'
+        assert paths.discovery_text() == 'SUBNET through the server 127.0.0.1:11811'
+    assert os.environ['ROS_DOMAIN_ID'] == '7'
+    assert 'ROS_AUTOMATIC_DISCOVERY_RANGE' not in os.environ
+    assert 'ROS_DISCOVERY_SERVER' not in os.environ
+    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'OFF')
+    with pytest.raises(ValueError, match='OFF'):   # refused, and nothing left changed
+        with paths.ros_environment(42, '127.0.0.1:11811'):
+            pass
+    assert os.environ['ROS_DOMAIN_ID'] == '7' and 'ROS_DISCOVERY_SERVER' not in os.environ

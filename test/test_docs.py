@@ -7,8 +7,8 @@ import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 
+from curve_formation.launches import NODE_CLASSES
 from curve_formation.nodes import docs, topics
-from curve_formation.runner import NODE_CLASSES
 
 
 README = Path(__file__).resolve().parent.parent / 'README.md'

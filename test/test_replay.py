@@ -15,6 +15,7 @@ from conftest import DATA_DIR
 from curve_formation.analysis import analyze_bag, load_bag_run
 from curve_formation.bag import BagError, read_messages
 from curve_formation.core import metrics
+from curve_formation.run_options import RunOptions
 from curve_formation.runner import Run
 
 
@@ -30,8 +31,8 @@ def recorded(tmp_path_factory):
     folder = tmp_path_factory.mktemp('recorded')
     os.environ['ROS_DOMAIN_ID'] = str(random.SystemRandom().randint(1, 101))
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    with Run(DATA_DIR / 'fast_closed.yaml', folder / 'run', bag_path=folder / 'bag',
-             log=lambda *_: None, bag_storage='sqlite3') as run:
+    options = RunOptions(bag_path=folder / 'bag', bag_storage='sqlite3')
+    with Run(DATA_DIR / 'fast_closed.yaml', folder / 'run', options, log=lambda *_: None) as run:
         run.spin_for(6.0)
         live = run.write_results()
     del os.environ['ROS_DOMAIN_ID']

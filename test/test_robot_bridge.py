@@ -13,12 +13,13 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import Bool
 
-from curve_formation import links, runner
+from curve_formation import launches, links
 from curve_formation.core import wire
 from curve_formation.core.experiment import load_experiment
 from curve_formation.nodes import qos, topics
 from curve_formation.nodes.params import ParameterError
 from curve_formation.nodes.robot_bridge import RobotBridge
+from curve_formation.run_options import RunOptions
 
 
 pytestmark = pytest.mark.ros
@@ -282,10 +283,10 @@ def test_emulated_robots_listen_outside_the_ephemeral_ports(tmp_path):
     could be taken before fake_arena binds it (it was, once, in a full test run).
     """
     low = int(Path('/proc/sys/net/ipv4/ip_local_port_range').read_text().split()[0])
-    found = runner.robot_links(9, 'udp', tmp_path)
+    found = launches.robot_links(9, 'udp', tmp_path)
     ports = [int(link.rsplit(':', 1)[1]) for link in found]
     assert len(set(ports)) == 9 and max(ports) < min(low, 7400)
-    assert runner.robot_links(2, 'pty', tmp_path) == [f'pty:{tmp_path.resolve()}/robot_{i}'
+    assert launches.robot_links(2, 'pty', tmp_path) == [f'pty:{tmp_path.resolve()}/robot_{i}'
                                                       for i in (1, 2)]
 
 
@@ -299,8 +300,8 @@ def test_bridges_and_emulated_robots_share_the_experiments_wheel_radius(tmp_path
                                             'limits: {wheel_base: 0.08, max_wheel_speed: 0.08, '
                                             'wheel_radius: 0.02}'))
     experiment = load_experiment(experiment_path)
-    launches = runner.node_launches(experiment, experiment_path, bridge='pty',
-                                    links_dir=tmp_path)
-    radii = {launch.key: launch.parameters['wheel_radius'] for launch in launches
+    graph = launches.node_launches(experiment, experiment_path, RunOptions(bridge='pty'),
+                                   links_dir=tmp_path)
+    radii = {launch.key: launch.parameters['wheel_radius'] for launch in graph
              if 'wheel_radius' in launch.parameters}
     assert len(radii) == experiment.n + 1 and set(radii.values()) == {0.02}, radii

@@ -11,6 +11,7 @@ import pytest
 from conftest import DATA_DIR
 from curve_formation.core import metrics
 from curve_formation.core.simulator import simulate
+from curve_formation.run_options import RunOptions
 from curve_formation.runner import phases_of, Run, run_experiment
 
 
@@ -184,8 +185,8 @@ def test_followers_of_a_silent_neighbour_stop_within_the_timeout(ros_domain, tmp
 
 
 def test_runner_writes_params_metrics_and_figures_single_process(ros_domain, tmp_path):
-    result = run_experiment(DATA_DIR / 'fast_closed.yaml', tmp_path, duration=8.0,
-                            single_process=True, log=quiet)
+    result = run_experiment(DATA_DIR / 'fast_closed.yaml', tmp_path, 8.0,
+                            RunOptions(single_process=True), log=quiet)
     assert result['mode'] == 'single process'
     saved = json.loads((tmp_path / 'metrics.json').read_text())
     assert saved['phases'][0]['final_error_norm'] < saved['phases'][0]['initial_error_norm'] / 5
@@ -198,7 +199,7 @@ def test_a_start_that_times_out_stops_the_nodes_it_started(tmp_path, ros_domain,
     """--no-sim without robots: no pose ever comes, the start times out, nothing lingers."""
     import subprocess
 
-    from curve_formation import runner
+    from curve_formation import node_graph, runner
     monkeypatch.setattr(runner, 'READY_TIMEOUT', 8.0)
     started = []
     popen = subprocess.Popen
@@ -206,9 +207,10 @@ def test_a_start_that_times_out_stops_the_nodes_it_started(tmp_path, ros_domain,
     def recording_popen(*args, **kwargs):
         started.append(popen(*args, **kwargs))
         return started[-1]
-    monkeypatch.setattr(runner.subprocess, 'Popen', recording_popen)
+    monkeypatch.setattr(node_graph.subprocess, 'Popen', recording_popen)
     with pytest.raises(TimeoutError, match='pose'):
-        with Run(DATA_DIR / 'fast_closed.yaml', tmp_path, with_robots=False, log=quiet):
+        with Run(DATA_DIR / 'fast_closed.yaml', tmp_path, RunOptions(with_robots=False),
+                 log=quiet):
             pass
     assert len(started) == 6   # the controllers; the curve server was never reached
     assert all(proc.poll() is not None for proc in started)
@@ -226,7 +228,8 @@ def test_bodies_avoid_each_other_over_dds_as_the_simulator_predicts(ros_domain, 
     With a bridge, fake_arena's robots are emulated firmware: every command travels as a
     wheel-speed line from a robot_bridge over UDP, and the run is held to the same envelope.
     """
-    with Run(DATA_DIR / 'arena_bodies.yaml', tmp_path, log=quiet, bridge=bridge) as run:
+    with Run(DATA_DIR / 'arena_bodies.yaml', tmp_path, RunOptions(bridge=bridge),
+             log=quiet) as run:
         run.spin_for(25.0)
         data = run.recording()
         result = run.write_results()
@@ -265,8 +268,8 @@ def test_a_robot_whose_link_goes_down_stops_on_its_watchdog_and_drives_on_after(
     then ok again once the robot answers, and the robot drives on.
     """
     down_from, down_for, watchdog = 8.0, 2.0, 1.0
-    with Run(DATA_DIR / 'fast_closed.yaml', tmp_path, log=quiet, bridge='pty',
-             faults={'link_down': [3, down_from, down_for]}) as run:
+    options = RunOptions(bridge='pty', faults={'link_down': [3, down_from, down_for]})
+    with Run(DATA_DIR / 'fast_closed.yaml', tmp_path, options, log=quiet) as run:
         run.spin_for(16.0)
         data = run.recording()
         reports = run.monitor.links['/robot_3/robot_bridge']
@@ -298,8 +301,8 @@ def test_the_arena_demo_through_bridges_settles_as_with_fake_robots(ros_domain, 
     """
     settle = {}
     for bridge in (None, 'udp', 'pty'):
-        result = run_experiment('arena_demo', tmp_path / str(bridge), duration=60.0,
-                                log=quiet, bridge=bridge)
+        result = run_experiment('arena_demo', tmp_path / str(bridge), 60.0,
+                                RunOptions(bridge=bridge), log=quiet)
         settle[bridge] = result['phases'][0]['settle_time']
         if bridge:   # (before fake_arena is up, a pty is not there yet: failed, not lost)
             assert all(link['replies'] >= 0.9 * link['sent'] and not link['lost_at']

@@ -13,7 +13,8 @@ from conftest import DATA_DIR
 from curve_formation.core import metrics
 from curve_formation.core.simulator import simulate
 from curve_formation.nodes import qos, topics
-from curve_formation.runner import bag_accounting, Run
+from curve_formation.run_options import RunOptions
+from curve_formation.runner import Run
 
 
 pytestmark = pytest.mark.ros
@@ -103,14 +104,14 @@ def test_dropped_messages_and_latency_still_converge_at_arena_speeds(ros_domain,
     second (0.025 at 29 s, 0.0086 at 30 s), so such a ratio only measures a 0.2 s timing.
     At the fast test case's ~10 m/s the same faults make the law diverge (docs/safety.md).
     """
-    with Run('arena_demo', tmp_path, command_latency=0.2, bag_path=tmp_path / 'bag',
-             faults={'pose_drop': 0.2, 'state_drop': 0.2}, log=quiet) as run:
+    options = RunOptions(command_latency=0.2, bag_path=tmp_path / 'bag',
+                         faults={'pose_drop': 0.2, 'state_drop': 0.2})
+    with Run('arena_demo', tmp_path, options, log=quiet) as run:
         run.spin_for(30.0)
         data = run.recording()
     # The faults drop messages before they are published: the bag has every one that was
     # (poses are best effort: DDS may drop a few under this load, measured 0 to 7 of ~7000).
-    accounting = bag_accounting(tmp_path / 'bag', run.publications_dir, run.recorder.streams,
-                                run.best_effort_topics)
+    accounting = run.bag_accounting()
     assert accounting['published'] > 10_000 and accounting['lost'] == 0, accounting
     assert accounting['lost_best_effort'] < 0.005 * accounting['published'], accounting
     followed, phase = run.followed(data['t'])   # targets as the curve server re-assigned them

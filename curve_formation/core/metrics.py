@@ -321,3 +321,19 @@ def result_metrics(result, tolerance=None):
     out['control'] = ('continuous' if result.rate_hz is None
                       else f'zero-order hold at {result.rate_hz:g} Hz')
     return out
+
+
+def ground_truth_metrics(experiment, data, phase):
+    """With a camera: the formation measured on the fake robots' true poses, and how far the
+    tracked poses (what the controllers saw, up to a frame old) were from them.
+    """
+    truth = data['true_poses']
+    seen = np.isfinite(truth).all(axis=2) & np.isfinite(data['poses']).all(axis=2)
+    gap = np.linalg.norm(data['poses'][..., :2] - truth[..., :2], axis=2)[seen]
+    turn = np.abs(np.angle(np.exp(1j * (data['poses'][..., 2] - truth[..., 2]))))[seen]
+    out = run_metrics(experiment, data['t'], truth, phase)
+    return {'final_error_norm': out['final_error_norm'],
+            'phases': [{k: p[k] for k in ('settled', 'settle_time', 'final_error_norm')}
+                       for p in out['phases']],
+            'tracked_vs_true_position_rms': float(np.sqrt(np.mean(gap ** 2))),
+            'tracked_vs_true_heading_rms_deg': float(np.degrees(np.sqrt(np.mean(turn ** 2))))}

@@ -39,7 +39,7 @@ class Recorder(Node):
 
     `streams` tallies each writer stream (runtime.writer_key): the DDS sequence number of the
     first message received, the last one, how many arrived and whether they came in order
-    (they do from a single writer), from which runner.bag_accounting tells what was lost.
+    (they do from a single writer), from which analysis.bag_accounting tells what was lost.
     """
 
     def __init__(self, writer, topic_list, **kwargs):

@@ -16,6 +16,7 @@ import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 
+from curve_formation.bag import stream_key
 from curve_formation.nodes.params import ParameterError
 from curve_formation.paths import use_dds_profile
 
@@ -41,13 +42,8 @@ def writer_key(topic, msg):
     our nodes puts its own name first in its DiagnosticArray, so that name is added.
     """
     if isinstance(msg, DiagnosticArray) and msg.status:
-        return f'{topic} {msg.status[0].name}'
-    return topic
-
-
-def stream_topic(key):
-    """The topic of a writer_key."""
-    return key.split(' ', 1)[0]
+        return stream_key(topic, msg.status[0].name)
+    return stream_key(topic)
 
 
 class PublicationCounter:
@@ -55,7 +51,7 @@ class PublicationCounter:
 
     A DDS writer numbers its samples 1, 2, ... in publish order, and the recorder notes the
     first number it received of each stream; so what it should hold is every publication from
-    that one on, however late it was matched (see runner.bag_accounting).
+    that one on, however late it was matched (see analysis.bag_accounting).
     """
 
     def __init__(self, node):

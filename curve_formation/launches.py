@@ -1,0 +1,193 @@
+"""The node graph of an experiment: which nodes to start, with which parameters.
+
+Writes one parameters file per node (usable by hand with `ros2 run ... --ros-args -r
+__ns:=/robot_3 --params-file OUT/params/robot_3.formation_controller.yaml`).
+"""
+
+from dataclasses import dataclass
+import importlib
+from pathlib import Path
+import random
+import socket
+
+import yaml
+
+from curve_formation.core import wire
+from curve_formation.core.agent import agent_configs
+from curve_formation.core.config_schema import LimitsSpec
+from curve_formation.core.experiment import control_rate
+from curve_formation.nodes.formation_controller import node_parameters
+from curve_formation.nodes.params import limit_parameter
+from curve_formation.run_options import DEFAULTS
+
+
+@dataclass(frozen=True)
+class NodeLaunch:
+    """One node to start: its module, namespace, name and parameters."""
+
+    module: str
+    namespace: str
+    name: str
+    parameters: dict
+
+    @property
+    def key(self):
+        return f'{self.namespace.strip("/") + "." if self.namespace != "/" else ""}{self.name}'
+
+
+def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None):
+    """The node graph of an experiment: curve server, controllers and, as the RunOptions say,
+    fake robots or one fake arena, robot bridges (their pseudo-terminals in links_dir) and
+    the camera nodes.
+    """
+    with_robots, camera, bridge = options.with_robots, options.camera, options.bridge
+    pose_noise, command_latency = options.pose_noise, options.command_latency
+    faults = options.faults or {}
+    spec = experiment.spec
+    if camera is not None and spec.camera is None:
+        raise ValueError(f'{experiment.source}: camera: a camera run needs a `camera` section')
+    cameras = ([] if camera is None
+               else camera_launches(experiment, experiment_path, with_robots, camera))
+    rate = control_rate(experiment, options.rate_hz)
+    on_pc = spec.disturbance.injected == 'on_pc'
+    one_world = uses_fake_arena(experiment) or bridge is not None
+    links = robot_links(experiment.n, bridge, links_dir) if bridge and with_robots else []
+    # The curve server waits until the n controllers, the runner's monitor and the camera nodes
+    # (they draw the curve) can receive from it (nodes/readiness.py).
+    launches = [NodeLaunch('curve_formation.nodes.curve_server', '/', 'curve_server',
+                           {'experiment': str(Path(experiment_path).resolve()),
+                            'wait_for_ready': experiment.n + 1 + len(cameras)})]
+    for i, config in enumerate(agent_configs(experiment, rate), 1):
+        ns = f'/robot_{i}'
+        d = [float(v) for v in experiment.disturbance[i - 1]]
+        controller = {**node_parameters(config),
+                      'fault_state_drop': float(faults.get('state_drop', 0.0))}
+        launches.append(NodeLaunch('curve_formation.nodes.formation_controller', ns,
+                                   'formation_controller', controller))
+        if links:
+            launches.append(NodeLaunch('curve_formation.nodes.robot_bridge', ns,
+                                       'robot_bridge', bridge_parameters(experiment, rate,
+                                                                         links[i - 1])))
+        if with_robots and not one_world:
+            launches.append(NodeLaunch('curve_formation.nodes.fake_robot', ns, 'fake_robot', {
+                'index': i,
+                'initial_pose': [float(v) for v in experiment.initial_poses[i - 1]],
+                'disturbance': [0.0, 0.0] if on_pc else d, 'seed': i,
+                'pose_noise': [float(v) for v in pose_noise],
+                'command_latency': float(command_latency),
+                'fault_pose_drop': float(faults.get('pose_drop', 0.0)),
+                'pose_topic': 'pose' if camera is None else 'true_pose'}))
+    if with_robots and one_world:
+        arena = {'experiment': str(Path(experiment_path).resolve()),
+                 'pose_noise': [float(v) for v in pose_noise],
+                 'command_latency': float(command_latency),
+                 'fault_pose_drop': float(faults.get('pose_drop', 0.0)),
+                 'pose_topic': 'pose' if camera is None else 'true_pose',
+                 'publish_robot_poses': camera is None}
+        if links:   # emulated robots behind their links, reading what the bridges write
+            arena['links'] = links
+            arena['wheel_radius'] = wheel_radius(experiment)
+            if 'link_down' in faults:
+                arena['fault_link_down'] = [float(v) for v in faults['link_down']]
+        launches.append(NodeLaunch('curve_formation.nodes.fake_arena', '/', 'fake_arena',
+                                   arena))
+    return launches + cameras
+
+
+# Ports for the emulated robots' UDP links: below the kernel's ephemeral range (32768 and up
+# here), where a socket bound to port 0 (each bridge's own) could take a probed port before
+# fake_arena binds it (seen once in a full test run), and below Fast DDS's ports (7400 + 250
+# x domain id and up).
+LINK_PORTS = range(6000, 7400)
+
+
+def robot_links(n, bridge, folder, rng=None):
+    """Each robot's link, as the emulated robot listens on it: a free UDP port on this
+    machine (from LINK_PORTS), or a pseudo-terminal at folder/robot_<i>.
+    """
+    if bridge == 'pty':
+        return [f'pty:{Path(folder).resolve() / f"robot_{i}"}' for i in range(1, n + 1)]
+    if bridge != 'udp':
+        raise ValueError(f"bridge must be 'udp' or 'pty', got {bridge!r}")
+    rng = rng or random.SystemRandom()
+    ports = []
+    for port in rng.sample(LINK_PORTS, len(LINK_PORTS)):
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+            try:
+                probe.bind(('127.0.0.1', port))
+            except OSError:
+                continue
+        ports.append(port)
+        if len(ports) == n:
+            return [f'udp:127.0.0.1:{port}' for port in ports]
+    raise RuntimeError(f'no {n} free UDP ports in {LINK_PORTS}')
+
+
+def wheel_radius(experiment):
+    """The experiment's wheel radius (m; the schema's default without a limits section)."""
+    limits = experiment.spec.limits
+    return float(limits.wheel_radius if limits
+                 else LimitsSpec.model_fields['wheel_radius'].default)
+
+
+def bridge_parameters(experiment, rate, link):
+    """robot_bridge parameters for a robot behind `link` (the emulated robot's end of it)."""
+    limits = experiment.limits
+    kind, _, where = link.partition(':')
+    return {'link': link if kind == 'udp' else f'serial:{where}',
+            'wheel_base': float(limits.wheel_base or wire.MONA_WHEEL_BASE),
+            'wheel_radius': wheel_radius(experiment),
+            'max_wheel_speed': limit_parameter(limits.max_wheel_speed),
+            'rate_hz': float(rate)}
+
+
+def uses_fake_arena(experiment):
+    """Simulated robots share one world (fake_arena) when they have bodies or avoid each
+    other; otherwise each is a fake_robot of its own, passing through the others.
+    """
+    return experiment.radius > 0 or experiment.avoidance.on
+
+
+def camera_launches(experiment, experiment_path, with_fake_camera, overrides):
+    """camera_tracker, and fake_camera (with the experiment's fake settings) when simulated."""
+    cam = experiment.spec.camera
+    path = str(Path(experiment_path).resolve())
+    launches = [NodeLaunch('curve_formation.nodes.camera_tracker', '/', 'camera_tracker',
+                           {'experiment': path})]
+    if with_fake_camera:
+        fake = cam.fake
+        launches.append(NodeLaunch('curve_formation.nodes.fake_camera', '/', 'fake_camera', {
+            'experiment': path, 'rate_hz': float(cam.rate_hz),
+            'resolution': [int(v) for v in cam.resolution], 'tilt_deg': float(fake.tilt_deg),
+            'height': float(fake.height), 'noise': float(fake.noise),
+            'blur': float(fake.blur), 'brightness': float(fake.brightness), **overrides}))
+    return launches
+
+
+def write_params_files(launches, folder):
+    """One ROS 2 parameters file per node; returns {key: path}."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = {}
+    for launch in launches:
+        fqn = (launch.namespace.rstrip('/') + '/' + launch.name)
+        path = folder / f'{launch.key}.yaml'
+        path.write_text(yaml.safe_dump({fqn: {'ros__parameters': launch.parameters}},
+                                       sort_keys=False))
+        paths[launch.key] = path
+    return paths
+
+
+# The node class of each node module, to start it in the runner's own process.
+NODE_CLASSES = {'curve_formation.nodes.curve_server': 'CurveServer',
+                'curve_formation.nodes.formation_controller': 'FormationController',
+                'curve_formation.nodes.fake_robot': 'FakeRobot',
+                'curve_formation.nodes.fake_arena': 'FakeArena',
+                'curve_formation.nodes.robot_bridge': 'RobotBridge',
+                'curve_formation.nodes.camera_tracker': 'CameraTracker',
+                'curve_formation.nodes.fake_camera': 'FakeCamera'}
+
+
+def node_class(module):
+    """The Node subclass a node module's console script runs."""
+    return getattr(importlib.import_module(module), NODE_CLASSES[module])

@@ -1,0 +1,132 @@
+"""Starts and stops an experiment's nodes: a process each, or all in the runner's executor."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+from curve_formation.launches import node_class
+from curve_formation.nodes.runtime import PublicationCounter, PUBLICATIONS_ENV
+
+
+STOP_TIMEOUT = 10.0    # s for a group of nodes to exit after SIGINT before it is killed
+PROCESS_CHECK_PERIOD = 0.2   # s between checks that every node process still runs
+
+
+class NodeGraph:
+    """The running nodes of a run. A context manager: stop() on exit.
+
+    params_files: {launch key: parameters file} (launches.write_params_files); logs_dir gets
+    each process's output; publications_dir (or None), each node's count of publications
+    (runtime.PublicationCounter, for analysis.bag_accounting). host: the runner's
+    observers.Observers, which spins while nodes stop and hosts them with single_process.
+    """
+
+    def __init__(self, launches, params_files, logs_dir, host, single_process=False,
+                 publications_dir=None):
+        self.launches = launches
+        self.params_files = params_files
+        self.logs_dir = logs_dir
+        self.host = host
+        self.single_process = single_process
+        self.publications_dir = publications_dir
+        self.processes = {}
+        self.in_process = []    # (node, PublicationCounter or None)
+        self._last_check = -float('inf')
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.stop()
+
+    def start(self, launch):
+        if self.single_process:
+            from rclpy.parameter import Parameter
+            node = node_class(launch.module)(
+                context=self.host.context, namespace=launch.namespace,
+                parameter_overrides=[Parameter(k, value=v) for k, v in launch.parameters.items()])
+            counter = PublicationCounter(node) if self.publications_dir is not None else None
+            self.in_process.append((node, counter))
+            self.host.add_node(node)
+            return
+        self.logs_dir.mkdir(parents=True, exist_ok=True)
+        env = dict(os.environ, PYTHONUNBUFFERED='1')
+        if self.publications_dir is not None:   # each node reports what it published
+            env[PUBLICATIONS_ENV] = str(self.publications_dir)
+        cmd = [sys.executable, '-m', launch.module, '--ros-args', '-r',
+               f'__ns:={launch.namespace}', '--params-file', str(self.params_files[launch.key])]
+        with open(self.logs_dir / f'{launch.key}.log', 'w') as log_file:
+            self.processes[launch.key] = subprocess.Popen(
+                cmd, env=env, stdout=log_file, stderr=subprocess.STDOUT,
+                start_new_session=True, preexec_fn=_stop_with_parent)
+
+    def check_processes(self):
+        """Raise if a node process ended on its own; returns False otherwise.
+
+        Looks at most every PROCESS_CHECK_PERIOD s (it is called between callbacks).
+        """
+        now = time.monotonic()
+        if now - self._last_check < PROCESS_CHECK_PERIOD:
+            return False
+        self._last_check = now
+        for key, proc in self.processes.items():
+            if proc.poll() is not None:
+                tail = (self.logs_dir / f'{key}.log').read_text()[-2000:]
+                raise RuntimeError(f'node {key} exited with status {proc.returncode}:\n{tail}')
+        return False
+
+    def kill(self, key, sig=signal.SIGKILL):
+        """Kill one node process (fault injection); it is forgotten by check_processes."""
+        proc = self.processes.pop(key)
+        proc.send_signal(sig)
+        proc.wait(10)
+        return proc.returncode
+
+    def restart(self, key):
+        self.start(next(launch for launch in self.launches if launch.key == key))
+
+    def stop(self):
+        """SIGINT every node process (they send a last zero command), then kill what lingers;
+        in-process nodes run their shutdown hooks and are destroyed.
+
+        Controllers first, so that their last ticks and zero commands are acknowledged by
+        the fake robots and the recorder, which are all still there; the host spins
+        meanwhile, so the recorder keeps draining its queue.
+        """
+        first = {k: p for k, p in self.processes.items() if k.endswith('formation_controller')}
+        for group in (first, {k: p for k, p in self.processes.items() if k not in first}):
+            deadline = time.monotonic() + STOP_TIMEOUT   # for the whole group together
+            for proc in group.values():
+                if proc.poll() is None:
+                    proc.send_signal(signal.SIGINT)
+            while time.monotonic() < deadline and any(p.poll() is None for p in group.values()):
+                self.host.spin_once()
+            for proc in group.values():
+                if proc.poll() is None:
+                    proc.kill()
+                    proc.wait(5)
+        self.processes = {}
+        if not self.in_process:
+            return
+        self.host.drain()
+        for node, counter in self.in_process:
+            hook = getattr(node, 'on_shutdown', None)
+            if hook is not None:
+                hook()
+            if counter is not None:
+                counter.save(self.publications_dir, node.get_fully_qualified_name())
+        for node, _ in self.in_process:
+            self.host.remove_node(node)
+            node.destroy_node()
+        self.in_process = []
+
+
+def _stop_with_parent():
+    """In a node process: receive SIGINT when the runner dies, even if it is killed hard."""
+    try:
+        import ctypes
+        ctypes.CDLL('libc.so.6', use_errno=True).prctl(1, signal.SIGINT)  # PR_SET_PDEATHSIG
+    except OSError:
+        pass

@@ -1,0 +1,98 @@
+"""The runner's own ROS context, from which it observes a run: the monitor and, with a bag,
+the recorder, spun by one executor (which also hosts a single-process run's nodes).
+"""
+
+from contextlib import ExitStack
+
+from curve_formation.analysis import EXPERIMENT_KEY, PARAMETERS_KEY
+from curve_formation.nodes.runtime import make_executor, spin_until_quiet
+
+
+class Observers:
+    """A context manager: on entry an rclpy context with the Monitor (nodes/monitor.py) and,
+    given an unopened bag.BagWriter, the Recorder writing into it; on exit what is still
+    queued is taken, the nodes and context are shut down and the bag is closed.
+
+    experiment_text and parameters_text go into the bag's metadata, so that it describes
+    itself (analysis.py).
+    """
+
+    def __init__(self, experiment, record_hz, ground_truth, bag_writer=None, images=False,
+                 experiment_text='', parameters_text=''):
+        self.experiment = experiment
+        self.record_hz = record_hz
+        self.ground_truth = ground_truth
+        self.bag_writer = bag_writer
+        self.images = images
+        self.metadata = {EXPERIMENT_KEY: experiment_text, PARAMETERS_KEY: parameters_text}
+        self.context = self.executor = self.monitor = self.recorder = None
+        self.best_effort_topics = set()
+        self._stack = ExitStack()
+
+    def __enter__(self):
+        try:
+            self._open()
+        except BaseException:
+            self.__exit__(None, None, None)
+            raise
+        return self
+
+    def _open(self):
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.qos import ReliabilityPolicy
+        from rclpy.signals import SignalHandlerOptions
+
+        from curve_formation.nodes import topics
+        from curve_formation.nodes.monitor import Monitor
+        from curve_formation.nodes.recorder import Recorder
+
+        self.context = Context()
+        # Signals stay with Python (Ctrl-C, or run_experiment's handlers), so that the runner
+        # can close the bag and stop the nodes.
+        rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
+        self._stack.callback(rclpy.try_shutdown, context=self.context)
+        recorded = []
+        if self.bag_writer is not None:
+            self._stack.enter_context(self.bag_writer)
+            for key, text in self.metadata.items():
+                self.bag_writer.set_custom(key, text)
+            recorded = topics.recorded(self.experiment.n, self.images)
+            self.best_effort_topics = {t.name for t in recorded
+                                       if t.profile.reliability == ReliabilityPolicy.BEST_EFFORT}
+        # The same executor as every node process (callbacks dispatched from C++). Python
+        # callbacks share the GIL: more executor threads would not run them faster.
+        self.executor = make_executor(self.context)
+        self.monitor = Monitor(self.experiment.n, self.record_hz, context=self.context,
+                               ground_truth=self.ground_truth)
+        self._stack.callback(self.monitor.destroy_node)
+        if recorded:
+            self.recorder = Recorder(self.bag_writer, recorded, context=self.context)
+            self._stack.callback(self.recorder.destroy_node)
+        self._stack.callback(self.executor.shutdown, timeout_sec=1.0)   # the first to go
+        for node in (self.monitor, self.recorder):
+            if node is not None:
+                self.executor.add_node(node)
+
+    def __exit__(self, *exc):
+        # Record what is still queued (the nodes' last zero commands among it).
+        if self.executor is not None:
+            self.drain()
+        self._stack.close()   # executor, nodes, bag, context: the reverse of their opening
+
+    def add_node(self, node):
+        """Spin a node of the run here (single process)."""
+        self.executor.add_node(node)
+
+    def remove_node(self, node):
+        self.executor.remove_node(node)
+
+    def spin_once(self, timeout=0.02):
+        self.executor.spin_once(timeout_sec=timeout)
+
+    def drain(self):
+        """Spin until the recorder has taken what already arrived."""
+        spin_until_quiet(self.executor, self.recorded_count)
+
+    def recorded_count(self):
+        return 0 if self.bag_writer is None else self.bag_writer.count

@@ -1,0 +1,45 @@
+"""What a run of an experiment's node graph is asked to do, beyond the experiment file."""
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from curve_formation.bag import DEFAULT_STORAGE
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """Options of `curve-formation run` (runner.Run), all keyword, each with its default.
+
+    single_process: every node in the runner's own executor instead of a process each.
+    with_robots: start simulated robots (fake_robot or fake_arena); False for real ones.
+    rate_hz: control rate (Hz; None: the experiment's).
+    record_hz: the monitor's sampling rate (Hz).
+    pose_noise: (position m, heading rad) standard deviations added to simulated poses.
+    command_latency: delay (s) of every command at the simulated robots.
+    faults: fault injection, {'pose_drop': p, 'state_drop': p, 'link_down': [robot, from s,
+        for s]}.
+    camera: None, or fake_camera parameter overrides ({} for none): poses then come from
+        camera_tracker, fed by fake_camera (with_robots) or a real camera on /camera/image_raw.
+    bridge: None, 'udp' or 'pty': each cmd_vel goes through a robot_bridge to fake_arena's
+        emulated robots.
+    bag_path: record a ROS 2 bag there (refused if it exists); bag_images: with camera frames;
+        bag_storage: 'mcap' or 'sqlite3'.
+    discovery_server: HOST:PORT of a Fast DDS discovery server to discover through.
+    """
+
+    single_process: bool = False
+    with_robots: bool = True
+    rate_hz: float | None = None
+    record_hz: float = 20.0
+    pose_noise: tuple[float, float] = (0.0, 0.0)
+    command_latency: float = 0.0
+    faults: dict | None = None
+    camera: dict | None = None
+    bridge: str | None = None
+    bag_path: Path | str | None = None
+    bag_images: bool = False
+    bag_storage: str = DEFAULT_STORAGE
+    discovery_server: str | None = None
+
+
+DEFAULTS = RunOptions()
