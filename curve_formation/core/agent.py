@@ -21,11 +21,13 @@ news was held, and leaves out only the transit, milliseconds), so no stop can lo
 and no cycle can keep a dead leader alive.
 """
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 import math
-from typing import Optional
+from typing import Optional, TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from curve_formation.core.assignment import AssignmentError, check_assumptions
 from curve_formation.core.control import (
@@ -34,6 +36,7 @@ from curve_formation.core.control import (
     follower_feedback,
     Gains,
     inside_fence,
+    Law,
     leader_feedback,
     NO_LIMITS,
     OBSERVER,
@@ -41,20 +44,26 @@ from curve_formation.core.control import (
     offset_point,
     WheelLimits,
 )
+from curve_formation.core.curves import Curve
 from curve_formation.core.safety import Avoidance, AVOIDANCE_OFF, STOPPED
+from curve_formation.core.shapes import Command, FloatArray, Point, Pose
+
+
+if TYPE_CHECKING:
+    from curve_formation.core.experiment import Experiment
 
 
 NO_OTHERS = np.zeros((0, 3))
 
 
-def agent_configs(experiment, rate_hz):
+def agent_configs(experiment: 'Experiment', rate_hz: float) -> list['AgentConfig']:
     """Every agent's AgentConfig (agent 1 first) from an experiment, controlled at rate_hz:
     its graph neighbours, gains, limits, safety timeouts and geofence, PC-injected
     disturbance and safety filter.
     """
     spec = experiment.spec
     on_pc = spec.disturbance.injected == 'on_pc'
-    fence = None
+    fence: Fence = None
     if spec.arena is not None:
         m = spec.safety.geofence_margin
         fence = (-m, -m, spec.arena.size[0] + m, spec.arena.size[1] + m)
@@ -64,18 +73,28 @@ def agent_configs(experiment, rate_hz):
         limits=experiment.limits, rate_hz=float(rate_hz),
         pose_timeout=spec.safety.pose_timeout, neighbour_timeout=spec.safety.neighbour_timeout,
         leader_timeout=spec.safety.leader_timeout, geofence=fence,
-        pc_disturbance=tuple(float(v) for v in experiment.disturbance[i - 1]) if on_pc
-        else (0.0, 0.0), avoidance=experiment.avoidance)
+        pc_disturbance=((float(experiment.disturbance[i - 1][0]),
+                         float(experiment.disturbance[i - 1][1])) if on_pc else (0.0, 0.0)),
+        avoidance=experiment.avoidance)
         for i in range(1, experiment.n + 1)]
 
 
-def is_stale(stamp, now, timeout):
+def is_stale(stamp: float | None, now: float, timeout: float) -> bool:
     """True when an input stamped `stamp` (s, None if never received) is older than timeout."""
     return stamp is None or now - stamp > timeout
 
 
-def all_finite(*values):
+def all_finite(*values: float) -> bool:
     return all(math.isfinite(v) for v in values)
+
+
+def _receipt(stamp: float, received: float | None) -> float:
+    """When an input was received (s, this controller's clock): `received`, else its stamp."""
+    return stamp if received is None else received
+
+
+# (xmin, ymin, xmax, ymax), arena frame (m); None: no fence.
+Fence = Optional[tuple[float, float, float, float]]
 
 
 @dataclass(frozen=True)
@@ -84,7 +103,8 @@ class AgentConfig:
 
     index: int
     agent_count: int
-    neighbours: tuple = ()          # ((j, a_ij), ...) in-neighbours, empty for the leader
+    # ((j, a_ij), ...) in-neighbours, empty for the leader
+    neighbours: tuple[tuple[int, float], ...] = ()
     pinning: float = 0.0            # a follower's weight b on its own error (DirectedGraph)
     gains: Gains = Gains(1.0, 1.0, 0.01)
     limits: WheelLimits = NO_LIMITS
@@ -92,17 +112,17 @@ class AgentConfig:
     pose_timeout: float = 0.5       # s
     neighbour_timeout: float = 0.5  # s
     leader_timeout: float = 1.0     # s without news from the leader (followers)
-    geofence: Optional[tuple] = None  # (xmin, ymin, xmax, ymax), arena frame (m)
-    pc_disturbance: tuple = (0.0, 0.0)  # added to the command before the limits (m/s, rad/s)
+    geofence: Fence = None
+    pc_disturbance: Command = (0.0, 0.0)  # added to the command before the limits (m/s, rad/s)
     avoidance: Avoidance = AVOIDANCE_OFF   # the safety filter, from every robot's pose
 
     @property
-    def is_leader(self):
+    def is_leader(self) -> bool:
         """The leader is the agent that receives from nobody."""
         return not self.neighbours
 
     @property
-    def law(self):
+    def law(self) -> Law:
         """The control.Law of this agent's ticks."""
         return self.gains.tick_law(self.rate_hz, on_pc=any(self.pc_disturbance))
 
@@ -114,12 +134,13 @@ class Tick:
     v: float = 0.0
     w: float = 0.0
     stopped: Optional[str] = None
-    error: Optional[tuple] = None     # own e_i (m), published for out-neighbours
+    error: Optional[Point] = None     # own e_i (m), published for out-neighbours
     error_stamp: Optional[float] = None
     curve_id: Optional[int] = None
-    dhat: tuple = (0.0, 0.0)
-    feedback: Optional[tuple] = None
-    neighbour_stamps: tuple = ()      # ((j, stamp s), ...) of the in-neighbour states used
+    dhat: tuple[float, float] = (0.0, 0.0)
+    feedback: Optional[Point] = None
+    # ((j, stamp s), ...) of the in-neighbour states used
+    neighbour_stamps: tuple[tuple[int, Optional[float]], ...] = ()
     filtered: bool = False            # the safety filter changed the law's command
 
 
@@ -131,7 +152,7 @@ class State:
     news of the leader it has (s, when the state was made; None before any news).
     """
 
-    error: tuple
+    error: Point
     curve_id: int
     stamp: float
     leader_age: Optional[float]
@@ -139,7 +160,7 @@ class State:
 
 @dataclass
 class _Neighbour:
-    error: tuple = (0.0, 0.0)
+    error: Point = (0.0, 0.0)
     curve_id: Optional[int] = None
     stamp: Optional[float] = None       # s, the sender's pose source's clock
     received: Optional[float] = None    # s, this controller's clock
@@ -150,30 +171,32 @@ class AgentController:
     """Local law of one agent with its estimator; feed it inputs, call tick() at rate_hz."""
 
     config: AgentConfig
-    dhat: list = field(default_factory=lambda: [0.0, 0.0])
+    dhat: list[float] = field(default_factory=lambda: [0.0, 0.0])
 
-    def __post_init__(self):
-        self.curve = None
-        self.curve_id = None
-        self.s = None
-        self.target = None
-        self.pose = None
-        self.pose_stamp = None
-        self.pose_received = None   # s, this controller's clock (as every *_received)
-        self.neighbours = {j: _Neighbour() for j, _ in self.config.neighbours}
+    def __post_init__(self) -> None:
+        self.curve: Curve | None = None
+        self.curve_id: int | None = None
+        self.s: float | None = None
+        self.target: Point | None = None
+        self.pose: Pose | None = None
+        self.pose_stamp: float | None = None
+        self.pose_received: float | None = None   # s, this controller's clock (as every
+        self.neighbours = {j: _Neighbour() for j, _ in self.config.neighbours}   # *_received)
         self.rejected = 0
-        self.others = NO_OTHERS     # every robot's pose (n, 3), for the safety filter
-        self.others_received = None
+        self.others: FloatArray = NO_OTHERS   # every robot's pose (n, 3), for the safety filter
+        self.others_received: float | None = None
         self.filtered = 0           # ticks whose command the safety filter changed
-        self.leader_heard = None    # when the newest news of the leader was made, our clock
+        # when the newest news of the leader was made, our clock
+        self.leader_heard: float | None = None
         self.estop = False
-        self.last_command = (0.0, 0.0)
+        self.last_command: Command = (0.0, 0.0)
         # Observer law: the pose and stamp of the previous command's tick, and that command
         # where the disturbance enters (before a PC-injected disturbance, else as sent).
-        self.anchor = None
-        self.reference = (0.0, 0.0)
+        self.anchor: tuple[Pose, float] | None = None
+        self.reference: Command = (0.0, 0.0)
 
-    def set_curve(self, curve, curve_id, s_all):
+    def set_curve(self, curve: Curve, curve_id: int,
+                  s_all: Sequence[float] | FloatArray | None) -> None:
         """Adopt a new curve; raises ValueError (AssignmentError) if it breaks the assumptions.
 
         s_all (n,): every agent's parameter as the sender (the curve server) assigned them;
@@ -186,27 +209,30 @@ class AgentController:
         if len(s_all) != n:
             raise AssignmentError(f'the curve assigns {len(s_all)} agent parameters, this '
                                   f'team has {n} agents')
-        s_all = np.array(s_all, dtype=float)
-        check_assumptions(curve.basis, s_all)
+        s = np.array(s_all, dtype=float)
+        check_assumptions(curve.basis, s)
         self.curve, self.curve_id = curve, int(curve_id)
-        self.s = float(s_all[self.config.index - 1])
-        self.target = tuple(curve.points([self.s])[0])
+        self.s = float(s[self.config.index - 1])
+        tx, ty = curve.points([self.s])[0]
+        self.target = (float(tx), float(ty))
 
-    def on_pose(self, x, y, theta, stamp, received=None):
+    def on_pose(self, x: float, y: float, theta: float, stamp: float,
+                received: float | None = None) -> bool:
         """Own pose (arena frame) taken at `stamp` (s, its source's clock), received at
         `received` (s, this controller's clock; default: stamp). Returns False (and ignores it)
         if not finite.
         """
-        received = stamp if received is None else received
-        if not all_finite(x, y, theta, stamp, received):
+        at = _receipt(stamp, received)
+        if not all_finite(x, y, theta, stamp, at):
             self.rejected += 1
             return False
-        self.pose, self.pose_stamp, self.pose_received = (x, y, theta), stamp, received
+        self.pose, self.pose_stamp, self.pose_received = (x, y, theta), stamp, at
         if self.config.is_leader:
-            self.leader_heard = received
+            self.leader_heard = at
         return True
 
-    def on_neighbour(self, j, ex, ey, curve_id, stamp, leader_age=None, received=None):
+    def on_neighbour(self, j: int, ex: float, ey: float, curve_id: int, stamp: float,
+                     leader_age: float | None = None, received: float | None = None) -> bool:
         """In-neighbour j's error e_j (m) w.r.t. curve_id, from its pose at `stamp` (s, its
         clock), the age of its newest news of the leader (s), received at `received` (s, this
         controller's clock; default: stamp).
@@ -214,70 +240,74 @@ class AgentController:
         Returns False (and ignores the message) if j is not an in-neighbour or a value is not
         finite.
         """
-        received = stamp if received is None else received
-        values = (ex, ey, stamp, received) + (() if leader_age is None else (leader_age,))
+        at = _receipt(stamp, received)
+        values = (ex, ey, stamp, at) + (() if leader_age is None else (leader_age,))
         if j not in self.neighbours or not all_finite(*values):
             self.rejected += 1
             return False
-        self.neighbours[j] = _Neighbour((ex, ey), int(curve_id), stamp, received)
+        self.neighbours[j] = _Neighbour((ex, ey), int(curve_id), stamp, at)
         if leader_age is not None:
-            heard = received - max(0.0, leader_age)
+            heard = at - max(0.0, leader_age)
             if self.leader_heard is None or heard > self.leader_heard:
                 self.leader_heard = heard
         return True
 
-    def on_others(self, poses, stamp, received=None):
+    def on_others(self, poses: ArrayLike, stamp: float, received: float | None = None) -> bool:
         """Every robot's pose (n, 3; arena frame; NaN rows: not seen) at `stamp` (s), received
         at `received` (s, this controller's clock; default: stamp), for the safety filter.
         Returns False (and ignores it) if it does not hold n rows.
         """
-        poses = np.asarray(poses, dtype=float)
-        received = stamp if received is None else received
-        if (poses.shape != (self.config.agent_count, 3)
-                or not all_finite(stamp, received)):
+        given = np.asarray(poses, dtype=float)
+        at = _receipt(stamp, received)
+        if given.shape != (self.config.agent_count, 3) or not all_finite(stamp, at):
             self.rejected += 1
             return False
         # A robot not seen now keeps its last known pose: unseen, its controller stops it.
         if self.others is not NO_OTHERS:
-            poses = np.where(np.isfinite(poses), poses, self.others)
-        self.others, self.others_received = poses, received
+            given = np.where(np.isfinite(given), given, self.others)
+        self.others, self.others_received = given, at
         return True
 
-    def set_estop(self, engaged):
+    def set_estop(self, engaged: bool) -> None:
         """Engage (True) or release (False) the e-stop."""
         self.estop = bool(engaged)
 
-    def state(self):
+    def state(self) -> State | None:
         """This agent's State for its out-neighbours, or None before it has pose and curve."""
         error = self.own_error()
-        if error is None:
+        if (error is None or self.curve_id is None or self.pose_stamp is None
+                or self.pose_received is None):
             return None
         age = (None if self.leader_heard is None
                else max(0.0, self.pose_received - self.leader_heard))
         return State(error, self.curve_id, self.pose_stamp, age)
 
-    def own_error(self):
+    def own_error(self) -> Point | None:
         """e_i = xb_i - G(s_i) xi (m) from the latest pose, or None."""
         if self.pose is None or self.target is None:
             return None
-        bx, by = offset_point(*self.pose, self.config.gains.offset)
-        return bx - self.target[0], by - self.target[1]
+        return self._error_at(self.pose, self.target)
 
-    def tick(self, now):
+    def _error_at(self, pose: Pose, target: Point) -> Point:
+        bx, by = offset_point(*pose, self.config.gains.offset)
+        return bx - target[0], by - target[1]
+
+    def tick(self, now: float) -> Tick:
         """One control step at time `now` (s)."""
         cfg = self.config
         if self.estop:
             return self._stop('e-stop engaged')
-        if self.curve is None:
+        if self.curve is None or self.target is None:
             return self._stop('no curve received yet')
-        if is_stale(self.pose_received, now, cfg.pose_timeout):
-            return self._stop('no pose received yet' if self.pose_received is None else
-                              f'own pose stale ({now - self.pose_received:.2f} s old)')
-        if not inside_fence(self.pose[0], self.pose[1], cfg.geofence):
-            return self._stop(f'outside the geofence at ({self.pose[0]:.3f}, '
-                              f'{self.pose[1]:.3f}) m')
-        ex, ey = self.own_error()
-        base = Tick(error=(ex, ey), error_stamp=self.pose_stamp, curve_id=self.curve_id)
+        pose, stamp, received = self.pose, self.pose_stamp, self.pose_received
+        if pose is None or stamp is None or received is None:
+            return self._stop('no pose received yet')
+        if is_stale(received, now, cfg.pose_timeout):
+            return self._stop(f'own pose stale ({now - received:.2f} s old)')
+        if not inside_fence(pose[0], pose[1], cfg.geofence):
+            return self._stop(f'outside the geofence at ({pose[0]:.3f}, {pose[1]:.3f}) m')
+        ex, ey = self._error_at(pose, self.target)
+        base = Tick(error=(ex, ey), error_stamp=stamp, curve_id=self.curve_id)
         if cfg.is_leader:
             fx, fy = leader_feedback(ex, ey)
         else:
@@ -305,7 +335,7 @@ class AgentController:
         if law.code == OBSERVER:
             self._observe()
         v, w, ref_v, ref_w, ddv, ddw, code = agent_command(
-            fx, fy, ex, ey, *self.pose, self.dhat[0], self.dhat[1], *self.last_command,
+            fx, fy, ex, ey, *pose, self.dhat[0], self.dhat[1], *self.last_command,
             *cfg.pc_disturbance, law, cfg.limits, self.others, cfg.index - 1, cfg.avoidance)
         if law.code != OBSERVER:
             self.dhat[0] += law.period * ddv
@@ -313,20 +343,20 @@ class AgentController:
         if code == STOPPED:
             return self._stop('safety filter: no motion keeps the robots apart', base)
         self.filtered += code != 0
-        self.anchor = (self.pose, self.pose_stamp)
+        self.anchor = (pose, stamp)
         self.reference = (ref_v, ref_w)
         self.last_command = (v, w)
-        base.v, base.w, base.dhat, base.feedback = v, w, tuple(self.dhat), (fx, fy)
+        base.v, base.w, base.dhat, base.feedback = v, w, (self.dhat[0], self.dhat[1]), (fx, fy)
         base.filtered = code != 0
         return base
 
-    def _observe(self):
+    def _observe(self) -> None:
         """Observer law: move dhat towards (motion measured since the last tick - command) / k2.
 
         The motion is the constant (v, w) that carries the previous tick's pose to the current
         one over the difference of their stamps; without a newer pose nothing is updated.
         """
-        if self.anchor is None:
+        if self.anchor is None or self.pose is None or self.pose_stamp is None:
             return
         (x0, y0, th0), stamp0 = self.anchor
         elapsed = self.pose_stamp - stamp0
@@ -334,12 +364,13 @@ class AgentController:
             return
         measured = body_velocity(x0, y0, th0, *self.pose, elapsed)
         blend = 1.0 - math.exp(-self.config.gains.observer_rate * elapsed)
-        self.dhat[:] = observer_step(*self.dhat, *measured, *self.reference,
+        self.dhat[:] = observer_step(self.dhat[0], self.dhat[1], *measured, *self.reference,
                                      self.config.gains.k2, blend)
 
-    def _stop(self, reason, base=None):
+    def _stop(self, reason: str, base: Tick | None = None) -> Tick:
         tick = base or Tick()
         self.anchor = None
-        tick.v, tick.w, tick.stopped, tick.dhat = 0.0, 0.0, reason, tuple(self.dhat)
+        tick.v, tick.w, tick.stopped = 0.0, 0.0, reason
+        tick.dhat = (self.dhat[0], self.dhat[1])
         self.last_command = (0.0, 0.0)
         return tick

@@ -8,6 +8,7 @@ The per-agent functions below use only scalar math so that the same source runs 
 controller node (plain Python) and inside the batch simulator's compiled kernel (numba).
 """
 
+from collections.abc import Sequence
 import dataclasses
 from dataclasses import dataclass
 import math
@@ -16,7 +17,8 @@ from typing import NamedTuple
 import numpy as np
 
 from curve_formation.core.dynamics import chord_ratio
-from curve_formation.core.safety import ADJUSTED, safe_command, shaped_feedback
+from curve_formation.core.safety import ADJUSTED, Avoidance, safe_command, shaped_feedback
+from curve_formation.core.shapes import Command, FloatArray, Point
 
 
 # Disturbance estimators, by name in the experiment YAML (`controller.law`) and by code in the
@@ -43,29 +45,29 @@ class Gains:
     k2: float
     offset: float
     law: str = 'paper'
-    adaptation: tuple = (1.0, 1.0)
+    adaptation: tuple[float, float] = (1.0, 1.0)
     observer_rate: float = 5.0
     sampled_heading: bool = False
 
     @property
-    def law_code(self):
+    def law_code(self) -> int:
         return LAWS[self.law]
 
-    def paper_law(self):
+    def paper_law(self) -> 'Gains':
         """These gains with the paper's reference law (its estimator, its heading command)."""
         return dataclasses.replace(self, law='paper', sampled_heading=False)
 
-    def hold_period(self, rate_hz):
+    def hold_period(self, rate_hz: float | None) -> float:
         """The `period` argument of agent_input at this rate (Hz; None = continuous): the
         control period with the sampled heading under a zero-order hold, else 0.
         """
         return 1.0 / rate_hz if self.sampled_heading and rate_hz else 0.0
 
-    def estimator_gains(self):
+    def estimator_gains(self) -> tuple[float, float]:
         """(gamma_v, gamma_w): per-channel multipliers of the paper's estimator rate."""
         return self.adaptation if self.law == 'adaptive' else (1.0, 1.0)
 
-    def tick_law(self, rate_hz, on_pc=False):
+    def tick_law(self, rate_hz: float | None, on_pc: bool = False) -> 'Law':
         """The Law of one control tick at rate_hz (None: continuous control)."""
         gamma_v, gamma_w = self.estimator_gains()
         return Law(self.law_code, self.k1, self.k2, self.offset, gamma_v, gamma_w,
@@ -108,8 +110,11 @@ class WheelLimits(NamedTuple):
 NO_LIMITS = WheelLimits()
 
 
-def agent_command(fx, fy, ex, ey, x, y, theta, dhat_v, dhat_w, prev_v, prev_w, pc_v, pc_w,
-                  law, limits, others, me, avoidance):
+def agent_command(fx: float, fy: float, ex: float, ey: float, x: float, y: float,
+                  theta: float, dhat_v: float, dhat_w: float, prev_v: float, prev_w: float,
+                  pc_v: float, pc_w: float, law: 'Law', limits: 'WheelLimits',
+                  others: FloatArray, me: int, avoidance: Avoidance
+                  ) -> tuple[float, float, float, float, float, float, int]:
     """One control tick of one agent, from its inputs to the command sent: the one pipeline
     the ROS controller (core.agent) and the batch simulator both run.
 
@@ -155,13 +160,15 @@ def agent_command(fx, fy, ex, ey, x, y, theta, dhat_v, dhat_w, prev_v, prev_w, p
     return safe_v, safe_w, ref_v, ref_w, ddhat_v, ddhat_w, code
 
 
-def offset_point(x, y, theta, offset):
+def offset_point(x: float, y: float, theta: float, offset: float) -> Point:
     """Offset control point xb (m) ahead of the axle centre by `offset` along the heading."""
     return x + offset * math.cos(theta), y + offset * math.sin(theta)
 
 
-def agent_input(fx, fy, ex, ey, theta, dhat_v, dhat_w, k1, k2, offset, gamma_v=1.0,
-                gamma_w=1.0, period=0.0):
+def agent_input(fx: float, fy: float, ex: float, ey: float, theta: float, dhat_v: float,
+                dhat_w: float, k1: float, k2: float, offset: float, gamma_v: float = 1.0,
+                gamma_w: float = 1.0, period: float = 0.0
+                ) -> tuple[float, float, float, float]:
     """One agent's command and adaptive estimator rate.
 
     Args:
@@ -190,7 +197,7 @@ def agent_input(fx, fy, ex, ey, theta, dhat_v, dhat_w, k1, k2, offset, gamma_v=1
             gamma_w * k2 * offset * (-s * ex + c * ey))
 
 
-def sampled_feedback(along, across, offset, period):
+def sampled_feedback(along: float, across: float, offset: float, period: float) -> Command:
     """The feedback part of u = R^-1 ub for a command held over `period` (s).
 
     along, across: ub (m/s) in the body frame. In continuous time the paper's law turns the
@@ -216,8 +223,9 @@ def sampled_feedback(along, across, offset, period):
     return v, turned / period
 
 
-def observer_input(fx, fy, theta, dhat_v, dhat_w, k1, k2, offset, period, wheel_base,
-                   max_wheel_speed, max_angular_rate):
+def observer_input(fx: float, fy: float, theta: float, dhat_v: float, dhat_w: float,
+                   k1: float, k2: float, offset: float, period: float, wheel_base: float,
+                   max_wheel_speed: float, max_angular_rate: float) -> Command:
     """The observer law's command (m/s, rad/s): feedback within the wheel limits, minus k2 dhat.
 
     The feedback part of agent_input (fx, fy, period as there) is saturated before the
@@ -234,7 +242,8 @@ def observer_input(fx, fy, theta, dhat_v, dhat_w, k1, k2, offset, period, wheel_
     return v - k2 * dhat_v, w - k2 * dhat_w
 
 
-def observer_step(dhat_v, dhat_w, measured_v, measured_w, ref_v, ref_w, k2, blend):
+def observer_step(dhat_v: float, dhat_w: float, measured_v: float, measured_w: float,
+                  ref_v: float, ref_w: float, k2: float, blend: float) -> tuple[float, float]:
     """One update of the disturbance observer: move dhat towards (measured - ref) / k2.
 
     measured: body velocity (m/s, rad/s) over the last control period; ref: the command the
@@ -248,7 +257,8 @@ def observer_step(dhat_v, dhat_w, measured_v, measured_w, ref_v, ref_w, k2, blen
             dhat_w + blend * ((measured_w - ref_w) / k2 - dhat_w))
 
 
-def body_velocity(x0, y0, theta0, x1, y1, theta1, dt):
+def body_velocity(x0: float, y0: float, theta0: float, x1: float, y1: float, theta1: float,
+                  dt: float) -> Command:
     """Constant (v, w) (m/s, rad/s) that moves a unicycle from pose 0 to pose 1 in dt (s).
 
     Exact for an arc (the inverse of dynamics.arc_step); the heading change must be below
@@ -260,7 +270,8 @@ def body_velocity(x0, y0, theta0, x1, y1, theta1, dt):
     return along / (dt * chord_ratio(0.5 * turn)), turn / dt
 
 
-def saturate(v, w, wheel_base, max_wheel_speed, max_angular_rate):
+def saturate(v: float, w: float, wheel_base: float, max_wheel_speed: float,
+             max_angular_rate: float) -> Command:
     """Scale (v, w) down so both wheel speeds and |w| are within limits, keeping curvature w/v.
 
     Wheel speeds are v -+ w * wheel_base / 2 (m/s). Returns the scaled (v, w).
@@ -276,7 +287,8 @@ def saturate(v, w, wheel_base, max_wheel_speed, max_angular_rate):
     return v * scale, w * scale
 
 
-def limit_acceleration(v, w, prev_v, prev_w, dt, max_linear_accel, max_angular_accel):
+def limit_acceleration(v: float, w: float, prev_v: float, prev_w: float, dt: float,
+                       max_linear_accel: float, max_angular_accel: float) -> Command:
     """Clamp the change from the previous command to the acceleration limits over dt (s).
 
     Limits in m/s^2 and rad/s^2; 0 or infinity means unlimited. Returns (v, w).
@@ -290,17 +302,19 @@ def limit_acceleration(v, w, prev_v, prev_w, dt, max_linear_accel, max_angular_a
     return v, w
 
 
-def inside_fence(x, y, fence):
+def inside_fence(x: float, y: float,
+                 fence: tuple[float, float, float, float] | None) -> bool:
     """True when (x, y) lies in fence = (xmin, ymin, xmax, ymax), or when fence is None."""
     return fence is None or (fence[0] <= x <= fence[2] and fence[1] <= y <= fence[3])
 
 
-def leader_feedback(ex, ey):
+def leader_feedback(ex: float, ey: float) -> Point:
     """The leader's feedback term: its own error (m)."""
     return ex, ey
 
 
-def follower_feedback(ex, ey, neighbour_errors, weights, pinning=0.0):
+def follower_feedback(ex: float, ey: float, neighbour_errors: Sequence[Point],
+                      weights: Sequence[float], pinning: float = 0.0) -> Point:
     """A follower's feedback b e_i + sum_j a_ij (e_i - e_j) (m) from its own error, its
     in-neighbours' errors (k, 2) and its pinning weight b (0 in the paper).
     """
@@ -312,12 +326,14 @@ def follower_feedback(ex, ey, neighbour_errors, weights, pinning=0.0):
     return fx, fy
 
 
-def wheel_speeds(v, w, wheel_base):
+def wheel_speeds(v: float, w: float, wheel_base: float) -> tuple[float, float]:
     """(right, left) wheel linear speeds (m/s) for body velocities (v, w)."""
     return v + 0.5 * wheel_base * w, v - 0.5 * wheel_base * w
 
 
-def stacked_paper_input(poses, dhat, g_bar, xi, laplacian, leader, gains):
+def stacked_paper_input(poses: FloatArray, dhat: FloatArray, g_bar: FloatArray,
+                        xi: FloatArray, laplacian: FloatArray, leader: int,
+                        gains: Gains) -> FloatArray:
     """The paper's stacked law, with the pseudo-inverse, as a reference for tests.
 
     ub = -k1 (Lbar Gbar xi_e + Lambda_bar xb_e) - k2 R dhat with xi_e = Gbar^+ xb - xi.

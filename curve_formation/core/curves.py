@@ -16,6 +16,9 @@ between C and the paper's xi. Units of c and xi are those of the arena (metres o
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
+
+from curve_formation.core.shapes import FloatArray, IntArray
 
 
 class CurveError(ValueError):
@@ -28,26 +31,26 @@ class Basis:
     kind = ''
     closed = False
 
-    def __init__(self, size):
+    def __init__(self, size: int) -> None:
         self.H = int(size)
 
-    def phi(self, s):
+    def phi(self, s: ArrayLike) -> FloatArray:
         """Scalar basis at s: array (m, H) for s of shape (m,)."""
         raise NotImplementedError
 
-    def dphi(self, s):
+    def dphi(self, s: ArrayLike) -> FloatArray:
         """Derivative d phi / ds at s: array (m, H)."""
         raise NotImplementedError
 
-    def to_matrix(self, xi):
+    def to_matrix(self, xi: ArrayLike) -> FloatArray:
         """Paper coefficients xi (2H,) -> coefficient matrix C (H, 2)."""
         raise NotImplementedError
 
-    def from_matrix(self, coeffs):
+    def from_matrix(self, coeffs: ArrayLike) -> FloatArray:
         """Coefficient matrix C (H, 2) -> paper coefficients xi (2H,)."""
         raise NotImplementedError
 
-    def G(self, s):  # noqa: N802 - the paper's name
+    def G(self, s: ArrayLike) -> FloatArray:  # noqa: N802 - the paper's name
         """The paper's G(s): array (m, 2, 2H) for s of shape (m,), built from the layout."""
         s = np.atleast_1d(np.asarray(s, dtype=float))
         # Column k of G(s) is G(s) e_k = C_k^T phi(s) with C_k = to_matrix(e_k), whose one
@@ -57,7 +60,7 @@ class Basis:
         out[:, coords, np.arange(2 * self.H)] = self.phi(s)[:, rows]
         return out
 
-    def _layout(self):
+    def _layout(self) -> tuple[IntArray, IntArray]:
         """(h_k, c_k) for each coefficient k: where to_matrix puts e_k (cached)."""
         if getattr(self, '_layout_cache', None) is None:
             eye = np.eye(2 * self.H)
@@ -66,7 +69,7 @@ class Basis:
                                   np.array([w[1] for w in where]))
         return self._layout_cache
 
-    def describe(self):
+    def describe(self) -> str:
         """Short label such as 'fourier K=6 (H=13)'."""
         raise NotImplementedError
 
@@ -77,13 +80,13 @@ class FourierBasis(Basis):
     kind = 'fourier'
     closed = True
 
-    def __init__(self, harmonics):
+    def __init__(self, harmonics: int) -> None:
         if int(harmonics) < 1:
             raise CurveError(f'a Fourier basis needs at least 1 harmonic, got {harmonics}')
         self.K = int(harmonics)
         super().__init__(2 * self.K + 1)
 
-    def phi(self, s):
+    def phi(self, s: ArrayLike) -> FloatArray:
         angle = 2 * np.pi * np.multiply.outer(np.atleast_1d(s), np.arange(1, self.K + 1))
         out = np.empty(angle.shape[:-1] + (self.H,))
         out[..., 0:-1:2] = np.cos(angle)
@@ -91,7 +94,7 @@ class FourierBasis(Basis):
         out[..., -1] = 1.0
         return out
 
-    def dphi(self, s):
+    def dphi(self, s: ArrayLike) -> FloatArray:
         h = 2 * np.pi * np.arange(1, self.K + 1)
         angle = np.multiply.outer(np.atleast_1d(s), h)
         out = np.empty(angle.shape[:-1] + (self.H,))
@@ -100,17 +103,17 @@ class FourierBasis(Basis):
         out[..., -1] = 0.0
         return out
 
-    def to_matrix(self, xi):
+    def to_matrix(self, xi: ArrayLike) -> FloatArray:
         xi = np.asarray(xi, dtype=float)
         harmonics = xi[:-2].reshape(self.K, 2, 2)   # [h, coordinate, cos/sin]
         return np.vstack([harmonics.transpose(0, 2, 1).reshape(2 * self.K, 2), xi[-2:]])
 
-    def from_matrix(self, coeffs):
+    def from_matrix(self, coeffs: ArrayLike) -> FloatArray:
         coeffs = np.asarray(coeffs, dtype=float)
         harmonics = coeffs[:-1].reshape(self.K, 2, 2).transpose(0, 2, 1)
         return np.concatenate([harmonics.ravel(), coeffs[-1]])
 
-    def describe(self):
+    def describe(self) -> str:
         return f'fourier K={self.K} (H={self.H})'
 
 
@@ -120,31 +123,31 @@ class PolynomialBasis(Basis):
     kind = 'polynomial'
     closed = False
 
-    def __init__(self, order):
+    def __init__(self, order: int) -> None:
         if int(order) < 1:
             raise CurveError(f'a polynomial basis needs order >= 1, got {order}')
         self.p = int(order)
         super().__init__(self.p + 1)
 
-    def phi(self, s):
+    def phi(self, s: ArrayLike) -> FloatArray:
         return np.power.outer(np.atleast_1d(np.asarray(s, dtype=float)), np.arange(self.H))
 
-    def dphi(self, s):
+    def dphi(self, s: ArrayLike) -> FloatArray:
         s = np.atleast_1d(np.asarray(s, dtype=float))
         k = np.arange(self.H)
         return k * np.power.outer(s, np.maximum(k - 1, 0))
 
-    def to_matrix(self, xi):
+    def to_matrix(self, xi: ArrayLike) -> FloatArray:
         return np.asarray(xi, dtype=float).reshape(self.H, 2)
 
-    def from_matrix(self, coeffs):
+    def from_matrix(self, coeffs: ArrayLike) -> FloatArray:
         return np.asarray(coeffs, dtype=float).ravel()
 
-    def describe(self):
+    def describe(self) -> str:
         return f'polynomial p={self.p} (H={self.H})'
 
 
-def make_basis(kind, size):
+def make_basis(kind: str, size: int) -> Basis:
     """Basis by name: ('fourier', K harmonics) or ('polynomial', order p)."""
     if kind == 'fourier':
         return FourierBasis(size)
@@ -158,32 +161,32 @@ class Curve:
     """A fitted curve: basis and paper coefficients xi (2H,)."""
 
     basis: Basis
-    xi: np.ndarray
+    xi: FloatArray
 
     @property
-    def coeffs(self):
+    def coeffs(self) -> FloatArray:
         """Coefficient matrix C (H, 2)."""
         return self.basis.to_matrix(self.xi)
 
-    def points(self, s):
+    def points(self, s: ArrayLike) -> FloatArray:
         """Positions c(s): array (m, 2)."""
         return self.basis.phi(s) @ self.coeffs
 
-    def tangents(self, s):
+    def tangents(self, s: ArrayLike) -> FloatArray:
         """Derivatives dc/ds: array (m, 2)."""
         return self.basis.dphi(s) @ self.coeffs
 
-    def sample(self, count=400):
+    def sample(self, count: int = 400) -> tuple[FloatArray, FloatArray]:
         """count points evenly spaced in s (closed curves exclude s = 1): (s, points)."""
         s = np.linspace(0.0, 1.0, count, endpoint=not self.basis.closed)
         return s, self.points(s)
 
-    def size(self):
+    def size(self) -> float:
         """Characteristic size: diagonal of the bounding box of a dense sample (units of c)."""
         _, pts = self.sample(1000)
         return float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
 
-    def arc_length_table(self, count=4000):
+    def arc_length_table(self, count: int = 4000) -> tuple[FloatArray, FloatArray]:
         """Cumulative arc length at s = linspace(0, 1, count): (s, length) by trapezoids."""
         s = np.linspace(0.0, 1.0, count)
         speed = np.linalg.norm(self.tangents(s), axis=1)
@@ -201,7 +204,7 @@ class Fit:
     samples: int
 
 
-def fit_curve(basis, s, points):
+def fit_curve(basis: Basis, s: ArrayLike, points: ArrayLike) -> Fit:
     """Least-squares coefficients for sampled points.
 
     Solves G_h xi = C (the paper's eq. for xi) with lstsq. Because G_h is a row/column

@@ -37,12 +37,12 @@ class DrivenUnicycle:
 
     def __init__(self, pose, disturbance=(0.0, 0.0), latency=0.0, timeout=0.0):
         from collections import deque
-        self.pose = tuple(float(v) for v in pose)
+        self.pose = (float(pose[0]), float(pose[1]), float(pose[2]))
         self.disturbance = tuple(disturbance)
         self.latency = latency
         self.timeout = timeout
         self.command = (0.0, 0.0)
-        self.pending = deque()
+        self.pending: deque[tuple[float, float, float]] = deque()   # (due s, v, w)
         self.time = None
         self.last_command_time = None
 

@@ -3,31 +3,40 @@
 Every problem is raised as :class:`ConfigError` naming the file, the key and what was expected.
 """
 
+from collections.abc import Sequence
 import dataclasses
 from dataclasses import dataclass
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 from pydantic import ValidationError
 from scipy.spatial.distance import pdist
 
 from curve_formation.core import curve_sources, safe_yaml
 from curve_formation.core.aruco import MARKER_IDS
 from curve_formation.core.assignment import AssignmentError, phase_parameters
-from curve_formation.core.config_schema import ExperimentSpec, RobotsSpec
+from curve_formation.core.config_schema import (
+    ControllerSpec,
+    CurveSpec,
+    ExperimentSpec,
+    RobotsSpec,
+)
 from curve_formation.core.control import Gains, NO_LIMITS, WheelLimits
-from curve_formation.core.curves import CurveError, Fit, fit_curve, make_basis
+from curve_formation.core.curves import Curve, CurveError, Fit, fit_curve, make_basis
 from curve_formation.core.expressions import ExpressionError
 from curve_formation.core.graph import DirectedGraph, Edge, GraphError
 from curve_formation.core.metrics import offset_points
 from curve_formation.core.safety import Avoidance, AVOIDANCE_OFF
+from curve_formation.core.shapes import FloatArray, Point
 
 
 class ConfigError(ValueError):
     """An experiment file that cannot be used; the message names file, key and expectation."""
 
-    def __init__(self, source, key, message):
+    def __init__(self, source: object, key: str, message: str) -> None:
         self.source, self.key = str(source), key
         super().__init__(f'{source}: {key}: {message}' if key else f'{source}: {message}')
 
@@ -38,15 +47,15 @@ class Phase:
 
     index: int
     start: float
-    fit: object          # curves.Fit
-    s: np.ndarray        # (n,) agent parameters
-    targets: np.ndarray  # (n, 2) G(s_i) xi, arena frame (m)
-    g_bar: np.ndarray    # (2n, 2H)
+    fit: Fit
+    s: FloatArray        # (n,) agent parameters
+    targets: FloatArray  # (n, 2) G(s_i) xi, arena frame (m)
+    g_bar: FloatArray    # (2n, 2H)
     # Re-assignments while the phase was followed: ((t (s), s (n,), targets (n, 2)), ...)
-    changes: tuple = ()
+    changes: tuple[tuple[float, FloatArray, FloatArray], ...] = ()
 
     @property
-    def curve(self):
+    def curve(self) -> Curve:
         return self.fit.curve
 
 
@@ -59,22 +68,22 @@ class Experiment:
     graph: DirectedGraph
     gains: Gains
     limits: WheelLimits
-    disturbance: np.ndarray   # (n, 2) [d_v, d_w]
-    initial_poses: np.ndarray  # (n, 3)
-    phases: tuple
+    disturbance: FloatArray    # (n, 2) [d_v, d_w]
+    initial_poses: FloatArray  # (n, 3)
+    phases: tuple[Phase, ...]
     radius: float = 0.0        # bodies (m); 0: points
     avoidance: Avoidance = AVOIDANCE_OFF
-    warnings: tuple = ()       # what `check` warns of: the run is possible but questionable
+    warnings: tuple[str, ...] = ()   # what `check` warns of: possible but questionable
 
     @property
-    def n(self):
+    def n(self) -> int:
         return self.graph.n
 
     @property
-    def name(self):
+    def name(self) -> str:
         return self.spec.name
 
-    def report(self):
+    def report(self) -> dict[str, Any]:
         """What was checked, as a JSON-ready dict: graph, Theorem 1, Assumptions 1-2, fits."""
         cert = self.graph.certificate()
         return {
@@ -108,7 +117,7 @@ MAX_STEPS = 100_000_000
 MAX_RECORDED = 18_000_000
 
 
-def whole_steps(interval, dt, what):
+def whole_steps(interval: float, dt: float, what: str) -> int:
     """interval (s) as a whole number (>= 1) of steps dt (s); ValueError naming `what`."""
     steps = interval / dt
     if not math.isfinite(steps) or abs(steps - round(steps)) > 1e-6 * max(1.0, steps) \
@@ -121,12 +130,12 @@ def whole_steps(interval, dt, what):
 DEFAULT_RATE_HZ = 10.0
 
 
-def control_rate(experiment, rate_hz=None):
+def control_rate(experiment: Experiment, rate_hz: float | None = None) -> float:
     """The ROS controllers' rate (Hz): the override, else the file's, else DEFAULT_RATE_HZ."""
     return float(rate_hz or experiment.spec.controller.rate_hz or DEFAULT_RATE_HZ)
 
 
-def _format_location(loc):
+def _format_location(loc: Sequence[int | str]) -> str:
     parts = []
     for item in loc:
         if isinstance(item, int):
@@ -136,7 +145,7 @@ def _format_location(loc):
     return ''.join(parts) or '(top level)'
 
 
-def load_experiment(path):
+def load_experiment(path: str | Path) -> Experiment:
     """Read, validate and build an experiment from a YAML file path."""
     path = Path(path)
     try:
@@ -144,10 +153,10 @@ def load_experiment(path):
             data = stream.read(safe_yaml.MAX_BYTES + 1)
     except OSError as exc:
         raise ConfigError(path, '', f'cannot read the file ({exc.strerror})') from None
-    return build_experiment(parse_experiment_text(data, path), path)
+    return build_experiment(parse_experiment_text(data, str(path)), str(path))
 
 
-def parse_experiment_text(data, source):
+def parse_experiment_text(data: str | bytes, source: str) -> Any:
     """The mapping of an experiment file's bytes or text (core.safe_yaml); ConfigError."""
     try:
         return safe_yaml.load(data)
@@ -155,7 +164,7 @@ def parse_experiment_text(data, source):
         raise ConfigError(source, '', str(exc)) from None
 
 
-def build_experiment(data, source='<experiment>'):
+def build_experiment(data: Any, source: str = '<experiment>') -> Experiment:
     """Validate a parsed YAML mapping and build the experiment; `source` names it in errors."""
     if not isinstance(data, dict):
         raise ConfigError(source, '', f'expected a mapping of keys at the top level, got '
@@ -171,7 +180,7 @@ def build_experiment(data, source='<experiment>'):
     return _build(spec, str(source))
 
 
-def _build(spec, source):
+def _build(spec: ExperimentSpec, source: str) -> Experiment:
     n = spec.agents.count
     try:
         graph = DirectedGraph(n, [Edge(e.source, e.target, e.weight) for e in spec.graph.edges],
@@ -203,7 +212,7 @@ def _build(spec, source):
                       warnings=tuple(_body_warnings(spec, phases, avoidance, gains.offset)))
 
 
-def with_start(experiment, poses):
+def with_start(experiment: Experiment, poses: ArrayLike) -> Experiment:
     """The experiment started from `poses` (n, 3): with `assignment: nearest` its agents'
     curve parameters are assigned again from there.
     """
@@ -214,7 +223,7 @@ def with_start(experiment, poses):
     return dataclasses.replace(experiment, initial_poses=poses, phases=tuple(phases))
 
 
-def point_robots(experiment):
+def point_robots(experiment: Experiment) -> Experiment:
     """The experiment with the formation law alone, as the paper has it: robots are points
     that pass through each other (no bodies), no safety filter, no re-assignment.
     """
@@ -226,7 +235,9 @@ def point_robots(experiment):
                                warnings=())
 
 
-def received_phases(experiment, curves):
+def received_phases(experiment: Experiment,
+                    curves: Sequence[tuple[float, int, Curve, ArrayLike]]
+                    ) -> tuple[Phase, ...]:
     """The phases a run followed, from the curve messages it received, in order: curves is a
     list of (t, curve id, curve, s) with t in s since the first curve and s (n,) the agents'
     parameters the message carried. The first message of an id starts a phase; a later one
@@ -234,9 +245,10 @@ def received_phases(experiment, curves):
     curve of the same index keeps that phase's fit (residuals); any other (an observed curve)
     has no fit residual (NaN).
     """
-    phases, ids = [], []
-    for when, curve_id, curve, s in curves:
-        s = np.asarray(s, dtype=float)
+    phases: list[Phase] = []
+    ids: list[int] = []
+    for when, curve_id, curve, given in curves:
+        s = np.asarray(given, dtype=float)
         if ids and curve_id == ids[-1]:
             last = phases[-1]
             if not np.array_equal(s, last.changes[-1][1] if last.changes else last.s):
@@ -248,24 +260,28 @@ def received_phases(experiment, curves):
         same = (scheduled is not None and scheduled.curve.basis.describe()
                 == curve.basis.describe() and np.allclose(scheduled.curve.xi, curve.xi,
                                                           rtol=0, atol=1e-12))
-        fit = scheduled if same else Fit(curve, math.nan, math.nan, 0)
+        fit = scheduled if same and scheduled is not None else Fit(curve, math.nan, math.nan, 0)
         g_bar = curve.basis.G(s).reshape(2 * len(s), 2 * curve.basis.H)
         phases.append(Phase(k, float(when), fit, s, curve.points(s), g_bar))
         ids.append(curve_id)
     return tuple(phases)
 
 
-def _build_phases(spec, source, start_points):
+def _build_phases(spec: ExperimentSpec, source: str, start_points: FloatArray
+                  ) -> list[Phase]:
     fits = [(k, curve_spec.start, _fit_phase_curve(curve_spec, source, f'curves[{k}]'))
             for k, curve_spec in enumerate(spec.curves)]
     return _assign_phases(spec, source, fits, start_points)
 
 
-def _assign_phases(spec, source, fits, start_points):
+def _assign_phases(spec: ExperimentSpec, source: str,
+                   fits: Sequence[tuple[int, float, Fit]], start_points: FloatArray
+                   ) -> list[Phase]:
     """Phases (index, start, fit) with their agents' parameters (assignment.phase_parameters),
     each assigned from where the previous one left the agents: the start, then its targets.
     """
-    out, points = [], start_points
+    out: list[Phase] = []
+    points = start_points
     for index, start, fit in fits:
         try:
             s = phase_parameters(fit.curve, spec.agents.count, spec.agents.spacing,
@@ -278,7 +294,7 @@ def _assign_phases(spec, source, fits, start_points):
     return out
 
 
-def _check_time(spec, source):
+def _check_time(spec: ExperimentSpec, source: str) -> None:
     """Refuse a simulation that cannot run: periods that are not whole steps, more steps or
     recorded samples than a run can hold.
     """
@@ -305,7 +321,7 @@ def _check_time(spec, source):
                           f'{MAX_RECORDED:.1e} (1 GB): raise record_dt')
 
 
-def _check_camera(spec, source):
+def _check_camera(spec: ExperimentSpec, source: str) -> None:
     camera = spec.camera
     if camera is None:
         return
@@ -325,7 +341,7 @@ def _check_camera(spec, source):
                           f'{camera.dictionary} (ids 0..{size - 1})')
 
 
-def _fit_phase_curve(curve_spec, source, key):
+def _fit_phase_curve(curve_spec: CurveSpec, source: str, key: str) -> Fit:
     """The fitted curve (curves.Fit) of one entry of `curves`."""
     try:
         basis = make_basis(curve_spec.basis, curve_spec.size)
@@ -346,19 +362,19 @@ def _fit_phase_curve(curve_spec, source, key):
     return fit
 
 
-def _limits(spec):
+def _limits(spec: ExperimentSpec) -> WheelLimits:
     if spec.limits is None:
         return NO_LIMITS
     limits = spec.limits
 
-    def given(value):
+    def given(value: float | None) -> float:
         return math.inf if value is None else value
     return WheelLimits(limits.wheel_base, limits.max_wheel_speed,
                        given(limits.max_angular_rate), given(limits.max_linear_accel),
                        given(limits.max_angular_accel))
 
 
-def _avoidance(spec, source):
+def _avoidance(spec: ExperimentSpec, source: str) -> Avoidance:
     """The safety filter's settings (safety.AVOIDANCE_OFF without `avoidance`)."""
     av = spec.avoidance
     if av is None:
@@ -375,7 +391,8 @@ def _avoidance(spec, source):
                      float(width), float(height))
 
 
-def _check_bodies(spec, source, poses, phases):
+def _check_bodies(spec: ExperimentSpec, source: str, poses: FloatArray,
+                  phases: Sequence[Phase]) -> None:
     """Refuse bodies that start overlapping or through a wall, and curves outside the arena."""
     radius = spec.robots.radius
     if radius > 0 and len(poses) > 1:
@@ -407,7 +424,8 @@ def _check_bodies(spec, source, poses, phases):
                               + (f', robots.radius {radius:g} m' if radius else '') + ')')
 
 
-def _body_warnings(spec, phases, avoidance, offset):
+def _body_warnings(spec: ExperimentSpec, phases: Sequence[Phase], avoidance: Avoidance,
+                   offset: float) -> list[str]:
     """Targets closer than the bodies allow: to each other, and to the walls."""
     if not avoidance.on and spec.robots.radius <= 0:
         return []
@@ -434,7 +452,7 @@ def _body_warnings(spec, phases, avoidance, offset):
     return out
 
 
-def _disturbance(spec, source):
+def _disturbance(spec: ExperimentSpec, source: str) -> FloatArray:
     n = spec.agents.count
     dist = spec.disturbance
     if dist.per_agent is not None:
@@ -448,22 +466,23 @@ def _disturbance(spec, source):
 MAX_DRAWS_PER_ROBOT = 1000
 
 
-def random_poses(n, center, half_width, seed, min_separation=0.0):
+def random_poses(n: int, center: Point, half_width: Point, seed: int | None,
+                 min_separation: float = 0.0) -> FloatArray:
     """(n, 3) poses uniform in the box center +- half_width (m), headings uniform (rad).
 
     With min_separation (m) > 0 each position is redrawn until it keeps that distance from
     the ones before; ValueError if the box cannot hold them.
     """
     rng = np.random.default_rng(seed)
-    center = np.asarray(center, float)
+    middle = np.asarray(center, float)
     half = np.asarray(half_width, float)
     if min_separation <= 0:
-        return np.column_stack([rng.uniform(center - half, center + half, size=(n, 2)),
+        return np.column_stack([rng.uniform(middle - half, middle + half, size=(n, 2)),
                                 rng.uniform(-math.pi, math.pi, size=n)])
-    points = []
+    points: list[FloatArray] = []
     for _ in range(n):
         for _ in range(MAX_DRAWS_PER_ROBOT):
-            p = rng.uniform(center - half, center + half)
+            p = rng.uniform(middle - half, middle + half)
             if all(np.hypot(*(p - q)) >= min_separation for q in points):
                 points.append(p)
                 break
@@ -473,7 +492,7 @@ def random_poses(n, center, half_width, seed, min_separation=0.0):
     return np.column_stack([np.array(points), rng.uniform(-math.pi, math.pi, size=n)])
 
 
-def seeded_start(experiment, seed):
+def seeded_start(experiment: Experiment, seed: int) -> FloatArray:
     """The experiment's random start box drawn with another seed (ValueError if it has none)."""
     box = experiment.spec.agents.initial.random
     if box is None:
@@ -481,7 +500,7 @@ def seeded_start(experiment, seed):
     return random_poses(experiment.n, box.center, box.half_width, seed, box.min_separation)
 
 
-def _initial_poses(spec, source):
+def _initial_poses(spec: ExperimentSpec, source: str) -> FloatArray:
     n = spec.agents.count
     initial = spec.agents.initial
     if initial.poses is not None:
@@ -490,9 +509,10 @@ def _initial_poses(spec, source):
                               f'poses (one per agent), got {len(initial.poses)}')
         poses = np.array(initial.poses, dtype=float)
     else:
+        box = initial.random
+        assert box is not None   # the schema asks for poses or a random box
         try:
-            poses = random_poses(n, initial.random.center, initial.random.half_width,
-                                 initial.random.seed, initial.random.min_separation)
+            poses = random_poses(n, box.center, box.half_width, box.seed, box.min_separation)
         except ValueError as exc:
             raise ConfigError(source, 'agents.initial.random.min_separation', str(exc)) from None
     if spec.arena is not None:
@@ -506,8 +526,8 @@ def _initial_poses(spec, source):
     return poses
 
 
-def _gains(controller):
+def _gains(controller: ControllerSpec) -> Gains:
     return Gains(controller.k1, controller.k2, controller.offset, law=controller.law,
-                 adaptation=tuple(controller.adaptation),
+                 adaptation=(controller.adaptation[0], controller.adaptation[1]),
                  observer_rate=controller.observer_rate,
                  sampled_heading=controller.heading == 'sampled')

@@ -62,7 +62,7 @@ class Expression:
     def __call__(self, s):
         """Evaluate on s (scalar or array); returns an array broadcast to s's shape."""
         s = np.asarray(s, dtype=float)
-        values = {}
+        values: dict[int, np.ndarray] = {}
         with np.errstate(all='ignore'):
             for node in self._order:   # children before parents
                 values[id(node)] = self._value(node, s, values)
@@ -126,7 +126,7 @@ class Expression:
 
     def _value(self, node, s, values):
         if isinstance(node, ast.Constant):
-            return float(node.value)
+            return float(node.value)   # type: ignore[arg-type]  # _checked: numbers only
         if isinstance(node, ast.Name):
             return s if node.id == VARIABLE else CONSTANTS[node.id]
         if isinstance(node, ast.BinOp):

@@ -6,9 +6,12 @@ a_{target, source} = a > 0. The leader receives from nobody and must reach every
 """
 
 from collections import deque
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
+
+from curve_formation.core.shapes import FloatArray, IntArray
 
 
 class GraphError(ValueError):
@@ -28,8 +31,8 @@ class Edge:
 class Certificate:
     """Theorem 1: q = (L+B)^-1 1, p = (L+B)^-T 1, P = diag(p/q), Q = P(L+B) + (L+B)^T P."""
 
-    P: np.ndarray  # noqa: N815 - the paper's names
-    Q: np.ndarray  # noqa: N815
+    P: FloatArray  # noqa: N815 - the paper's names
+    Q: FloatArray  # noqa: N815
     min_eig_P: float  # noqa: N815
     min_eig_Q: float  # noqa: N815
 
@@ -42,7 +45,8 @@ class DirectedGraph:
     stays a nonsingular M-matrix, and certificate() checks P and Q.
     """
 
-    def __init__(self, n, edges, leader=1, follower_pinning=0.0):
+    def __init__(self, n: int, edges: Iterable[Edge], leader: int = 1,
+                 follower_pinning: float = 0.0) -> None:
         self.n = int(n)
         if self.n < 1:
             raise GraphError(f'a formation needs at least one agent, got n = {n}')
@@ -67,7 +71,7 @@ class DirectedGraph:
             self.adjacency[edge.target - 1, edge.source - 1] = edge.weight
         self._check_rooted()
 
-    def _check_rooted(self):
+    def _check_rooted(self) -> None:
         if not 1 <= self.leader <= self.n:
             raise GraphError(f'leader {self.leader} is not one of the agents 1..{self.n}')
         receives = [edge for edge in self.edges if edge.target == self.leader]
@@ -83,7 +87,7 @@ class DirectedGraph:
             raise GraphError(f'the graph has no spanning tree rooted at the leader '
                              f'(agent {self.leader}): agents {unreached} cannot be reached')
 
-    def reachable_from(self, root):
+    def reachable_from(self, root: int) -> set[int]:
         """Agents (1-based) that information from `root` reaches along the edges."""
         seen, queue = {root}, deque([root])
         while queue:
@@ -94,7 +98,7 @@ class DirectedGraph:
                     queue.append(int(target))
         return seen
 
-    def hops_from_leader(self):
+    def hops_from_leader(self) -> IntArray:
         """(n,) number of edges on the shortest path from the leader to each agent."""
         hops = {self.leader: 0}
         queue = deque([self.leader])
@@ -106,38 +110,38 @@ class DirectedGraph:
                     queue.append(target)
         return np.array([hops[i] for i in range(1, self.n + 1)])
 
-    def in_neighbours(self, agent):
+    def in_neighbours(self, agent: int) -> list[tuple[int, float]]:
         """[(source, weight)] that agent (1-based) receives from, sorted by source."""
         row = self.adjacency[agent - 1]
         return [(int(j) + 1, float(row[j])) for j in np.flatnonzero(row)]
 
-    def out_neighbours(self, agent):
+    def out_neighbours(self, agent: int) -> list[int]:
         """Agents (1-based) that receive from `agent`."""
         return [int(i) + 1 for i in np.flatnonzero(self.adjacency[:, agent - 1])]
 
     @property
-    def laplacian(self):
+    def laplacian(self) -> FloatArray:
         """L with l_ii = sum_j a_ij and l_ij = -a_ij: (n, n). The leader's row is zero."""
         return np.diag(self.adjacency.sum(axis=1)) - self.adjacency
 
     @property
-    def pinning(self):
+    def pinning(self) -> FloatArray:
         """B = diag(1 for the leader, b for the followers): (n, n), the paper's Lambda."""
         return np.diag(self.pins)
 
     @property
-    def pins(self):
+    def pins(self) -> FloatArray:
         """diag(B): (n,), each agent's weight on its own target error."""
         b = np.full(self.n, self.follower_pinning)
         b[self.leader - 1] = 1.0
         return b
 
     @property
-    def feedback_matrix(self):
+    def feedback_matrix(self) -> FloatArray:
         """L + B: the stacked feedback is (L + B) e for target errors e (n, 2)."""
         return self.laplacian + self.pinning
 
-    def certificate(self):
+    def certificate(self) -> Certificate:
         """Theorem 1's P and Q, checked positive definite."""
         m = self.feedback_matrix
         q = np.linalg.solve(m, np.ones(self.n))
@@ -154,7 +158,7 @@ class DirectedGraph:
                              f'(min eig P = {cert.min_eig_P:.3g}, Q = {cert.min_eig_Q:.3g})')
         return cert
 
-    def edge_arrays(self):
+    def edge_arrays(self) -> tuple[IntArray, IntArray, FloatArray]:
         """(targets, sources, weights) as 0-based int arrays and a float array, for kernels."""
         targets = np.array([e.target - 1 for e in self.edges], dtype=np.int64)
         sources = np.array([e.source - 1 for e in self.edges], dtype=np.int64)

@@ -195,7 +195,7 @@ def link_summary(reports):
     of a lost link or an error (level 2).
     """
     last = reports[-1][3]
-    summary = {key: int(last[key]) for key in LINK_COUNTS if key in last}
+    summary: dict[str, object] = {key: int(last[key]) for key in LINK_COUNTS if key in last}
     for key in ('latency_ms_p50', 'latency_ms_p99'):
         if key in last:
             summary[key] = float(last[key])

@@ -23,7 +23,7 @@ class _UniqueKeyLoader(yaml.SafeLoader):
     """PyYAML's safe loader, refusing a key that appears twice in one mapping."""
 
     def construct_mapping(self, node, deep=False):
-        seen = {}
+        seen: dict[object, int] = {}   # key -> its line (0-based)
         for key_node, _ in node.value:
             key = self.construct_object(key_node, deep=deep)
             try:

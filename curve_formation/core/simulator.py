@@ -14,26 +14,31 @@ The stepping loop is compiled with numba; it calls the same per-agent functions 
 controller (core.control), and its cost is linear in agents plus edges.
 """
 
+from collections.abc import Callable
 import dataclasses
 from dataclasses import dataclass
 import hashlib
 import math
 from pathlib import Path
 import types
-from typing import NamedTuple
+from typing import Any, cast, Literal, NamedTuple
 
 import numba
 import numpy as np
+from numpy.typing import ArrayLike
 
 from curve_formation.core import bodies, control, dynamics, metrics
 from curve_formation.core.assignment import reassigned
-from curve_formation.core.experiment import whole_steps
+from curve_formation.core.control import Gains, Law, WheelLimits
+from curve_formation.core.experiment import Experiment, whole_steps
+from curve_formation.core.safety import Avoidance
+from curve_formation.core.shapes import BoolArray, FloatArray, IntArray
 
 
 SOURCES = ('control.py', 'dynamics.py', 'safety.py', 'bodies.py', 'simulator.py')
 
 
-def cache_folder(folder):
+def cache_folder(folder: Path) -> Path:
     """Where numba caches what it compiles from the sources in `folder`: __pycache__ beside
     them, or under NUMBA_CACHE_DIR when that is set (as scripts/bootstrap.sh does), in the
     subfolder numba itself derives from the sources' folder.
@@ -45,7 +50,7 @@ def cache_folder(folder):
     return folder / '__pycache__'
 
 
-def drop_stale_cache(folder=Path(__file__).parent):
+def drop_stale_cache(folder: Path = Path(__file__).parent) -> bool:
     """Delete numba's compiled cache when a source it compiles in (SOURCES) changed.
 
     numba checks a cached function against its own source file only, not against the
@@ -73,24 +78,24 @@ def drop_stale_cache(folder=Path(__file__).parent):
 
 drop_stale_cache()
 
-_COMPILED = {}
+_COMPILED: dict[types.FunctionType, Callable[..., Any]] = {}
 
 
-def compiled(function):
+def compiled(function: Callable[..., Any]) -> Callable[..., Any]:
     """numba-compile a core function, after the core functions it calls (compiled in)."""
-    if function in _COMPILED:
-        return _COMPILED[function]
-    callees = {}
-    for name in function.__code__.co_names:
-        value = function.__globals__.get(name)
+    source = cast(types.FunctionType, function)   # a plain Python function of the core
+    if source in _COMPILED:
+        return _COMPILED[source]
+    callees: dict[str, Callable[..., Any]] = {}
+    for name in source.__code__.co_names:
+        value = source.__globals__.get(name)
         if (isinstance(value, types.FunctionType)
                 and value.__module__.startswith('curve_formation.core.')):
             callees[name] = compiled(value)
-    scope = dict(function.__globals__, **callees)
-    copy = types.FunctionType(function.__code__, scope, function.__name__,
-                              function.__defaults__)
-    _COMPILED[function] = numba.njit(cache=True)(copy)
-    return _COMPILED[function]
+    scope = dict(source.__globals__, **callees)
+    copy = types.FunctionType(source.__code__, scope, source.__name__, source.__defaults__)
+    _COMPILED[source] = numba.njit(cache=True)(copy)
+    return _COMPILED[source]
 
 
 _agent_command = compiled(control.agent_command)
@@ -122,13 +127,21 @@ class Contacts(NamedTuple):
     radius: float
     width: float
     height: float
-    touching: np.ndarray
-    tally: np.ndarray
+    touching: BoolArray
+    tally: FloatArray
+
+
+# The graph as the kernels take it: (targets, sources, weights) edge arrays and the pins.
+EdgeArrays = tuple[IntArray, IntArray, FloatArray, FloatArray]
+# (poses (n, 3), dhat, motion, cmd, ref (n, 2)), advanced in place.
+SimState = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]
 
 
 @numba.njit(cache=True)
-def _controls(poses, dhat, targets, graph, law, limits, avoidance, d_pc, d_robot, err, fb,
-              motion, cmd, ref, ddhat, codes):
+def _controls(poses: FloatArray, dhat: FloatArray, targets: FloatArray, graph: EdgeArrays,
+              law: Law, limits: WheelLimits, avoidance: Avoidance, d_pc: FloatArray,
+              d_robot: FloatArray, err: FloatArray, fb: FloatArray, motion: FloatArray,
+              cmd: FloatArray, ref: FloatArray, ddhat: FloatArray, codes: IntArray) -> None:
     """Evaluate every agent's tick (control.agent_command): fills err, fb, cmd (sent), motion
     (actual), ref (the observer's reference), ddhat (continuous-time estimator rate) and
     codes (the safety filter's outcome); cmd on entry holds each agent's previous command.
@@ -168,7 +181,7 @@ def _controls(poses, dhat, targets, graph, law, limits, avoidance, d_pc, d_robot
 
 
 @numba.njit(cache=True)
-def _arc_step(poses, motion, dt):
+def _arc_step(poses: FloatArray, motion: FloatArray, dt: float) -> None:
     """Exact unicycle motion over dt with constant (v, w) per agent."""
     for i in range(poses.shape[0]):
         poses[i, 0], poses[i, 1], poses[i, 2] = _arc(poses[i, 0], poses[i, 1], poses[i, 2],
@@ -176,7 +189,7 @@ def _arc_step(poses, motion, dt):
 
 
 @numba.njit(cache=True)
-def _touch(poses, contacts):
+def _touch(poses: FloatArray, contacts: Contacts) -> None:
     """Resolve contacts after a step (bodies only) and keep the tally."""
     if contacts.radius <= 0.0:
         return
@@ -189,8 +202,10 @@ def _touch(poses, contacts):
 
 
 @numba.njit(cache=True)
-def _run(state, targets, graph, law, limits, avoidance, d_pc, d_robot, clock, step0, steps,
-         schedule, contacts, record):
+def _run(state: SimState, targets: FloatArray, graph: EdgeArrays, law: Law,
+         limits: WheelLimits, avoidance: Avoidance, d_pc: FloatArray, d_robot: FloatArray,
+         clock: Clock, step0: int, steps: int, schedule: tuple[IntArray, IntArray],
+         contacts: Contacts, record: tuple[FloatArray, FloatArray, FloatArray]) -> None:
     """Advance the state (poses (n, 3), dhat (n, 2), and the held motion, cmd, ref (n, 2))
     in place by `steps` fine steps from `step0`.
 
@@ -307,40 +322,45 @@ class SimResult:
     fine step (new contacts between two bodies, time with any, smallest surface gap).
     """
 
-    experiment: object
-    rate_hz: object
-    gains: object
-    limits: object
-    disturbance: np.ndarray
-    t: np.ndarray
-    poses: np.ndarray
-    dhat: np.ndarray
-    commands: np.ndarray
-    phase: np.ndarray
+    experiment: Experiment
+    rate_hz: float | None
+    gains: Gains
+    limits: WheelLimits
+    disturbance: FloatArray
+    t: FloatArray
+    poses: FloatArray
+    dhat: FloatArray
+    commands: FloatArray
+    phase: IntArray
     radius: float = 0.0      # bodies (m); 0: points
-    contacts: dict = None    # {'count', 'time' (s), 'smallest_gap' (m)} over every fine step
+    # {'count', 'time' (s), 'smallest_gap' (m)} over every fine step
+    contacts: dict[str, float | None] | None = None
 
     @property
-    def errors(self):
+    def errors(self) -> FloatArray:
         """(R, n, 2) target errors e_i = xb_i - G(s_i) xi of the active curve."""
         return metrics.target_errors(self.poses, self.phase, self.experiment, self.gains,
                                      self.t)
 
     @property
-    def error_norm(self):
+    def error_norm(self) -> FloatArray:
         """(R,) ||xb_e||, the norm of all agents' stacked errors."""
         return metrics.error_norm(self.errors)
 
     @property
-    def lyapunov(self):
+    def lyapunov(self) -> FloatArray:
         """(R,) the paper's Lyapunov function V with the run's gains and disturbance."""
         return metrics.lyapunov(self.errors, self.dhat, self.experiment, self.disturbance,
                                 self.gains)
 
 
-def simulate(experiment, rate_hz='config', duration=None, dt=None, record_dt=None,
-             disturbance=None, gains=None, limits=None, initial_poses=None, tick_phases=None,
-             start_delays=None, avoidance=None, radius=None):
+def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] = 'config',
+             duration: float | None = None, dt: float | None = None,
+             record_dt: float | None = None, disturbance: ArrayLike | None = None,
+             gains: Gains | None = None, limits: WheelLimits | None = None,
+             initial_poses: ArrayLike | None = None, tick_phases: ArrayLike | None = None,
+             start_delays: ArrayLike | None = None, avoidance: Avoidance | None = None,
+             radius: float | None = None) -> SimResult:
     """Simulate an Experiment; keyword arguments override the file's settings.
 
     rate_hz: 'config' (the file's controller.rate_hz), None (continuous) or a rate (Hz).
