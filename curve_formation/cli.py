@@ -1,7 +1,8 @@
 """`curve-formation`: simulate, run, record and analyse formation experiments.
 
 Subcommands: check, sim (batch simulator), demo (the headless main job), run (ROS 2 node
-graph), analyze, replay and bag (info, repair) for recorded bags, estop, nodes-doc.
+graph), analyze, replay and bag (info, repair) for recorded bags, estop, calibrate-camera
+(the lens, from ChArUco board views), discovery-server, nodes-doc.
 Bad input ends with one line `error: FILE: KEY: ...` and exit status 2, never a traceback.
 """
 
@@ -16,6 +17,7 @@ import sys
 import numpy as np
 
 from curve_formation.bag import BagError, DEFAULT_STORAGE, STORAGES
+from curve_formation.core.aruco import MARKER_IDS
 from curve_formation.core.experiment import ConfigError, load_experiment
 from curve_formation.paths import resolve_config, use_dds_profile
 
@@ -236,6 +238,27 @@ def _cmd_estop(args):
         rclpy.try_shutdown()
 
 
+def _cmd_calibrate_camera(args):
+    from curve_formation.vision.intrinsics import (
+        BoardSpec,
+        calibrate,
+        read_images,
+        write_intrinsics,
+    )
+    spec = BoardSpec(tuple(args.squares), args.square_size, args.marker_size, args.dictionary)
+    if spec.marker_size >= spec.square_size:
+        raise ValueError(f'--marker-size ({spec.marker_size:g} m) must be smaller than '
+                         f'--square-size ({spec.square_size:g} m)')
+    result = calibrate(read_images(args.source, args.every, args.limit), spec, args.max_rms,
+                       args.min_views)
+    write_intrinsics(args.out, result)
+    k = result.camera_matrix
+    print(f'{result.views} views, reprojection RMS {result.rms:.3f} px; focal {k[0, 0]:.1f} x '
+          f'{k[1, 1]:.1f} px, centre ({k[0, 2]:.1f}, {k[1, 2]:.1f}) px, distortion '
+          f'{" ".join(f"{v:.4g}" for v in result.distortion)}')
+    print(f'wrote {args.out} (camera.intrinsics_file of an experiment)')
+
+
 def _cmd_nodes_doc(args):
     from curve_formation.nodes.docs import nodes_markdown
     print(nodes_markdown())
@@ -366,6 +389,27 @@ def build_parser():
                         help="this PC's address the robots' PCs reach it at")
     server.add_argument('--port', type=int, default=11811)
     server.set_defaults(func=_cmd_discovery_server)
+    calib = sub.add_parser('calibrate-camera', help="the camera's lens (intrinsics) from "
+                           'views of a ChArUco board, written for camera.intrinsics_file')
+    calib.add_argument('source', help='a folder of images, a video file or a device number')
+    calib.add_argument('--out', required=True, help='intrinsics file to write (YAML)')
+    calib.add_argument('--squares', type=int, nargs=2, default=(7, 5),
+                       metavar=('COLUMNS', 'ROWS'), help='board squares (default 7 5)')
+    calib.add_argument('--square-size', type=positive, default=0.04,
+                       help='side of a square as printed (m, default 0.04)')
+    calib.add_argument('--marker-size', type=positive, default=0.03,
+                       help='side of a marker as printed (m, default 0.03)')
+    calib.add_argument('--dictionary', default='DICT_5X5_100', choices=sorted(MARKER_IDS),
+                       metavar='NAME', help='cv2.aruco dictionary (default DICT_5X5_100)')
+    calib.add_argument('--max-rms', type=positive, default=1.0,
+                       help='refuse a reprojection error above this (px, default 1)')
+    calib.add_argument('--min-views', type=int, default=10,
+                       help='refuse fewer views that show the board (default 10)')
+    calib.add_argument('--every', type=int, default=1,
+                       help='from a video or device: use every N-th frame')
+    calib.add_argument('--limit', type=int, help='from a video or device: at most this many '
+                       'frames')
+    calib.set_defaults(func=_cmd_calibrate_camera)
     nodes_doc = sub.add_parser('nodes-doc', help="print the README's node reference "
                                '(parameters, topics, QoS) from the code')
     nodes_doc.set_defaults(func=_cmd_nodes_doc)

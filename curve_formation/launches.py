@@ -160,7 +160,10 @@ def camera_launches(experiment, experiment_path, with_fake_camera, overrides):
             'experiment': path, 'rate_hz': float(cam.rate_hz),
             'resolution': [int(v) for v in cam.resolution], 'tilt_deg': float(fake.tilt_deg),
             'height': float(fake.height), 'noise': float(fake.noise),
-            'blur': float(fake.blur), 'brightness': float(fake.brightness), **overrides}))
+            'blur': float(fake.blur), 'brightness': float(fake.brightness),
+            # an empty list has no type in a parameters file: the ideal lens is the default
+            **({'distortion': [float(v) for v in fake.distortion]} if fake.distortion else {}),
+            **overrides}))
     return launches
 
 

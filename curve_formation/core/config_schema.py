@@ -233,6 +233,17 @@ class FakeCameraSpec(Strict):
     noise: float = Field(0.0, ge=0, description='pixel noise standard deviation (grey levels)')
     blur: float = Field(0.0, ge=0, description='Gaussian blur sigma (pixels)')
     brightness: float = Field(1.0, gt=0, description='brightness factor')
+    distortion: list[float] = Field(default_factory=list, description='lens the fake camera '
+                                    'renders: OpenCV distortion coefficients k1 k2 p1 p2 '
+                                    '[k3]; [] = an ideal lens')
+
+    @field_validator('distortion')
+    @classmethod
+    def _distortion_size(cls, value):
+        if len(value) not in (0, 4, 5):
+            raise ValueError(f'expected 0, 4 or 5 coefficients (k1 k2 p1 p2 [k3]), got '
+                             f'{len(value)}')
+        return value
 
 
 class Intrinsics(Strict):
@@ -259,11 +270,20 @@ class CameraSpec(Strict):
     calibration_file: Optional[str] = Field(None, description='saved homography (YAML), '
                                             'reloaded at start; relative to the experiment file')
     intrinsics: Optional[Intrinsics] = None
+    intrinsics_file: Optional[str] = Field(
+        None, description='lens calibration (YAML) written by `curve-formation '
+        'calibrate-camera`; relative to the experiment file; instead of `intrinsics`')
     resolution: tuple[int, int] = Field((1280, 720), description='width, height (pixels)')
     rate_hz: float = Field(30.0, gt=0, description='frame rate of the (fake) camera')
     lost_timeout: float = Field(0.5, gt=0, description='a robot unseen for this long is '
                                 'reported lost (s)')
     fake: FakeCameraSpec = FakeCameraSpec()
+
+    @model_validator(mode='after')
+    def _one_lens_calibration(self):
+        if self.intrinsics is not None and self.intrinsics_file is not None:
+            raise ValueError('give `intrinsics` or `intrinsics_file`, not both')
+        return self
 
     @model_validator(mode='after')
     def _distinct_ids(self):

@@ -33,6 +33,7 @@ from curve_formation.nodes.readiness import REPORTED, subscribe_to_curve
 from curve_formation.nodes.runtime import now_seconds, run_node
 from curve_formation.nodes.topics import Use
 from curve_formation.vision.camera import apply_homography
+from curve_formation.vision.intrinsics import IntrinsicsError, read_intrinsics
 from curve_formation.vision.markers import MarkerLayout
 from curve_formation.vision.tracker import Calibration, CalibrationError, MarkerTracker
 
@@ -50,6 +51,8 @@ PARAMETERS = (
           choices=('', 'continuous', 'fixed')),
     Param('calibration_file', 'string', '', "saved homography (YAML), reloaded at start; '' = "
           "the experiment's camera.calibration_file (if any)"),
+    Param('intrinsics_file', 'string', '', "lens calibration (YAML) of `curve-formation "
+          "calibrate-camera`; '' = the experiment's camera.intrinsics(_file), if any"),
     Param('lost_timeout', 'double', 0.0, "a robot unseen this long is reported lost (s); 0 = "
           "the experiment's", low=0.0),
     Param('debug_rate_hz', 'double', 5.0, 'rate of the annotated debug image (Hz); 0 = off',
@@ -95,9 +98,7 @@ class CameraTracker(Node):
         elif mode == 'fixed':
             raise ParameterError(f"parameter 'calibration_file': calibration 'fixed' needs a "
                                  f'saved calibration, {self.calibration_path} does not exist')
-        intrinsics = None
-        if camera.intrinsics is not None:
-            intrinsics = (camera.intrinsics.camera_matrix, camera.intrinsics.distortion)
+        intrinsics = self._intrinsics(camera)
         self.layout = MarkerLayout.from_spec(camera)
         self.tracker = MarkerTracker(self.layout, calibration, mode == 'continuous', intrinsics)
         self.pose_pubs = [topics.publisher(self, topics.POSE, robot=i)
@@ -129,13 +130,36 @@ class CameraTracker(Node):
         self.create_timer(1.0, self._publish_diagnostics)
 
     def _calibration_path(self, camera):
-        given = self.params.calibration_file or camera.calibration_file
-        if not given:
+        return self._path(self.params.calibration_file, camera.calibration_file)
+
+    def _path(self, parameter, experiment_key):
+        """The file a parameter names (as given), else the experiment's (relative to it)."""
+        if parameter:
+            return Path(parameter)
+        if not experiment_key:
             return None
-        path = Path(given)
-        if not path.is_absolute() and not self.params.calibration_file:
-            path = Path(self.experiment.source).parent / path
-        return path
+        path = Path(experiment_key)
+        return path if path.is_absolute() else Path(self.experiment.source).parent / path
+
+    def _intrinsics(self, camera):
+        """(K, distortion) to undistort corner pixels with, or None (an ideal lens)."""
+        path = self._path(self.params.intrinsics_file, camera.intrinsics_file)
+        if path is None:
+            if camera.intrinsics is None:
+                return None
+            return camera.intrinsics.camera_matrix, camera.intrinsics.distortion
+        try:
+            lens = read_intrinsics(path)
+        except IntrinsicsError as exc:
+            raise ParameterError(f"parameter 'intrinsics_file': {exc}") from None
+        if lens.image_size != tuple(camera.resolution):
+            raise ParameterError(f"parameter 'intrinsics_file': {path} was calibrated at "
+                                 f'{lens.image_size[0]}x{lens.image_size[1]}, the camera '
+                                 f'delivers {camera.resolution[0]}x{camera.resolution[1]} '
+                                 '(camera.resolution)')
+        self.get_logger().info(f'lens calibration loaded from {path} (reprojection '
+                               f'{lens.rms:.2f} px)')
+        return lens.camera_matrix, lens.distortion
 
     def _on_curve(self, msg):
         try:

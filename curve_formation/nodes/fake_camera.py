@@ -21,6 +21,7 @@ from curve_formation.nodes.readiness import REPORTED, subscribe_to_curve
 from curve_formation.nodes.runtime import now_seconds, run_node
 from curve_formation.nodes.topics import Use
 from curve_formation.vision.camera import overhead_camera
+from curve_formation.vision.lens import Lens
 from curve_formation.vision.markers import MarkerLayout
 from curve_formation.vision.render import ArenaRenderer, RenderOptions
 
@@ -35,6 +36,8 @@ PARAMETERS = (
     Param('noise', 'double', 0.0, 'pixel noise standard deviation (grey levels)', low=0.0),
     Param('blur', 'double', 0.0, 'Gaussian blur sigma (pixels)', low=0.0),
     Param('brightness', 'double', 1.0, 'brightness factor', positive=True),
+    Param('distortion', 'double[]', [], 'lens distortion k1 k2 p1 p2 [k3] (OpenCV order); [] '
+          '= an ideal lens'),
     Param('hide', 'int[]', [], 'fault: agents whose marker is covered'),
     Param('duplicate_of', 'int', 0, "fault: show a second marker with this agent's id "
           '(0 = none)', low=0),
@@ -74,11 +77,16 @@ class FakeCamera(Node):
         if bad:
             raise ParameterError(f"parameters 'hide'/'duplicate_of': agents {bad} are not in "
                                  f'1..{n}')
+        try:
+            lens = Lens.from_coefficients(p.distortion)
+        except ValueError as exc:
+            raise ParameterError(f"parameter 'distortion': {exc}") from None
         arena = experiment.spec.arena.size
         self.layout = MarkerLayout.from_spec(experiment.spec.camera)
         camera = overhead_camera(arena, tuple(p.resolution), p.tilt_deg, p.height)
         self.renderer = ArenaRenderer(camera, self.layout, arena,
-                                      RenderOptions(p.noise, p.blur, p.brightness), seed=p.seed)
+                                      RenderOptions(p.noise, p.blur, p.brightness), seed=p.seed,
+                                      lens=lens)
         self.poses = {}
         self.first_curve = None
         subscribe_to_curve(self, self._on_curve)

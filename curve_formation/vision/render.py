@@ -12,6 +12,7 @@ import math
 import cv2
 import numpy as np
 
+from curve_formation.vision.lens import Lens, LensWarp
 from curve_formation.vision.markers import (
     dictionary,
     marker_bits,
@@ -23,6 +24,7 @@ from curve_formation.vision.markers import (
 FLOOR = 190        # grey level of the arena floor
 SURROUNDINGS = 70  # outside the arena
 ROBOT_BODY = 45    # the robot under its marker
+IDEAL_LENS = Lens()
 
 
 @dataclass(frozen=True)
@@ -34,31 +36,55 @@ class RenderOptions:
     brightness: float = 1.0
 
 
+class ImageEffects:
+    """Applies RenderOptions to a frame: blur, brightness, then pixel noise."""
+
+    def __init__(self, options):
+        self.options = options
+        self._noise = None
+
+    def __call__(self, image):
+        opts = self.options
+        if opts.blur > 0:
+            image = cv2.GaussianBlur(image, (0, 0), opts.blur)
+        if opts.brightness != 1.0:
+            image = cv2.convertScaleAbs(image, alpha=opts.brightness)
+        if opts.noise > 0:
+            if self._noise is None:
+                self._noise = np.empty(image.shape, np.int16)
+            cv2.randn(self._noise, 0.0, opts.noise)
+            image = np.clip(cv2.add(image.astype(np.int16), self._noise), 0, 255).astype(np.uint8)
+        return image
+
+
 class ArenaRenderer:
     """Renders frames of the arena with robots at given poses.
 
     camera: PinholeCamera; layout: MarkerLayout; arena_size (m); robot_radius (m) of the body
-    disc drawn under each marker.
+    disc drawn under each marker; lens: the camera's lens.Lens (default ideal): the frame is
+    drawn through the pinhole on a larger canvas, then bent as the lens bends it.
     """
 
     def __init__(self, camera, layout, arena_size, options=RenderOptions(), robot_radius=None,
-                 seed=0):
+                 seed=0, lens=IDEAL_LENS):
         self.camera = camera
+        self.lens_warp = None if lens.ideal else LensWarp(camera, lens)
+        # where frames are drawn: the camera itself, or the lens' ideal canvas
+        self._canvas = camera if self.lens_warp is None else self.lens_warp.ideal_camera
         self.layout = layout
         self.options = options
         self.robot_radius = robot_radius or 0.8 * layout.marker_size * math.sqrt(2)
         cv2.setRNGSeed(seed)   # pixel noise comes from OpenCV's generator (fast)
-        self._noise = None
-        self.homography = camera.floor_homography()
+        self._effects = ImageEffects(options)
         self._dictionary = dictionary(layout.dictionary_name)
         self._bits = marker_bits(layout.dictionary_name)
         self._marker_images = {}
         self.background = self._background(arena_size)
 
     def _background(self, arena_size):
-        image = np.full((self.camera.height, self.camera.width), SURROUNDINGS, np.uint8)
+        image = np.full((self._canvas.height, self._canvas.width), SURROUNDINGS, np.uint8)
         w, h = arena_size
-        floor = self.camera.project([[0, 0], [w, 0], [w, h], [0, h]])
+        floor = self._canvas.project([[0, 0], [w, 0], [w, h], [0, h]])
         cv2.fillConvexPoly(image, np.round(floor * 16).astype(np.int32), FLOOR,
                            lineType=cv2.LINE_AA, shift=4)
         for marker_id, (x, y) in self.layout.corners.items():
@@ -80,7 +106,7 @@ class ArenaRenderer:
         outer = side * (self._bits + 4) / (self._bits + 2)   # with the quiet zone
         corners = marker_corners(x, y, heading, outer)
         # Source resolution close to the projected one, so the warp neither aliases nor blurs.
-        projected = self.camera.project(corners)
+        projected = self._canvas.project(corners)
         side_px = np.linalg.norm(np.diff(np.vstack([projected, projected[:1]]), axis=0),
                                  axis=1).max()
         module_px = max(1, int(round(side_px / (self._bits + 4))))
@@ -88,7 +114,7 @@ class ArenaRenderer:
 
     def _warp_into(self, image, source, arena_corners):
         """Warp `source` onto the arena quadrilateral (ArUco corner order), blending edges."""
-        target = self.camera.project(arena_corners)
+        target = self._canvas.project(arena_corners)
         n = source.shape[0]
         edge = np.array([[-0.5, -0.5], [n - 0.5, -0.5], [n - 0.5, n - 0.5], [-0.5, n - 0.5]],
                         np.float32)
@@ -117,7 +143,7 @@ class ArenaRenderer:
         """
         image = self.background.copy()
         for x, y, _ in poses.values():
-            body = self.camera.project(_disc(x, y, self.robot_radius))
+            body = self._canvas.project(_disc(x, y, self.robot_radius))
             cv2.fillConvexPoly(image, np.round(body * 16).astype(np.int32), ROBOT_BODY,
                                lineType=cv2.LINE_AA, shift=4)
         for agent, (x, y, heading) in poses.items():   # markers on top of every body
@@ -128,22 +154,102 @@ class ArenaRenderer:
                               self.layout.marker_size)
         for marker_id, x, y, heading in extra_markers:
             self._draw_marker(image, marker_id, x, y, heading, self.layout.marker_size)
+        if self.lens_warp is not None:
+            image = self.lens_warp.apply(image, SURROUNDINGS)
         return self._effects(image)
-
-    def _effects(self, image):
-        opts = self.options
-        if opts.blur > 0:
-            image = cv2.GaussianBlur(image, (0, 0), opts.blur)
-        if opts.brightness != 1.0:
-            image = cv2.convertScaleAbs(image, alpha=opts.brightness)
-        if opts.noise > 0:
-            if self._noise is None:
-                self._noise = np.empty(image.shape, np.int16)
-            cv2.randn(self._noise, 0.0, opts.noise)
-            image = np.clip(cv2.add(image.astype(np.int16), self._noise), 0, 255).astype(np.uint8)
-        return image
 
 
 def _disc(x, y, radius, points=32):
     angles = np.linspace(0, 2 * math.pi, points, endpoint=False)
     return np.column_stack([x + radius * np.cos(angles), y + radius * np.sin(angles)])
+
+
+BOARD_SQUARE_PX = 64   # resolution of the board image the views are warped from
+BOARD_BACKGROUND = 120
+
+
+class BoardRenderer:
+    """Frames of a ChArUco board (intrinsics.BoardSpec) held in front of the camera, through
+    its lens: what `curve-formation calibrate-camera` is shown.
+
+    camera: PinholeCamera (only K and the image size matter); lens: lens.Lens.
+    """
+
+    def __init__(self, camera, spec, lens=IDEAL_LENS, options=RenderOptions(), seed=0):
+        self.camera = camera
+        self.spec = spec
+        self.options = options
+        self.lens_warp = None if lens.ideal else LensWarp(camera, lens)
+        self._canvas = camera if self.lens_warp is None else self.lens_warp.ideal_camera
+        cols, rows = spec.squares
+        board = spec.board().generateImage((cols * BOARD_SQUARE_PX, rows * BOARD_SQUARE_PX),
+                                           marginSize=0, borderBits=1)
+        # a white quiet zone of half a square around the board
+        self._margin = BOARD_SQUARE_PX // 2
+        self._board = cv2.copyMakeBorder(board, *(4 * [self._margin]), cv2.BORDER_CONSTANT,
+                                         value=255)
+        self._effects = ImageEffects(options)
+        cv2.setRNGSeed(seed)
+
+    @property
+    def size(self):
+        """(width, height) of the board in metres."""
+        cols, rows = self.spec.squares
+        return cols * self.spec.square_size, rows * self.spec.square_size
+
+    def pose_at(self, pixel, distance, tilt_x_deg=0.0, tilt_y_deg=0.0, spin_deg=0.0):
+        """(R, t): the board turned by spin (about its normal), then tilted about its x and y
+        axes (degrees), its centre on the ray of ideal `pixel` (u, v) at depth `distance` (m).
+        """
+        rotation = _rotation(tilt_x_deg, tilt_y_deg, spin_deg)
+        ray = np.linalg.solve(self.camera.K, [pixel[0], pixel[1], 1.0])
+        centre = np.array([self.size[0] / 2, self.size[1] / 2, 0.0])
+        return rotation, distance * ray - rotation @ centre
+
+    def random_poses(self, count, seed=0, distance=(0.5, 0.9), max_tilt_deg=40.0):
+        """`count` board poses spread over the frame, each tilted up to max_tilt_deg."""
+        rng = np.random.default_rng(seed)
+        width, height = self.camera.width, self.camera.height
+        return [self.pose_at((rng.uniform(0.1, 0.9) * width, rng.uniform(0.1, 0.9) * height),
+                             rng.uniform(*distance), *rng.uniform(-max_tilt_deg, max_tilt_deg, 2),
+                             rng.uniform(-30.0, 30.0)) for _ in range(count)]
+
+    def render(self, rotation, translation):
+        """One frame (height x width uint8) of the board at (R, t), board -> camera (m)."""
+        canvas = self._canvas
+        image = np.full((canvas.height, canvas.width), BOARD_BACKGROUND, np.uint8)
+        ppm = BOARD_SQUARE_PX / self.spec.square_size
+        # board image pixel p -> board point (p - margin + 0.5) / ppm (m) -> canvas pixel
+        to_board = np.array([[1 / ppm, 0, (0.5 - self._margin) / ppm],
+                             [0, 1 / ppm, (0.5 - self._margin) / ppm], [0, 0, 1]])
+        rotation = np.asarray(rotation, float)
+        plane = np.column_stack([rotation[:, 0], rotation[:, 1], translation])
+        warp = canvas.K @ plane @ to_board
+        source = self._board
+        projected = cv2.perspectiveTransform(
+            np.array([[[0, 0], [source.shape[1], 0], [0, source.shape[0]],
+                       [source.shape[1], source.shape[0]]]], np.float64), warp)[0]
+        shrink = max(np.ptp(projected[:, 0]) / source.shape[1],
+                     np.ptp(projected[:, 1]) / source.shape[0])
+        if shrink < 0.8:   # downsample first, so that the warp does not alias
+            factor = max(shrink * 1.25, 1e-3)
+            source = cv2.resize(source, None, fx=factor, fy=factor, interpolation=cv2.INTER_AREA)
+            scale = np.diag([1 / factor, 1 / factor, 1.0])
+            scale[:2, 2] = 0.5 / factor - 0.5
+            warp = warp @ scale
+        size = (canvas.width, canvas.height)
+        patch = cv2.warpPerspective(source, warp, size, flags=cv2.INTER_LINEAR)
+        mask = cv2.warpPerspective(np.ones_like(source, np.float32), warp, size,
+                                   flags=cv2.INTER_LINEAR)
+        image = np.round(image * (1 - mask) + patch * mask).astype(np.uint8)
+        if self.lens_warp is not None:
+            image = self.lens_warp.apply(image, BOARD_BACKGROUND)
+        return self._effects(image)
+
+
+def _rotation(tilt_x_deg, tilt_y_deg, spin_deg):
+    ax, ay, az = np.radians([tilt_x_deg, tilt_y_deg, spin_deg])
+    rx = np.array([[1, 0, 0], [0, math.cos(ax), -math.sin(ax)], [0, math.sin(ax), math.cos(ax)]])
+    ry = np.array([[math.cos(ay), 0, math.sin(ay)], [0, 1, 0], [-math.sin(ay), 0, math.cos(ay)]])
+    rz = np.array([[math.cos(az), -math.sin(az), 0], [math.sin(az), math.cos(az), 0], [0, 0, 1]])
+    return rx @ ry @ rz
