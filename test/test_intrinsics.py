@@ -2,6 +2,7 @@
 the tracker; `curve-formation calibrate-camera` end to end.
 """
 
+import dataclasses
 import math
 
 import cv2
@@ -9,9 +10,13 @@ import numpy as np
 import pytest
 
 from curve_formation.cli import main
-from curve_formation.core.experiment import load_experiment, random_poses
+from curve_formation.core.experiment import ConfigError, load_experiment, random_poses
 from curve_formation.paths import resolve_config
-from curve_formation.vision.camera import overhead_camera
+from curve_formation.vision.camera import (
+    apply_homography,
+    overhead_camera,
+    raised_plane_homography,
+)
 from curve_formation.vision.intrinsics import (
     BoardSpec,
     calibrate,
@@ -81,8 +86,11 @@ def test_twenty_board_views_recover_the_lens(calibrated):
     assert residual.max() * camera.K[0, 0] < 0.3
 
 
-def tracking_errors(layout, camera, intrinsics, frames=8):
-    renderer = ArenaRenderer(camera, layout, ARENA, NOISY, lens=WIDE)
+def tracking_errors(layout, camera, intrinsics, frames=8, renderer=None):
+    """Position (m) and heading (degrees) errors of every robot over `frames` scenes rendered
+    through WIDE (by `renderer`, default one of `layout`).
+    """
+    renderer = renderer or ArenaRenderer(camera, layout, ARENA, NOISY, lens=WIDE)
     tracker = MarkerTracker(layout, intrinsics=intrinsics)
     position, heading = [], []
     for frame in range(frames):
@@ -138,3 +146,43 @@ def test_calibrate_camera_command_writes_what_the_tracker_reads(tmp_path, capsys
     out.write_text('camera_matrix: [1, 2, 3]\ndistortion: []\nimage_size: [1280, 720]\n')
     with pytest.raises(IntrinsicsError, match='lens.yaml: camera_matrix: expected a list of 9'):
         read_intrinsics(out)
+
+
+def test_the_raised_plane_homography_is_exact_for_a_known_camera():
+    camera = overhead_camera(ARENA, (1280, 720), tilt_deg=25.0)
+    floor_from_pixels = np.linalg.inv(camera.floor_homography())
+    h = raised_plane_homography(floor_from_pixels, camera.K, 0.05)
+    points = np.array([[0.0, 0.0], [1.8, 0.8], [0.3, 0.7], [1.2, 0.1]])
+    np.testing.assert_allclose(apply_homography(h, camera.project(points, z=0.05)), points,
+                               atol=1e-9)
+
+
+def test_markers_above_the_floor_are_tracked_on_their_own_plane(layout, calibrated):
+    """Markers 5 cm up, seen through the wide lens: without the height the tracker is off by
+    centimetres even with the lens undone (measured 12 mm RMS and 20 mm at worst straight
+    down, 28 and 37 mm tilted 25 degrees; 29 and 38 mm RMS with neither corrected); mapped on
+    their plane, 0.21-0.30 mm RMS and 0.6-0.8 mm at worst.
+    """
+    camera, found = calibrated
+    intrinsics = (found.camera_matrix, found.distortion)
+    high = dataclasses.replace(layout, marker_height=0.05)
+    renderer = ArenaRenderer(camera, high, ARENA, NOISY, lens=WIDE)
+    floor, _ = tracking_errors(layout, camera, intrinsics, renderer=renderer)
+    raised, heading = tracking_errors(high, camera, intrinsics, renderer=renderer)
+    assert np.sqrt(np.mean(floor ** 2)) > 0.01
+    assert raised.max() < 0.001 and np.sqrt(np.mean(raised ** 2)) < 0.0005
+    assert heading.max() < 1.5
+    with pytest.raises(ValueError, match='need the camera matrix'):
+        MarkerTracker(high)
+
+
+def test_a_marker_height_without_the_lens_is_refused_by_name(tmp_path):
+    text = resolve_config('arena_demo').read_text().replace(
+        '  corner_size:', '  marker_height: 0.05\n  corner_size:', 1)
+    path = tmp_path / 'high.yaml'
+    path.write_text(text)
+    with pytest.raises(ConfigError, match='camera.marker_height: markers 0.05 m above'):
+        load_experiment(path)
+    path.write_text(text.replace('marker_height: 0.05', 'marker_height: 0.05\n'
+                                 '  corner_height: 0.05'))
+    assert load_experiment(path).spec.camera.marker_height == 0.05

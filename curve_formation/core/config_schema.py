@@ -264,6 +264,10 @@ class CameraSpec(Strict):
     corners: list[CornerMarker] = Field(min_length=2, description='fixed floor markers with '
                                         'known arena positions (at least 2; 4 recommended)')
     corner_size: float = Field(gt=0, description="side of a corner marker's black square (m)")
+    marker_height: float = Field(0.0, ge=0, description="height of the robots' markers above "
+                                 'the floor (m); the tracker maps them on that plane')
+    corner_height: float = Field(0.0, ge=0, description='height of the corner markers above '
+                                 'the floor (m), e.g. on stands at marker height')
     calibration: Literal['continuous', 'fixed'] = Field(
         'continuous', description='continuous: homography re-estimated from the corner markers '
         'in every frame that shows enough of them; fixed: read from calibration_file only')

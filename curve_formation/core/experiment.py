@@ -334,6 +334,13 @@ def _check_camera(spec: ExperimentSpec, source: str) -> None:
         raise ConfigError(source, 'camera.dictionary', f'unknown ArUco dictionary '
                           f'{safe_yaml.shorten(camera.dictionary)!r}; one of '
                           f'{", ".join(sorted(MARKER_IDS))}')
+    if (camera.marker_height != camera.corner_height and camera.intrinsics is None
+            and camera.intrinsics_file is None):
+        raise ConfigError(source, 'camera.marker_height', f'markers '
+                          f'{camera.marker_height - camera.corner_height:g} m above the corner '
+                          'markers are mapped through the lens: give `intrinsics_file` (from '
+                          '`curve-formation calibrate-camera`) or `intrinsics`, or put the '
+                          'corner markers at the same height (`corner_height`)')
     size = MARKER_IDS[camera.dictionary]
     too_big = [i for i in camera.robot_ids + [c.id for c in camera.corners] if i >= size]
     if too_big:

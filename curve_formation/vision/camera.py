@@ -60,3 +60,21 @@ def apply_homography(h, points):
     points = np.asarray(points, float).reshape(-1, 2)
     mapped = np.column_stack([points, np.ones(len(points))]) @ np.asarray(h).T
     return mapped[:, :2] / mapped[:, 2:3]
+
+
+def raised_plane_homography(to_plane, k, dz):
+    """Pixel -> arena (x, y) homography of the plane dz (m) above the plane that the pixel ->
+    arena homography `to_plane` maps (pixels undistorted, K the camera matrix).
+
+    The camera's pose follows from K and the plane's homography: K^-1 to_plane^-1 is
+    [r1 r2 t] up to scale, with its sign set so that the plane lies in front of the camera;
+    the raised plane's homography is K [r1 r2 dz r3 + t] with r3 = r1 x r2 (z up).
+    """
+    m = np.linalg.solve(np.asarray(k, float), np.linalg.inv(np.asarray(to_plane, float)))
+    scale = 2.0 / (np.linalg.norm(m[:, 0]) + np.linalg.norm(m[:, 1]))
+    if m[2, 2] < 0:   # the plane's origin must have a positive depth
+        scale = -scale
+    r1, r2, t = m[:, 0] * scale, m[:, 1] * scale, m[:, 2] * scale
+    r3 = np.cross(r1, r2)
+    r3 /= np.linalg.norm(r3)
+    return np.linalg.inv(np.asarray(k, float) @ np.column_stack([r1, r2, dz * r3 + t]))

@@ -81,7 +81,8 @@ def _diagonal_crossing(a, b, c, d):
 class MarkerLayout:
     """Which marker is where: built from an experiment's `camera` section.
 
-    robot_ids[i]: marker id of agent i + 1. corners: {id: (x, y)} centres (m).
+    robot_ids[i]: marker id of agent i + 1. corners: {id: (x, y)} centres (m). Heights (m)
+    above the floor of the robots' markers and of the corner markers.
     """
 
     dictionary_name: str
@@ -90,12 +91,14 @@ class MarkerLayout:
     marker_offset: tuple
     corners: dict
     corner_size: float
+    marker_height: float = 0.0
+    corner_height: float = 0.0
 
     @classmethod
     def from_spec(cls, camera):
         return cls(camera.dictionary, tuple(camera.robot_ids), camera.marker_size,
                    tuple(camera.marker_offset), {c.id: tuple(c.position) for c in camera.corners},
-                   camera.corner_size)
+                   camera.corner_size, camera.marker_height, camera.corner_height)
 
     @property
     def agent_of(self):

@@ -88,7 +88,8 @@ class ArenaRenderer:
         cv2.fillConvexPoly(image, np.round(floor * 16).astype(np.int32), FLOOR,
                            lineType=cv2.LINE_AA, shift=4)
         for marker_id, (x, y) in self.layout.corners.items():
-            self._draw_marker(image, marker_id, x, y, 0.0, self.layout.corner_size)
+            self._draw_marker(image, marker_id, x, y, 0.0, self.layout.corner_size,
+                              self.layout.corner_height)
         return image
 
     def marker_image(self, marker_id, module_px):
@@ -102,19 +103,22 @@ class ArenaRenderer:
                 value=255)
         return self._marker_images[key]
 
-    def _draw_marker(self, image, marker_id, x, y, heading, side):
+    def _draw_marker(self, image, marker_id, x, y, heading, side, z=0.0):
+        """Marker `marker_id` centred at (x, y) (m), `side` (m) black square, z (m) up."""
         outer = side * (self._bits + 4) / (self._bits + 2)   # with the quiet zone
         corners = marker_corners(x, y, heading, outer)
         # Source resolution close to the projected one, so the warp neither aliases nor blurs.
-        projected = self._canvas.project(corners)
+        projected = self._canvas.project(corners, z)
         side_px = np.linalg.norm(np.diff(np.vstack([projected, projected[:1]]), axis=0),
                                  axis=1).max()
         module_px = max(1, int(round(side_px / (self._bits + 4))))
-        self._warp_into(image, self.marker_image(marker_id, module_px), corners)
+        self._warp_into(image, self.marker_image(marker_id, module_px), corners, z)
 
-    def _warp_into(self, image, source, arena_corners):
-        """Warp `source` onto the arena quadrilateral (ArUco corner order), blending edges."""
-        target = self._canvas.project(arena_corners)
+    def _warp_into(self, image, source, arena_corners, z=0.0):
+        """Warp `source` onto the arena quadrilateral (ArUco corner order) at height z (m),
+        blending edges.
+        """
+        target = self._canvas.project(arena_corners, z)
         n = source.shape[0]
         edge = np.array([[-0.5, -0.5], [n - 0.5, -0.5], [n - 0.5, n - 0.5], [-0.5, n - 0.5]],
                         np.float32)
@@ -143,7 +147,8 @@ class ArenaRenderer:
         """
         image = self.background.copy()
         for x, y, _ in poses.values():
-            body = self._canvas.project(_disc(x, y, self.robot_radius))
+            body = self._canvas.project(_disc(x, y, self.robot_radius),
+                                        self.layout.marker_height)   # the robot's top
             cv2.fillConvexPoly(image, np.round(body * 16).astype(np.int32), ROBOT_BODY,
                                lineType=cv2.LINE_AA, shift=4)
         for agent, (x, y, heading) in poses.items():   # markers on top of every body
@@ -151,9 +156,10 @@ class ArenaRenderer:
                 continue
             mx, my = robot_marker_pose(x, y, heading, self.layout.marker_offset)
             self._draw_marker(image, self.layout.robot_ids[agent - 1], mx, my, heading,
-                              self.layout.marker_size)
+                              self.layout.marker_size, self.layout.marker_height)
         for marker_id, x, y, heading in extra_markers:
-            self._draw_marker(image, marker_id, x, y, heading, self.layout.marker_size)
+            self._draw_marker(image, marker_id, x, y, heading, self.layout.marker_size,
+                              self.layout.marker_height)
         if self.lens_warp is not None:
             image = self.lens_warp.apply(image, SURROUNDINGS)
         return self._effects(image)

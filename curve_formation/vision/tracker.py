@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 import yaml
 
-from curve_formation.vision.camera import apply_homography
+from curve_formation.vision.camera import apply_homography, raised_plane_homography
 from curve_formation.vision.markers import dictionary, pose_from_corners
 
 
@@ -85,7 +85,9 @@ class MarkerTracker:
 
     continuous: re-estimate the homography from every frame with enough corner markers;
     otherwise only `calibration` (e.g. loaded from a file) is used. intrinsics: optional
-    (camera_matrix 3x3, distortion) to undistort corner pixels first.
+    (camera_matrix 3x3, distortion) to undistort corner pixels first; needed when the robots'
+    markers are not at the corner markers' height (layout heights): they are mapped on their
+    own plane, from the camera pose that K and the corners' homography give.
     """
 
     def __init__(self, layout, calibration: Optional[Calibration] = None, continuous=True,
@@ -110,6 +112,11 @@ class MarkerTracker:
             k, dist = intrinsics
             self.intrinsics = (np.asarray(k, float).reshape(3, 3),
                                np.asarray(dist, float).ravel())
+        self.raise_by = layout.marker_height - layout.corner_height   # m
+        if self.raise_by != 0.0 and self.intrinsics is None:
+            raise ValueError(f'markers {self.raise_by:g} m above the corner markers need the '
+                             'camera matrix (intrinsics) to be mapped on their plane')
+        self._raised = None   # (Calibration, its homography for the markers' plane)
 
     def detect(self, gray):
         """{marker id: [(4, 2) pixel corners, ...]} of every marker found (undistorted)."""
@@ -150,10 +157,20 @@ class MarkerTracker:
                 continue
             frame.pixels[agent] = quads[0]
             if frame.calibrated:
-                arena = apply_homography(self.calibration.homography, quads[0])
+                arena = apply_homography(self.marker_homography(), quads[0])
                 frame.poses[agent] = pose_from_corners(arena, self.layout.marker_offset)
         frame.duplicates = tuple(sorted(duplicates))
         return frame
+
+
+    def marker_homography(self):
+        """Undistorted pixels -> arena (m) on the plane of the robots' markers."""
+        if self.raise_by == 0.0:
+            return self.calibration.homography
+        if self._raised is None or self._raised[0] is not self.calibration:
+            self._raised = (self.calibration, raised_plane_homography(
+                self.calibration.homography, self.intrinsics[0], self.raise_by))
+        return self._raised[1]
 
 
 def fit_homography(pixels, arena, corner_ids=()):
