@@ -89,7 +89,7 @@ class NodeGraph:
 
     def stop(self):
         """SIGINT every node process (they send a last zero command), then kill what lingers;
-        in-process nodes run their shutdown hooks and are destroyed.
+        in-process nodes run their shutdown hooks (the host destroys them once it stops).
 
         Controllers first, so that their last ticks and zero commands are acknowledged by
         the fake robots and the recorder, which are all still there; the host spins
@@ -117,9 +117,6 @@ class NodeGraph:
                 hook()
             if counter is not None:
                 counter.save(self.publications_dir, node.get_fully_qualified_name())
-        for node, _ in self.in_process:
-            self.host.remove_node(node)
-            node.destroy_node()
         self.in_process = []
 
 

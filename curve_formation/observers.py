@@ -27,6 +27,7 @@ class Observers:
         self.metadata = {EXPERIMENT_KEY: experiment_text, PARAMETERS_KEY: parameters_text}
         self.context = self.executor = self.monitor = self.recorder = None
         self.best_effort_topics = set()
+        self.hosted = []   # a single-process run's nodes, destroyed after the executor stops
         self._stack = ExitStack()
 
     def __enter__(self):
@@ -69,6 +70,7 @@ class Observers:
         if recorded:
             self.recorder = Recorder(self.bag_writer, recorded, context=self.context)
             self._stack.callback(self.recorder.destroy_node)
+        self._stack.callback(self._destroy_hosted)
         self._stack.callback(self.executor.shutdown, timeout_sec=1.0)   # the first to go
         for node in (self.monitor, self.recorder):
             if node is not None:
@@ -81,11 +83,14 @@ class Observers:
         self._stack.close()   # executor, nodes, bag, context: the reverse of their opening
 
     def add_node(self, node):
-        """Spin a node of the run here (single process)."""
+        """Spin a node of the run here (single process); it is destroyed on exit."""
+        self.hosted.append(node)
         self.executor.add_node(node)
 
-    def remove_node(self, node):
-        self.executor.remove_node(node)
+    def _destroy_hosted(self):
+        for node in self.hosted:
+            node.destroy_node()
+        self.hosted = []
 
     def spin_once(self, timeout=0.02):
         self.executor.spin_once(timeout_sec=timeout)

@@ -182,7 +182,8 @@ class Run:
         result['mode'] = ('single process' if self.options.single_process
                           else 'one process per node')
         if camera:
-            result['ground_truth'] = metrics.ground_truth_metrics(experiment, data, phase)
+            gaps = [gap for robot in self.monitor.law_pose_gaps for gap in robot]
+            result['ground_truth'] = metrics.ground_truth_metrics(experiment, data, phase, gaps)
         self.out.mkdir(parents=True, exist_ok=True)
         (self.out / 'metrics.json').write_text(metrics.strict_json(result))
         plots.run_figures(self.out, experiment, data['t'], data['poses'], phase,

@@ -21,6 +21,7 @@ news was held, and leaves out only the transit, milliseconds), so no stop can lo
 and no cycle can keep a dead leader alive.
 """
 
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 import math
@@ -45,6 +46,7 @@ from curve_formation.core.control import (
     WheelLimits,
 )
 from curve_formation.core.curves import Curve
+from curve_formation.core.dynamics import arc_step
 from curve_formation.core.safety import Avoidance, AVOIDANCE_OFF, STOPPED
 from curve_formation.core.shapes import Command, FloatArray, Point, Pose
 
@@ -75,7 +77,7 @@ def agent_configs(experiment: 'Experiment', rate_hz: float) -> list['AgentConfig
         leader_timeout=spec.safety.leader_timeout, geofence=fence,
         pc_disturbance=((float(experiment.disturbance[i - 1][0]),
                          float(experiment.disturbance[i - 1][1])) if on_pc else (0.0, 0.0)),
-        avoidance=experiment.avoidance)
+        avoidance=experiment.avoidance, predict_pose=spec.controller.predict_pose)
         for i in range(1, experiment.n + 1)]
 
 
@@ -91,6 +93,16 @@ def all_finite(*values: float) -> bool:
 def _receipt(stamp: float, received: float | None) -> float:
     """When an input was received (s, this controller's clock): `received`, else its stamp."""
     return stamp if received is None else received
+
+
+def _drive(x: float, y: float, theta: float, v: float, w: float, drift_v: float,
+           drift_w: float, dt: float) -> Pose:
+    """Pose after dt (s) under command (v, w), plus the drift while driven (m/s, rad/s)."""
+    if dt <= 0.0:
+        return x, y, theta
+    if v != 0.0 or w != 0.0:
+        v, w = v + drift_v, w + drift_w
+    return arc_step(x, y, theta, v, w, dt)
 
 
 # (xmin, ymin, xmax, ymax), arena frame (m); None: no fence.
@@ -115,6 +127,7 @@ class AgentConfig:
     geofence: Fence = None
     pc_disturbance: Command = (0.0, 0.0)  # added to the command before the limits (m/s, rad/s)
     avoidance: Avoidance = AVOIDANCE_OFF   # the safety filter, from every robot's pose
+    predict_pose: bool = False      # carry the pose forward to the tick (AgentController)
 
     @property
     def is_leader(self) -> bool:
@@ -142,6 +155,7 @@ class Tick:
     # ((j, stamp s), ...) of the in-neighbour states used
     neighbour_stamps: tuple[tuple[int, Optional[float]], ...] = ()
     filtered: bool = False            # the safety filter changed the law's command
+    pose: Optional[Pose] = None       # the pose the law used (predicted, with predict_pose)
 
 
 @dataclass(frozen=True)
@@ -194,6 +208,10 @@ class AgentController:
         # where the disturbance enters (before a PC-injected disturbance, else as sent).
         self.anchor: tuple[Pose, float] | None = None
         self.reference: Command = (0.0, 0.0)
+        # (time s on this controller's clock, v, w) of the commands sent, as far back as a
+        # pose may be (pose_timeout), for predict_pose
+        self.sent: deque[tuple[float, float, float]] = deque(
+            maxlen=int(math.ceil(self.config.rate_hz * self.config.pose_timeout)) + 2)
 
     def set_curve(self, curve: Curve, curve_id: int,
                   s_all: Sequence[float] | FloatArray | None) -> None:
@@ -293,7 +311,39 @@ class AgentController:
         return bx - target[0], by - target[1]
 
     def tick(self, now: float) -> Tick:
-        """One control step at time `now` (s)."""
+        """One control step at time `now` (s, this controller's clock)."""
+        tick = self._tick(now)
+        self.sent.append((now, tick.v, tick.w))
+        return tick
+
+    def predicted(self, pose: Pose, stamp: float, received: float, now: float) -> Pose:
+        """The pose taken at `stamp` (received at `received`) carried forward to `now` by the
+        commands sent since and the estimated drift: the robot's pose when this tick's
+        command leaves (arena frame).
+
+        The pose's age is now - stamp when that lies in [0, pose_timeout], i.e. when the
+        pose's source and this controller share a clock (or are synchronised); otherwise
+        only the time the pose was held here (now - received) is made up for.
+        """
+        cfg = self.config
+        age = now - stamp
+        if not 0.0 <= age <= cfg.pose_timeout:
+            age = min(max(now - received, 0.0), cfg.pose_timeout)
+        start = now - age
+        law = cfg.law
+        # the robot moves by its command plus the disturbance while driven (motors off at 0)
+        drift_v = 0.0 if law.on_pc else law.k2 * self.dhat[0]
+        drift_w = 0.0 if law.on_pc else law.k2 * self.dhat[1]
+        x, y, theta = pose
+        v, w, at = 0.0, 0.0, start
+        for sent_at, sent_v, sent_w in self.sent:
+            if sent_at > start:
+                x, y, theta = _drive(x, y, theta, v, w, drift_v, drift_w, sent_at - at)
+                at = sent_at
+            v, w = sent_v, sent_w
+        return _drive(x, y, theta, v, w, drift_v, drift_w, now - at)
+
+    def _tick(self, now: float) -> Tick:
         cfg = self.config
         if self.estop:
             return self._stop('e-stop engaged')
@@ -306,6 +356,9 @@ class AgentController:
             return self._stop(f'own pose stale ({now - received:.2f} s old)')
         if not inside_fence(pose[0], pose[1], cfg.geofence):
             return self._stop(f'outside the geofence at ({pose[0]:.3f}, {pose[1]:.3f}) m')
+        measured = pose
+        if cfg.predict_pose:
+            pose = self.predicted(pose, stamp, received, now)
         ex, ey = self._error_at(pose, self.target)
         base = Tick(error=(ex, ey), error_stamp=stamp, curve_id=self.curve_id)
         if cfg.is_leader:
@@ -343,10 +396,11 @@ class AgentController:
         if code == STOPPED:
             return self._stop('safety filter: no motion keeps the robots apart', base)
         self.filtered += code != 0
-        self.anchor = (pose, stamp)
+        self.anchor = (measured, stamp)
         self.reference = (ref_v, ref_w)
         self.last_command = (v, w)
         base.v, base.w, base.dhat, base.feedback = v, w, (self.dhat[0], self.dhat[1]), (fx, fy)
+        base.pose = pose
         base.filtered = code != 0
         return base
 

@@ -109,6 +109,10 @@ class ControllerSpec(Strict):
     offset: float = Field(description='offset l of the control point ahead of the axle (m)')
     rate_hz: Optional[float] = Field(
         None, gt=0, description='control rate with zero-order hold; null = continuous')
+    predict_pose: bool = Field(
+        False, description="ROS controllers: carry the robot's pose forward from its stamp "
+        '(capture time) to the tick, through the commands sent since, so a pose that is '
+        '80 ms old does not make an 80 ms old command (PCs with synchronised clocks)')
 
     @field_validator('adaptation')
     @classmethod

@@ -323,9 +323,11 @@ def result_metrics(result, tolerance=None):
     return out
 
 
-def ground_truth_metrics(experiment, data, phase):
-    """With a camera: the formation measured on the fake robots' true poses, and how far the
-    tracked poses (what the controllers saw, up to a frame old) were from them.
+def ground_truth_metrics(experiment, data, phase, law_pose_gaps=()):
+    """With a camera: the formation measured on the fake robots' true poses, how far the
+    tracked poses (as last received, up to a frame and its latency old) were from them, and
+    how far the pose each law used at its tick (law_pose_gaps (m), every tick of every robot;
+    carried forward to the tick with predict_pose) was from the truth at that tick.
     """
     truth = data['true_poses']
     seen = np.isfinite(truth).all(axis=2) & np.isfinite(data['poses']).all(axis=2)
@@ -336,4 +338,6 @@ def ground_truth_metrics(experiment, data, phase):
             'phases': [{k: p[k] for k in ('settled', 'settle_time', 'final_error_norm')}
                        for p in out['phases']],
             'tracked_vs_true_position_rms': float(np.sqrt(np.mean(gap ** 2))),
-            'tracked_vs_true_heading_rms_deg': float(np.degrees(np.sqrt(np.mean(turn ** 2))))}
+            'tracked_vs_true_heading_rms_deg': float(np.degrees(np.sqrt(np.mean(turn ** 2)))),
+            'law_pose_vs_true_position_rms': (float(np.sqrt(np.mean(np.square(law_pose_gaps))))
+                                              if len(law_pose_gaps) else None)}

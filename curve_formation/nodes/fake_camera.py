@@ -1,9 +1,10 @@
 """fake_camera: renders the arena as the overhead camera would see it (tests and demos).
 
 Subscribes every fake robot's ground truth (/robot_<i>/true_pose) and publishes mono8
-sensor_msgs/Image frames on /camera/image_raw at `rate_hz`, stamped with the time of capture:
-floor, corner markers and each robot's ArUco marker at its pose (layout from the experiment's
-`camera` section). Options: resolution, tilt, pixel noise, blur, brightness; and faults for a
+sensor_msgs/Image frames on /camera/image_raw at `rate_hz`, stamped with the time of capture
+(the newest true pose's stamp): floor, corner markers and each robot's ArUco marker at its
+pose (layout from the experiment's `camera` section, markers at their height). Options:
+resolution, tilt, lens distortion, pixel noise, blur, brightness; and faults for a
 time window counted from the first curve: cover some robots' markers, or show a second marker
 with a robot's id.
 """
@@ -88,6 +89,7 @@ class FakeCamera(Node):
                                       RenderOptions(p.noise, p.blur, p.brightness), seed=p.seed,
                                       lens=lens)
         self.poses = {}
+        self.stamps = {}   # when each true pose held (s)
         self.first_curve = None
         subscribe_to_curve(self, self._on_curve)
         for i in range(1, n + 1):
@@ -97,8 +99,9 @@ class FakeCamera(Node):
         self.create_timer(1.0 / p.rate_hz, self._on_timer)
 
     def _on_pose(self, i, msg):
-        x, y, theta, _ = messages.pose_from_msg(msg)
+        x, y, theta, stamp = messages.pose_from_msg(msg)
         self.poses[i] = (x, y, theta)
+        self.stamps[i] = stamp
 
     def _on_curve(self, _msg):
         if self.first_curve is None:
@@ -122,7 +125,9 @@ class FakeCamera(Node):
             x, y = self.params.duplicate_at
             extra = ((self.layout.robot_ids[self.params.duplicate_of - 1], x, y, 0.0),)
         image = self.renderer.render(self.poses, hidden, extra)
-        self.image_pub.publish(messages.image_to_msg(image, now, self.params.frame_id))
+        # Stamped with when the scene it shows held, as a camera stamps its exposure.
+        scene = max(self.stamps.values(), default=now)
+        self.image_pub.publish(messages.image_to_msg(image, scene, self.params.frame_id))
 
 
 def main(args=None):

@@ -87,6 +87,8 @@ PARAMETERS = (
           'is steered around robots (m); 0 = one body diameter', low=0.0),
     Param('arena', 'double[]', [], '[width, height] (m) of the walls the filter keeps the '
           'body inside; empty = no walls'),
+    Param('predict_pose', 'bool', False, 'carry the pose forward from its stamp to the tick '
+          'through the commands sent since (clocks of pose source and this PC in sync)'),
     Param('fault_state_drop', 'double', 0.0, 'fault injection: probability of not publishing '
           'a formation_state message', low=0.0, high=1.0),
     Param('pc_disturbance', 'double[]', [0.0, 0.0], 'disturbance [d_v, d_w] added to the '
@@ -123,6 +125,7 @@ def node_parameters(config):
         'pc_disturbance': [float(v) for v in config.pc_disturbance],
         'in_neighbours': [int(j) for j, _ in config.neighbours],
         'weights': [float(w) for _, w in config.neighbours],
+        'predict_pose': bool(config.predict_pose),
     }
     if av.on:
         params.update({'avoidance': True, 'radius': float(av.radius),
@@ -173,7 +176,7 @@ def agent_config(p):
                            p.max_linear_accel or inf, p.max_angular_accel or inf),
         rate_hz=p.rate_hz, pose_timeout=p.pose_timeout, neighbour_timeout=p.neighbour_timeout,
         pc_disturbance=tuple(p.pc_disturbance), leader_timeout=p.leader_timeout,
-        geofence=None if fence is None else tuple(fence))
+        geofence=None if fence is None else tuple(fence), predict_pose=p.predict_pose)
 
 
 def _avoidance(p):

@@ -125,14 +125,17 @@ def estimate_to_msg(dhat, stamp_s):
 def tick_to_msg(tick, now_s):
     """JointState of one control tick at now_s: the command sent and the inputs it came from.
 
-    names 'v' (m/s), 'w' (rad/s), 'pose_stamp' (s, NaN if none) and 'stamp_<j>' (s) for each
-    in-neighbour state used, in position.
+    names 'v' (m/s), 'w' (rad/s), 'pose_stamp' (s, NaN if none), 'x', 'y', 'theta' (m, rad:
+    the pose the law used, predicted to now_s with predict_pose; NaN when stopped) and
+    'stamp_<j>' (s) for each in-neighbour state used, in position.
     """
     msg = JointState()
     msg.header.stamp = seconds_to_stamp(now_s)
-    pose = math.nan if tick.error_stamp is None else tick.error_stamp
-    msg.name = ['v', 'w', 'pose_stamp'] + [f'stamp_{j}' for j, _ in tick.neighbour_stamps]
-    msg.position = [float(tick.v), float(tick.w), float(pose)] + [
+    pose_stamp = math.nan if tick.error_stamp is None else tick.error_stamp
+    pose = (math.nan,) * 3 if tick.pose is None else tick.pose
+    msg.name = (['v', 'w', 'pose_stamp', 'x', 'y', 'theta']
+                + [f'stamp_{j}' for j, _ in tick.neighbour_stamps])
+    msg.position = [float(tick.v), float(tick.w), float(pose_stamp)] + [float(v) for v in pose] + [
         float(stamp) for _, stamp in tick.neighbour_stamps]
     return msg
 

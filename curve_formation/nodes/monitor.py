@@ -5,6 +5,7 @@ t = 0 is when the first curve arrives. Rows are sampled at `record_hz` from the 
 """
 
 from dataclasses import dataclass, field
+import math
 import time
 
 import numpy as np
@@ -42,6 +43,10 @@ class Monitor(Node):
         self.n = n
         self.poses = np.full((n, 3), np.nan)
         self.true_poses = np.full((n, 3), np.nan) if ground_truth else None
+        # per robot, its last two true poses [(stamp s, x, y, theta)] and, for every tick
+        # that drove, how far (m) the pose its law used was from the truth at the tick
+        self.true_history = [[] for _ in range(n)]
+        self.law_pose_gaps = [[] for _ in range(n)]
         self.pose_stamps = np.full(n, np.nan)
         self.commands = np.full((n, 2), np.nan)
         self.command_times = np.full(n, np.nan)
@@ -69,6 +74,7 @@ class Monitor(Node):
                             WithMessageInfo(lambda m, info, i=i: self._on_state(i, m, info)), i)
             if ground_truth:
                 self._subscribe(topics.TRUE_POSE, lambda m, i=i: self._on_true_pose(i, m), i)
+                self._subscribe(topics.TICK, lambda m, i=i: self._on_tick(i, m), i)
         subscribe_to_curve(self, WithMessageInfo(self._on_curve), log=False,
                            event_callbacks=qos.observer_events())
         self._subscribe(topics.ROBOT_POSES, self._on_robot_poses)
@@ -85,7 +91,25 @@ class Monitor(Node):
         self.pose_stamps[i - 1] = stamp
 
     def _on_true_pose(self, i, msg):
-        self.true_poses[i - 1] = messages.pose_from_msg(msg)[:3]
+        x, y, theta, stamp = messages.pose_from_msg(msg)
+        self.true_poses[i - 1] = (x, y, theta)
+        history = self.true_history[i - 1]
+        history.append((stamp, x, y, theta))
+        del history[:-2]
+
+    def _on_tick(self, i, msg):
+        """The pose robot i's law used at its tick against the truth then, extrapolated
+        from the last two true poses (the fake robots and the controllers share this clock).
+        """
+        tick = messages.tick_from_msg(msg)
+        history = self.true_history[i - 1]
+        if self.t0 is None or len(history) < 2 or not math.isfinite(tick.get('x', math.nan)):
+            return
+        (t0, x0, y0, _), (t1, x1, y1, _) = history
+        at = messages.stamp_to_seconds(msg.header.stamp)
+        share = (at - t1) / (t1 - t0) if t1 > t0 else 0.0
+        truth_x, truth_y = x1 + share * (x1 - x0), y1 + share * (y1 - y0)
+        self.law_pose_gaps[i - 1].append(math.hypot(tick['x'] - truth_x, tick['y'] - truth_y))
 
     def _on_cmd(self, i, msg, info):
         self.commands[i - 1] = messages.twist_from_msg(msg)
