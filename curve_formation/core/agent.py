@@ -56,6 +56,9 @@ if TYPE_CHECKING:
 
 
 NO_OTHERS = np.zeros((0, 3))
+# Longest a pose is carried forward (s): a camera pipeline's latency is well below it, a
+# stamp older than it says the clocks disagree (predict_pose).
+MAX_PREDICTION = 0.25
 
 
 def agent_configs(experiment: 'Experiment', rate_hz: float) -> list['AgentConfig']:
@@ -321,14 +324,15 @@ class AgentController:
         commands sent since and the estimated drift: the robot's pose when this tick's
         command leaves (arena frame).
 
-        The pose's age is now - stamp when that lies in [0, pose_timeout], i.e. when the
+        The pose's age is now - stamp when that lies in [0, MAX_PREDICTION], i.e. when the
         pose's source and this controller share a clock (or are synchronised); otherwise
         only the time the pose was held here (now - received) is made up for.
         """
         cfg = self.config
+        longest = min(cfg.pose_timeout, MAX_PREDICTION)
         age = now - stamp
-        if not 0.0 <= age <= cfg.pose_timeout:
-            age = min(max(now - received, 0.0), cfg.pose_timeout)
+        if not 0.0 <= age <= longest:
+            age = min(max(now - received, 0.0), longest)
         start = now - age
         law = cfg.law
         # the robot moves by its command plus the disturbance while driven (motors off at 0)
