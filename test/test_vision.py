@@ -116,6 +116,25 @@ def test_uncalibrated_without_corner_markers(layout):
     assert not frame.calibrated and frame.poses == {} and 1 in frame.pixels
 
 
+def test_averaging_the_corner_markers_over_frames_steadies_every_pose(layout, monkeypatch):
+    """A still camera, noisy frames: the homography fitted to the corner markers' pixels
+    averaged over frames moves the tracked poses less from frame to frame than one fitted to
+    each frame alone (measured 0.19 mm RMS jitter alone, 0.075 mm with the true homography).
+    """
+    from curve_formation.vision import tracker as tracking
+    truth = scattered_poses(6)
+    renderer = ArenaRenderer(overhead_camera(ARENA, (1280, 720)), layout, ARENA, NOISY, seed=3)
+    frames = [renderer.render(truth) for _ in range(30)]
+
+    def jitter(smoothing):
+        monkeypatch.setattr(tracking, 'CORNER_SMOOTHING', smoothing)
+        tracker = MarkerTracker(layout)
+        poses = np.array([[p[:2] for _, p in sorted(tracker.process(f).poses.items())]
+                          for f in frames])[10:]   # after the average has settled
+        return np.sqrt(np.mean(np.sum((poses - poses.mean(axis=0)) ** 2, axis=2)))
+    assert jitter(0.1) < 0.7 * jitter(1.0)
+
+
 def test_continuous_calibration_recovers_a_bumped_camera_and_fixed_does_not(layout):
     straight = overhead_camera(ARENA, (1280, 720))
     bumped = overhead_camera(ARENA, (1280, 720), tilt_deg=10.0, distance=2.1)

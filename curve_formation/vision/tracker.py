@@ -20,6 +20,12 @@ from curve_formation.vision.markers import dictionary, pose_from_corners
 
 MIN_CORNER_MARKERS = 2        # 8 points: enough for a homography (4 needed), some redundancy
 MAX_REPROJECTION_PX = 3.0     # a fit worse than this is refused (a marker misread or moved)
+# Continuous calibration fits the homography to the corner markers' pixels averaged over
+# frames: each frame moves the average this share of the way (about 10 frames' memory), which
+# cuts the frame-to-frame jitter of every pose the homography maps; a corner marker seen more
+# than BUMP_PX from its average means the camera moved, and the average starts afresh.
+CORNER_SMOOTHING = 0.1
+BUMP_PX = 2.0
 
 
 class CalibrationError(ValueError):
@@ -117,6 +123,7 @@ class MarkerTracker:
             raise ValueError(f'markers {self.raise_by:g} m above the corner markers need the '
                              'camera matrix (intrinsics) to be mapped on their plane')
         self._raised = None   # (Calibration, its homography for the markers' plane)
+        self._corner_pixels = {}   # corner marker id -> its (4, 2) pixels averaged over frames
 
     def detect(self, gray):
         """{marker id: [(4, 2) pixel corners, ...]} of every marker found (undistorted)."""
@@ -139,8 +146,8 @@ class MarkerTracker:
         corner_ids = [i for i in self.layout.corners if len(found.get(i, ())) == 1]
         frame.corners_seen = len(corner_ids)
         if self.continuous and len(corner_ids) >= MIN_CORNER_MARKERS:
-            fitted = fit_homography(np.concatenate([found[i][0] for i in corner_ids]),
-                                    self.layout.corner_points(corner_ids), corner_ids)
+            pixels = np.concatenate([self._averaged(i, found[i][0]) for i in corner_ids])
+            fitted = fit_homography(pixels, self.layout.corner_points(corner_ids), corner_ids)
             if fitted is not None:
                 self.calibration = fitted
                 frame.recalibrated = True
@@ -162,6 +169,18 @@ class MarkerTracker:
         frame.duplicates = tuple(sorted(duplicates))
         return frame
 
+
+    def _averaged(self, marker_id, pixels):
+        """Corner marker `marker_id`'s (4, 2) pixels averaged over the frames since the camera
+        last moved (CORNER_SMOOTHING, BUMP_PX).
+        """
+        average = self._corner_pixels.get(marker_id)
+        if average is None or np.abs(pixels - average).max() > BUMP_PX:
+            average = np.array(pixels, float)
+        else:
+            average = average + CORNER_SMOOTHING * (pixels - average)
+        self._corner_pixels[marker_id] = average
+        return average
 
     def marker_homography(self):
         """Undistorted pixels -> arena (m) on the plane of the robots' markers."""
