@@ -1,8 +1,7 @@
 """Monitor: samples every robot's pose, command and estimate, as the runner's observer.
 
-t = 0 is when the curve server published the first curve. Rows are sampled at `record_hz`
-from the latest values (NaN until a value is seen). Not a console script: the runner and
-tests create it in-process.
+t = 0 is when the first curve arrives. Rows are sampled at `record_hz` from the latest values
+(NaN until a value is seen). Not a console script: the runner and tests create it in-process.
 """
 
 from dataclasses import dataclass, field
@@ -130,14 +129,14 @@ class Monitor(Node):
         self.adopted.setdefault((i, curve_id), info['source_timestamp'] * 1e-9)
 
     def _on_curve(self, msg, info):
-        # Dated when the curve server published it (DDS source timestamp, this machine's
-        # clock), not when this busy process got to it: the robots start from the former.
+        # Dated when received, as the recorder dates it in a bag (analysis.py reads t = 0
+        # from there): both run in the runner's process.
         curve, self.curve_id = messages.curve_from_msg(msg)
-        sent = info['source_timestamp'] * 1e-9
-        self.curves.append((sent, self.curve_id, curve, messages.agent_parameters_from_msg(msg)))
-        self.curve_times.setdefault(self.curve_id, sent)
+        now = now_seconds(self)
+        self.curves.append((now, self.curve_id, curve, messages.agent_parameters_from_msg(msg)))
+        self.curve_times.setdefault(self.curve_id, info['source_timestamp'] * 1e-9)
         if self.t0 is None:
-            self.t0 = sent
+            self.t0 = now
 
     def received_curves(self):
         """[(t, curve id, curve, s)] of every curve message received (t in s since t = 0)."""
