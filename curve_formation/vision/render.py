@@ -68,9 +68,7 @@ class ArenaRenderer:
     def __init__(self, camera, layout, arena_size, options=RenderOptions(), robot_radius=None,
                  seed=0, lens=IDEAL_LENS):
         self.camera = camera
-        self.lens_warp = None if lens.ideal else LensWarp(camera, lens)
-        # where frames are drawn: the camera itself, or the lens' ideal canvas
-        self._canvas = camera if self.lens_warp is None else self.lens_warp.ideal_camera
+        self.lens_warp, self._canvas = lens_canvas(camera, lens)
         self.layout = layout
         self.options = options
         self.robot_radius = robot_radius or 0.8 * layout.marker_size * math.sqrt(2)
@@ -118,24 +116,11 @@ class ArenaRenderer:
         """Warp `source` onto the arena quadrilateral (ArUco corner order) at height z (m),
         blending edges.
         """
-        target = self._canvas.project(arena_corners, z)
         n = source.shape[0]
         edge = np.array([[-0.5, -0.5], [n - 0.5, -0.5], [n - 0.5, n - 0.5], [-0.5, n - 0.5]],
                         np.float32)
-        x0, y0 = np.floor(target.min(axis=0)).astype(int) - 1
-        x1, y1 = np.ceil(target.max(axis=0)).astype(int) + 2
-        x0, y0 = max(x0, 0), max(y0, 0)
-        x1, y1 = min(x1, image.shape[1]), min(y1, image.shape[0])
-        if x1 <= x0 or y1 <= y0:
-            return
-        local = (target - [x0, y0]).astype(np.float32)
-        warp = cv2.getPerspectiveTransform(edge, local)
-        size = (x1 - x0, y1 - y0)
-        patch = cv2.warpPerspective(source, warp, size, flags=cv2.INTER_LINEAR)
-        mask = cv2.warpPerspective(np.ones_like(source, np.float32), warp, size,
-                                   flags=cv2.INTER_LINEAR)
-        roi = image[y0:y1, x0:x1]
-        roi[:] = np.round(roi * (1 - mask) + patch * mask).astype(np.uint8)
+        target = self._canvas.project(arena_corners, z).astype(np.float32)
+        blend_warped(image, source, cv2.getPerspectiveTransform(edge, target))
 
     def render(self, poses, hidden=(), extra_markers=()):
         """One frame (height x width uint8).
@@ -165,6 +150,39 @@ class ArenaRenderer:
         return self._effects(image)
 
 
+def lens_canvas(camera, lens):
+    """(LensWarp or None, the camera frames are drawn through): the camera itself for an ideal
+    lens, else the lens' larger ideal canvas that the warp bends into the camera's frame.
+    """
+    if lens.ideal:
+        return None, camera
+    warp = LensWarp(camera, lens)
+    return warp, warp.ideal_camera
+
+
+def blend_warped(image, source, warp):
+    """Warp `source` into `image` in place by the 3x3 homography `warp` (source pixel -> image
+    pixel), blending its anti-aliased edges; only the bounding box of its footprint is touched.
+    """
+    h, w = source.shape[:2]
+    footprint = cv2.perspectiveTransform(
+        np.array([[[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]]],
+                 np.float64), np.asarray(warp, np.float64))[0]
+    x0, y0 = np.floor(footprint.min(axis=0)).astype(int) - 1
+    x1, y1 = np.ceil(footprint.max(axis=0)).astype(int) + 2
+    x0, y0 = max(x0, 0), max(y0, 0)
+    x1, y1 = min(x1, image.shape[1]), min(y1, image.shape[0])
+    if x1 <= x0 or y1 <= y0:
+        return
+    local = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]]) @ warp
+    size = (x1 - x0, y1 - y0)
+    patch = cv2.warpPerspective(source, local, size, flags=cv2.INTER_LINEAR)
+    mask = cv2.warpPerspective(np.ones_like(source, np.float32), local, size,
+                               flags=cv2.INTER_LINEAR)
+    roi = image[y0:y1, x0:x1]
+    roi[:] = np.round(roi * (1 - mask) + patch * mask).astype(np.uint8)
+
+
 def _disc(x, y, radius, points=32):
     angles = np.linspace(0, 2 * math.pi, points, endpoint=False)
     return np.column_stack([x + radius * np.cos(angles), y + radius * np.sin(angles)])
@@ -185,8 +203,7 @@ class BoardRenderer:
         self.camera = camera
         self.spec = spec
         self.options = options
-        self.lens_warp = None if lens.ideal else LensWarp(camera, lens)
-        self._canvas = camera if self.lens_warp is None else self.lens_warp.ideal_camera
+        self.lens_warp, self._canvas = lens_canvas(camera, lens)
         cols, rows = spec.squares
         board = spec.board().generateImage((cols * BOARD_SQUARE_PX, rows * BOARD_SQUARE_PX),
                                            marginSize=0, borderBits=1)
@@ -243,11 +260,7 @@ class BoardRenderer:
             scale = np.diag([1 / factor, 1 / factor, 1.0])
             scale[:2, 2] = 0.5 / factor - 0.5
             warp = warp @ scale
-        size = (canvas.width, canvas.height)
-        patch = cv2.warpPerspective(source, warp, size, flags=cv2.INTER_LINEAR)
-        mask = cv2.warpPerspective(np.ones_like(source, np.float32), warp, size,
-                                   flags=cv2.INTER_LINEAR)
-        image = np.round(image * (1 - mask) + patch * mask).astype(np.uint8)
+        blend_warped(image, source, warp)
         if self.lens_warp is not None:
             image = self.lens_warp.apply(image, BOARD_BACKGROUND)
         return self._effects(image)
