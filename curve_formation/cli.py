@@ -68,9 +68,11 @@ def _warn(experiment):
 
 
 def _cmd_check(args):
+    from curve_formation.vision.camera_files import check_camera_files
     experiment = load_experiment(resolve_config(args.config))
     _warn(experiment)
     report = experiment.report()
+    report['camera_files'] = check_camera_files(experiment)
     if args.json:
         print(json.dumps(report, indent=2))
         return
@@ -85,6 +87,8 @@ def _cmd_check(args):
               f'{c["fit_rms_residual"]:.2g} over {c["samples"]} samples, rank G_bar '
               f'{c["rank_G_bar"]}, n <= H: {c["n_le_H"]}')
         print('    s_i = ' + ', '.join(f'{v:.4f}' for v in c['s']))
+    for line in report['camera_files']:
+        print(line)
 
 
 def _cmd_sim(args):

@@ -144,8 +144,41 @@ def test_calibrate_camera_command_writes_what_the_tracker_reads(tmp_path, capsys
     assert main(['calibrate-camera', str(folder), '--out', str(out), '--min-views', '20']) == 2
     assert 'at least 20 views' in capsys.readouterr().err
     out.write_text('camera_matrix: [1, 2, 3]\ndistortion: []\nimage_size: [1280, 720]\n')
-    with pytest.raises(IntrinsicsError, match='lens.yaml: camera_matrix: expected a list of 9'):
+    with pytest.raises(IntrinsicsError, match='lens.yaml: camera_matrix: List should have at '
+                       'least 9 items'):
         read_intrinsics(out)
+
+
+def test_check_reads_the_lens_file_as_the_tracker_will(tmp_path, capsys):
+    """`check` refuses a missing, malformed or other-resolution lens file by key, and reports
+    one it accepts.
+    """
+    from curve_formation.vision.intrinsics import Intrinsics, write_intrinsics
+    camera = overhead_camera(ARENA, (1280, 720))
+    lens = tmp_path / 'lens.yaml'
+    text = resolve_config('arena_demo').read_text()
+    assert '  corner_size: 0.06\n' in text
+    experiment = tmp_path / 'lens_arena.yaml'
+    experiment.write_text(text.replace('  corner_size: 0.06\n', '  corner_size: 0.06\n'
+                                       '  intrinsics_file: lens.yaml\n'))
+    assert main(['check', str(experiment)]) == 2
+    assert 'camera.intrinsics_file' in capsys.readouterr().err
+    write_intrinsics(lens, Intrinsics(camera.K, np.zeros(5), (1920, 1080), 0.2, 15))
+    assert main(['check', str(experiment)]) == 2
+    assert ('camera.intrinsics_file: ' + str(lens) + ' was calibrated at 1920x1080'
+            in capsys.readouterr().err)
+    write_intrinsics(lens, Intrinsics(camera.K, np.zeros(3), (1280, 720), 0.2, 15))
+    assert main(['check', str(experiment)]) == 2
+    assert 'distortion: Value error, expected 0, 4, 5, 8, 12 or 14' in capsys.readouterr().err
+    write_intrinsics(lens, Intrinsics(camera.K, np.zeros(5), (1280, 720), 0.2, 15))
+    assert main(['check', str(experiment)]) == 0
+    assert f'lens calibration {lens}: 1280x720, reprojection 0.20 px from 15 views' in (
+        capsys.readouterr().out)
+    assert '  calibration: continuous\n' in text
+    experiment.write_text(text.replace('  calibration: continuous\n', '  calibration: fixed\n'))
+    assert main(['check', str(experiment)]) == 2
+    assert ("camera.calibration_file: calibration 'fixed' needs a saved homography; none is "
+            'given' in capsys.readouterr().err)
 
 
 def test_the_raised_plane_homography_is_exact_for_a_known_camera():

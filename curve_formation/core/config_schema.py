@@ -244,10 +244,18 @@ class FakeCameraSpec(Strict):
     @field_validator('distortion')
     @classmethod
     def _distortion_size(cls, value):
-        if len(value) not in (0, 4, 5):
-            raise ValueError(f'expected 0, 4 or 5 coefficients (k1 k2 p1 p2 [k3]), got '
-                             f'{len(value)}')
-        return value
+        return distortion_count(value, (0, 4, 5), 'k1 k2 p1 p2 [k3]')
+
+
+OPENCV_DISTORTION_COUNTS = (0, 4, 5, 8, 12, 14)
+
+
+def distortion_count(value, counts, names):
+    """`value` if it has one of `counts` coefficients (OpenCV's distortion vector lengths)."""
+    if len(value) not in counts:
+        expected = ', '.join(map(str, counts[:-1])) + f' or {counts[-1]}'
+        raise ValueError(f'expected {expected} coefficients ({names}), got {len(value)}')
+    return value
 
 
 class Intrinsics(Strict):
@@ -255,6 +263,27 @@ class Intrinsics(Strict):
                                        description='3x3 camera matrix K, row by row (pixels)')
     distortion: list[float] = Field(default_factory=list,
                                     description='OpenCV distortion coefficients k1 k2 p1 p2 ..')
+
+    @field_validator('distortion')
+    @classmethod
+    def _distortion_size(cls, value):
+        return distortion_count(value, OPENCV_DISTORTION_COUNTS, 'k1 k2 p1 p2 [k3 ..]')
+
+
+class IntrinsicsFile(Intrinsics):
+    """A lens calibration file as `curve-formation calibrate-camera` writes it."""
+
+    image_size: tuple[int, int] = Field(description='width, height (pixels) the calibration '
+                                        'holds for')
+    reprojection_rms: Optional[float] = Field(None, ge=0, description='calibration RMS (px)')
+    views: int = Field(0, ge=0, description='board views the calibration came from')
+
+    @field_validator('image_size')
+    @classmethod
+    def _positive_size(cls, value):
+        if min(value) <= 0:
+            raise ValueError('width and height must be > 0')
+        return value
 
 
 class CameraSpec(Strict):

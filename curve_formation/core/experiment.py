@@ -172,12 +172,25 @@ def build_experiment(data: Any, source: str = '<experiment>') -> Experiment:
     try:
         spec = ExperimentSpec.model_validate(data)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        more = f' (and {exc.error_count() - 1} more problems)' if exc.error_count() > 1 else ''
-        got = (f' (got {safe_yaml.shorten(repr(err["input"]), 80)})'
-               if err['type'] != 'missing' and not isinstance(err['input'], dict) else '')
-        raise ConfigError(source, _format_location(err['loc']), err['msg'] + got + more) from None
+        raise ConfigError(source, *validation_problem(exc)) from None
     return _build(spec, str(source))
+
+
+def validation_problem(exc: ValidationError) -> tuple[str, str]:
+    """(key path, what was wrong and what was given) of a pydantic error's first problem."""
+    err = exc.errors()[0]
+    more = f' (and {exc.error_count() - 1} more problems)' if exc.error_count() > 1 else ''
+    got = (f' (got {safe_yaml.shorten(repr(err["input"]), 80)})'
+           if err['type'] != 'missing' and not isinstance(err['input'], dict) else '')
+    return _format_location(err['loc']), err['msg'] + got + more
+
+
+def beside_experiment(experiment: Experiment, value: str | None) -> Path | None:
+    """A file an experiment key names: as given when absolute, else relative to the file."""
+    if not value:
+        return None
+    path = Path(value)
+    return path if path.is_absolute() else Path(experiment.source).parent / path
 
 
 def _build(spec: ExperimentSpec, source: str) -> Experiment:

@@ -22,6 +22,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 from rclpy.node import Node
 
+from curve_formation.core.experiment import beside_experiment
 from curve_formation.nodes import messages, topics
 from curve_formation.nodes.params import (
     declare_parameters,
@@ -136,10 +137,7 @@ class CameraTracker(Node):
         """The file a parameter names (as given), else the experiment's (relative to it)."""
         if parameter:
             return Path(parameter)
-        if not experiment_key:
-            return None
-        path = Path(experiment_key)
-        return path if path.is_absolute() else Path(self.experiment.source).parent / path
+        return beside_experiment(self.experiment, experiment_key)
 
     def _intrinsics(self, camera):
         """(K, distortion) to undistort corner pixels with, or None (an ideal lens)."""
@@ -149,14 +147,9 @@ class CameraTracker(Node):
                 return None
             return camera.intrinsics.camera_matrix, camera.intrinsics.distortion
         try:
-            lens = read_intrinsics(path)
+            lens = read_intrinsics(path, camera.resolution)
         except IntrinsicsError as exc:
             raise ParameterError(f"parameter 'intrinsics_file': {exc}") from None
-        if lens.image_size != tuple(camera.resolution):
-            raise ParameterError(f"parameter 'intrinsics_file': {path} was calibrated at "
-                                 f'{lens.image_size[0]}x{lens.image_size[1]}, the camera '
-                                 f'delivers {camera.resolution[0]}x{camera.resolution[1]} '
-                                 '(camera.resolution)')
         self.get_logger().info(f'lens calibration loaded from {path} (reprojection '
                                f'{lens.rms:.2f} px)')
         return lens.camera_matrix, lens.distortion

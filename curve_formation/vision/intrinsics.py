@@ -107,11 +107,16 @@ def write_intrinsics(path, intrinsics):
                           + yaml.safe_dump(data, sort_keys=False))
 
 
-def read_intrinsics(path):
+def read_intrinsics(path, resolution=None):
     """The Intrinsics of a file written by write_intrinsics; IntrinsicsError naming the file
-    and the key when it is not one.
+    and the key when it is not one, or (with `resolution` (width, height) px) when it was
+    calibrated at another resolution.
     """
+    from pydantic import ValidationError
+
     from curve_formation.core import safe_yaml
+    from curve_formation.core.config_schema import IntrinsicsFile
+    from curve_formation.core.experiment import validation_problem
     try:
         data = safe_yaml.load(Path(path).read_bytes())
     except (OSError, safe_yaml.InputError) as exc:
@@ -119,20 +124,18 @@ def read_intrinsics(path):
     if not isinstance(data, dict):
         raise IntrinsicsError(f'{path}: expected a mapping with camera_matrix, distortion '
                                'and image_size (curve-formation calibrate-camera writes it)')
-
-    def numbers(key, sizes):
-        value = data.get(key)
-        if (not isinstance(value, list) or len(value) not in sizes
-                or not all(isinstance(v, (int, float)) and np.isfinite(v) for v in value)):
-            counts = ' or '.join(map(str, sizes))
-            raise IntrinsicsError(f'{path}: {key}: expected a list of {counts} finite numbers, '
-                                  f'got {value!r}')
-        return np.array(value, float)
-    k = numbers('camera_matrix', (9,)).reshape(3, 3)
-    dist = numbers('distortion', (0, 4, 5, 8, 12, 14))
-    size = numbers('image_size', (2,))
-    return Intrinsics(k, dist, (int(size[0]), int(size[1])),
-                      float(data.get('reprojection_rms', np.nan)), int(data.get('views', 0)))
+    try:
+        spec = IntrinsicsFile.model_validate(data)
+    except ValidationError as exc:
+        key, message = validation_problem(exc)
+        raise IntrinsicsError(f'{path}: {key}: {message}') from None
+    size = tuple(spec.image_size)
+    if resolution is not None and size != tuple(resolution):
+        raise IntrinsicsError(f'{path} was calibrated at {size[0]}x{size[1]}, the camera '
+                              f'delivers {resolution[0]}x{resolution[1]} (camera.resolution)')
+    rms = np.nan if spec.reprojection_rms is None else spec.reprojection_rms
+    return Intrinsics(np.array(spec.camera_matrix, float).reshape(3, 3),
+                      np.array(spec.distortion, float), size, float(rms), spec.views)
 
 
 def read_images(source, every=1, limit=None):
