@@ -56,7 +56,9 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None)
     # (they draw the curve) can receive from it (nodes/readiness.py).
     launches = [NodeLaunch('curve_formation.nodes.curve_server', '/', 'curve_server',
                            {'experiment': str(Path(experiment_path).resolve()),
-                            'wait_for_ready': experiment.n + 1 + len(cameras)})]
+                            'wait_for_ready': experiment.n + 1 + len(cameras),
+                            # a drawn curve comes from the camera, not from the schedule
+                            'schedule': not (cameras and spec.camera.drawn_curve is not None)})]
     for i, config in enumerate(agent_configs(experiment, rate), 1):
         ns = f'/robot_{i}'
         d = [float(v) for v in experiment.disturbance[i - 1]]

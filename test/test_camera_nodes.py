@@ -1,6 +1,7 @@
 """camera_tracker and fake_camera in-process: messages in and out, diagnostics, parameters."""
 
 import math
+import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray, PoseStamped
@@ -211,3 +212,43 @@ def test_tracker_marks_each_robots_target_as_the_curve_server_assigned_it(ros):
     curve_pub.publish(messages.curve_to_msg(phase.curve, 0, phase.s))
     spin_until(lambda: tracker.targets is not None)
     np.testing.assert_allclose(tracker.targets, phase.targets)
+
+
+def test_a_curve_drawn_on_the_floor_becomes_the_formation_curve(ros):
+    """fake_camera draws drawn_curve's loop on the floor under nine robots at their start
+    poses; camera_tracker finds it and curve_server (schedule off) publishes its fit: closed,
+    within 2 mm RMS of the drawn line, and once only while noisy frames keep coming.
+    """
+    from std_msgs.msg import Float64MultiArray
+
+    from curve_formation.core.curve_sources import polyline_rms_distance
+    from curve_formation.nodes.curve_server import CurveServer
+    context, add, spin_until = ros
+    experiment = load_experiment(resolve_config('drawn_curve'))
+    add(FakeCamera(context=context, parameter_overrides=params(
+        experiment='drawn_curve', rate_hz=10.0, noise=2.0, blur=0.7)))
+    add(CameraTracker(context=context, parameter_overrides=params(
+        experiment='drawn_curve', debug_rate_hz=0.0)))
+    add(CurveServer(context=context, parameter_overrides=params(
+        experiment='drawn_curve', schedule=False)))
+    probe = add(Node('probe', context=context))
+    curves = []
+    probe.create_subscription(Float64MultiArray, topics.CURVE,
+                              lambda m: curves.append(messages.curve_from_msg(m)), qos.LATCHED)
+    pubs = {i: probe.create_publisher(PoseStamped, topics.robot_topic(i, topics.TRUE_POSE),
+                                      qos.SENSOR) for i in range(1, 10)}
+
+    def publish_truth():
+        for i, (x, y, th) in enumerate(experiment.initial_poses, 1):
+            pubs[i].publish(messages.pose_to_msg(x, y, th, 0.0))
+        return True
+    spin_until(lambda: publish_truth() and curves, timeout=20.0)
+    curve, curve_id = curves[0]
+    assert curve_id == 0 and curve.basis.closed
+    _, drawn = experiment.phases[0].curve.sample(1000)
+    _, fitted = curve.sample(2000)
+    assert polyline_rms_distance(fitted, drawn, True) < 0.002
+    assert polyline_rms_distance(drawn, fitted, True) < 0.002
+    deadline = time.monotonic() + 4.0
+    spin_until(lambda: publish_truth() and time.monotonic() > deadline)
+    assert len(curves) == 1

@@ -286,6 +286,26 @@ class IntrinsicsFile(Intrinsics):
         return value
 
 
+class DrawnCurveSpec(Strict):
+    """A curve drawn on the arena floor that the camera tracker finds and the robots follow
+    (vision/curve_detection.py). The fake camera draws the experiment's `curves` as this line.
+    """
+
+    width: float = Field(0.012, gt=0, description='width of the drawn line (m)')
+    contrast: float = Field(30.0, gt=0, le=255, description='how much darker the line is than '
+                            'the floor around it (grey levels)')
+    clearance: float = Field(0.015, ge=0, description="floor masked around each robot's body "
+                             'beyond robots.radius (m)')
+    max_gap: Optional[float] = Field(None, gt=0, description='longest stretch of line hidden '
+                                     'by a robot that is bridged (m); default: a masked body '
+                                     'and four line widths')
+    rate_hz: float = Field(2.0, gt=0, description='how often frames are searched for the curve')
+    change: float = Field(0.003, gt=0, description='a curve is published again only when it '
+                          'moved by more than this, RMS (m)')
+    grey: int = Field(40, ge=0, le=255, description='grey level of the line the fake camera '
+                      'draws')
+
+
 class CameraSpec(Strict):
     """The overhead camera: markers, arena calibration, fake camera options."""
 
@@ -315,6 +335,9 @@ class CameraSpec(Strict):
     lost_timeout: float = Field(0.5, gt=0, description='a robot unseen for this long is '
                                 'reported lost (s)')
     fake: FakeCameraSpec = FakeCameraSpec()
+    drawn_curve: Optional[DrawnCurveSpec] = Field(
+        None, description='the curve is drawn on the floor: the tracker finds it and the curve '
+        'server publishes what it finds instead of the `curves` schedule')
 
     @model_validator(mode='after')
     def _one_lens_calibration(self):

@@ -34,6 +34,7 @@ from curve_formation.nodes.readiness import REPORTED, subscribe_to_curve
 from curve_formation.nodes.runtime import now_seconds, run_node
 from curve_formation.nodes.topics import Use
 from curve_formation.vision.camera import apply_homography
+from curve_formation.vision.curve_detection import CurveWatch, finder_for
 from curve_formation.vision.intrinsics import IntrinsicsError, read_intrinsics
 from curve_formation.vision.markers import MarkerLayout
 from curve_formation.vision.tracker import Calibration, CalibrationError, MarkerTracker
@@ -73,6 +74,8 @@ TOPICS = (
     Use('pub', topics.DIAGNOSTICS, 'detection rate per robot, lost robots, frame latency, '
         'calibration (1 Hz)'),
     Use('pub', topics.CAMERA_DEBUG, 'annotated frame (bgr8) while subscribed'),
+    Use('pub', topics.OBSERVED_CURVE, 'the curve drawn on the floor (camera.drawn_curve), when '
+        'it is first seen and whenever it moves (a closed one repeats its first point last)'),
     REPORTED,
 )
 
@@ -108,6 +111,18 @@ class CameraTracker(Node):
         self.robot_poses_pub = topics.publisher(self, topics.ROBOT_POSES)
         self.diag_pub = topics.publisher(self, topics.DIAGNOSTICS)
         self.debug_pub = topics.publisher(self, topics.CAMERA_DEBUG)
+        self.observed_pub = topics.publisher(self, topics.OBSERVED_CURVE)
+        self.curve_finder = None
+        if camera.drawn_curve is not None:
+            spec = self.experiment.spec
+            self.curve_finder = finder_for(self.tracker, camera, spec.arena.size,
+                                           spec.robots.radius)
+            self.curve_watch = CurveWatch(camera.drawn_curve.change)
+            self.curve_period = 1.0 / camera.drawn_curve.rate_hz
+            self.last_curve_search = -math.inf
+            self.positions = {}   # agent -> (x, y) last seen (m): where its body hides line
+            self.unanswered = None   # (observed curve message, curve id when it was sent)
+        self.curve_id = None   # of the last curve on /formation/curve
         subscribe_to_curve(self, self._on_curve)
         self.curve = None
         self.targets = None
@@ -156,7 +171,7 @@ class CameraTracker(Node):
 
     def _on_curve(self, msg):
         try:
-            curve, _ = messages.curve_from_msg(msg)
+            curve, self.curve_id = messages.curve_from_msg(msg)
             s = messages.agent_parameters_from_msg(msg)
         except messages.MessageError:
             return
@@ -198,6 +213,9 @@ class CameraTracker(Node):
             every[agent - 1] = pose
         self.robot_poses_pub.publish(messages.robot_poses_to_msg(every, stamp,
                                                                  self.params.frame_id))
+        if self.curve_finder is not None and now - self.last_curve_search >= self.curve_period:
+            self.last_curve_search = now
+            self._find_curve(gray, frame, stamp)
         self.frames += 1
         self.latencies.append(now - stamp)
         self.process_times.append(time.perf_counter() - started)
@@ -214,6 +232,22 @@ class CameraTracker(Node):
                 and now - self.last_debug >= 1.0 / self.params.debug_rate_hz):
             self.last_debug = now
             self.debug_pub.publish(messages.image_to_msg(self.annotate(gray, frame), stamp))
+
+    def _find_curve(self, gray, frame, stamp):
+        """Search the frame for the drawn curve; publish it when first seen or moved."""
+        self.positions.update({agent: pose[:2] for agent, pose in frame.poses.items()})
+        found = self.curve_finder.find(gray, list(self.positions.values()))
+        publish = self.curve_watch.offer(found)
+        if publish is None:
+            if self.unanswered is not None and self.unanswered[1] == self.curve_id:
+                self.observed_pub.publish(self.unanswered[0])   # not taken up yet: again
+            return
+        msg = messages.polygon_to_msg(publish.points, publish.closed, stamp,
+                                      self.params.frame_id)
+        self.observed_pub.publish(msg)
+        self.unanswered = (msg, self.curve_id)   # until a new curve comes from the server
+        self.get_logger().info(f"drawn curve published: {'closed' if publish.closed else 'open'}"
+                               f', {len(publish.points)} points from {publish.pixels} pixels')
 
     def annotate(self, gray, frame):
         """bgr8 debug image: detected markers with agent numbers, curve and targets."""

@@ -3,12 +3,14 @@
 Publishes /formation/curve (Float64MultiArray, latched: late joiners get the current curve),
 /formation/curve_path (nav_msgs/Path) and /formation/markers (MarkerArray: the curve and each
 agent's target point) for RViz. Accepts a newly observed curve as ordered sampled points on
-/formation/observed_curve (PolygonStamped), fits it and publishes it as the next curve.
-Curve ids count up from 0 in the order curves are published. Each curve carries every agent's
-curve parameter s_i, as the experiment's `spacing` and `assignment` give them (an observed
-curve is assigned from the previous curve's targets); with `reassign_every`, the current curve
-is published again (same id) whenever re-assigning its targets among the robots, from their
-poses on /formation/robot_poses, shortens their squared trips by 10 %.
+/formation/observed_curve (PolygonStamped; closed when its last point repeats the first), fits it
+by its shape (curve_sources.fit_points) and publishes it as the next curve; with `schedule` false
+only observed curves are published (a curve drawn on the floor). Curve ids count up from 0 in the
+order curves are published. Each curve carries every agent's curve parameter s_i, as the
+experiment's `spacing` and `assignment` give them (an observed curve is assigned from the previous
+curve's targets); with `reassign_every`, the current curve is published again (same id) whenever
+re-assigning its targets among the robots, from their poses on /formation/robot_poses, shortens
+their squared trips by 10 %.
 """
 
 from geometry_msgs.msg import Point, PoseStamped
@@ -19,8 +21,8 @@ from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
 from curve_formation.core.assignment import AssignmentError, phase_parameters, reassigned
-from curve_formation.core.curve_sources import point_samples
-from curve_formation.core.curves import CurveError, fit_curve, make_basis
+from curve_formation.core.curve_sources import fit_points
+from curve_formation.core.curves import CurveError, make_basis
 from curve_formation.core.metrics import offset_points
 from curve_formation.nodes import messages, topics
 from curve_formation.nodes.params import (
@@ -37,10 +39,13 @@ PARAMETERS = (
     Param('experiment', 'string', None, 'experiment YAML (path or shipped name) whose curve '
           'schedule is served'),
     Param('path_samples', 'int', 200, 'points in the published Path and curve marker', low=3),
-    Param('observed_basis', 'string', 'fourier', 'basis for observed curves',
-          choices=('fourier', 'polynomial')),
+    Param('observed_basis', 'string', 'auto', "basis for observed curves; 'auto' = fourier "
+          'for a closed one (its last point repeats the first), polynomial for an open one',
+          choices=('auto', 'fourier', 'polynomial')),
     Param('observed_size', 'int', 8, 'harmonics K (fourier) or order p (polynomial) for '
           'observed curves', low=1),
+    Param('schedule', 'bool', True, "publish the experiment's `curves` on their schedule; "
+          'false = only observed curves (a curve drawn on the floor)'),
     Param('frame_id', 'string', 'arena', 'frame of the published curve'),
     Param('reassign_every', 'double', -1.0, 'period (s) at which targets are re-assigned among '
           "the robots from their poses on /formation/robot_poses (assignment.reassigned); "
@@ -112,7 +117,7 @@ class CurveServer(Node):
             self.start = now_seconds(self)
             if self.reassign_every > 0:
                 self.create_timer(self.reassign_every, self._reassign)
-        phases = self.experiment.phases
+        phases = self.experiment.phases if self.params.schedule else ()
         elapsed = now_seconds(self) - self.start
         while self.next_phase < len(phases) and phases[self.next_phase].start <= elapsed:
             phase = phases[self.next_phase]
@@ -194,10 +199,15 @@ class CurveServer(Node):
             self.get_logger().error(f'observed curve refused: {count} points, at most '
                                     f'{MAX_OBSERVED_POINTS}')
             return
-        points = np.array([[p.x, p.y] for p in msg.polygon.points], dtype=float)
+        points, closed = messages.polygon_from_msg(msg)
+        kind = self.params.observed_basis
+        if kind == 'auto':
+            kind = 'fourier' if closed else 'polynomial'
+        elif closed and kind == 'polynomial':   # an open fit keeps the repeated end point
+            points = np.vstack([points, points[:1]])
         try:
-            basis = make_basis(self.params.observed_basis, self.params.observed_size)
-            fit = fit_curve(basis, *point_samples(points, basis.closed))
+            basis = make_basis(kind, self.params.observed_size)
+            fit = fit_points(basis, points)
             agents = self.experiment.spec.agents
             s = phase_parameters(fit.curve, self.experiment.n, agents.spacing,
                                  agents.assignment, self.targets)

@@ -3,7 +3,9 @@
 Subscribes every fake robot's ground truth (/robot_<i>/true_pose) and publishes mono8
 sensor_msgs/Image frames on /camera/image_raw at `rate_hz`, stamped with the time of capture
 (the newest true pose's stamp): floor, corner markers and each robot's ArUco marker at its
-pose (layout from the experiment's `camera` section, markers at their height). Options:
+pose (layout from the experiment's `camera` section, markers at their height); with
+`camera.drawn_curve`, the experiment's curves drawn on the floor, each from its start time
+(counted from this node's start). Options:
 resolution, tilt, lens distortion, pixel noise, blur, brightness; and faults for a
 time window counted from the first curve: cover some robots' markers, or show a second marker
 with a robot's id.
@@ -24,7 +26,10 @@ from curve_formation.nodes.topics import Use
 from curve_formation.vision.camera import overhead_camera
 from curve_formation.vision.lens import Lens
 from curve_formation.vision.markers import MarkerLayout
-from curve_formation.vision.render import ArenaRenderer, RenderOptions
+from curve_formation.vision.render import ArenaRenderer, FloorLine, RenderOptions
+
+
+DRAWN_SAMPLES = 1000   # points along a drawn curve (a few mm apart on an arena's curve)
 
 
 PARAMETERS = (
@@ -86,8 +91,14 @@ class FakeCamera(Node):
         self.layout = MarkerLayout.from_spec(experiment.spec.camera)
         camera = overhead_camera(arena, tuple(p.resolution), p.tilt_deg, p.height)
         self.renderer = ArenaRenderer(camera, self.layout, arena,
-                                      RenderOptions(p.noise, p.blur, p.brightness), seed=p.seed,
+                                      RenderOptions(p.noise, p.blur, p.brightness),
+                                      robot_radius=experiment.spec.robots.radius, seed=p.seed,
                                       lens=lens)
+        # a drawn curve: the experiment's curves drawn on the floor, each from its start time
+        self.drawn = experiment.spec.camera.drawn_curve
+        self.phases = experiment.phases
+        self.started = now_seconds(self)
+        self.drawn_phase = None
         self.poses = {}
         self.stamps = {}   # when each true pose held (s)
         self.first_curve = None
@@ -124,10 +135,24 @@ class FakeCamera(Node):
         if faulty and self.params.duplicate_of:
             x, y = self.params.duplicate_at
             extra = ((self.layout.robot_ids[self.params.duplicate_of - 1], x, y, 0.0),)
+        if self.drawn is not None:
+            self._draw_curve(now - self.started)
         image = self.renderer.render(self.poses, hidden, extra)
         # Stamped with when the scene it shows held, as a camera stamps its exposure.
         scene = max(self.stamps.values(), default=now)
         self.image_pub.publish(messages.image_to_msg(image, scene, self.params.frame_id))
+
+    def _draw_curve(self, elapsed):
+        """Draw the curve of the phase in force `elapsed` (s) after start on the floor."""
+        phase = max(k for k, ph in enumerate(self.phases) if ph.start <= elapsed
+                    or k == 0)
+        if phase == self.drawn_phase:
+            return
+        self.drawn_phase = phase
+        curve = self.phases[phase].curve
+        _, points = curve.sample(DRAWN_SAMPLES)
+        self.renderer.draw_on_floor(FloorLine(points, curve.basis.closed, self.drawn.width,
+                                              self.drawn.grey))
 
 
 def main(args=None):

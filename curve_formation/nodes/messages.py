@@ -17,7 +17,15 @@ the error was computed from.
 import math
 
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import Pose, PoseArray, PoseStamped, Twist, Vector3Stamped
+from geometry_msgs.msg import (
+    Point32,
+    PolygonStamped,
+    Pose,
+    PoseArray,
+    PoseStamped,
+    Twist,
+    Vector3Stamped,
+)
 import numpy as np
 from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
@@ -221,3 +229,26 @@ def pose_array_to_msg(poses, count, stamp_s, frame_id='arena'):
         pose.orientation.z, pose.orientation.w = float(qz), float(qw)
         msg.poses.append(pose)
     return msg
+
+
+def polygon_to_msg(points, closed, stamp_s, frame_id='arena'):
+    """PolygonStamped of ordered curve points (k, 2) (m); a closed curve repeats its first
+    point last, which is how the curve server tells it from an open one.
+    """
+    pts = np.asarray(points, dtype=float)
+    if closed:
+        pts = np.vstack([pts, pts[:1]])
+    msg = PolygonStamped()
+    msg.header.stamp = seconds_to_stamp(stamp_s)
+    msg.header.frame_id = frame_id
+    msg.polygon.points = [Point32(x=float(x), y=float(y)) for x, y in pts]
+    return msg
+
+
+def polygon_from_msg(msg):
+    """(points (k, 2), closed) of an observed curve: closed when the last point repeats the
+    first (then dropped).
+    """
+    pts = np.array([[p.x, p.y] for p in msg.polygon.points], dtype=float).reshape(-1, 2)
+    closed = len(pts) > 3 and bool(np.array_equal(pts[0], pts[-1]))
+    return (pts[:-1] if closed else pts), closed

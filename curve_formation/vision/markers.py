@@ -105,6 +105,17 @@ class MarkerLayout:
         """{marker id: agent index (1-based)}."""
         return {m: i + 1 for i, m in enumerate(self.robot_ids)}
 
+    def body_radius(self, radius=0.0):
+        """The radius (m) of a robot's body: `radius` (robots.radius) when given, else a disc
+        just larger than the marker with its quiet zone.
+        """
+        return radius or 0.8 * self.marker_size * math.sqrt(2)
+
+    def corner_reach(self):
+        """Distance (m) from a corner marker's centre to the far corner of its quiet zone."""
+        bits = marker_bits(self.dictionary_name)
+        return 0.5 * math.sqrt(2) * self.corner_size * (bits + 4) / (bits + 2)
+
     def corner_points(self, ids):
         """(4 k, 2) arena corners (m) of the corner markers `ids`, in cv2.aruco order."""
         return np.concatenate([marker_corners(*self.corners[i], 0.0, self.corner_size)

@@ -28,6 +28,32 @@ IDEAL_LENS = Lens()
 
 
 @dataclass(frozen=True)
+class FloorLine:
+    """A line drawn on the arena floor along ordered points (k, 2) (m, arena frame, dense
+    enough to look smooth), closed or open, `width` (m) wide, of grey level `grey`.
+    """
+
+    points: np.ndarray
+    closed: bool
+    width: float = 0.012
+    grey: int = 40
+
+    def outline(self):
+        """The line's edges as polygons (arena frame): one for an open line, the outer and
+        inner rings of a closed one (filled even-odd).
+        """
+        pts = np.asarray(self.points, float)
+        if self.closed:
+            tangent = np.roll(pts, -1, axis=0) - np.roll(pts, 1, axis=0)
+        else:
+            tangent = np.gradient(pts, axis=0)
+        tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
+        side = 0.5 * self.width * np.column_stack([-tangent[:, 1], tangent[:, 0]])
+        left, right = pts + side, pts - side
+        return [left, right] if self.closed else [np.vstack([left, right[::-1]])]
+
+
+@dataclass(frozen=True)
 class RenderOptions:
     """Image effects: pixel noise sigma (grey levels), blur sigma (px), brightness factor."""
 
@@ -71,20 +97,31 @@ class ArenaRenderer:
         self.lens_warp, self._canvas = lens_canvas(camera, lens)
         self.layout = layout
         self.options = options
-        self.robot_radius = robot_radius or 0.8 * layout.marker_size * math.sqrt(2)
+        self.robot_radius = layout.body_radius(robot_radius or 0.0)
         cv2.setRNGSeed(seed)   # pixel noise comes from OpenCV's generator (fast)
         self._effects = ImageEffects(options)
         self._dictionary = dictionary(layout.dictionary_name)
         self._bits = marker_bits(layout.dictionary_name)
         self._marker_images = {}
-        self.background = self._background(arena_size)
+        self.arena_size = arena_size
+        self.background = self._background()
 
-    def _background(self, arena_size):
+    def draw_on_floor(self, line=None):
+        """Draw a FloorLine on the floor (under the corner markers and robots) from the next
+        frame on, replacing the one drawn before; None clears the floor.
+        """
+        self.background = self._background(line)
+
+    def _background(self, line=None):
         image = np.full((self._canvas.height, self._canvas.width), SURROUNDINGS, np.uint8)
-        w, h = arena_size
+        w, h = self.arena_size
         floor = self._canvas.project([[0, 0], [w, 0], [w, h], [0, h]])
         cv2.fillConvexPoly(image, np.round(floor * 16).astype(np.int32), FLOOR,
                            lineType=cv2.LINE_AA, shift=4)
+        if line is not None:
+            cv2.fillPoly(image, [np.round(self._canvas.project(edge) * 16).astype(np.int32)
+                                 for edge in line.outline()], line.grey,
+                         lineType=cv2.LINE_AA, shift=4)
         for marker_id, (x, y) in self.layout.corners.items():
             self._draw_marker(image, marker_id, x, y, 0.0, self.layout.corner_size,
                               self.layout.corner_height)
