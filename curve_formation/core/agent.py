@@ -80,7 +80,8 @@ def agent_configs(experiment: 'Experiment', rate_hz: float) -> list['AgentConfig
         leader_timeout=spec.safety.leader_timeout, geofence=fence,
         pc_disturbance=((float(experiment.disturbance[i - 1][0]),
                          float(experiment.disturbance[i - 1][1])) if on_pc else (0.0, 0.0)),
-        avoidance=experiment.avoidance, predict_pose=spec.controller.predict_pose)
+        avoidance=experiment.avoidance, predict_pose=spec.controller.predict_pose,
+        feed_forward=spec.controller.feed_forward)
         for i in range(1, experiment.n + 1)]
 
 
@@ -131,6 +132,7 @@ class AgentConfig:
     pc_disturbance: Command = (0.0, 0.0)  # added to the command before the limits (m/s, rad/s)
     avoidance: Avoidance = AVOIDANCE_OFF   # the safety filter, from every robot's pose
     predict_pose: bool = False      # carry the pose forward to the tick (AgentController)
+    feed_forward: bool = True       # add a moving curve's target velocity to the command
 
     @property
     def is_leader(self) -> bool:

@@ -113,6 +113,9 @@ class ControllerSpec(Strict):
         False, description="ROS controllers: carry the robot's pose forward from its stamp "
         '(capture time) to the tick, through the commands sent since, so a pose that is '
         '80 ms old does not make an 80 ms old command (PCs with synchronised clocks)')
+    feed_forward: bool = Field(
+        True, description="a moving curve's velocity at each target, G(s_i) xi-dot, is added "
+        'to the command, so the formation keeps up instead of lagging (curves[].motion)')
 
     @field_validator('adaptation')
     @classmethod
@@ -165,6 +168,18 @@ class SafetySpec(Strict):
                                    'the arena is stopped')
 
 
+class MotionSpec(Strict):
+    """A curve that moves while it is followed (core/motion.py): it translates, turns and
+    grows from its phase's start, about `about`.
+    """
+
+    velocity: Pair = Field((0.0, 0.0), description='translation velocity (m/s)')
+    rotation_rate: float = Field(0.0, description='turn rate (rad/s), counter-clockwise')
+    scale_rate: float = Field(0.0, description='relative growth rate (1/s); negative shrinks')
+    about: Optional[Pair] = Field(None, description='the point it turns and grows about (m); '
+                                  "default: the curve's centre (mean of its points)")
+
+
 class CurveSpec(Strict):
     """One desired curve and the time it becomes active.
 
@@ -184,6 +199,8 @@ class CurveSpec(Strict):
     points: Optional[list[Pair]] = None
     samples: int = Field(400, ge=3, le=1_000_000,
                          description='samples taken from x/y or bezier for the fit')
+    motion: Optional[MotionSpec] = Field(None, description='the curve moves while it is '
+                                         'followed (scripted: a rope being moved)')
 
     @model_validator(mode='after')
     def _consistent(self):

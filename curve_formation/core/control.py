@@ -308,6 +308,17 @@ def inside_fence(x: float, y: float,
     return fence is None or (fence[0] <= x <= fence[2] and fence[1] <= y <= fence[3])
 
 
+def with_feed_forward(fx: float, fy: float, ahead_x: float, ahead_y: float,
+                      k1: float) -> Point:
+    """The feedback (m) that makes the law's control-point velocity -k1 f + G(s_i) xi-dot:
+    f - (target velocity) / k1, with the target's velocity (m/s, arena frame) on a moving
+    curve. Every agent adding its own target's velocity cancels the curve's motion in the
+    error dynamics, so the paper's exponential convergence holds on a moving curve (within
+    the wheel limits).
+    """
+    return fx - ahead_x / k1, fy - ahead_y / k1
+
+
 def leader_feedback(ex: float, ey: float) -> Point:
     """The leader's feedback term: its own error (m)."""
     return ex, ey

@@ -22,6 +22,7 @@ from curve_formation.core.config_schema import (
     ControllerSpec,
     CurveSpec,
     ExperimentSpec,
+    MotionSpec,
     RobotsSpec,
 )
 from curve_formation.core.control import Gains, NO_LIMITS, WheelLimits
@@ -29,6 +30,7 @@ from curve_formation.core.curves import Curve, CurveError, Fit, fit_curve, make_
 from curve_formation.core.expressions import ExpressionError
 from curve_formation.core.graph import DirectedGraph, Edge, GraphError
 from curve_formation.core.metrics import offset_points
+from curve_formation.core.motion import CurveMotion
 from curve_formation.core.safety import Avoidance, AVOIDANCE_OFF
 from curve_formation.core.shapes import FloatArray, Point
 
@@ -53,10 +55,16 @@ class Phase:
     g_bar: FloatArray    # (2n, 2H)
     # Re-assignments while the phase was followed: ((t (s), s (n,), targets (n, 2)), ...)
     changes: tuple[tuple[float, FloatArray, FloatArray], ...] = ()
+    motion: CurveMotion | None = None   # the curve moves from `start` on
 
     @property
     def curve(self) -> Curve:
         return self.fit.curve
+
+    def curve_at(self, t: float) -> Curve:
+        """The curve at time t (s, experiment time): moved, for a moving phase."""
+        return self.curve if self.motion is None else self.motion.curve(self.curve,
+                                                                         t - self.start)
 
 
 @dataclass(frozen=True)
@@ -284,18 +292,33 @@ def _build_phases(spec: ExperimentSpec, source: str, start_points: FloatArray
                   ) -> list[Phase]:
     fits = [(k, curve_spec.start, _fit_phase_curve(curve_spec, source, f'curves[{k}]'))
             for k, curve_spec in enumerate(spec.curves)]
-    return _assign_phases(spec, source, fits, start_points)
+    motions = [None if curve_spec.motion is None else _motion(curve_spec.motion, fit.curve)
+               for (_, _, fit), curve_spec in zip(fits, spec.curves, strict=True)]
+    return _assign_phases(spec, source, fits, start_points, motions)
+
+
+def _motion(spec: MotionSpec, curve: Curve) -> CurveMotion:
+    about = spec.about
+    if about is None:
+        centre = curve.sample(400)[1].mean(axis=0)
+        about = (float(centre[0]), float(centre[1]))
+    return CurveMotion((spec.velocity[0], spec.velocity[1]), spec.rotation_rate,
+                       spec.scale_rate, (about[0], about[1]))
 
 
 def _assign_phases(spec: ExperimentSpec, source: str,
-                   fits: Sequence[tuple[int, float, Fit]], start_points: FloatArray
-                   ) -> list[Phase]:
+                   fits: Sequence[tuple[int, float, Fit]], start_points: FloatArray,
+                   motions: Sequence[CurveMotion | None] | None = None) -> list[Phase]:
     """Phases (index, start, fit) with their agents' parameters (assignment.phase_parameters),
-    each assigned from where the previous one left the agents: the start, then its targets.
+    each assigned from where the previous one left the agents: the start, then its targets
+    (moved with their curve until the next phase starts).
     """
     out: list[Phase] = []
     points = start_points
-    for index, start, fit in fits:
+    motions = motions or [None] * len(fits)
+    for k, ((index, start, fit), motion) in enumerate(zip(fits, motions, strict=True)):
+        if k and out[-1].motion is not None:
+            points = out[-1].motion.points(points, start - out[-1].start)
         try:
             s = phase_parameters(fit.curve, spec.agents.count, spec.agents.spacing,
                                  spec.agents.assignment, points)
@@ -303,7 +326,7 @@ def _assign_phases(spec: ExperimentSpec, source: str,
             raise ConfigError(source, f'curves[{index}]', str(exc)) from None
         g_bar = fit.curve.basis.G(s).reshape(2 * len(s), 2 * fit.curve.basis.H)
         points = fit.curve.points(s)
-        out.append(Phase(index, start, fit, s, points, g_bar))
+        out.append(Phase(index, start, fit, s, points, g_bar, motion=motion))
     return out
 
 

@@ -55,13 +55,18 @@ def target_errors(poses, phase, experiment, gains=None, t=None):
 
 
 def sample_targets(experiment, phase, t=None):
-    """(R, n, 2) every agent's target at each sample: its phase's, as re-assigned by then."""
+    """(R, n, 2) every agent's target at each sample: its phase's, as re-assigned by then,
+    and carried with its curve in a moving phase.
+    """
     targets = np.stack([p.targets for p in experiment.phases])[np.asarray(phase)]
     for k, p in enumerate(experiment.phases):
-        if p.changes and t is None:
-            raise ValueError('targets were re-assigned: the sample times are needed')
+        if (p.changes or p.motion is not None) and t is None:
+            raise ValueError('targets were re-assigned or move: the sample times are needed')
         for when, _, points in p.changes:
             targets[(phase == k) & (np.asarray(t) >= when)] = points
+        if p.motion is not None:
+            for r in np.flatnonzero(phase == k):
+                targets[r] = p.motion.points(targets[r], t[r] - p.start)
     return targets
 
 

@@ -101,9 +101,12 @@ def compiled(function: Callable[..., Any]) -> Callable[..., Any]:
 _agent_command = compiled(control.agent_command)
 _arc = compiled(dynamics.arc_step)
 _observer_step = compiled(control.observer_step)
+_with_feed_forward = compiled(control.with_feed_forward)
 separate = compiled(bodies.separate)
 OBSERVER = control.LAWS['observer']
 
+# How often (s) a moving curve's targets are renewed under continuous control.
+MOVING_STEP = 0.01
 # Largest heading change (rad) of one RK4 substep in continuous mode.
 MAX_TURN_PER_SUBSTEP = 0.05
 
@@ -138,16 +141,18 @@ SimState = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]
 
 
 @numba.njit(cache=True)
-def _controls(poses: FloatArray, dhat: FloatArray, targets: FloatArray, graph: EdgeArrays,
-              law: Law, limits: WheelLimits, avoidance: Avoidance, d_pc: FloatArray,
-              d_robot: FloatArray, err: FloatArray, fb: FloatArray, motion: FloatArray,
-              cmd: FloatArray, ref: FloatArray, ddhat: FloatArray, codes: IntArray) -> None:
+def _controls(poses: FloatArray, dhat: FloatArray, targets: FloatArray, ahead: FloatArray,
+              graph: EdgeArrays, law: Law, limits: WheelLimits, avoidance: Avoidance,
+              d_pc: FloatArray, d_robot: FloatArray, err: FloatArray, fb: FloatArray,
+              motion: FloatArray, cmd: FloatArray, ref: FloatArray, ddhat: FloatArray,
+              codes: IntArray) -> None:
     """Evaluate every agent's tick (control.agent_command): fills err, fb, cmd (sent), motion
     (actual), ref (the observer's reference), ddhat (continuous-time estimator rate) and
     codes (the safety filter's outcome); cmd on entry holds each agent's previous command.
 
     graph: (tgt, src, weights, pins) edge arrays. d_pc (n, 2) is added to the command before
-    the limits (injected on the PC), d_robot (n, 2) after them (physical).
+    the limits (injected on the PC), d_robot (n, 2) after them (physical). ahead (n, 2): each
+    target's velocity (m/s, a moving curve's feed-forward; zeros otherwise).
     """
     tgt, src, wts, pins = graph
     n = poses.shape[0]
@@ -162,6 +167,8 @@ def _controls(poses: FloatArray, dhat: FloatArray, targets: FloatArray, graph: E
         fb[i, 0] += wts[k] * (err[i, 0] - err[j, 0])
         fb[i, 1] += wts[k] * (err[i, 1] - err[j, 1])
     for i in range(n):
+        fb[i, 0], fb[i, 1] = _with_feed_forward(fb[i, 0], fb[i, 1], ahead[i, 0],
+                                                ahead[i, 1], law.k1)
         v, w, ref_v, ref_w, ddv, ddw, code = _agent_command(
             fb[i, 0], fb[i, 1], err[i, 0], err[i, 1], poses[i, 0], poses[i, 1], poses[i, 2],
             dhat[i, 0], dhat[i, 1], cmd[i, 0], cmd[i, 1], d_pc[i, 0], d_pc[i, 1], law, limits,
@@ -202,7 +209,7 @@ def _touch(poses: FloatArray, contacts: Contacts) -> None:
 
 
 @numba.njit(cache=True)
-def _run(state: SimState, targets: FloatArray, graph: EdgeArrays, law: Law,
+def _run(state: SimState, targets: FloatArray, ahead: FloatArray, graph: EdgeArrays, law: Law,
          limits: WheelLimits, avoidance: Avoidance, d_pc: FloatArray, d_robot: FloatArray,
          clock: Clock, step0: int, steps: int, schedule: tuple[IntArray, IntArray],
          contacts: Contacts, record: tuple[FloatArray, FloatArray, FloatArray]) -> None:
@@ -242,8 +249,8 @@ def _run(state: SimState, targets: FloatArray, graph: EdgeArrays, law: Law,
                             ref[i, 1], law.k2, blend)
             if ticking:
                 new_cmd[:] = cmd   # each agent's previous command
-                _controls(poses, dhat, targets, graph, law, limits, avoidance, d_pc, d_robot,
-                          err, fb, new_motion, new_cmd, new_ref, ddhat, codes)
+                _controls(poses, dhat, targets, ahead, graph, law, limits, avoidance, d_pc,
+                          d_robot, err, fb, new_motion, new_cmd, new_ref, ddhat, codes)
                 for i in range(n):
                     if step < start_steps[i]:
                         continue   # not started yet: motors off, estimator idle
@@ -273,8 +280,8 @@ def _run(state: SimState, targets: FloatArray, graph: EdgeArrays, law: Law,
     p_stage = np.zeros((n, 3))
     d_stage = np.zeros((n, 2))
     for step in range(step0, step0 + steps):
-        _controls(poses, dhat, targets, graph, law, limits, avoidance, d_pc, d_robot, err, fb,
-                  motion, cmd, ref, ddhat, codes)
+        _controls(poses, dhat, targets, ahead, graph, law, limits, avoidance, d_pc, d_robot,
+                  err, fb, motion, cmd, ref, ddhat, codes)
         if step % clock.record_every == 0:
             r = step // clock.record_every
             rec_poses[r] = poses
@@ -293,7 +300,7 @@ def _run(state: SimState, targets: FloatArray, graph: EdgeArrays, law: Law,
                         p_stage[i, c] = poses[i, c] + frac * kp[stage - 1, i, c]
                     for c in range(2):
                         d_stage[i, c] = dhat[i, c] + frac * kd[stage - 1, i, c]
-                _controls(p_stage, d_stage, targets, graph, law, limits, avoidance, d_pc,
+                _controls(p_stage, d_stage, targets, ahead, graph, law, limits, avoidance, d_pc,
                           d_robot, err, fb, motion, cmd, ref, ddhat, codes)
                 for i in range(n):
                     kp[stage, i, 0] = motion[i, 0] * math.cos(p_stage[i, 2])
@@ -405,6 +412,7 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
     contacts = Contacts(float(radius), float(width), float(height), np.zeros((n, n), bool),
                         np.array([0.0, 0.0, math.inf]))
     law = gains.tick_law(rate_hz, on_pc)
+    feed_forward = spec.controller.feed_forward
     graph = (*experiment.graph.edge_arrays(), experiment.graph.pins)
     clock = Clock(dt, control_every, record_every)
     schedule = (tick_offsets, start_steps)
@@ -418,16 +426,29 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
         b = min(b, total)
         s, targets, changes = phase.s, phase.targets, []
         # The curve server's re-assignment instants, k * period from t = 0.
-        cuts = [] if not period else list(range((a // period + 1) * period, b, period))
+        reassign = set() if not period else set(range((a // period + 1) * period, b, period))
+        # A moving curve's targets are taken afresh at every tick (every MOVING_STEP s
+        # without a control rate), with their velocities as the feed-forward.
+        moving = phase.motion
+        hop = control_every or max(1, int(round(MOVING_STEP / dt)))
+        cuts = sorted(reassign | (set(range((a // hop + 1) * hop, b, hop)) if moving else set()))
+        still: FloatArray = np.zeros((n, 2))
         for begin, end in zip([a] + cuts, cuts + [b], strict=True):
-            if begin > a:
+            if begin in reassign:
                 points = metrics.offset_points(poses, gains.offset)
-                new = reassigned(phase.curve, s, points)
+                new = reassigned(phase.curve_at(begin * dt), s, points)
                 if new is not s:
                     s, targets = new, phase.curve.points(new)
                     changes.append((begin * dt, s, targets))
-            _run(state, np.ascontiguousarray(targets), graph, law, limits, avoidance, d_pc,
-                 d_robot, clock, begin, end - begin, schedule, contacts, record)
+            now, ahead = targets, still
+            if moving is not None:
+                tau = begin * dt - phase.start
+                now = moving.points(targets, tau)
+                if feed_forward:
+                    ahead = moving.velocities(targets, tau)
+            _run(state, np.ascontiguousarray(now), np.ascontiguousarray(ahead), graph, law,
+                 limits, avoidance, d_pc, d_robot, clock, begin, end - begin, schedule,
+                 contacts, record)
         followed.append(dataclasses.replace(phase, changes=tuple(changes)))
     t = np.arange(n_rec) * record_every * dt
     phase_index = np.searchsorted(np.array(starts[1:-1]) * dt, t, side='right')
