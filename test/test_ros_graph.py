@@ -310,3 +310,24 @@ def test_the_arena_demo_through_bridges_settles_as_with_fake_robots(ros_domain, 
     assert settle[None] is not None, settle
     for bridge in ('udp', 'pty'):
         assert settle[bridge] is not None and settle[bridge] <= 1.1 * settle[None], settle
+
+
+def test_a_moving_curve_is_followed_over_dds_with_the_feed_forward(ros_domain, tmp_path):
+    """Four robots parked on a loop that moves at 1 cm/s: the curve server renews it ten
+    times a second with its rate, each controller carries its target forward and adds its
+    velocity: every robot stays within 2 mm of its moving target (10 mm behind without it, as
+    the simulator shows in test_motion).
+    """
+    with Run(DATA_DIR / 'moving_loop.yaml', tmp_path, log=quiet) as run:
+        run.spin_for(15.0)
+        data = run.recording()
+        moved, phase = run.followed(data['t'])
+    assert len(moved.phases) == 1 and moved.phases[0].motion is not None
+    errors = np.linalg.norm(metrics.target_errors(data['poses'], phase, moved, t=data['t']),
+                            axis=2)
+    late = data['t'] > 3.0
+    print('largest error per robot after 3 s (mm):', np.round(1e3 * errors[late].max(axis=0), 2))
+    assert errors[late].max() < 0.002
+    # the formation went with the curve: 12 cm and more to the right
+    travelled = data['poses'][-1, :, 0] - run.experiment.initial_poses[:, 0]
+    assert travelled.min() > 0.11

@@ -44,6 +44,7 @@ from curve_formation.core.control import (
     observer_step,
     offset_point,
     WheelLimits,
+    with_feed_forward,
 )
 from curve_formation.core.curves import Curve
 from curve_formation.core.dynamics import arc_step
@@ -195,6 +196,9 @@ class AgentController:
     def __post_init__(self) -> None:
         self.curve: Curve | None = None
         self.curve_id: int | None = None
+        self.curve_rate: Curve | None = None   # a moving curve's coefficient rate (1/s)
+        self.curve_received = 0.0
+        self.ahead: Point = (0.0, 0.0)   # the target's velocity on a moving curve (m/s)
         self.s: float | None = None
         self.target: Point | None = None
         self.pose: Pose | None = None
@@ -219,11 +223,15 @@ class AgentController:
             maxlen=int(math.ceil(self.config.rate_hz * self.config.pose_timeout)) + 2)
 
     def set_curve(self, curve: Curve, curve_id: int,
-                  s_all: Sequence[float] | FloatArray | None) -> None:
+                  s_all: Sequence[float] | FloatArray | None, rate: Curve | None = None,
+                  received: float = 0.0) -> None:
         """Adopt a new curve; raises ValueError (AssignmentError) if it breaks the assumptions.
 
         s_all (n,): every agent's parameter as the sender (the curve server) assigned them;
-        a curve without them is refused: agents never derive s_i themselves.
+        a curve without them is refused: agents never derive s_i themselves. rate: a moving
+        curve's coefficient rate (1/s), received at `received` (s, this controller's clock):
+        the target is carried forward from then (at most leader_timeout) and its velocity
+        added to the command (feed_forward).
         """
         n = self.config.agent_count
         if s_all is None:
@@ -235,9 +243,27 @@ class AgentController:
         s = np.array(s_all, dtype=float)
         check_assumptions(curve.basis, s)
         self.curve, self.curve_id = curve, int(curve_id)
+        self.curve_rate, self.curve_received = rate, received
         self.s = float(s[self.config.index - 1])
         tx, ty = curve.points([self.s])[0]
         self.target = (float(tx), float(ty))
+        self.ahead = (0.0, 0.0)
+        if rate is not None:
+            vx, vy = rate.points([self.s])[0]
+            self.ahead = (float(vx), float(vy))
+
+    def _move_target(self, now: float) -> bool:
+        """Carry a moving curve's target to `now` (s); False if the curve is too old."""
+        if self.curve is None or self.curve_rate is None or self.s is None:
+            return True
+        age = now - self.curve_received
+        if age > self.config.leader_timeout:
+            return False
+        tx, ty = self.curve.points([self.s])[0]
+        vx, vy = self.ahead
+        age = max(age, 0.0)
+        self.target = (float(tx + vx * age), float(ty + vy * age))
+        return True
 
     def on_pose(self, x: float, y: float, theta: float, stamp: float,
                 received: float | None = None) -> bool:
@@ -306,9 +332,13 @@ class AgentController:
         return State(error, self.curve_id, self.pose_stamp, age)
 
     def own_error(self) -> Point | None:
-        """e_i = xb_i - G(s_i) xi (m) from the latest pose, or None."""
+        """e_i = xb_i - G(s_i) xi (m) from the latest pose (a moving curve's target taken
+        when the pose came), or None.
+        """
         if self.pose is None or self.target is None:
             return None
+        if self.pose_received is not None:
+            self._move_target(self.pose_received)
         return self._error_at(self.pose, self.target)
 
     def _error_at(self, pose: Pose, target: Point) -> Point:
@@ -365,6 +395,8 @@ class AgentController:
         measured = pose
         if cfg.predict_pose:
             pose = self.predicted(pose, stamp, received, now)
+        if not self._move_target(now):
+            return self._stop(f'moving curve not renewed for {now - self.curve_received:.2f} s')
         ex, ey = self._error_at(pose, self.target)
         base = Tick(error=(ex, ey), error_stamp=stamp, curve_id=self.curve_id)
         if cfg.is_leader:
@@ -391,6 +423,8 @@ class AgentController:
                               else f"other robots' poses stale "
                               f'({now - self.others_received:.2f} s old)', base)
         law = cfg.law
+        if cfg.feed_forward:
+            fx, fy = with_feed_forward(fx, fy, *self.ahead, law.k1)
         if law.code == OBSERVER:
             self._observe()
         v, w, ref_v, ref_w, ddv, ddw, code = agent_command(

@@ -2,8 +2,8 @@
 
 A curve travels as a flat array xi (2H values, the paper's layout) with three labelled
 dimensions: ('xi', 2H, 2H), ('basis=<fourier|polynomial>', K or p, 0), ('curve_id=<k>', 0, 0);
-and, when the sender assigns the agents' parameters, a fourth, ('s', n, n), whose n values
-s_1..s_n follow the coefficients.
+for a moving curve, ('xi_dot', 2H, 2H): the coefficients' rate (per second) follows them; and,
+when the sender assigns the agents' parameters, ('s', n, n), whose n values s_1..s_n come last.
 """
 
 import math
@@ -17,15 +17,19 @@ class CodecError(ValueError):
     """A curve message that cannot be decoded."""
 
 
-def encode_curve(curve, curve_id, s=None):
-    """(dims, data): dims [(label, size, stride)], data the 2H coefficients, then s (n,) if
-    given (the agents' curve parameters).
+def encode_curve(curve, curve_id, s=None, rate=None):
+    """(dims, data): dims [(label, size, stride)], data the 2H coefficients, then the 2H of
+    `rate` (a Curve of the coefficients' rate, 1/s) if the curve moves, then s (n,) if given
+    (the agents' curve parameters).
     """
     basis = curve.basis
     size = basis.K if basis.kind == 'fourier' else basis.p
     dims = [('xi', 2 * basis.H, 2 * basis.H), (f'basis={basis.kind}', int(size), 0),
             (f'curve_id={int(curve_id)}', 0, 0)]
     data = [float(v) for v in curve.xi]
+    if rate is not None:
+        dims.append(('xi_dot', 2 * basis.H, 2 * basis.H))
+        data += [float(v) for v in rate.xi]
     if s is not None:
         dims.append(('s', len(s), len(s)))
         data += [float(v) for v in s]
@@ -43,13 +47,29 @@ def decode_curve(dims, data):
         raise CodecError(f'curve message layout not understood: {exc}') from None
     values = np.array(data, dtype=float)
     n_s = labels['s'][1] if 's' in labels else 0
-    xi = values[:len(values) - n_s]
+    n_rate = labels['xi_dot'][1] if 'xi_dot' in labels else 0
+    xi = values[:len(values) - n_s - n_rate]
+    if n_rate not in (0, 2 * basis.H):
+        raise CodecError(f'curve message has {n_rate} coefficient rates, {basis.describe()} '
+                         f'needs {2 * basis.H}')
     if len(xi) != 2 * basis.H:
         raise CodecError(f'curve message has {len(xi)} coefficients, {basis.describe()} '
                          f'needs {2 * basis.H}')
     if not np.all(np.isfinite(values)):
         raise CodecError('curve message has NaN or infinite values')
     return Curve(basis, xi), curve_id
+
+
+def decode_curve_rate(dims, data):
+    """The coefficients' rate of a moving curve as a Curve (its points(s) are the velocities
+    of the curve's points, m/s), or None for a still curve; call after decode_curve.
+    """
+    sizes = {label.split('=')[0]: size for label, size in dims}
+    if 'xi_dot' not in sizes:
+        return None
+    curve, _ = decode_curve(dims, data)
+    start = 2 * curve.basis.H
+    return Curve(curve.basis, np.array(data[start:start + int(sizes['xi_dot'])], dtype=float))
 
 
 def decode_agent_parameters(dims, data):

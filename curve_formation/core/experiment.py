@@ -262,9 +262,10 @@ def received_phases(experiment: Experiment,
     """The phases a run followed, from the curve messages it received, in order: curves is a
     list of (t, curve id, curve, s) with t in s since the first curve and s (n,) the agents'
     parameters the message carried. The first message of an id starts a phase; a later one
-    with the same id re-assigns its targets (Phase.changes). A curve equal to the schedule's
-    curve of the same index keeps that phase's fit (residuals); any other (an observed curve)
-    has no fit residual (NaN).
+    with the same id re-assigns its targets (Phase.changes) or, for a moving curve, only
+    renews it. A curve equal to the schedule's curve of the same index keeps that phase's fit
+    (residuals) and motion (from the phase's first message on); any other (an observed
+    curve) has no fit residual (NaN).
     """
     phases: list[Phase] = []
     ids: list[int] = []
@@ -273,17 +274,19 @@ def received_phases(experiment: Experiment,
         if ids and curve_id == ids[-1]:
             last = phases[-1]
             if not np.array_equal(s, last.changes[-1][1] if last.changes else last.s):
-                phases[-1] = dataclasses.replace(
-                    last, changes=last.changes + ((float(when), s, curve.points(s)),))
+                phases[-1] = dataclasses.replace(   # targets on the curve as it started
+                    last, changes=last.changes + ((float(when), s, last.curve.points(s)),))
             continue
         k = len(phases)
-        scheduled = experiment.phases[k].fit if k < len(experiment.phases) else None
+        scheduled = experiment.phases[k] if k < len(experiment.phases) else None
         same = (scheduled is not None and scheduled.curve.basis.describe()
                 == curve.basis.describe() and np.allclose(scheduled.curve.xi, curve.xi,
                                                           rtol=0, atol=1e-12))
-        fit = scheduled if same and scheduled is not None else Fit(curve, math.nan, math.nan, 0)
+        fit = scheduled.fit if same and scheduled is not None else Fit(curve, math.nan,
+                                                                       math.nan, 0)
+        motion = scheduled.motion if same and scheduled is not None else None
         g_bar = curve.basis.G(s).reshape(2 * len(s), 2 * curve.basis.H)
-        phases.append(Phase(k, float(when), fit, s, curve.points(s), g_bar))
+        phases.append(Phase(k, float(when), fit, s, curve.points(s), g_bar, motion=motion))
         ids.append(curve_id)
     return tuple(phases)
 

@@ -44,6 +44,8 @@ PARAMETERS = (
           choices=('auto', 'fourier', 'polynomial')),
     Param('observed_size', 'int', 8, 'harmonics K (fourier) or order p (polynomial) for '
           'observed curves', low=1),
+    Param('moving_rate_hz', 'double', 10.0, 'how often a moving curve (curves[].motion) is '
+          'published again, with its coefficients and their rate', positive=True),
     Param('schedule', 'bool', True, "publish the experiment's `curves` on their schedule; "
           'false = only observed curves (a curve drawn on the floor)'),
     Param('frame_id', 'string', 'arena', 'frame of the published curve'),
@@ -93,7 +95,8 @@ class CurveServer(Node):
         self.targets = offset_points(self.experiment.initial_poses,
                                      self.experiment.gains.offset)
         self.start = None
-        self.current = None   # (curve, curve id, s) last published
+        self.current = None   # (curve, curve id, s, rate) last published
+        self.moving = None    # the Phase being published as it moves
         self.poses = None     # (poses (n, 3), stamp s) last received
         every = self.params.reassign_every
         if every < 0:
@@ -117,18 +120,31 @@ class CurveServer(Node):
             self.start = now_seconds(self)
             if self.reassign_every > 0:
                 self.create_timer(self.reassign_every, self._reassign)
+            self.create_timer(1.0 / self.params.moving_rate_hz, self._renew_moving)
         phases = self.experiment.phases if self.params.schedule else ()
         elapsed = now_seconds(self) - self.start
         while self.next_phase < len(phases) and phases[self.next_phase].start <= elapsed:
             phase = phases[self.next_phase]
             self.next_phase += 1
-            self.publish_curve(phase.curve, phase.s)
+            self.moving = phase if phase.motion is not None else None
+            rate = None if phase.motion is None else phase.motion.rate(phase.curve, 0.0)
+            self.publish_curve(phase.curve, phase.s, rate=rate)
         if self.next_phase == len(phases):
             self.timer.cancel()
             return
         wait = phases[self.next_phase].start - (now_seconds(self) - self.start)
         self.timer.timer_period_ns = max(1_000_000, int(wait * 1e9))
         self.timer.reset()
+
+    def _renew_moving(self):
+        """Publish the moving phase's curve where it is now, with its rate (same id)."""
+        phase = self.moving
+        if phase is None or self.current is None:
+            return
+        _, curve_id, s, _ = self.current
+        tau = now_seconds(self) - self.start - phase.start
+        self.publish_curve(phase.motion.curve(phase.curve, tau), s, curve_id,
+                           phase.motion.rate(phase.curve, tau), quiet=True)
 
     def _on_poses(self, msg):
         try:
@@ -146,23 +162,25 @@ class CurveServer(Node):
         if (len(poses) != self.experiment.n or not np.isfinite(poses).all()
                 or now_seconds(self) - stamp > self.params.pose_timeout):
             return
-        curve, curve_id, s = self.current
+        curve, curve_id, s, rate = self.current
         new = reassigned(curve, s, offset_points(poses, self.experiment.gains.offset))
         if new is not s:
-            self.publish_curve(curve, new, curve_id)
+            self.publish_curve(curve, new, curve_id, rate)
             self.get_logger().info(f'curve {curve_id}: targets re-assigned')
 
-    def publish_curve(self, curve, s, curve_id=None):
-        """Publish a curve with the agents' parameters s (n,), its path and its markers: the
-        next curve, or with `curve_id` the current one with its agents re-assigned.
+    def publish_curve(self, curve, s, curve_id=None, rate=None, quiet=False):
+        """Publish a curve with the agents' parameters s (n,) (and a moving curve's rate),
+        its path and its markers: the next curve, or with `curve_id` the current one with its
+        agents re-assigned or moved on.
         """
         if curve_id is None:
             curve_id = self.next_id
             self.next_id += 1
+            self.moving = self.moving if rate is not None else None
         targets = curve.points(s)
         self.targets = targets
-        self.current = (curve, curve_id, s)
-        self.curve_pub.publish(messages.curve_to_msg(curve, curve_id, s))
+        self.current = (curve, curve_id, s, rate)
+        self.curve_pub.publish(messages.curve_to_msg(curve, curve_id, s, rate))
         stamp = self.get_clock().now().to_msg()
         _, pts = curve.sample(self.params.path_samples)
         if curve.basis.closed:
@@ -177,7 +195,8 @@ class CurveServer(Node):
             path.poses.append(pose)
         self.path_pub.publish(path)
         self.marker_pub.publish(self._markers(pts, targets, stamp))
-        self.get_logger().info(f'published curve {curve_id} ({curve.basis.describe()})')
+        if not quiet:
+            self.get_logger().info(f'published curve {curve_id} ({curve.basis.describe()})')
 
     def _markers(self, pts, targets, stamp):
         line = Marker(ns='curve', id=0, type=Marker.LINE_STRIP, action=Marker.ADD)

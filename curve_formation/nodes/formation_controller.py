@@ -87,6 +87,8 @@ PARAMETERS = (
           'is steered around robots (m); 0 = one body diameter', low=0.0),
     Param('arena', 'double[]', [], '[width, height] (m) of the walls the filter keeps the '
           'body inside; empty = no walls'),
+    Param('feed_forward', 'bool', True, "add a moving curve's target velocity G(s_i) "
+          'xi-dot to the command'),
     Param('predict_pose', 'bool', False, 'carry the pose forward from its stamp to the tick '
           'through the commands sent since (clocks of pose source and this PC in sync)'),
     Param('fault_state_drop', 'double', 0.0, 'fault injection: probability of not publishing '
@@ -126,6 +128,7 @@ def node_parameters(config):
         'in_neighbours': [int(j) for j, _ in config.neighbours],
         'weights': [float(w) for _, w in config.neighbours],
         'predict_pose': bool(config.predict_pose),
+        'feed_forward': bool(config.feed_forward),
     }
     if av.on:
         params.update({'avoidance': True, 'radius': float(av.radius),
@@ -176,7 +179,8 @@ def agent_config(p):
                            p.max_linear_accel or inf, p.max_angular_accel or inf),
         rate_hz=p.rate_hz, pose_timeout=p.pose_timeout, neighbour_timeout=p.neighbour_timeout,
         pc_disturbance=tuple(p.pc_disturbance), leader_timeout=p.leader_timeout,
-        geofence=None if fence is None else tuple(fence), predict_pose=p.predict_pose)
+        geofence=None if fence is None else tuple(fence), predict_pose=p.predict_pose,
+        feed_forward=p.feed_forward)
 
 
 def _avoidance(p):
@@ -254,14 +258,17 @@ class FormationController(Node):
                                f'{self.config.rate_hz:g} Hz')
 
     def _on_curve(self, msg):
+        before = (self.controller.curve_id, self.controller.s)
         try:
             curve, curve_id = messages.curve_from_msg(msg)
-            self.controller.set_curve(curve, curve_id, messages.agent_parameters_from_msg(msg))
+            self.controller.set_curve(curve, curve_id, messages.agent_parameters_from_msg(msg),
+                                      messages.curve_rate_from_msg(msg), now_seconds(self))
         except (messages.MessageError, AssignmentError, ValueError) as exc:
             self.get_logger().error(f'curve refused, keeping the previous one: {exc}')
             return
-        self.get_logger().info(f'curve {curve_id} ({curve.basis.describe()}), '
-                               f's_i = {self.controller.s:.4f}')
+        if (curve_id, self.controller.s) != before:   # not a moving curve's renewal
+            self.get_logger().info(f'curve {curve_id} ({curve.basis.describe()}), '
+                                   f's_i = {self.controller.s:.4f}')
 
     def _on_pose(self, msg):
         if not self.controller.on_pose(*messages.pose_from_msg(msg), now_seconds(self)):

@@ -34,6 +34,7 @@ from curve_formation.core.curve_codec import (
     CodecError,
     decode_agent_parameters,
     decode_curve,
+    decode_curve_rate,
     encode_curve,
     quaternion_from_yaw,
     yaw_from_quaternion,
@@ -52,9 +53,11 @@ def seconds_to_stamp(seconds):
     return Time(sec=int(sec), nanosec=int(round((seconds - sec) * 1e9)) % 1_000_000_000)
 
 
-def curve_to_msg(curve, curve_id, s=None):
-    """Float64MultiArray of a curve and, if given, the agents' parameters s (n,)."""
-    dims, data = encode_curve(curve, curve_id, s)
+def curve_to_msg(curve, curve_id, s=None, rate=None):
+    """Float64MultiArray of a curve and, if given, its coefficients' rate (a moving curve)
+    and the agents' parameters s (n,).
+    """
+    dims, data = encode_curve(curve, curve_id, s, rate)
     msg = Float64MultiArray()
     msg.layout.dim = [MultiArrayDimension(label=label, size=size, stride=stride)
                       for label, size, stride in dims]
@@ -65,6 +68,11 @@ def curve_to_msg(curve, curve_id, s=None):
 def curve_from_msg(msg):
     """(Curve, curve_id) from a curve message; MessageError if malformed."""
     return decode_curve([(d.label, d.size) for d in msg.layout.dim], msg.data)
+
+
+def curve_rate_from_msg(msg):
+    """A moving curve's coefficient rate (Curve; points(s) in m/s), or None; MessageError."""
+    return decode_curve_rate([(d.label, d.size) for d in msg.layout.dim], msg.data)
 
 
 def agent_parameters_from_msg(msg):
