@@ -108,6 +108,9 @@ def test_pixel_noise_never_republishes_and_a_moved_line_is_published_once(experi
         frame, tracker, finder, _, _ = scene(experiment, 0, robots, seed=seed)
         published.append(watch.offer(found(finder, tracker, frame)))
     assert [p is not None for p in published] == [False, True, False, False]
+    first = published[1]
+    half = DetectedCurve(first.points[:len(first.points) // 2], False, first.pixels // 2)
+    assert watch.offer(half) is None   # robots parked on the rest: the same curve
     glitch = DetectedCurve(published[1].points + [0.0, 0.05], True, published[1].pixels)
     assert watch.offer(glitch) is None
     moved = []
@@ -117,3 +120,14 @@ def test_pixel_noise_never_republishes_and_a_moved_line_is_published_once(experi
         moved.append(watch.offer(found(finder, tracker, frame)))
     assert [p is not None for p in moved] == [False, True, False]
     assert polyline_rms_distance(moved[1].points, drawn, True) < 0.002
+
+
+def test_a_line_seen_longer_once_robots_move_off_it_is_published_again(experiment):
+    frame, tracker, finder, _, _ = scene(experiment, 1, experiment.phases[1].targets)
+    hidden_ends = found(finder, tracker, frame)
+    frame, tracker, finder, _, _ = scene(experiment, 1, experiment.initial_poses[:, :2])
+    whole = found(finder, tracker, frame)
+    assert whole.length > hidden_ends.length + 0.05
+    watch = CurveWatch()
+    assert [watch.offer(hidden_ends), watch.offer(hidden_ends)] == [None, hidden_ends]
+    assert watch.offer(whole) is whole and watch.offer(hidden_ends) is None

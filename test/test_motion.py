@@ -56,3 +56,14 @@ def test_feed_forward_keeps_the_formation_on_a_curve_moving_at_1_cm_per_s(moving
     assert with_ff.max() < 0.002
     np.testing.assert_allclose(without, 0.01 / moving.gains.k1, rtol=0.05)
     assert result.contacts['count'] == 0
+
+
+def test_a_curve_that_would_move_out_of_the_arena_is_refused():
+    from curve_formation.core.experiment import build_experiment, ConfigError
+    from curve_formation.core.safe_yaml import load
+    text = resolve_config('moving_curve').read_text()
+    assert 'velocity: [0.01, 0.0]' in text
+    data = load(text.replace('velocity: [0.01, 0.0]', 'velocity: [0.02, 0.0]'))
+    with pytest.raises(ConfigError, match=r'curves\[1\]: the curve leaves the arena by t = '
+                       r'100 s, moving .* x 0\.270\.\.1\.910'):
+        build_experiment(data, 'fast.yaml')

@@ -98,15 +98,30 @@ def fit_points(basis: Basis, points, passes: int = 60) -> Fit:
 
 def polyline_rms_distance(points, polyline, closed):
     """RMS distance (m) from points (k, 2) to the polyline (m, 2) (closed: last joins first)."""
+    distance, _ = polyline_distances(points, polyline, closed)
+    return float(np.sqrt(np.mean(distance ** 2)))
+
+
+def polyline_distances(points, polyline, closed):
+    """(distances (k,) from points (k, 2) to the polyline (m, 2), and where on it each
+    point's nearest point lies: segment index + position along the segment in [0, 1]; 0 or
+    the number of segments for an end of an open polyline, i.e. a point beyond it).
+    """
+    points = np.asarray(points, float)
     line = np.vstack([polyline, polyline[:1]]) if closed else np.asarray(polyline, float)
     a, b = line[:-1], line[1:]
     ab = b - a
     length2 = np.maximum(np.einsum('ij,ij->i', ab, ab), 1e-18)
     best = np.full(len(points), np.inf)
+    where = np.zeros(len(points))   # segment index + position along it, of the nearest point
     for start in range(0, len(a), 256):   # segments in blocks: memory stays small
         sa, sab, sl = a[start:start + 256], ab[start:start + 256], length2[start:start + 256]
         rel = points[:, None, :] - sa[None]
         t = np.clip(np.einsum('ijk,jk->ij', rel, sab) / sl, 0.0, 1.0)
         gap = rel - t[..., None] * sab[None]
-        best = np.minimum(best, np.einsum('ijk,ijk->ij', gap, gap).min(axis=1))
-    return float(np.sqrt(best.mean()))
+        squared = np.einsum('ijk,ijk->ij', gap, gap)
+        nearest = squared.argmin(axis=1)
+        closer = squared[np.arange(len(points)), nearest] < best
+        best = np.where(closer, squared[np.arange(len(points)), nearest], best)
+        where = np.where(closer, start + nearest + t[np.arange(len(points)), nearest], where)
+    return np.sqrt(best), where

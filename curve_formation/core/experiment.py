@@ -460,12 +460,18 @@ def _check_bodies(spec: ExperimentSpec, source: str, poses: FloatArray,
             raise ConfigError(source, 'agents.initial', f'agent {out[0] + 1} starts at '
                               f'{poses[out[0], :2].tolist()}: its body (robots.radius '
                               f'{radius:g} m) crosses the arena wall')
-    for phase in phases:
+    ends = [p.start for p in phases[1:]] + [spec.simulation.duration]
+    for phase, end in zip(phases, ends, strict=True):
         _, points = phase.curve.sample(2000)
+        moving = ''
+        if phase.motion is not None:   # wherever it moves to before the next curve
+            taus = np.linspace(0.0, max(end - phase.start, 0.0), 51)
+            points = np.concatenate([phase.motion.points(points, tau) for tau in taus])
+            moving = f' by t = {end:g} s, moving'
         low, high = points.min(axis=0), points.max(axis=0)
         if (low < radius).any() or high[0] > width - radius or high[1] > height - radius:
-            raise ConfigError(source, f'curves[{phase.index}]', f'the curve leaves the arena '
-                              f'[0, {width:g}] x [0, {height:g}] m (it spans x '
+            raise ConfigError(source, f'curves[{phase.index}]', f'the curve leaves the arena'
+                              f'{moving} [0, {width:g}] x [0, {height:g}] m (it spans x '
                               f'{low[0]:.3f}..{high[0]:.3f}, y {low[1]:.3f}..{high[1]:.3f}'
                               + (f', robots.radius {radius:g} m' if radius else '') + ')')
 

@@ -117,7 +117,8 @@ class CameraTracker(Node):
             spec = self.experiment.spec
             self.curve_finder = finder_for(self.tracker, camera, spec.arena.size,
                                            spec.robots.radius)
-            self.curve_watch = CurveWatch(camera.drawn_curve.change)
+            self.curve_watch = CurveWatch(camera.drawn_curve.change,
+                                          width=camera.drawn_curve.width)
             self.curve_period = 1.0 / camera.drawn_curve.rate_hz
             self.last_curve_search = -math.inf
             self.positions = {}   # agent -> (x, y) last seen (m): where its body hides line

@@ -5,12 +5,13 @@ sensor_msgs/Image frames on /camera/image_raw at `rate_hz`, stamped with the tim
 (the newest true pose's stamp): floor, corner markers and each robot's ArUco marker at its
 pose (layout from the experiment's `camera` section, markers at their height); with
 `camera.drawn_curve`, the experiment's curves drawn on the floor, each from its start time
-(counted from this node's start). Options:
+(counted from this node's start), moving as a moving curve moves. Options:
 resolution, tilt, lens distortion, pixel noise, blur, brightness; and faults for a
 time window counted from the first curve: cover some robots' markers, or show a second marker
 with a robot's id.
 """
 
+import numpy as np
 from rclpy.node import Node
 
 from curve_formation.nodes import messages, topics
@@ -30,6 +31,7 @@ from curve_formation.vision.render import ArenaRenderer, FloorLine, RenderOption
 
 
 DRAWN_SAMPLES = 1000   # points along a drawn curve (a few mm apart on an arena's curve)
+MOVED_BY = 2e-4        # m: a moving drawn curve is redrawn once it has moved this far
 
 
 PARAMETERS = (
@@ -99,6 +101,7 @@ class FakeCamera(Node):
         self.phases = experiment.phases
         self.started = now_seconds(self)
         self.drawn_phase = None
+        self.drawn_points = None
         self.poses = {}
         self.stamps = {}   # when each true pose held (s)
         self.first_curve = None
@@ -143,16 +146,20 @@ class FakeCamera(Node):
         self.image_pub.publish(messages.image_to_msg(image, scene, self.params.frame_id))
 
     def _draw_curve(self, elapsed):
-        """Draw the curve of the phase in force `elapsed` (s) after start on the floor."""
-        phase = max(k for k, ph in enumerate(self.phases) if ph.start <= elapsed
-                    or k == 0)
-        if phase == self.drawn_phase:
+        """Draw the curve of the phase in force `elapsed` (s) after start on the floor, where
+        it is then if it moves (redrawn once it has moved MOVED_BY).
+        """
+        index = max(k for k, ph in enumerate(self.phases) if ph.start <= elapsed or k == 0)
+        phase = self.phases[index]
+        _, points = phase.curve.sample(DRAWN_SAMPLES)
+        if phase.motion is not None:
+            points = phase.motion.points(points, max(elapsed - phase.start, 0.0))
+        if (index == self.drawn_phase and self.drawn_points is not None
+                and np.abs(points - self.drawn_points).max() < MOVED_BY):
             return
-        self.drawn_phase = phase
-        curve = self.phases[phase].curve
-        _, points = curve.sample(DRAWN_SAMPLES)
-        self.renderer.draw_on_floor(FloorLine(points, curve.basis.closed, self.drawn.width,
-                                              self.drawn.grey))
+        self.drawn_phase, self.drawn_points = index, points
+        self.renderer.draw_on_floor(FloorLine(points, phase.curve.basis.closed,
+                                              self.drawn.width, self.drawn.grey))
 
 
 def main(args=None):

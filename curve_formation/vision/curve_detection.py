@@ -18,11 +18,12 @@ import numpy as np
 from scipy.sparse.csgraph import connected_components, dijkstra, minimum_spanning_tree
 from scipy.spatial import cKDTree
 
-from curve_formation.core.curve_sources import polyline_rms_distance
+from curve_formation.core.curve_sources import polyline_distances, polyline_rms_distance
 from curve_formation.vision.camera import raised_plane_homography
 
 
 CELL_WIDTHS = 2   # cells are two line widths wide: one cell per stretch of line, little zig-zag
+LINK_CELLS = 3    # chain neighbours further apart than this many cells are across a gap
 
 
 @dataclass(frozen=True)
@@ -54,6 +55,12 @@ class DetectedCurve:
         """RMS distance (m) from this curve's points to `other`'s polyline (closed as it is)."""
         return polyline_rms_distance(self.points, other.points, other.closed)
 
+    @property
+    def length(self):
+        """Length (m) of the polyline through the points (closed: round)."""
+        pts = np.vstack([self.points, self.points[:1]]) if self.closed else self.points
+        return float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum())
+
 
 class CurveDetector:
     """Finds the drawn curve in grey frames of a camera whose floor homography is known.
@@ -75,57 +82,78 @@ class CurveDetector:
         block = int(round(4 * options.width * pixels_per_metre)) | 1   # odd, about 4 widths
         self.block = max(block, 7)
 
-    def line_pixels(self, gray):
-        """(k, 2) pixel coordinates (u, v) of pixels darker than their surroundings."""
+    def line_pixels(self, gray, mask=None):
+        """(k, 2) pixel coordinates (u, v) of pixels darker than their surroundings; with
+        `mask` (an image the frame's size), only those where it is not zero.
+        """
         binary = cv2.adaptiveThreshold(gray, 255, cv2.ADAPTIVE_THRESH_MEAN_C,
                                        cv2.THRESH_BINARY_INV, self.block, self.options.contrast)
-        v, u = np.nonzero(binary)
-        return np.column_stack([u, v]).astype(np.float64)
+        if mask is not None:
+            binary &= mask
+        found = cv2.findNonZero(binary)
+        return np.empty((0, 2)) if found is None else found.reshape(-1, 2).astype(np.float64)
 
-    def detect(self, gray, floor_from_pixels, bodies=(), undistort=None):
+    def detect(self, gray, floor_from_pixels, bodies=(), undistort=None, distort=None):
         """The curve in one frame, or None when no chain of at least min_length is seen.
 
         floor_from_pixels: 3x3 homography, undistorted pixels -> floor (m); bodies: (k, 2)
-        where each robot's body appears on the floor (m); undistort: optional function of
-        (k, 2) pixels -> undistorted pixels.
+        where each robot's body appears on the floor (m); undistort, distort: with a lens,
+        functions of (k, 2) pixels -> undistorted pixels and back.
         """
-        pixels = self.line_pixels(gray)
+        mask = self.readable_mask(gray.shape, floor_from_pixels,
+                                  np.asarray(bodies, float).reshape(-1, 2), distort)
+        pixels = self.line_pixels(gray, mask)
         if undistort is not None and len(pixels):
             pixels = undistort(pixels)
         points = _apply(floor_from_pixels, pixels)
-        points = points[self._readable(points, np.asarray(bodies, float).reshape(-1, 2))]
+        w, h = self.arena_size
+        points = points[(points[:, 0] > 0) & (points[:, 0] < w) & (points[:, 1] > 0)
+                        & (points[:, 1] < h)]
         if len(points) == 0:
             return None
         chain, closed = self._ordered_cells(points)
         if chain is None:
             return None
         centre = _centred(chain, points, closed, self.options.width,
-                          link=3 * CELL_WIDTHS * self.options.width)
+                          link=LINK_CELLS * CELL_WIDTHS * self.options.width)
         return DetectedCurve(centre, closed, len(points))
 
-    def _readable(self, points, bodies):
-        """Mask of floor points inside the arena and off robots and keep-out discs."""
+    def readable_mask(self, shape, floor_from_pixels, bodies, distort=None):
+        """uint8 image of where the line is searched: the arena shrunk by half a line width,
+        without the robots' bodies (robot_radius + clearance) and the keep-out discs: the
+        floor's edge against its surroundings and the bodies are dark too.
+        """
+        to_pixels = np.linalg.inv(floor_from_pixels)
+
+        def outline(points):
+            pixels = _apply(to_pixels, points)
+            return np.round(pixels if distort is None else distort(pixels)).astype(np.int32)
         w, h = self.arena_size
-        margin = 0.5 * self.options.width
-        keep = ((points[:, 0] > margin) & (points[:, 0] < w - margin)
-                & (points[:, 1] > margin) & (points[:, 1] < h - margin))
-        discs = [np.column_stack([bodies, np.full(len(bodies), self.robot_radius
-                                                  + self.options.clearance)]),
-                 self.keep_out]
-        for x, y, radius in np.vstack(discs):
-            near = np.abs(points[:, 0] - x) < radius
-            near &= np.abs(points[:, 1] - y) < radius
-            near[near] = np.hypot(points[near, 0] - x, points[near, 1] - y) < radius
-            keep &= ~near
-        return keep
+        m = 0.5 * self.options.width
+        corners = np.array([[m, m], [w - m, m], [w - m, h - m], [m, h - m]])
+        side = np.linspace(0.0, 1.0, 30, endpoint=False)[:, None]
+        edge = np.vstack([a + side * (b - a)
+                          for a, b in zip(corners, np.roll(corners, -1, 0), strict=True)])
+        mask = np.zeros(shape[:2], np.uint8)
+        cv2.fillPoly(mask, [outline(edge)], 255)
+        body = self.robot_radius + self.options.clearance
+        discs = np.vstack([np.column_stack([bodies, np.full(len(bodies), body)]),
+                           self.keep_out])
+        angles = np.linspace(0.0, 2 * np.pi, 24, endpoint=False)
+        ring = np.column_stack([np.cos(angles), np.sin(angles)])
+        # a polygon just outside the circle: its sides stay beyond the radius
+        grow = 1.0 / np.cos(np.pi / len(angles))
+        for x, y, r in discs:   # one by one: fillPoly would leave overlaps unfilled
+            cv2.fillConvexPoly(mask, outline((x, y) + grow * r * ring), 0)
+        return mask
 
     def _ordered_cells(self, points):
         """(ordered cell centroids (k, 2), closed) of the longest chain, or (None, False)."""
         opts = self.options
         cell = CELL_WIDTHS * opts.width
         keys = np.floor(points / cell).astype(np.int64)
-        _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-        inverse = inverse.ravel()
+        keys = (keys[:, 0] << 32) + keys[:, 1]   # one integer per cell: a 1-D unique
+        _, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
         centroids = np.column_stack([np.bincount(inverse, points[:, k]) / counts
                                      for k in range(2)])
         # a cell must hold a fair share of a line crossing it (drops isolated specks)
@@ -189,26 +217,35 @@ class DrawnCurveFinder:
         if layout.marker_height != 0.0 and len(bodies):
             pixels = _apply(np.linalg.inv(tracker.marker_homography()), bodies)
             bodies = _apply(floor, pixels)
-        undistort = None
+        undistort = distort = None
         if tracker.intrinsics is not None:
             k, dist = tracker.intrinsics
 
             def undistort(pixels):
                 return cv2.undistortPoints(pixels.reshape(-1, 1, 2), k, dist, P=k).reshape(-1, 2)
-        return self.detector.detect(gray, floor, bodies, undistort)
+
+            def distort(pixels):
+                rays = np.column_stack([pixels, np.ones(len(pixels))]) @ np.linalg.inv(k).T
+                out, _ = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), k, dist)
+                return out.reshape(-1, 2)
+        return self.detector.detect(gray, floor, bodies, undistort, distort)
 
 
 class CurveWatch:
-    """Decides which detections are published, so that pixel noise never switches the curve.
+    """Decides which detections are published, so that pixel noise and robots never switch
+    the curve.
 
-    A detection is published when it differs from the published curve by more than `change`
-    (m, RMS of each one's points to the other's line, the larger) in `confirm` detections in a
-    row (a hand or a robot passing over the line does not count), or when the same curve is
-    seen with `more` (share) more line than when it was published (robots have moved off it).
+    What a frame shows is compared with the published curve one way: a detection whose
+    points lie on the published line (RMS within `change`, m) is the same curve, however
+    much of it robots hide (parked on a line, nine robots can cover most of it). It is
+    published when it leaves the published line in `confirm` detections in a row (a hand or a
+    robot passing over the line does not count), or when the same line is seen `longer` (m)
+    longer than when it was published (robots have moved off an end).
     """
 
-    def __init__(self, change=0.003, confirm=2, more=0.1):
-        self.change, self.confirm, self.more = change, confirm, more
+    def __init__(self, change=0.003, confirm=2, longer=0.03, width=0.012):
+        self.change, self.confirm, self.longer = change, confirm, longer
+        self.link = LINK_CELLS * CELL_WIDTHS * width   # neighbours further apart: a gap
         self.published = None
         self._candidate, self._seen = None, 0
 
@@ -217,13 +254,13 @@ class CurveWatch:
         if detected is None:
             self._candidate, self._seen = None, 0
             return None
-        if self.published is not None and not self._differs(detected, self.published):
+        if self.published is not None and not self._moved(detected, self.published):
             self._candidate, self._seen = None, 0
-            if detected.pixels > (1 + self.more) * self.published.pixels:
+            if detected.length > self.published.length + self.longer:
                 self.published = detected
                 return detected
             return None
-        if self._candidate is not None and not self._differs(detected, self._candidate):
+        if self._candidate is not None and not self._moved(detected, self._candidate):
             self._seen += 1
         else:
             self._seen = 1
@@ -233,9 +270,23 @@ class CurveWatch:
         self.published, self._candidate, self._seen = detected, None, 0
         return detected
 
-    def _differs(self, a, b):
-        return (a.closed != b.closed
-                or max(a.distance_to(b), b.distance_to(a)) > self.change)
+    def _moved(self, seen, reference):
+        """Whether `seen` leaves the line of `reference` (or has closed): RMS distance of its
+        points to that line, leaving out those where the reference saw no line: beyond an
+        open line's ends, or across a stretch a robot hid (a chord there is not the line).
+        """
+        if seen.closed and not reference.closed:
+            return True
+        distance, where = polyline_distances(seen.points, reference.points, reference.closed)
+        ring = (np.vstack([reference.points, reference.points[:1]]) if reference.closed
+                else reference.points)
+        hops = np.linalg.norm(np.diff(ring, axis=0), axis=1)
+        segment = np.minimum(where.astype(int), len(hops) - 1)
+        known = hops[segment] <= self.link
+        if not reference.closed:
+            known &= (where > 0.0) & (where < len(hops))
+        inside = distance[known]
+        return len(inside) == 0 or float(np.sqrt(np.mean(inside ** 2))) > self.change
 
 
 def _apply(h, points):
