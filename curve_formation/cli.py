@@ -142,15 +142,35 @@ def _cmd_run(args):
         raise ValueError('--bridge drives emulated robots and --no-sim has none; for real '
                          'robots start one robot_bridge per robot (docs/connecting-robots.md)')
     _warn(load_experiment(resolve_config(args.config)))
+    only = _parts(args.only)
     _output_folder(args.out)
     options = RunOptions(single_process=args.single_process, with_robots=not args.no_sim,
                          rate_hz=args.rate, bag_path=args.bag,
                          camera={} if args.camera else None, bag_images=args.bag_images,
                          bag_storage=args.bag_storage, bridge=args.bridge,
-                         discovery_server=args.discovery_server)
+                         discovery_server=args.discovery_server, only=only)
     result = run_experiment(args.config, args.out, args.duration, options)
+    if not options.runs('observer'):
+        print(f'ran {", ".join(sorted(only or ()))} of {result["experiment"]}; logs/ in '
+              f'{args.out} (the host with `observer` writes the metrics)')
+        return
     print(_summary_line(result['experiment'], result))
     print(f'wrote {args.out}/metrics.json, figures, params/ and logs/')
+
+
+def _parts(text):
+    """The frozenset of graph parts `--only` names, or None for the whole graph."""
+    from curve_formation.run_options import PARTS
+    if text is None:
+        return None
+    parts = frozenset(p.strip() for p in text.split(',') if p.strip())
+    unknown = sorted(parts - set(PARTS))
+    if unknown or not parts:
+        raise ValueError(f'--only: unknown part(s) {unknown or [text]}; choose from '
+                         f'{", ".join(PARTS)} (comma-separated)')
+    if not os.environ.get('ROS_DOMAIN_ID'):
+        raise ValueError('--only: set the same ROS_DOMAIN_ID on every host of a split run')
+    return parts
 
 
 def _cmd_analyze(args):
@@ -346,6 +366,10 @@ def build_parser():
                      help='discover through this Fast DDS discovery server (sets '
                      'ROS_DISCOVERY_SERVER; for networks where multicast fails, '
                      'docs/arena-setup.md)')
+    run.add_argument('--only', metavar='PARTS',
+                     help='run only these parts of the graph on this host, comma-separated: '
+                     'curve_server, controllers, robots, camera, observer (one command per '
+                     'host, same ROS_DOMAIN_ID; docs/arena-setup.md)')
     run.set_defaults(func=_cmd_run)
     analyze = sub.add_parser('analyze', help='metrics and figures from a recorded bag')
     analyze.add_argument('bag', help='bag folder')

@@ -193,6 +193,16 @@ NODE_CLASSES = {'curve_formation.nodes.curve_server': 'CurveServer',
                 'curve_formation.nodes.fake_camera': 'FakeCamera'}
 
 
+# Which part of the graph (run_options.PARTS) each node module belongs to.
+PART_OF = {'curve_formation.nodes.curve_server': 'curve_server',
+           'curve_formation.nodes.formation_controller': 'controllers',
+           'curve_formation.nodes.robot_bridge': 'controllers',
+           'curve_formation.nodes.fake_robot': 'robots',
+           'curve_formation.nodes.fake_arena': 'robots',
+           'curve_formation.nodes.camera_tracker': 'camera',
+           'curve_formation.nodes.fake_camera': 'camera'}
+
+
 def node_class(module):
     """The Node subclass a node module's console script runs."""
     return getattr(importlib.import_module(module), NODE_CLASSES[module])

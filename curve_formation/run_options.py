@@ -25,6 +25,9 @@ class RunOptions:
     bag_path: record a ROS 2 bag there (refused if it exists); bag_images: with camera frames;
         bag_storage: 'mcap' or 'sqlite3'.
     discovery_server: HOST:PORT of a Fast DDS discovery server to discover through.
+    only: None (the whole graph here), or the PARTS this host runs of a graph split over
+        several hosts on one ROS_DOMAIN_ID: each host starts its share, the one with
+        'observer' measures the run.
     """
 
     single_process: bool = False
@@ -40,6 +43,16 @@ class RunOptions:
     bag_images: bool = False
     bag_storage: str = DEFAULT_STORAGE
     discovery_server: str | None = None
+    only: frozenset[str] | None = None
 
+    def runs(self, part: str) -> bool:
+        """Whether this host runs `part` (one of PARTS)."""
+        return self.only is None or part in self.only
+
+
+# The parts of a node graph one host can run (`run --only`): the curve server; the
+# controllers (with their robot bridges); the simulated robots (fake_robot or fake_arena);
+# the camera nodes (camera_tracker, fake_camera); the observer (monitor, recorder, metrics).
+PARTS = ('curve_server', 'controllers', 'robots', 'camera', 'observer')
 
 DEFAULTS = RunOptions()

@@ -22,7 +22,7 @@ from curve_formation.analysis import bag_accounting
 from curve_formation.bag import BagWriter
 from curve_formation.core import metrics, plots
 from curve_formation.core.experiment import control_rate, load_experiment, received_phases
-from curve_formation.launches import node_launches, write_params_files
+from curve_formation.launches import node_launches, PART_OF, write_params_files
 from curve_formation.node_graph import NodeGraph
 from curve_formation.observers import Observers
 from curve_formation.paths import discovery_text, resolve_config, ros_environment
@@ -30,6 +30,8 @@ from curve_formation.run_options import DEFAULTS
 
 
 READY_TIMEOUT = 90.0   # s; nine Python processes start in ~10 s on two cores
+# s a host without the observer keeps its nodes up after the run's duration (split runs)
+SPLIT_GRACE = 10.0
 
 
 def private_domain_id():
@@ -94,12 +96,16 @@ class Run:
             self.log(f'recording {self.bag_writer.path}')
         self.log(f'ROS_DOMAIN_ID={self.domain_id}, discovery {discovery_text()}; parameters in '
                  f'{self.out / "params"}')
-        for launch in self.launches[1:]:   # every node but the curve server
-            self.graph.start(launch)
-        self._wait_ready()
-        self.graph.start(self.launches[0])
+        server, *others = self.launches
+        for launch in others:   # every node of this host but the curve server
+            if options.runs(PART_OF[launch.module]):
+                self.graph.start(launch)
+        if options.runs('curve_server'):
+            self._wait_ready()
+            self.graph.start(server)
         self.spin_until(lambda: self.monitor.t0 is not None, READY_TIMEOUT, 'the first curve')
-        self.log('curve server started: t = 0')
+        self.log('curve server started: t = 0' if options.runs('curve_server')
+                 else 'first curve received: t = 0')
 
     def stop(self):
         """Stop every node, then the observers (the bag is closed after the nodes' last
@@ -221,6 +227,8 @@ def run_experiment(config, out_dir, duration=None, options=DEFAULTS, log=print):
     """
     run = Run(config, out_dir, options, log)
     duration = run.experiment.spec.simulation.duration if duration is None else duration
+    if not options.runs('observer'):   # outlast the host that measures, which stops us
+        duration += SPLIT_GRACE
     previous = {sig: signal.signal(sig, lambda *_: run.stop_requested.set())
                 for sig in (signal.SIGINT, signal.SIGTERM)}
     interrupted = False
@@ -234,6 +242,9 @@ def run_experiment(config, out_dir, duration=None, options=DEFAULTS, log=print):
         run.stop()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+    if not options.runs('observer'):
+        return {'experiment': run.experiment.name, 'interrupted': interrupted,
+                'parts': sorted(options.only or ())}
     result = run.write_results()
     result['interrupted'] = interrupted
     if options.bag_path is not None:

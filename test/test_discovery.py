@@ -91,6 +91,9 @@ except TimeoutError as exc:
 """
 
 
+# Behind `-m slow` (25 s), with the split-host runs that discover through a server on their
+# own host (test_split_hosts.py).
+@pytest.mark.slow
 def test_a_run_discovers_through_a_discovery_server_and_only_through_it(ros_domain, tmp_path):
     """`run --discovery-server` sets ROS_DISCOVERY_SERVER: every node is the server's client
     and finds the others through it, with the range SUBNET (paths.use_discovery). Pointed

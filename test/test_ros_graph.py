@@ -129,7 +129,7 @@ def test_observer_law_learns_the_disturbance_from_camera_rate_poses(ros_domain, 
 
 def test_curve_switch_is_picked_up_within_one_control_period(ros_domain, tmp_path):
     with Run(DATA_DIR / 'fast_switch.yaml', tmp_path, log=quiet) as run:
-        run.spin_for(28.0)
+        run.spin_for(22.0)   # the switch at 12 s, and 10 s on the second curve
         data = run.recording()
         monitor = run.monitor
     switch = monitor.curve_times[1]
@@ -319,7 +319,7 @@ def test_a_moving_curve_is_followed_over_dds_with_the_feed_forward(ros_domain, t
     the simulator shows in test_motion).
     """
     with Run(DATA_DIR / 'moving_loop.yaml', tmp_path, log=quiet) as run:
-        run.spin_for(15.0)
+        run.spin_for(10.0)
         data = run.recording()
         moved, phase = run.followed(data['t'])
     assert len(moved.phases) == 1 and moved.phases[0].motion is not None
@@ -328,6 +328,6 @@ def test_a_moving_curve_is_followed_over_dds_with_the_feed_forward(ros_domain, t
     late = data['t'] > 3.0
     print('largest error per robot after 3 s (mm):', np.round(1e3 * errors[late].max(axis=0), 2))
     assert errors[late].max() < 0.002
-    # the formation went with the curve: 12 cm and more to the right
+    # the formation went with the curve: 8 cm and more to the right
     travelled = data['poses'][-1, :, 0] - run.experiment.initial_poses[:, 0]
-    assert travelled.min() > 0.11
+    assert travelled.min() > 0.08

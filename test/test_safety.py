@@ -43,10 +43,17 @@ ALL = range(1, 7)
 FOLLOWERS = range(2, 7)
 
 
-def test_estop_stops_every_robot_at_once_and_release_resumes(ros_domain, tmp_path):
+def test_estop_a_killed_follower_and_the_killed_leader_each_stop_whom_they_should(ros_domain,
+                                                                                 tmp_path):
+    """Three faults in turn on one run (one start-up instead of three): the e-stop stops every
+    robot within a tick and its release lets them drive again; a killed follower stops its
+    out-neighbours (and its own motors, by the driver's watchdog) and, restarted, rejoins;
+    the killed leader stops every follower within leader_timeout.
+    """
     with Run(DATA_DIR / 'fast_closed.yaml', tmp_path, log=quiet) as run:
         run.spin_for(2.0)
         assert driving(run, ALL)
+        # 1. e-stop, then release
         estop = run.monitor.create_publisher(Bool, topics.ESTOP, qos.LATCHED)
         estop.publish(Bool(data=True))
         took = wait_for(run, lambda: stopped(run, ALL), 1.0, 'every robot to stop')
@@ -58,29 +65,7 @@ def test_estop_stops_every_robot_at_once_and_release_resumes(ros_domain, tmp_pat
         np.testing.assert_allclose(run.monitor.poses, before, atol=1e-9)   # standing still
         estop.publish(Bool(data=False))
         wait_for(run, lambda: driving(run, ALL), 1.5, 'every robot to drive again')
-    log = (tmp_path / 'logs' / 'robot_4.formation_controller.log').read_text()
-    assert 'stopped: e-stop engaged' in log and 'e-stop released' in log
-
-
-def test_killing_the_leader_stops_every_follower(ros_domain, tmp_path):
-    with Run(DATA_DIR / 'fast_closed.yaml', tmp_path, log=quiet) as run:
-        run.spin_for(2.0)
-        assert driving(run, FOLLOWERS)
-        run.kill('robot_1.formation_controller')
-        # leader_timeout 1 s, plus news travelling up to 4 hops and one tick.
-        took = wait_for(run, lambda: stopped(run, FOLLOWERS), 3.0, 'every follower to stop')
-        assert took < 1.0 + 0.5 + PERIOD
-        run.spin_for(1.0)
-        assert stopped(run, FOLLOWERS)
-    for i in FOLLOWERS:
-        log = (tmp_path / 'logs' / f'robot_{i}.formation_controller.log').read_text()
-        assert 'no news from the leader' in log or 'neighbour 1 stale' in log, i
-
-
-def test_killed_follower_stops_its_out_neighbours_and_rejoins_when_restarted(ros_domain,
-                                                                            tmp_path):
-    with Run(DATA_DIR / 'fast_closed.yaml', tmp_path, log=quiet) as run:
-        run.spin_for(2.0)
+        # 2. a follower killed, then restarted
         run.kill('robot_2.formation_controller')
         wait_for(run, lambda: stopped(run, [3, 4]), 0.5 + 2 * PERIOD + 0.2,
                  'robots 3 and 4 (out-neighbours of 2) to stop')
@@ -92,6 +77,19 @@ def test_killed_follower_stops_its_out_neighbours_and_rejoins_when_restarted(ros
         np.testing.assert_allclose(run.monitor.poses[1], pose, atol=1e-9)
         run.restart('robot_2.formation_controller')
         wait_for(run, lambda: driving(run, [2, 3, 4]), 30.0, 'robots 2, 3, 4 to drive again')
+        # 3. the leader killed
+        wait_for(run, lambda: driving(run, FOLLOWERS), 2.0, 'every follower to drive')
+        run.kill('robot_1.formation_controller')
+        # leader_timeout 1 s, plus news travelling up to 4 hops and one tick.
+        took = wait_for(run, lambda: stopped(run, FOLLOWERS), 3.0, 'every follower to stop')
+        assert took < 1.0 + 0.5 + PERIOD
+        run.spin_for(1.0)
+        assert stopped(run, FOLLOWERS)
+    log = (tmp_path / 'logs' / 'robot_4.formation_controller.log').read_text()
+    assert 'stopped: e-stop engaged' in log and 'e-stop released' in log
+    for i in FOLLOWERS:
+        log = (tmp_path / 'logs' / f'robot_{i}.formation_controller.log').read_text()
+        assert 'no news from the leader' in log or 'neighbour 1 stale' in log, i
 
 
 def test_dropped_messages_and_latency_still_converge_at_arena_speeds(ros_domain, tmp_path):

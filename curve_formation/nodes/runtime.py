@@ -27,6 +27,9 @@ EXIT_DEADLINE = 15.0        # s from a stop signal to a forced exit (_exit_hard_
 # dispatched from C++) or 'single' (SingleThreadedExecutor, which rebuilds its wait set in
 # Python on every wake-up).
 EXECUTOR_ENV = 'CURVE_FORMATION_EXECUTOR'
+# Fault injection: seconds added to every stamp and time this process's nodes take from their
+# clock, as on a host whose clock is that far ahead (namespaces share the kernel's clock).
+CLOCK_OFFSET_ENV = 'CURVE_FORMATION_CLOCK_OFFSET'
 EXECUTORS = ('events', 'single')
 # Set by the runner: a folder where each node process writes, when it ends, how many messages
 # it published per writer stream (to check that a bag lost nothing).
@@ -75,8 +78,21 @@ class PublicationCounter:
 
 
 def now_seconds(node):
-    """The node's clock (sim time when use_sim_time is set) in seconds."""
-    return node.get_clock().now().nanoseconds * 1e-9
+    """The node's clock (sim time when use_sim_time is set) in seconds, plus this process's
+    injected clock offset (CLOCK_OFFSET_ENV; tests of hosts whose clocks disagree).
+    """
+    return node.get_clock().now().nanoseconds * 1e-9 + CLOCK_OFFSET
+
+
+def _clock_offset():
+    text = os.environ.get(CLOCK_OFFSET_ENV, '')
+    try:
+        return float(text) if text else 0.0
+    except ValueError:
+        raise SystemExit(f'error: {CLOCK_OFFSET_ENV}={text!r}: expected seconds') from None
+
+
+CLOCK_OFFSET = _clock_offset()
 
 
 def run_node(node_factory, args=None, large_data=False):
