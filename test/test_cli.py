@@ -39,3 +39,13 @@ def test_a_bridge_without_simulated_robots_is_refused_with_the_way_to_real_ones(
     assert main(['run', 'arena_demo', '--no-sim', '--bridge', 'udp',
                  '--out', str(tmp_path)]) == 2
     assert 'one robot_bridge per robot' in capsys.readouterr().err
+
+
+def test_a_split_run_names_its_parts_and_needs_a_shared_domain(capsys, monkeypatch, tmp_path):
+    monkeypatch.setenv('ROS_DOMAIN_ID', '7')
+    assert main(['run', 'arena_demo', '--only', 'robot', '--out', str(tmp_path / 'a')]) == 2
+    assert ("--only: unknown part(s) ['robot']; choose from curve_server, controllers, robots, "
+            'camera, observer') in capsys.readouterr().err
+    monkeypatch.delenv('ROS_DOMAIN_ID')
+    assert main(['run', 'arena_demo', '--only', 'robots', '--out', str(tmp_path / 'b')]) == 2
+    assert 'set the same ROS_DOMAIN_ID on every host' in capsys.readouterr().err
