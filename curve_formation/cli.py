@@ -148,7 +148,8 @@ def _cmd_run(args):
                          rate_hz=args.rate, bag_path=args.bag,
                          camera={} if args.camera else None, bag_images=args.bag_images,
                          bag_storage=args.bag_storage, bridge=args.bridge,
-                         discovery_server=args.discovery_server, only=only)
+                         discovery_server=args.discovery_server, only=only,
+                         agents=_agents(args.agents))
     result = run_experiment(args.config, args.out, args.duration, options)
     if not options.runs('observer'):
         print(f'ran {", ".join(sorted(only or ()))} of {result["experiment"]}; logs/ in '
@@ -156,6 +157,23 @@ def _cmd_run(args):
         return
     print(_summary_line(result['experiment'], result))
     print(f'wrote {args.out}/metrics.json, figures, params/ and logs/')
+
+
+def _agents(text):
+    """The frozenset of agents `--agents` names ('1-5,9'), or None for every agent."""
+    if text is None:
+        return None
+    agents = set()
+    try:
+        for item in text.split(','):
+            low, _, high = item.strip().partition('-')
+            agents.update(range(int(low), int(high or low) + 1))
+    except ValueError:
+        raise ValueError(f'--agents: expected agent numbers and ranges such as 1-5,9, got '
+                         f'{text!r}') from None
+    if not agents or min(agents) < 1:
+        raise ValueError(f'--agents: expected agent numbers from 1, got {text!r}')
+    return frozenset(agents)
 
 
 def _parts(text):
@@ -370,6 +388,9 @@ def build_parser():
                      help='run only these parts of the graph on this host, comma-separated: '
                      'curve_server, controllers, robots, camera, observer (one command per '
                      'host, same ROS_DOMAIN_ID; docs/arena-setup.md)')
+    run.add_argument('--agents', metavar='LIST',
+                     help="with --only: run only these agents' controllers and robots here, "
+                     'e.g. 1-5,9 (a team spread over several hosts)')
     run.set_defaults(func=_cmd_run)
     analyze = sub.add_parser('analyze', help='metrics and figures from a recorded bag')
     analyze.add_argument('bag', help='bag folder')

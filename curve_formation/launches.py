@@ -31,6 +31,12 @@ class NodeLaunch:
     parameters: dict
 
     @property
+    def agent(self):
+        """The agent (1-based) whose node this is (namespace /robot_<i>), or None."""
+        name = self.namespace.strip('/')
+        return int(name[len('robot_'):]) if name.startswith('robot_') else None
+
+    @property
     def key(self):
         return f'{self.namespace.strip("/") + "." if self.namespace != "/" else ""}{self.name}'
 

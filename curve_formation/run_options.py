@@ -28,6 +28,8 @@ class RunOptions:
     only: None (the whole graph here), or the PARTS this host runs of a graph split over
         several hosts on one ROS_DOMAIN_ID: each host starts its share, the one with
         'observer' measures the run.
+    agents: None (every agent), or the agents (1-based) whose own nodes (controller, robot
+        bridge, simulated robot) this host runs: a team's controllers spread over hosts.
     """
 
     single_process: bool = False
@@ -44,10 +46,15 @@ class RunOptions:
     bag_storage: str = DEFAULT_STORAGE
     discovery_server: str | None = None
     only: frozenset[str] | None = None
+    agents: frozenset[int] | None = None
 
     def runs(self, part: str) -> bool:
         """Whether this host runs `part` (one of PARTS)."""
         return self.only is None or part in self.only
+
+    def runs_agent(self, agent: int | None) -> bool:
+        """Whether this host runs the nodes of `agent` (None: a node of the whole team)."""
+        return agent is None or self.agents is None or agent in self.agents
 
 
 # The parts of a node graph one host can run (`run --only`): the curve server; the

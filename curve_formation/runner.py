@@ -53,6 +53,9 @@ class Run:
         self.options = options
         self.out = Path(out_dir)
         self.log = log
+        if options.agents and max(options.agents) > self.experiment.n:
+            raise ValueError(f'--agents: agent {max(options.agents)} is not in 1..'
+                             f'{self.experiment.n} ({self.experiment.name})')
         self.rate_hz = control_rate(self.experiment, options.rate_hz)
         self.launches = node_launches(self.experiment, self.experiment_path, options,
                                       self.out / 'links')
@@ -98,7 +101,7 @@ class Run:
                  f'{self.out / "params"}')
         server, *others = self.launches
         for launch in others:   # every node of this host but the curve server
-            if options.runs(PART_OF[launch.module]):
+            if options.runs(PART_OF[launch.module]) and options.runs_agent(launch.agent):
                 self.graph.start(launch)
         if options.runs('curve_server'):
             self._wait_ready()

@@ -49,3 +49,16 @@ def test_a_split_run_names_its_parts_and_needs_a_shared_domain(capsys, monkeypat
     monkeypatch.delenv('ROS_DOMAIN_ID')
     assert main(['run', 'arena_demo', '--only', 'robots', '--out', str(tmp_path / 'b')]) == 2
     assert 'set the same ROS_DOMAIN_ID on every host' in capsys.readouterr().err
+
+
+def test_agents_of_a_split_run_are_numbers_and_ranges(capsys, monkeypatch, tmp_path):
+    from curve_formation.cli import _agents
+    assert _agents('1-3,5') == {1, 2, 3, 5} and _agents(None) is None
+    monkeypatch.setenv('ROS_DOMAIN_ID', '7')
+    assert main(['run', 'arena_demo', '--only', 'controllers', '--agents', '1-x',
+                 '--out', str(tmp_path / 'a')]) == 2
+    assert "--agents: expected agent numbers and ranges such as 1-5,9, got '1-x'" in (
+        capsys.readouterr().err)
+    assert main(['run', 'arena_demo', '--only', 'controllers', '--agents', '8-12',
+                 '--out', str(tmp_path / 'b')]) == 2
+    assert '--agents: agent 12 is not in 1..9 (arena_demo)' in capsys.readouterr().err

@@ -14,7 +14,7 @@ import time
 import numpy as np
 import pytest
 
-from hosts import available, Hosts
+from curve_formation.netns_hosts import available, Hosts
 
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]

@@ -1,4 +1,5 @@
-"""Several "hosts" on one machine: network namespaces joined by veth pairs on a bridge.
+"""Several "hosts" on one machine, for tests and benchmarks of a graph split over hosts:
+network namespaces joined by veth pairs on a bridge (needs root and iproute2).
 
 Each host is a namespace with one interface, eth0 (10.231.<net>.<k>/24, multicast routed on
 it), whose peer sits on a bridge in a namespace of its own. Nothing is created in or changed
