@@ -14,17 +14,19 @@ class Observers:
     queued is taken, the nodes and context are shut down and the bag is closed.
 
     experiment_text and parameters_text go into the bag's metadata, so that it describes
-    itself (analysis.py).
+    itself (analysis.py). watch False: the monitor takes only the curve (a host of a split run
+    that neither measures nor starts the curve server).
     """
 
     def __init__(self, experiment, record_hz, ground_truth, bag_writer=None, images=False,
-                 experiment_text='', parameters_text=''):
+                 experiment_text='', parameters_text='', watch=True):
         self.experiment = experiment
         self.record_hz = record_hz
         self.ground_truth = ground_truth
         self.bag_writer = bag_writer
         self.images = images
         self.metadata = {EXPERIMENT_KEY: experiment_text, PARAMETERS_KEY: parameters_text}
+        self.watch = watch   # False: the monitor only takes the curve (Monitor's watch)
         self.context = self.executor = self.monitor = self.recorder = None
         self.best_effort_topics = set()
         self.hosted = []   # a single-process run's nodes, destroyed after the executor stops
@@ -65,7 +67,7 @@ class Observers:
         # callbacks share the GIL: more executor threads would not run them faster.
         self.executor = make_executor(self.context)
         self.monitor = Monitor(self.experiment.n, self.record_hz, context=self.context,
-                               ground_truth=self.ground_truth)
+                               ground_truth=self.ground_truth, watch=self.watch)
         self._stack.callback(self.monitor.destroy_node)
         if recorded:
             self.recorder = Recorder(self.bag_writer, recorded, context=self.context)

@@ -91,7 +91,8 @@ class Run:
             ground_truth=options.camera is not None and options.with_robots,
             bag_writer=self.bag_writer, images=options.bag_images,
             experiment_text=self.experiment_path.read_text(),
-            parameters_text='\n'.join(path.read_text() for path in params_files.values())))
+            parameters_text='\n'.join(path.read_text() for path in params_files.values()),
+            watch=options.runs('observer') or options.runs('curve_server')))
         self.graph = self._stack.enter_context(NodeGraph(
             self.launches, params_files, self.out / 'logs', self.observers,
             options.single_process, self.publications_dir if recording else None))

@@ -37,8 +37,11 @@ class Recording:
 class Monitor(Node):
     """Subscribes to all robots' topics and keeps a Recording."""
 
-    def __init__(self, n, record_hz=20.0, ground_truth=False, **kwargs):
-        """ground_truth: also record the fake robots' true poses (when a camera tracks them)."""
+    def __init__(self, n, record_hz=20.0, ground_truth=False, watch=True, **kwargs):
+        """ground_truth: also record the fake robots' true poses (when a camera tracks them).
+        watch False: only the curve (for t0), on a host of a split run that neither measures
+        nor starts the curve server.
+        """
         super().__init__('formation_monitor', start_parameter_services=False, **kwargs)
         self.n = n
         self.poses = np.full((n, 3), np.nan)
@@ -65,7 +68,7 @@ class Monitor(Node):
         # (robot, curve id) -> DDS source timestamp of its first state on that curve (s)
         self.adopted = {}
         self.recording = Recording()
-        for i in range(1, n + 1):
+        for i in range(1, n + 1 if watch else 1):
             self._subscribe(topics.POSE, lambda m, i=i: self._on_pose(i, m), i)
             self._subscribe(topics.CMD_VEL,
                             WithMessageInfo(lambda m, info, i=i: self._on_cmd(i, m, info)), i)
@@ -77,9 +80,10 @@ class Monitor(Node):
                 self._subscribe(topics.TICK, lambda m, i=i: self._on_tick(i, m), i)
         subscribe_to_curve(self, WithMessageInfo(self._on_curve), log=False,
                            event_callbacks=qos.observer_events())
-        self._subscribe(topics.ROBOT_POSES, self._on_robot_poses)
-        self._subscribe(topics.DIAGNOSTICS, self._on_diagnostics)
-        self.create_timer(1.0 / record_hz, self._sample)
+        if watch:
+            self._subscribe(topics.ROBOT_POSES, self._on_robot_poses)
+            self._subscribe(topics.DIAGNOSTICS, self._on_diagnostics)
+            self.create_timer(1.0 / record_hz, self._sample)
 
     def _subscribe(self, name, callback, robot=None):
         return topics.subscription(self, name, callback, robot,
