@@ -1,9 +1,10 @@
 """A curve drawn on the arena floor (tape, rope, a marker line), found in overhead-camera frames.
 
 Pipeline, per frame: pixels darker than their neighbourhood by `contrast` grey levels
-(cv2.adaptiveThreshold: uneven lighting does not matter) are mapped to the floor (arena frame,
-m) through the floor homography; what lies outside the arena, under a robot's body or on a
-corner marker is dropped. The rest is binned into cells one line width wide; the cells are
+(cv2.adaptiveThreshold: uneven lighting does not matter), outside a mask of what lies beyond
+the arena, under a robot's body or on a corner marker (drawn in the frame), are mapped to the
+floor (arena frame, m) through the floor homography. They are binned into cells two line
+widths wide; the cells are
 chained by a minimum spanning tree whose edges may bridge gaps up to `max_gap` (a robot parked
 on the line hides a piece of it), and the tree's longest path orders them. The chain is closed
 when its two ends are within `max_gap` of each other. Each ordered point is then moved to the
