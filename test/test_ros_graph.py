@@ -2,8 +2,6 @@
 
 import dataclasses
 import json
-import re
-import signal
 
 import numpy as np
 import pytest
@@ -159,29 +157,6 @@ def test_curve_switch_is_picked_up_within_one_control_period(ros_domain, tmp_pat
                                    initial_poses=data['poses'][k], staggered_start=False)
     assert_within_envelope(rel_t, ros[on_second], low, high, rel_t > 0.5,
                            1e-3 * run.experiment.phases[1].curve.size())
-
-
-def test_followers_of_a_silent_neighbour_stop_within_the_timeout(ros_domain, tmp_path):
-    with Run(DATA_DIR / 'fast_closed.yaml', tmp_path, log=quiet) as run:
-        run.spin_for(3.0)
-        moving = np.abs(run.monitor.commands).sum(axis=1) > 0
-        assert moving[[0, 2, 3]].all()
-        run.kill('robot_2.formation_controller', signal.SIGKILL)
-        # Out-neighbours of 2 are 3 and 4. The wall-clock bound here only proves they stop:
-        # how late they stop is read below from their own clocks, which a loaded machine
-        # delaying this monitor cannot falsify.
-        run.spin_until(lambda: np.all(run.monitor.commands[[2, 3]] == 0.0), 5.0,
-                       'robots 3 and 4 to stop')
-        run.spin_for(1.0)
-        assert np.all(run.monitor.commands[[2, 3]] == 0.0)        # and they stay stopped
-        assert np.abs(run.monitor.commands[0]).sum() > 0           # the leader drives on
-    timeout, period = 0.5, 0.1
-    for robot in (3, 4):
-        log = (tmp_path / 'logs' / f'robot_{robot}.formation_controller.log').read_text()
-        ages = re.findall(r'stopped: neighbour 2 stale \((\d+\.\d+) s old\)', log)
-        assert ages, log
-        # stopped at its first tick after the timeout (one period late at most, plus jitter)
-        assert timeout <= float(ages[-1]) <= timeout + 2 * period, log
 
 
 def test_runner_writes_params_metrics_and_figures_single_process(ros_domain, tmp_path):
