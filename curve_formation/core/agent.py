@@ -198,6 +198,7 @@ class AgentController:
         self.curve_id: int | None = None
         self.curve_rate: Curve | None = None   # a moving curve's coefficient rate (1/s)
         self.curve_received = 0.0
+        self.received_target: Point = (0.0, 0.0)   # the target when the curve came (m)
         self.ahead: Point = (0.0, 0.0)   # the target's velocity on a moving curve (m/s)
         self.s: float | None = None
         self.target: Point | None = None
@@ -246,7 +247,7 @@ class AgentController:
         self.curve_rate, self.curve_received = rate, received
         self.s = float(s[self.config.index - 1])
         tx, ty = curve.points([self.s])[0]
-        self.target = (float(tx), float(ty))
+        self.target = self.received_target = (float(tx), float(ty))
         self.ahead = (0.0, 0.0)
         if rate is not None:
             vx, vy = rate.points([self.s])[0]
@@ -254,12 +255,12 @@ class AgentController:
 
     def _move_target(self, now: float) -> bool:
         """Carry a moving curve's target to `now` (s); False if the curve is too old."""
-        if self.curve is None or self.curve_rate is None or self.s is None:
+        if self.curve_rate is None:
             return True
         age = now - self.curve_received
         if age > self.config.leader_timeout:
             return False
-        tx, ty = self.curve.points([self.s])[0]
+        tx, ty = self.received_target
         vx, vy = self.ahead
         age = max(age, 0.0)
         self.target = (float(tx + vx * age), float(ty + vy * age))

@@ -176,7 +176,6 @@ class CurveServer(Node):
         if curve_id is None:
             curve_id = self.next_id
             self.next_id += 1
-            self.moving = self.moving if rate is not None else None
         targets = curve.points(s)
         self.targets = targets
         self.current = (curve, curve_id, s, rate)
@@ -235,6 +234,7 @@ class CurveServer(Node):
             return
         self.get_logger().info(f'observed curve fitted from {len(points)} points, rms '
                                f'residual {fit.rms_residual:.3g}')
+        self.moving = None   # an observed curve replaces a moving one
         self.publish_curve(fit.curve, s)
 
 

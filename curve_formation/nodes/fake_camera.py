@@ -151,6 +151,8 @@ class FakeCamera(Node):
         """
         index = max(k for k, ph in enumerate(self.phases) if ph.start <= elapsed or k == 0)
         phase = self.phases[index]
+        if index == self.drawn_phase and phase.motion is None:
+            return   # drawn already, and it stays
         _, points = phase.curve.sample(DRAWN_SAMPLES)
         if phase.motion is not None:
             points = phase.motion.points(points, max(elapsed - phase.start, 0.0))

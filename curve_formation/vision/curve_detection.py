@@ -20,7 +20,7 @@ from scipy.sparse.csgraph import connected_components, dijkstra, minimum_spannin
 from scipy.spatial import cKDTree
 
 from curve_formation.core.curve_sources import polyline_distances, polyline_rms_distance
-from curve_formation.vision.camera import raised_plane_homography
+from curve_formation.vision.camera import apply_homography, raised_plane_homography
 
 
 CELL_WIDTHS = 2   # cells are two line widths wide: one cell per stretch of line, little zig-zag
@@ -106,7 +106,7 @@ class CurveDetector:
         pixels = self.line_pixels(gray, mask)
         if undistort is not None and len(pixels):
             pixels = undistort(pixels)
-        points = _apply(floor_from_pixels, pixels)
+        points = apply_homography(floor_from_pixels, pixels)
         w, h = self.arena_size
         points = points[(points[:, 0] > 0) & (points[:, 0] < w) & (points[:, 1] > 0)
                         & (points[:, 1] < h)]
@@ -127,7 +127,7 @@ class CurveDetector:
         to_pixels = np.linalg.inv(floor_from_pixels)
 
         def outline(points):
-            pixels = _apply(to_pixels, points)
+            pixels = apply_homography(to_pixels, points)
             return np.round(pixels if distort is None else distort(pixels)).astype(np.int32)
         w, h = self.arena_size
         m = 0.5 * self.options.width
@@ -216,14 +216,12 @@ class DrawnCurveFinder:
             floor = raised_plane_homography(floor, tracker.intrinsics[0], -layout.corner_height)
         bodies = np.asarray(robot_positions, float).reshape(-1, 2)
         if layout.marker_height != 0.0 and len(bodies):
-            pixels = _apply(np.linalg.inv(tracker.marker_homography()), bodies)
-            bodies = _apply(floor, pixels)
+            pixels = apply_homography(np.linalg.inv(tracker.marker_homography()), bodies)
+            bodies = apply_homography(floor, pixels)
         undistort = distort = None
         if tracker.intrinsics is not None:
             k, dist = tracker.intrinsics
-
-            def undistort(pixels):
-                return cv2.undistortPoints(pixels.reshape(-1, 1, 2), k, dist, P=k).reshape(-1, 2)
+            undistort = tracker.undistorted
 
             def distort(pixels):
                 rays = np.column_stack([pixels, np.ones(len(pixels))]) @ np.linalg.inv(k).T
@@ -288,13 +286,6 @@ class CurveWatch:
             known &= (where > 0.0) & (where < len(hops))
         inside = distance[known]
         return len(inside) == 0 or float(np.sqrt(np.mean(inside ** 2))) > self.change
-
-
-def _apply(h, points):
-    if len(points) == 0:
-        return np.empty((0, 2))
-    mapped = np.column_stack([points, np.ones(len(points))]) @ np.asarray(h, float).T
-    return mapped[:, :2] / mapped[:, 2:]
 
 
 def _centred(chain, points, closed, width, link, passes=2):

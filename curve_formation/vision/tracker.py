@@ -134,10 +134,15 @@ class MarkerTracker:
         for quad, marker_id in zip(corners, ids.ravel(), strict=True):
             pts = quad.reshape(4, 2).astype(float)
             if self.intrinsics is not None:
-                k, dist = self.intrinsics
-                pts = cv2.undistortPoints(pts.reshape(-1, 1, 2), k, dist, P=k).reshape(4, 2)
+                pts = self.undistorted(pts)
             found.setdefault(int(marker_id), []).append(pts)
         return found
+
+    def undistorted(self, pixels):
+        """(k, 2) pixels as an ideal lens would show them (with the lens calibration)."""
+        k, dist = self.intrinsics
+        return cv2.undistortPoints(np.asarray(pixels, float).reshape(-1, 1, 2), k, dist,
+                                   P=k).reshape(-1, 2)
 
     def process(self, gray):
         """One frame (uint8 grey image) -> Frame."""
