@@ -133,8 +133,8 @@ def filter_cost(sizes=(9, 50), ticks=200):
             started = time.perf_counter()
             for k in range(ticks):
                 i = k % n
-                agent_command(0.1, -0.05, 0.1, -0.05, *poses[i], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
-                              law, case.limits, poses, i, avoidance)
+                agent_command(0.1, -0.05, 0.0, 0.0, 0.1, -0.05, *poses[i], 0.0, 0.0, 0.0, 0.0,
+                              0.0, 0.0, law, case.limits, poses, i, avoidance)
             costs[label] = (time.perf_counter() - started) / ticks * 1e6
         print(f'  N = {n:3d}: {costs["on"]:7.1f} us with the filter, {costs["off"]:6.1f} us '
               f'without ({costs["on"] - costs["off"]:.1f} us for the filter)')

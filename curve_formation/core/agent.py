@@ -44,7 +44,6 @@ from curve_formation.core.control import (
     observer_step,
     offset_point,
     WheelLimits,
-    with_feed_forward,
 )
 from curve_formation.core.curves import Curve
 from curve_formation.core.dynamics import arc_step
@@ -424,12 +423,11 @@ class AgentController:
                               else f"other robots' poses stale "
                               f'({now - self.others_received:.2f} s old)', base)
         law = cfg.law
-        if cfg.feed_forward:
-            fx, fy = with_feed_forward(fx, fy, *self.ahead, law.k1)
         if law.code == OBSERVER:
             self._observe()
+        ahead = self.ahead if cfg.feed_forward else (0.0, 0.0)
         v, w, ref_v, ref_w, ddv, ddw, code = agent_command(
-            fx, fy, ex, ey, *pose, self.dhat[0], self.dhat[1], *self.last_command,
+            fx, fy, *ahead, ex, ey, *pose, self.dhat[0], self.dhat[1], *self.last_command,
             *cfg.pc_disturbance, law, cfg.limits, self.others, cfg.index - 1, cfg.avoidance)
         if law.code != OBSERVER:
             self.dhat[0] += law.period * ddv

@@ -110,7 +110,8 @@ class WheelLimits(NamedTuple):
 NO_LIMITS = WheelLimits()
 
 
-def agent_command(fx: float, fy: float, ex: float, ey: float, x: float, y: float,
+def agent_command(fx: float, fy: float, ahead_x: float, ahead_y: float, ex: float,
+                  ey: float, x: float, y: float,
                   theta: float, dhat_v: float, dhat_w: float, prev_v: float, prev_w: float,
                   pc_v: float, pc_w: float, law: 'Law', limits: 'WheelLimits',
                   others: FloatArray, me: int, avoidance: Avoidance
@@ -118,17 +119,21 @@ def agent_command(fx: float, fy: float, ex: float, ey: float, x: float, y: float
     """One control tick of one agent, from its inputs to the command sent: the one pipeline
     the ROS controller (core.agent) and the batch simulator both run.
 
-    fx, fy: feedback (m; follower_feedback or leader_feedback); ex, ey: own target error (m);
+    fx, fy: feedback (m; follower_feedback or leader_feedback); ahead: the target's velocity
+    on a moving curve (m/s; the feed-forward, with_feed_forward; 0 otherwise); ex, ey: own
+    target error (m);
     x, y, theta: own pose; dhat: estimate; prev: the previous command sent (for the
     acceleration limits); pc: disturbance added on the PC (the paper's arena experiment);
     law: Law; limits: WheelLimits; others (n, 3), me, avoidance: safety.safe_command's.
-    The feedback shaped around robots and walls nearby, the law, then PC disturbance,
+    The feed-forward, the feedback shaped around robots and walls nearby, the law, then PC
+    disturbance,
     acceleration and wheel limits, then the safety filter.
     Returns (v, w, ref_v, ref_w, ddhat_v, ddhat_w, code): the command, what the observer
     compares the measured motion with (the law's command where the disturbance enters, plus
     what the filter changed), the continuous-time estimator rate (paper and adaptive laws)
     and the filter's outcome (safety.UNCHANGED, ADJUSTED, STOPPED).
     """
+    fx, fy = with_feed_forward(fx, fy, ahead_x, ahead_y, law.k1)
     fx, fy = shaped_feedback(fx, fy, x, y, others, me, law.k1, limits.max_wheel_speed,
                              avoidance)
     if law.code == OBSERVER:

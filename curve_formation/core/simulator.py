@@ -101,7 +101,6 @@ def compiled(function: Callable[..., Any]) -> Callable[..., Any]:
 _agent_command = compiled(control.agent_command)
 _arc = compiled(dynamics.arc_step)
 _observer_step = compiled(control.observer_step)
-_with_feed_forward = compiled(control.with_feed_forward)
 separate = compiled(bodies.separate)
 OBSERVER = control.LAWS['observer']
 
@@ -167,12 +166,10 @@ def _controls(poses: FloatArray, dhat: FloatArray, targets: FloatArray, ahead: F
         fb[i, 0] += wts[k] * (err[i, 0] - err[j, 0])
         fb[i, 1] += wts[k] * (err[i, 1] - err[j, 1])
     for i in range(n):
-        fb[i, 0], fb[i, 1] = _with_feed_forward(fb[i, 0], fb[i, 1], ahead[i, 0],
-                                                ahead[i, 1], law.k1)
         v, w, ref_v, ref_w, ddv, ddw, code = _agent_command(
-            fb[i, 0], fb[i, 1], err[i, 0], err[i, 1], poses[i, 0], poses[i, 1], poses[i, 2],
-            dhat[i, 0], dhat[i, 1], cmd[i, 0], cmd[i, 1], d_pc[i, 0], d_pc[i, 1], law, limits,
-            poses, i, avoidance)
+            fb[i, 0], fb[i, 1], ahead[i, 0], ahead[i, 1], err[i, 0], err[i, 1], poses[i, 0],
+            poses[i, 1], poses[i, 2], dhat[i, 0], dhat[i, 1], cmd[i, 0], cmd[i, 1], d_pc[i, 0],
+            d_pc[i, 1], law, limits, poses, i, avoidance)
         motion[i, 0] = v + d_robot[i, 0]
         motion[i, 1] = w + d_robot[i, 1]
         cmd[i, 0] = v
