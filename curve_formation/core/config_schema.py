@@ -347,6 +347,10 @@ class CameraSpec(Strict):
     intrinsics_file: Optional[str] = Field(
         None, description='lens calibration (YAML) written by `curve-formation '
         'calibrate-camera`; relative to the experiment file; instead of `intrinsics`')
+    corner_refinement: Literal['pattern', 'contour'] = Field(
+        'pattern', description="pattern: each marker's corners from its whole pattern aligned "
+        "to the frame (sub-pixel, unbiased); contour: cv2.aruco's corners (faster, biased by "
+        'up to half a pixel)')
     resolution: tuple[int, int] = Field((1280, 720), description='width, height (pixels)')
     rate_hz: float = Field(30.0, gt=0, description='frame rate of the (fake) camera')
     lost_timeout: float = Field(0.5, gt=0, description='a robot unseen for this long is '

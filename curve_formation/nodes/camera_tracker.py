@@ -104,7 +104,8 @@ class CameraTracker(Node):
                                  f'saved calibration, {self.calibration_path} does not exist')
         intrinsics = self._intrinsics(camera)
         self.layout = MarkerLayout.from_spec(camera)
-        self.tracker = MarkerTracker(self.layout, calibration, mode == 'continuous', intrinsics)
+        self.tracker = MarkerTracker(self.layout, calibration, mode == 'continuous', intrinsics,
+                                     camera.corner_refinement)
         self.pose_pubs = [topics.publisher(self, topics.POSE, robot=i)
                           for i in range(1, self.n + 1)]
         self.array_pub = topics.publisher(self, topics.CAMERA_POSES)

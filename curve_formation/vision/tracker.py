@@ -16,6 +16,7 @@ import yaml
 
 from curve_formation.vision.camera import apply_homography, raised_plane_homography
 from curve_formation.vision.markers import dictionary, pose_from_corners
+from curve_formation.vision.pattern_fit import PatternFit
 
 
 MIN_CORNER_MARKERS = 2        # 8 points: enough for a homography (4 needed), some redundancy
@@ -93,11 +94,13 @@ class MarkerTracker:
     otherwise only `calibration` (e.g. loaded from a file) is used. intrinsics: optional
     (camera_matrix 3x3, distortion) to undistort corner pixels first; needed when the robots'
     markers are not at the corner markers' height (layout heights): they are mapped on their
-    own plane, from the camera pose that K and the corners' homography give.
+    own plane, from the camera pose that K and the corners' homography give. refinement:
+    'pattern' aligns each marker's pattern to the frame for its corners (pattern_fit, about
+    0.6 ms per marker at 720p), 'contour' keeps cv2.aruco's corners.
     """
 
     def __init__(self, layout, calibration: Optional[Calibration] = None, continuous=True,
-                 intrinsics=None):
+                 intrinsics=None, refinement='pattern'):
         self.layout = layout
         self.calibration = calibration
         self.continuous = continuous
@@ -112,6 +115,9 @@ class MarkerTracker:
         params.adaptiveThreshWinSizeMax = 13
         params.minMarkerPerimeterRate = 0.03
         self.detector = cv2.aruco.ArucoDetector(dictionary(layout.dictionary_name), params)
+        if refinement not in ('pattern', 'contour'):
+            raise ValueError(f"refinement: expected 'pattern' or 'contour', got {refinement!r}")
+        self.pattern_fit = PatternFit(layout.dictionary_name) if refinement == 'pattern' else None
         self.agent_of = layout.agent_of
         self.intrinsics = None
         if intrinsics is not None:
@@ -133,6 +139,8 @@ class MarkerTracker:
             return found
         for quad, marker_id in zip(corners, ids.ravel(), strict=True):
             pts = quad.reshape(4, 2).astype(float)
+            if self.pattern_fit is not None:
+                pts = self.pattern_fit.refine(gray, pts, int(marker_id))
             if self.intrinsics is not None:
                 pts = self.undistorted(pts)
             found.setdefault(int(marker_id), []).append(pts)
