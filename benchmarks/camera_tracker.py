@@ -5,8 +5,10 @@ Run: scripts/bench camera_tracker   (or --frames N)
 Frames: the arena demo's layout (9 robot markers, 4 corner markers) rendered at 1280x720 and
 1920x1080 with pixel noise 2 and blur 0.7, robots at random separated poses. Per frame it
 times (1) cv2.aruco.ArucoDetector.detectMarkers alone with the same parameters, (2)
-MarkerTracker.process (detection, homography, poses), (3) the node's whole path: Image message
--> numpy -> process -> 9 PoseStamped + PoseArray published. The process is pinned to one CPU
+MarkerTracker.process (detection, homography, poses) with cv2.aruco's corners
+(`corner_refinement: contour`) and (3) with each marker's pattern fitted (`pattern`, the
+default), (4) the node's whole path: Image message -> numpy -> process -> 9 PoseStamped +
+PoseArray published. The process is pinned to one CPU
 and OpenCV to one thread. Goal: well above the 30 Hz camera rate at 1080p.
 """
 
@@ -74,10 +76,12 @@ def main():
     for resolution in ((1280, 720), (1920, 1080)):
         frames = frames_at(layout, resolution, args.frames)
         tracker = MarkerTracker(layout)
+        outline = MarkerTracker(layout, refinement='contour')
         detector = tracker.detector
         msgs = [messages.image_to_msg(f, 0.0) for f in frames]
         stages = (('plain cv2.aruco detectMarkers', detector.detectMarkers, frames),
-                  ('MarkerTracker.process', tracker.process, frames),
+                  ('MarkerTracker.process, contour', outline.process, frames),
+                  ('MarkerTracker.process, pattern', tracker.process, frames),
                   ('node: Image msg -> poses published', node._on_image, msgs))
         plain = None
         for name, function, items in stages:

@@ -147,9 +147,10 @@ def assert_a_lost_marker_stops_its_robot_for_as_long_and_only_it(run, data, tmp_
 def test_the_mona_arena_case_through_the_camera_never_deadlocks(ros_domain, tmp_path):
     """`curve-formation run mona_arena --camera`, as a user runs it: it used to deadlock at
     7 s, robots parked on the leader's marker. Now no two bodies ever touch, no marker is ever
-    hidden, and both curves end within 2x their settling tolerance on the true poses (they do
-    not settle to it: the fast observer this case needs passes camera noise into the commands,
-    docs/collision-avoidance.md).
+    hidden, and both curves settle to their tolerance on the robots' true poses (measured
+    57.4 s and 33.1 s; before the tracker fitted each marker's pattern, the fast observer
+    this case needs passed the outline corners' pixel noise into the commands and the second
+    curve hovered at 1.4x its tolerance).
     """
     with Run('mona_arena', tmp_path, RunOptions(camera={}), log=quiet) as run:
         run.spin_for(121.0)
@@ -160,7 +161,7 @@ def test_the_mona_arena_case_through_the_camera_never_deadlocks(ros_domain, tmp_
     assert bodies['smallest_gap'] > 0.5 * run.experiment.avoidance.margin, bodies
     truth = result['ground_truth']['phases']
     for true, tracked in zip(truth, result['phases'], strict=True):
-        assert true['final_error_norm'] < 2 * tracked['tolerance'], (true, tracked)
+        assert true['settled'] and tracked['settled'], (true, tracked)
 
 
 @pytest.mark.slow   # 2.5 minutes: a 60 s loop, then the line moved
