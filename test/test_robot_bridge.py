@@ -2,7 +2,11 @@
 link (links.UdpEndpoint or PtyEndpoint, read here as the robot's firmware would).
 """
 
+import os
 from pathlib import Path
+import signal
+import subprocess
+import sys
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -19,6 +23,7 @@ from curve_formation.core.experiment import load_experiment
 from curve_formation.nodes import qos, topics
 from curve_formation.nodes.params import ParameterError
 from curve_formation.nodes.robot_bridge import RobotBridge
+from curve_formation.nodes.runtime import realtime_priority
 from curve_formation.run_options import RunOptions
 
 
@@ -150,12 +155,12 @@ def test_the_bridge_never_sends_faster_than_the_robot_takes(bench):
         spin(duration=0.01)
     spin(duration=0.2)
     commands = [said for said in robot.said(start) if said[0] == 'command']
-    # never the 100 Hz it was given: at most 11 lines in any second (10 Hz and one more, so
-    # that a 10 Hz controller's jitter is never held back)
-    assert 15 <= len(commands) <= 2 * 11 + 1, len(commands)
+    # never the 100 Hz it was given: at most 12 lines in any second (10 Hz and two more, so
+    # that a 10 Hz controller's late ticks are never held back)
+    assert 15 <= len(commands) <= 2 * 12 + 1, len(commands)
     times = np.array([t for t, said in robot.lines if t >= start and said[0] == 'command'])
     in_a_second = [np.sum((times >= t) & (times < t + 0.99)) for t in times]
-    assert max(in_a_second) <= 11, in_a_second
+    assert max(in_a_second) <= 12, in_a_second
 
 
 def test_e_stop_stops_the_robot_until_released(bench):
@@ -305,3 +310,41 @@ def test_bridges_and_emulated_robots_share_the_experiments_wheel_radius(tmp_path
     radii = {launch.key: launch.parameters['wheel_radius'] for launch in graph
              if 'wheel_radius' in launch.parameters}
     assert len(radii) == experiment.n + 1 and set(radii.values()) == {0.02}, radii
+
+
+def test_a_bridge_in_its_own_process_writes_from_a_realtime_thread(ros_domain, tmp_path):
+    """Started as `ros2 run` starts it, the bridge's spinning thread takes SCHED_FIFO at its
+    realtime_priority, so that a busy PC does not delay its lines (over pseudo-terminals
+    the latency p99 fell from 0.9-4.2 ms to 0.2-0.8 ms: benchmarks/robot_bridge.py); where
+    that is not permitted it says so and runs on. Its stop lines (no cmd_vel yet) arrive.
+    """
+    endpoint = links.UdpEndpoint(('127.0.0.1', 0))
+    robot = Robot(endpoint, answer=False)
+    log = tmp_path / 'bridge.log'
+    link = f'udp:127.0.0.1:{endpoint.socket.getsockname()[1]}'
+    with open(log, 'w') as out:
+        proc = subprocess.Popen(
+            [sys.executable, '-m', 'curve_formation.nodes.robot_bridge', '--ros-args', '-p',
+             f'link:={link}', '-p', 'realtime_priority:=15'], stdout=out,
+            stderr=subprocess.STDOUT)
+    try:
+        deadline = time.monotonic() + 30.0
+        while len(robot.lines) < 3 and time.monotonic() < deadline and proc.poll() is None:
+            robot.poll()
+            time.sleep(0.02)
+        policy, priority = os.sched_getscheduler(proc.pid), os.sched_getparam(proc.pid)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(20)
+        endpoint.close()
+    assert len(robot.lines) >= 3 and all(said[0] == 'stop' for said in robot.said()), (
+        robot.lines, log.read_text())
+    if policy == os.SCHED_FIFO:
+        assert priority.sched_priority == 15
+    else:
+        assert 'realtime_priority 15 not taken' in log.read_text()
+
+
+def test_a_realtime_priority_that_cannot_be_taken_says_why():
+    assert realtime_priority(0) is None   # normal scheduling asked for: nothing done
+    assert realtime_priority(100)         # beyond SCHED_FIFO's 1-99: refused, with the reason

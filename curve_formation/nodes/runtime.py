@@ -154,6 +154,21 @@ def run_node(node_factory, args=None, large_data=False):
     return status
 
 
+def realtime_priority(priority):
+    """Schedule the calling thread SCHED_FIFO at `priority` (1-99), so that processes woken
+    around it (a busy PC's other nodes, the kernel's tty work) cannot delay what it does
+    next; threads it starts later inherit it. Returns None, or why not (it needs root,
+    CAP_SYS_NICE or an rtprio limit); priority 0 leaves the thread as it is.
+    """
+    if priority <= 0:
+        return None
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except OSError as exc:
+        return exc.strerror or str(exc)
+    return None
+
+
 def _exit_hard_after(seconds):
     """Dump every thread's stack to stderr and end the process if it still runs in `seconds`.
 
