@@ -47,7 +47,9 @@ def test_closed_loop_through_a_wide_lens_tilted_with_markers_above_the_floor(ros
                                                                              tmp_path):
     """The same loop seen as a real webcam sees it: barrel lens (k1 = -0.3), camera tilted
     25 degrees, markers 5 cm up; the lens calibrated from rendered ChArUco views as
-    `calibrate-camera` does. It converges as through the ideal camera.
+    `calibrate-camera` does. It converges as through the ideal camera, and the robots' true
+    poses settle within 1.1x of the simulator's time (the issue's goal; with cv2.aruco's
+    outline corners their bias kept the true error at the tolerance, 1.8-2.2x).
     """
     import cv2
 
@@ -76,6 +78,12 @@ def test_closed_loop_through_a_wide_lens_tilted_with_markers_above_the_floor(ros
         run.spin_for(40.0)
         data = run.recording()
     assert_converges_through_the_camera(run, data)
+    tolerance = 1e-3 * run.experiment.phases[0].curve.size()
+    settled = metrics.settle_time(data['t'], error_norms(run, data, 'true_poses'), tolerance,
+                                  0, np.inf)
+    sim = simulate(run.experiment, duration=40.0)
+    expected = metrics.settle_time(sim.t, sim.error_norm, tolerance, 0, np.inf)
+    assert settled is not None and settled <= 1.1 * expected, (settled, expected)
 
 
 def assert_converges_through_the_camera(run, data):
