@@ -8,8 +8,12 @@ filter, re-assignment) and each start (the file's random box, reseeded), per cur
 settling time with avoidance; the same start with the law alone (point robots passing
 through each other: today's behaviour, `avoidance: off`), and their ratio where that settles;
 the physical lower bound, the longest straight trip of any robot from where the phase begins
-to its assigned target at the wheel limit, and the ratio to it; contacts between bodies and
-the smallest gap between two surfaces over the run.
+to its assigned target at the wheel limit, and the ratio to it; a tighter bound that still
+no robot can beat, each robot's turn in place to face its target with both wheels at the
+limit and then its straight trip (for a differential drive with bounded wheel speeds that is
+the fastest way to a point: Balkcom and Mason, "Time optimal trajectories for bounded
+velocity differential drive vehicles", IJRR 2002), and the ratio to it; contacts between
+bodies and the smallest gap between two surfaces over the run.
 """
 
 import argparse
@@ -39,19 +43,27 @@ ARENA_CASES = ('mona_arena', 'arena_demo')
 HARD_CASES = (DATA / 'dense_arena.yaml', DATA / 'crossing_switch.yaml')
 
 
-def lower_bounds(result):
+def lower_bounds(result, turning=False):
     """Per phase: the longest straight trip (m) of any robot's control point, from where it
-    is when the phase begins to its target then, over the wheel limit (s).
+    is when the phase begins to its target then, over the wheel limit (s); with turning, each
+    robot first turns in place to face its target (both wheels at the limit, w = 2 u / B).
     """
     experiment = result.experiment
     speed = experiment.limits.max_wheel_speed
+    turn_rate = 2 * speed / experiment.limits.wheel_base
     points = metrics.offset_points(result.poses, experiment.gains.offset)
     out = []
     for p in experiment.phases:
         k = int(np.searchsorted(result.t, p.start))
         if k >= len(result.t):
             break
-        out.append(float(np.linalg.norm(points[k] - p.targets, axis=1).max() / speed))
+        trips = points[k] - p.targets
+        times = np.linalg.norm(trips, axis=1) / speed
+        if turning:
+            facing = np.arctan2(-trips[:, 1], -trips[:, 0])
+            times += np.abs(np.remainder(facing - result.poses[k, :, 2] + np.pi,
+                                         2 * np.pi) - np.pi) / turn_rate
+        out.append(float(times.max()))
     return out
 
 
@@ -70,6 +82,7 @@ def arena_table(name, seeds):
         times, data = settling(ours)
         off, _ = settling(alone)
         rows.append({'seed': seed, 'times': times, 'off': off, 'bound': lower_bounds(ours),
+                     'turn_bound': lower_bounds(ours, turning=True),
                      'off_bound': lower_bounds(alone),
                      'contacts': ours.contacts['count'], 'gap': ours.contacts['smallest_gap'],
                      'off_gap': metrics.closest_approach(alone.poses)[0] - 2 * case.radius,
@@ -79,7 +92,8 @@ def arena_table(name, seeds):
           f'margin {case.avoidance.margin} m')
     print(f'{"phase":>5s} {"settled":>8s} {"median s":>9s} {"max s":>7s} '
           f'{"vs alone: settled, worst ratio":>31s} {"vs bound: median, worst":>24s} '
-          f'{"alone vs bound: median, worst":>30s}')
+          f'{"alone vs bound: median, worst":>30s} '
+          f'{"vs turn+straight bound: median, worst":>38s}')
     for k in range(phases):
         times = [r['times'][k] for r in rows]
         done = [t for t in times if t is not None]
@@ -87,13 +101,16 @@ def arena_table(name, seeds):
                   if r['times'][k] is not None and r['off'][k] is not None]
         bound = [r['times'][k] / r['bound'][k] for r in rows if r['times'][k] is not None]
         off_bound = [r['off'][k] / r['off_bound'][k] for r in rows if r['off'][k] is not None]
+        turn_bound = [r['times'][k] / r['turn_bound'][k] for r in rows
+                      if r['times'][k] is not None]
         alone = sum(r['off'][k] is not None for r in rows)
         worst = max(range(len(rows)), key=lambda q: (rows[q]['times'][k] or math.inf)
                     / rows[q]['bound'][k])
         print(f'{k:5d} {len(done):4d}/{len(rows):<3d} {np.median(done):9.1f} {max(done):7.1f} '
               f'{alone:10d}/{len(rows)}, {max(ratios) if ratios else math.nan:14.2f} '
               f'{np.median(bound):13.2f}, {max(bound):8.2f} '
-              f'{np.median(off_bound):19.2f}, {max(off_bound):8.2f}   (worst: seed '
+              f'{np.median(off_bound):19.2f}, {max(off_bound):8.2f} '
+              f'{np.median(turn_bound):27.2f}, {max(turn_bound):8.2f}   (worst: seed '
               f'{rows[worst]["seed"]})')
     print(f'contacts: {sum(r["contacts"] for r in rows)} in all; smallest surface gap '
           f'{min(r["gap"] for r in rows) * 1000:.2f} mm (law alone: '
