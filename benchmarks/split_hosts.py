@@ -24,7 +24,7 @@ import time
 from node_graph import experiment_file
 import numpy as np
 
-from curve_formation.netns_hosts import available, Hosts
+from curve_formation.netns_hosts import available, Hosts, stop_groups
 
 
 CLI = str(Path(sys.executable).parent / 'curve-formation')
@@ -71,14 +71,7 @@ def measure(n, controller_hosts, seconds, folder):
                                                     str(folder)],
                                  env=env, capture_output=True, text=True, timeout=300)
         finally:
-            for proc in controllers:
-                if proc.poll() is None:
-                    os.killpg(proc.pid, 2)
-            for proc in controllers:
-                try:
-                    proc.wait(timeout=30)
-                except subprocess.TimeoutExpired:
-                    os.killpg(proc.pid, 9)
+            stop_groups(controllers)
     lines = [line for line in out.stdout.splitlines() if line.startswith('{')]
     if out.returncode != 0 or not lines:
         raise RuntimeError(f'N = {n}, {controller_hosts} hosts: {out.stderr[-2000:]}')

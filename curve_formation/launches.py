@@ -189,26 +189,22 @@ def write_params_files(launches, folder):
     return paths
 
 
-# The node class of each node module, to start it in the runner's own process.
-NODE_CLASSES = {'curve_formation.nodes.curve_server': 'CurveServer',
-                'curve_formation.nodes.formation_controller': 'FormationController',
-                'curve_formation.nodes.fake_robot': 'FakeRobot',
-                'curve_formation.nodes.fake_arena': 'FakeArena',
-                'curve_formation.nodes.robot_bridge': 'RobotBridge',
-                'curve_formation.nodes.camera_tracker': 'CameraTracker',
-                'curve_formation.nodes.fake_camera': 'FakeCamera'}
+# Each node module: the class its console script runs (to start it in the runner's own
+# process) and the part of the graph (run_options.PARTS) it belongs to.
+NODES = {'curve_formation.nodes.curve_server': ('CurveServer', 'curve_server'),
+         'curve_formation.nodes.formation_controller': ('FormationController', 'controllers'),
+         'curve_formation.nodes.robot_bridge': ('RobotBridge', 'controllers'),
+         'curve_formation.nodes.fake_robot': ('FakeRobot', 'robots'),
+         'curve_formation.nodes.fake_arena': ('FakeArena', 'robots'),
+         'curve_formation.nodes.camera_tracker': ('CameraTracker', 'camera'),
+         'curve_formation.nodes.fake_camera': ('FakeCamera', 'camera')}
 
 
-# Which part of the graph (run_options.PARTS) each node module belongs to.
-PART_OF = {'curve_formation.nodes.curve_server': 'curve_server',
-           'curve_formation.nodes.formation_controller': 'controllers',
-           'curve_formation.nodes.robot_bridge': 'controllers',
-           'curve_formation.nodes.fake_robot': 'robots',
-           'curve_formation.nodes.fake_arena': 'robots',
-           'curve_formation.nodes.camera_tracker': 'camera',
-           'curve_formation.nodes.fake_camera': 'camera'}
+def part_of(module):
+    """The part of the graph (run_options.PARTS) a node module belongs to."""
+    return NODES[module][1]
 
 
 def node_class(module):
     """The Node subclass a node module's console script runs."""
-    return getattr(importlib.import_module(module), NODE_CLASSES[module])
+    return getattr(importlib.import_module(module), NODES[module][0])

@@ -9,6 +9,7 @@ between hosts is UDP over the bridge; taking a host's link down (`link`) cuts it
 
 import os
 import shutil
+import signal
 import subprocess
 
 
@@ -24,6 +25,23 @@ def available():
         return f'cannot make a network namespace: {made.stderr.strip()}'
     subprocess.run(['ip', 'netns', 'delete', name], capture_output=True)
     return ''
+
+
+def stop_groups(processes, timeout=30.0):
+    """SIGINT the process group of every process still running (started with
+    start_new_session, e.g. a `curve-formation run` on a host: it ends cleanly), then SIGKILL
+    the group of any that has not ended within `timeout` (s). None entries are skipped.
+    """
+    processes = [p for p in processes if p is not None]
+    for proc in processes:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGINT)
+    for proc in processes:
+        try:
+            proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(timeout=5.0)
 
 
 class Hosts:

@@ -22,7 +22,7 @@ from curve_formation.analysis import bag_accounting
 from curve_formation.bag import BagWriter
 from curve_formation.core import metrics, plots
 from curve_formation.core.experiment import control_rate, load_experiment, received_phases
-from curve_formation.launches import node_launches, PART_OF, write_params_files
+from curve_formation.launches import node_launches, part_of, write_params_files
 from curve_formation.node_graph import NodeGraph
 from curve_formation.observers import Observers
 from curve_formation.paths import discovery_text, resolve_config, ros_environment
@@ -102,7 +102,7 @@ class Run:
                  f'{self.out / "params"}')
         server, *others = self.launches
         for launch in others:   # every node of this host but the curve server
-            if options.runs(PART_OF[launch.module]) and options.runs_agent(launch.agent):
+            if options.runs(part_of(launch.module)) and options.runs_agent(launch.agent):
                 self.graph.start(launch)
         if options.runs('curve_server'):
             self._wait_ready()

@@ -7,7 +7,7 @@ import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 
-from curve_formation.launches import NODE_CLASSES
+from curve_formation.launches import node_class
 from curve_formation.nodes import docs, topics
 
 
@@ -46,7 +46,7 @@ def test_nodes_create_the_documented_topics(ros_domain, name, module):
               'camera_tracker': dict(experiment='arena_demo'),
               'fake_camera': dict(experiment='arena_demo'),
               'robot_bridge': dict(link='udp:127.0.0.1:9')}[name]
-    cls = getattr(module, NODE_CLASSES[module.__name__])
+    cls = node_class(module.__name__)
     node = cls(context=context, namespace='/robot_2',
                parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
     try:

@@ -5,7 +5,6 @@ it: `curve-formation run EXP --only PARTS` on each, one command per host.
 import json
 import os
 from pathlib import Path
-import signal
 import subprocess
 import sys
 import threading
@@ -14,7 +13,7 @@ import time
 import numpy as np
 import pytest
 
-from curve_formation.netns_hosts import available, Hosts
+from curve_formation.netns_hosts import available, Hosts, stop_groups
 
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
@@ -82,15 +81,7 @@ def test_the_demo_split_over_four_hosts_settles_and_survives_a_lost_link(tmp_pat
             assert runs[4].wait(timeout=DURATION + 60.0) == 0, (
                 tmp_path / 'host4.log').read_text()
         finally:
-            for proc in [*runs.values(), server]:
-                if proc is not None and proc.poll() is None:
-                    os.killpg(proc.pid, signal.SIGINT)
-            for proc in [*runs.values(), server]:
-                if proc is not None:
-                    try:
-                        proc.wait(timeout=30.0)
-                    except subprocess.TimeoutExpired:
-                        os.killpg(proc.pid, signal.SIGKILL)
+            stop_groups([*runs.values(), server])
     result = json.loads((tmp_path / 'host4' / 'metrics.json').read_text())
     data = np.load(tmp_path / 'host4' / 'trajectory.npz')
     t, commands = data['t'], np.abs(data['commands']).sum(axis=2)
