@@ -4,7 +4,9 @@ namespace /robot_<i>.
 Each cmd_vel becomes the rim speeds of the two wheels (wheel base from the parameters), scaled
 down together, keeping the curvature, when a wheel would exceed `max_wheel_speed`, and is
 written at once as a line of the robot's wire format (core.wire), at most `rate_hz` lines a
-second (see _may_send: a command that comes sooner waits, and a newer command replaces it).
+second and two more (see _may_send: a command that comes sooner waits, and a newer command
+replaces it), from a thread at real-time priority (`realtime_priority`) when the bridge has
+a process of its own.
 The stop line is sent while cmd_vel is older than `command_timeout`, while the e-stop is
 engaged, and `stop_repeats` times on shutdown (a UDP datagram can be lost). Lines from the
 robot (its replies) are counted; what is not a reply is counted as malformed and dropped.
