@@ -168,7 +168,11 @@ class UdpEndpoint:
 
     def __init__(self, where):
         self.socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.socket.bind(where)
+        try:
+            self.socket.bind(where)
+        except OSError as exc:
+            self.socket.close()
+            raise OSError(exc.errno, f'udp {where[0]}:{where[1]}: {exc.strerror}') from None
         self.socket.setblocking(False)
         self.sender = None
         self._lines = _Lines()
