@@ -104,9 +104,11 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None)
 
 # Ports for the emulated robots' UDP links: below the kernel's ephemeral range (32768 and up
 # here), where a socket bound to port 0 (each bridge's own) could take a probed port before
-# fake_arena binds it (seen once in a full test run), and below Fast DDS's ports (7400 + 250
-# x domain id and up).
-LINK_PORTS = range(6000, 7400)
+# fake_arena binds it (seen once in a full test run), and below Fast DDS's ports: 7400 + 250
+# x domain id and up, and one port from 7000 up for every participant on the machine (0.0.0.0:
+# 7000, 7001, ... in the order processes start: measured in a bridged run of 30 processes;
+# with the range at 6000-7400 a participant took a probed port twice before fake_arena bound it).
+LINK_PORTS = range(5000, 7000)
 
 
 def robot_links(n, bridge, folder, rng=None):

@@ -2,6 +2,7 @@
 link (links.UdpEndpoint or PtyEndpoint, read here as the robot's firmware would).
 """
 
+import contextlib
 import os
 from pathlib import Path
 import signal
@@ -293,6 +294,41 @@ def test_emulated_robots_listen_outside_the_ephemeral_ports(tmp_path):
     assert len(set(ports)) == 9 and max(ports) < min(low, 7400)
     assert launches.robot_links(2, 'pty', tmp_path) == [f'pty:{tmp_path.resolve()}/robot_{i}'
                                                       for i in (1, 2)]
+
+
+def udp_ports_of(pid):
+    """Local UDP ports of the sockets process `pid` holds (from /proc)."""
+    inodes = set()
+    for fd in Path(f'/proc/{pid}/fd').iterdir():
+        with contextlib.suppress(OSError):
+            target = os.readlink(fd)
+            if target.startswith('socket:['):
+                inodes.add(target[8:-1])
+    ports = set()
+    for table in ('udp', 'udp6'):
+        for line in Path(f'/proc/{pid}/net/{table}').read_text().splitlines()[1:]:
+            fields = line.split()
+            if fields[9] in inodes:
+                ports.add(int(fields[1].rsplit(':', 1)[1], 16))
+    return ports
+
+
+def test_dds_participants_leave_the_emulated_robots_ports_alone(ros_domain):
+    """Every Fast DDS participant binds a UDP port from 7000 up (one per process on the
+    machine) besides its domain's ports: a robot's port probed free from there was taken by
+    a participant starting before fake_arena bound it (twice). The robots' range is below.
+    """
+    code = ('import rclpy, time; rclpy.init(); n = rclpy.create_node("port_probe"); '
+            'print("ready", flush=True); time.sleep(30)')
+    proc = subprocess.Popen([sys.executable, '-c', code], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == 'ready'
+        ports = udp_ports_of(proc.pid)
+    finally:
+        proc.kill()
+        proc.wait(10)
+    assert any(7000 <= port < 7400 for port in ports), ports
+    assert not set(launches.LINK_PORTS) & ports, ports
 
 
 def test_bridges_and_emulated_robots_share_the_experiments_wheel_radius(tmp_path):
