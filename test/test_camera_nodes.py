@@ -87,6 +87,8 @@ def test_tracker_publishes_poses_with_the_image_stamp(ros, tmp_path):
     assert 'seen twice' in status['camera_tracker: robot 3'].message
     assert status['camera_tracker: robot 9'].message.startswith('lost')
     assert status['camera_tracker: robot 1'].message == 'tracked'
+    values = {kv.key: kv.value for kv in status['camera_tracker: robot 1'].values}
+    assert values['pattern_not_fitted'] == '0'   # clean marker: its pattern fitted every frame
     # The continuous calibration was saved, and a fixed-calibration tracker reloads it.
     saved = Calibration.load(calibration)
     # Contour-refined corners sit ~0.6 px inside each square, the same on every side: robot

@@ -101,6 +101,7 @@ def test_the_pattern_fit_moves_the_outline_corners_onto_the_pattern_or_leaves_th
     module = np.linalg.norm(given[1] - given[0]) / 6
     off = given + [module, 0.0]
     assert np.array_equal(fit.refine(frame, off, marker), off)
+    assert fit.misses == {marker: 2}   # counted, for camera_tracker's diagnostics
 
 
 def test_marker_offset_is_the_axle_centre(layout):

@@ -7,10 +7,11 @@ arena corners and calibration come from the experiment's `camera` section. Each 
 every robot seen exactly once, and /camera/robot_poses (PoseArray of all robots in agent
 order, NaN when not seen). A robot not seen is simply not published, so its controller stops
 it after its pose timeout; a marker id seen twice in one frame is ambiguous and not published
-either. /diagnostics (1 Hz) reports per robot the detection rate and whether it is lost
-(unseen for `lost_timeout`), the frame latency, and the calibration. /camera/debug_image
-(bgr8, `debug_rate_hz`, only while someone subscribes) shows detections, ids, the desired
-curve and each robot's target point for the arena operator.
+either. /diagnostics (1 Hz) reports per robot the detection rate, whether it is lost
+(unseen for `lost_timeout`) and in how many frames its pattern could not be fitted (a
+smudged or partly covered marker), the frame latency, and the calibration.
+/camera/debug_image (bgr8, `debug_rate_hz`, only while someone subscribes) shows detections,
+ids, the desired curve and each robot's target point for the arena operator.
 """
 
 import math
@@ -281,10 +282,14 @@ class CameraTracker(Node):
             seen = self.last_seen.get(agent)
             lost = seen is None or now - seen > self.lost_timeout
             rate = self.seen_counts[agent] / frames
+            unfitted = self._unfitted(self.layout.robot_ids[agent - 1])
             status.level = DiagnosticStatus.WARN if lost else DiagnosticStatus.OK
             status.message = ('lost' if lost else 'tracked') + (
-                ', marker id seen twice' if agent in self.duplicates else '')
+                ', marker id seen twice' if agent in self.duplicates else '') + (
+                f', pattern not fitted in {unfitted} frames (outline corners used: a '
+                'smudged or partly covered marker?)' if unfitted else '')
             status.values = [KeyValue(key='detection_rate', value=f'{rate:.3f}'),
+                             KeyValue(key='pattern_not_fitted', value=str(unfitted)),
                              KeyValue(key='last_seen_age_s', value='never' if seen is None
                                       else f'{now - seen:.3f}')]
             msg.status.append(status)
@@ -309,6 +314,13 @@ class CameraTracker(Node):
         self.latencies.clear()
         self.process_times.clear()
         self.duplicates.clear()
+        if self.tracker.pattern_fit is not None:
+            self.tracker.pattern_fit.misses.clear()
+
+    def _unfitted(self, marker_id):
+        """Frames since the last report in which marker_id's pattern fit was not used."""
+        fit = self.tracker.pattern_fit
+        return 0 if fit is None else fit.misses[marker_id]
 
     def on_shutdown(self):
         if self.capture is not None:

@@ -10,6 +10,8 @@ marker's brightness and contrast) brings that to 0.01-0.07 mm RMS and 0.06-0.12 
 Pixels follow OpenCV (origin at the centre of the top-left pixel).
 """
 
+import collections
+
 import cv2
 import numpy as np
 
@@ -40,6 +42,7 @@ class PatternFit:
         self._square = np.array([[edge_low, edge_low], [edge_high, edge_low],
                                  [edge_high, edge_high], [edge_low, edge_high]], np.float32)
         self._patterns = {}
+        self.misses = collections.Counter()   # marker id -> alignments not used, since reset
 
     def pattern(self, marker_id):
         """Marker `marker_id` in a white margin of QUIET_PX, float32 (0 black, 255 white)."""
@@ -71,10 +74,12 @@ class PatternFit:
                 cv2.MOTION_HOMOGRAPHY,
                 (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, ITERATIONS, EPSILON), None, 1)
         except cv2.error:   # did not converge (a covered or smeared marker)
+            self.misses[marker_id] += 1
             return corners
         refined = cv2.perspectiveTransform(self._square[None].astype(np.float64),
                                            warp.astype(np.float64))[0] + low
         if (correlation < MIN_CORRELATION or not np.isfinite(refined).all()
                 or np.abs(refined - corners).max() > MAX_SHIFT * module):
+            self.misses[marker_id] += 1
             return corners
         return refined
