@@ -256,16 +256,12 @@ def _cmd_clean_shm(args):
     the port files it leaves (dds_shm): what processes killed hard left in /dev/shm. Files a
     live process holds are kept.
     """
-    import subprocess
-
-    from curve_formation.dds_shm import remove_orphan_ports
-    from curve_formation.paths import fastdds_tool_command
+    from curve_formation.dds_shm import clean
     try:
-        argv = fastdds_tool_command('shm', 'clean')
+        status, removed = clean()
     except FileNotFoundError as exc:
         return _error(str(exc), 2)
-    status = subprocess.run(argv, check=False).returncode
-    print(f'{len(remove_orphan_ports())} port files without a lock or a user removed')
+    print(f'{len(removed)} port files without a lock or a user removed')
     return status
 
 

@@ -10,6 +10,7 @@ has them mapped or open (read from /proc): a live port is always mapped by its l
 import os
 from pathlib import Path
 import re
+import subprocess
 
 
 SHM_DIR = Path('/dev/shm')
@@ -59,3 +60,14 @@ def remove_orphan_ports(folder=SHM_DIR):
             continue
         removed.append(name)
     return removed
+
+
+def clean(quiet=False):
+    """Fast DDS's `fastdds shm clean` (segments and ports whose lock nobody holds), then the
+    port files it leaves (remove_orphan_ports). Returns (the tool's exit status, the names
+    removed here); FileNotFoundError without the tool. quiet: the tool prints nothing.
+    """
+    from curve_formation.paths import fastdds_tool_command
+    status = subprocess.run(fastdds_tool_command('shm', 'clean'), check=False,
+                            capture_output=quiet, timeout=60).returncode
+    return status, remove_orphan_ports()

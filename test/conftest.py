@@ -91,8 +91,6 @@ def pytest_sessionfinish(session, exitstatus):
     import contextlib
     import subprocess
 
-    from curve_formation.dds_shm import remove_orphan_ports
-    from curve_formation.paths import fastdds_tool_command
+    from curve_formation.dds_shm import clean
     with contextlib.suppress(OSError, subprocess.SubprocessError):
-        subprocess.run(fastdds_tool_command('shm', 'clean'), capture_output=True, timeout=60)
-        remove_orphan_ports()
+        clean(quiet=True)

@@ -121,13 +121,12 @@ def agent_command(fx: float, fy: float, ahead_x: float, ahead_y: float, ex: floa
 
     fx, fy: feedback (m; follower_feedback or leader_feedback); ahead: the target's velocity
     on a moving curve (m/s; the feed-forward, with_feed_forward; 0 otherwise); ex, ey: own
-    target error (m);
-    x, y, theta: own pose; dhat: estimate; prev: the previous command sent (for the
-    acceleration limits); pc: disturbance added on the PC (the paper's arena experiment);
-    law: Law; limits: WheelLimits; others (n, 3), me, avoidance: safety.safe_command's.
-    The feed-forward, the feedback shaped around robots and walls nearby, the law, then PC
-    disturbance,
-    acceleration and wheel limits, then the safety filter.
+    target error (m); x, y, theta: own pose; dhat: estimate; prev: the previous command sent
+    (for the acceleration limits); pc: disturbance added on the PC (the paper's arena
+    experiment); law: Law; limits: WheelLimits; others (n, 3), me, avoidance:
+    safety.safe_command's. The feed-forward, the feedback shaped around robots and walls
+    nearby, the law, then PC disturbance, acceleration and wheel limits, then the safety
+    filter.
     Returns (v, w, ref_v, ref_w, ddhat_v, ddhat_w, code): the command, what the observer
     compares the measured motion with (the law's command where the disturbance enters, plus
     what the filter changed), the continuous-time estimator rate (paper and adaptive laws)
