@@ -58,11 +58,12 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None)
     on_pc = spec.disturbance.injected == 'on_pc'
     one_world = uses_fake_arena(experiment) or bridge is not None
     links = robot_links(experiment.n, bridge, links_dir) if bridge and with_robots else []
-    # The curve server waits until the n controllers, the runner's monitor and the camera nodes
-    # (they draw the curve) can receive from it (nodes/readiness.py).
+    # The curve server waits until the n controllers, the runner's monitor, its bag recorder
+    # and the camera nodes (they draw the curve) can receive from it (nodes/readiness.py).
     launches = [NodeLaunch('curve_formation.nodes.curve_server', '/', 'curve_server',
                            {'experiment': str(Path(experiment_path).resolve()),
-                            'wait_for_ready': experiment.n + 1 + len(cameras),
+                            'wait_for_ready': (experiment.n + 1 + len(cameras)
+                                               + (options.bag_path is not None)),
                             # a drawn curve comes from the camera, not from the schedule
                             'schedule': not (cameras and spec.camera.drawn_curve is not None)})]
     for i, config in enumerate(agent_configs(experiment, rate), 1):

@@ -1,6 +1,7 @@
 """Nodes in-process with a private Context and executor, spin loops bounded by deadlines."""
 
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -11,7 +12,7 @@ import pytest
 import rclpy
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray
+from std_msgs.msg import Float64MultiArray, String
 import yaml
 
 from conftest import DATA_DIR
@@ -103,6 +104,28 @@ def test_curve_server_starts_once_the_awaited_subscribers_say_they_receive(ros):
     reader('second')
     spin_until(lambda: sorted(received) == ['first', 'second'])
     assert server.ready.names == {'/first', '/second'} and server.next_id == 1
+
+
+def test_curve_server_also_waits_until_its_publisher_reaches_that_many_readers(ros):
+    """A ready report is the reader's side of a link; the schedule starts only once the
+    server's own publisher has matched as many readers too: a curve published before would
+    miss the readers it has not matched, and they would get a later message (a moving curve's
+    renewal, mistaken for its start; seen in CI as a 3 mm offset of every robot).
+    """
+    context, add, spin_until = ros
+    server = add(CurveServer(context=context, parameter_overrides=overrides(
+        experiment='closed_curve', wait_for_ready=1)))
+    reporter = add(rclpy.create_node('reporter', context=context))
+    topics.publisher(reporter, topics.READY).publish(String(data='/reporter'))
+    spin_until(lambda: server.ready.names == {'/reporter'})
+    deadline = time.monotonic() + 1.0
+    spin_until(lambda: time.monotonic() > deadline)
+    assert server.next_id == 0   # reported, but no reader of the curve: not started
+    node = add(rclpy.create_node('reader', context=context))
+    received = []
+    node.create_subscription(Float64MultiArray, topics.CURVE, received.append, qos.LATCHED)
+    spin_until(lambda: received)
+    assert server.next_id == 1
 
 
 def test_follower_drives_only_while_its_inputs_are_fresh(ros):
@@ -394,3 +417,67 @@ def test_agent_settings_survive_the_trip_through_node_parameters(ros, name):
                                        parameter_overrides=params))
         assert node.config == config
         assert agent_config(node.params) == config
+
+
+def test_monitor_skips_the_sample_a_stalled_machine_would_take_with_old_poses(ros_domain):
+    """A robot's pose comes at 30 Hz from another process, x = its stamp (s since it began).
+    The whole machine stalls for 0.35 s (that process stopped, the monitor's asleep): on
+    waking the monitor's timer is called before the fresh poses arrive, and a sample taken
+    then would hold a 0.35 s old pose (a 3.5 mm error at 1 cm/s; seen in CI on the moving
+    loop). It is skipped: every recorded row holds a pose under 0.15 s old.
+    """
+    from rclpy.context import Context
+
+    from curve_formation.nodes.monitor import Monitor
+    from curve_formation.nodes.runtime import make_executor
+    publisher = subprocess.Popen([sys.executable, '-c', POSE_PUBLISHER], env=os.environ)
+    context = Context()
+    rclpy.init(context=context)
+    executor = make_executor(context)
+    monitor = Monitor(1, record_hz=20.0, context=context)
+    executor.add_node(monitor)
+    probe = rclpy.create_node('probe', context=context)
+    curve_pub = topics.publisher(probe, topics.CURVE)
+    try:
+        def spin_for(seconds):
+            end = time.monotonic() + seconds
+            while time.monotonic() < end:
+                executor.spin_once(timeout_sec=0.02)
+        deadline = time.monotonic() + 20.0
+        while np.isnan(monitor.pose_stamps[0]):
+            assert time.monotonic() < deadline and publisher.poll() is None, 'no pose'
+            executor.spin_once(timeout_sec=0.02)
+        curve_pub.publish(messages.curve_to_msg(circle_curve(), 0, [0.0]))
+        spin_for(1.0)
+        publisher.send_signal(signal.SIGSTOP)   # the whole machine stalls
+        time.sleep(0.35)
+        publisher.send_signal(signal.SIGCONT)
+        spin_for(1.0)
+        data = monitor.recording.arrays()
+    finally:
+        publisher.kill()
+        publisher.wait()
+        executor.shutdown()
+        monitor.destroy_node()
+        probe.destroy_node()
+        rclpy.try_shutdown(context=context)
+    start = monitor.pose_stamps[0] - monitor.poses[0, 0]   # the publisher's time origin
+    ages = data['t'] + monitor.t0 - start - data['poses'][:, 0, 0]
+    print(f'{len(ages)} rows, pose age at most {1e3 * ages.max():.0f} ms; '
+          f'{monitor.late_samples} skipped')
+    assert len(ages) >= 30 and ages.max() < 0.15
+    assert monitor.late_samples >= 1
+
+
+POSE_PUBLISHER = """
+import time, rclpy
+from curve_formation.nodes import messages, topics
+rclpy.init()
+node = rclpy.create_node('pose_source', namespace='/robot_1')
+pub = topics.publisher(node, topics.POSE)
+start = time.time()
+while True:
+    now = time.time()
+    pub.publish(messages.pose_to_msg(now - start, 0.0, 0.0, now))
+    time.sleep(1 / 30)
+"""

@@ -56,7 +56,8 @@ PARAMETERS = (
           're-assign (s)', positive=True),
     Param('wait_for_ready', 'int', 0, 'start the schedule (t = 0) only once this many nodes '
           'have said on /formation/ready that they receive /formation/curve from this server, '
-          'so all robots start together (readiness.py)', low=0),
+          'and its publisher has matched as many subscriptions, so all robots start together '
+          '(readiness.py)', low=0),
 )
 
 
@@ -111,11 +112,16 @@ class CurveServer(Node):
 
     def _on_timer(self):
         if self.start is None:
-            if len(self.ready) < self.params.wait_for_ready:
+            # Both sides of each link: a reader that has found this server says so on
+            # /formation/ready; this server's writer must have found as many readers, or its
+            # first curve is not sent to those it has not (they would get a later one).
+            awaited = self.params.wait_for_ready
+            matched = self.curve_pub.get_subscription_count()
+            if len(self.ready) < awaited or matched < awaited:
                 self.get_logger().warn(
-                    f'waiting for {self.params.wait_for_ready} curve subscribers to be ready, '
-                    f'{len(self.ready)} so far: {sorted(self.ready.names)}', skip_first=True,
-                    throttle_duration_sec=5.0)
+                    f'waiting for {awaited} curve subscribers to be ready, '
+                    f'{len(self.ready)} so far: {sorted(self.ready.names)}; this server '
+                    f'reaches {matched}', skip_first=True, throttle_duration_sec=5.0)
                 return
             self.start = now_seconds(self)
             if self.reassign_every > 0:

@@ -8,7 +8,9 @@ controller, the leader in two, got curve 0 0.8-1.9 s after the others, each time
 subscription first counted a publisher. So every node that should start with the schedule
 says so on /formation/ready (std_msgs/String, its node name, latched) once its own subscription
 to /formation/curve counts a publisher, and the curve server starts the schedule once enough
-have.
+have and its own publisher has matched as many subscriptions (the writer's side of the same
+links: a curve published before reaches only the readers it has matched, and the others get
+a later one).
 """
 
 from std_msgs.msg import String

@@ -14,6 +14,7 @@ from sensor_msgs.msg import Image
 from curve_formation import bag
 from curve_formation.nodes import qos, topics
 from curve_formation.nodes.params import declare_parameters, Param, ParameterError
+from curve_formation.nodes.readiness import ReadyReport, REPORTED
 from curve_formation.nodes.runtime import (
     RECORDER_NODE,
     run_node,
@@ -56,11 +57,13 @@ class Recorder(Node):
                               durability=profile.durability)
             # the one type whose writers runtime.writer_key tells apart by content
             keyed = msg_class if msg_class is DiagnosticArray else None
-            self.create_subscription(
+            subscription = self.create_subscription(
                 msg_class, topic,
                 WithMessageInfo(lambda data, info, topic=topic, keyed=keyed:
                                 self._on_message(topic, data, info, keyed)),
                 deep, raw=True, event_callbacks=qos.observer_events())
+            if topic == topics.CURVE:   # the bag's t = 0 is its first curve: not a later one
+                ReadyReport(self, subscription, log=False)
 
     def _on_message(self, topic, data, info, keyed):
         self.received[topic] += 1
@@ -86,7 +89,7 @@ PARAMETERS = (
 )
 
 TOPICS = tuple(topics.Use('sub', t.name, robot='<i>' if t.per_robot else None)
-               for t in topics.REGISTRY.values() if t.recorded == topics.EVERY_BAG)
+               for t in topics.REGISTRY.values() if t.recorded == topics.EVERY_BAG) + (REPORTED,)
 
 
 class RecorderNode(Recorder):
