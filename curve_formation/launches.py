@@ -70,7 +70,8 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None)
         ns = f'/robot_{i}'
         d = [float(v) for v in experiment.disturbance[i - 1]]
         controller = {**node_parameters(config),
-                      'fault_state_drop': float(faults.get('state_drop', 0.0))}
+                      'fault_state_drop': float(faults.get('state_drop', 0.0)),
+                      'compiled_law': options.single_process}
         launches.append(NodeLaunch('curve_formation.nodes.formation_controller', ns,
                                    'formation_controller', controller))
         if links:

@@ -1,5 +1,6 @@
 """The per-robot controller that the ROS node runs: same law as the simulator, safe inputs."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -18,26 +19,30 @@ from curve_formation.core.simulator import simulate
 from curve_formation.paths import resolve_config
 
 
-def controllers_for(experiment, rate_hz):
+def controllers_for(experiment, rate_hz, compiled=False):
     out = []
     for cfg in agent_configs(experiment, rate_hz):
-        ctrl = AgentController(cfg)
+        ctrl = AgentController(dataclasses.replace(cfg, compiled=compiled))
         # the parameters the curve server sends with the curve
         ctrl.set_curve(experiment.phases[0].curve, 0, experiment.phases[0].s)
         out.append(ctrl)
     return out
 
 
-@pytest.mark.parametrize('name', ['mona_arena', str(DATA_DIR / 'fast_closed.yaml'), 'fixed'])
-def test_node_controllers_reproduce_the_simulator_exactly(name):
+@pytest.mark.parametrize('name, compiled', [
+    ('mona_arena', False), ('mona_arena', True), (str(DATA_DIR / 'fast_closed.yaml'), False),
+    ('fixed', False)])
+def test_node_controllers_reproduce_the_simulator_exactly(name, compiled):
     """n AgentControllers ticked together at 10 Hz with exact unicycle steps == simulate():
-    the same tick pipeline (core.control.agent_command). The shipped arena case has nearest
-    assignment, follower pinning, bodies, the safety filter and re-assignment every second
-    (done here as the curve server does it, with assignment.reassigned).
+    the same tick pipeline (core.control.agent_command), run as Python or, as a single-process
+    run's nodes do, compiled (loaded before the first tick, never again). The shipped arena
+    case has nearest assignment, follower pinning, bodies, the safety filter and re-assignment
+    every second (done here as the curve server does it, with assignment.reassigned).
     """
     experiment = paper_arena() if name == 'fixed' else load_experiment(resolve_config(name))
     rate, dt, duration = 10.0, 0.001, 5.0
-    ctrls = controllers_for(experiment, rate)
+    ctrls = controllers_for(experiment, rate, compiled)
+    compiled_for = len(ctrls[0].command.signatures) if compiled else None
     on_pc = experiment.spec.disturbance.injected == 'on_pc'
     poses = experiment.initial_poses.copy()
     phase = experiment.phases[0]
@@ -81,6 +86,8 @@ def test_node_controllers_reproduce_the_simulator_exactly(name):
     # The simulator records after its tick at t = 5 s; the last tick here was at 4.9 s.
     np.testing.assert_allclose([c.dhat for c in ctrls], sim.dhat[-2], atol=1e-9)
     assert reassigned_at == [when for when, _, _ in sim.experiment.phases[0].changes]
+    if compiled:   # no tick compiled anything
+        assert len(ctrls[0].command.signatures) == compiled_for
 
 
 def config(**kw):

@@ -362,6 +362,41 @@ def test_fake_arena_bodies_push_each_other_and_count_the_contact(ros):
                            for r in reports for s in r.status), timeout=3.0)
 
 
+def test_fake_arena_steps_at_once_only_where_no_contact_can_happen(ros):
+    """The fake arena moves the robots over a pose period in one step while no two bodies
+    nor a body and a wall can meet in it, and in physics_dt steps near a contact: two robots
+    driven head-on meet and push each other exactly as with physics_dt steps throughout, in
+    under half the steps.
+    """
+    from curve_formation.nodes.fake_arena import FakeArena
+    context, add, _ = ros
+    arenas = [add(FakeArena(context=context, parameter_overrides=[
+        Parameter('experiment', value=str(DATA_DIR / 'arena_bodies.yaml'))]))
+        for _ in range(2)]
+    arenas[1]._apart_over = lambda span: False   # physics_dt steps throughout
+    steps = []
+    for arena in arenas:
+        count = []
+        touch = arena._touch
+        arena._touch = lambda step, touch=touch, count=count: (count.append(step), touch(step))
+        t = 0.0
+        arena.advance(t)
+        for _ in range(120):   # 4 s of 30 Hz pose periods, robots 1 and 4 head-on
+            for i in (0, 3):
+                arena.robots[i].drive(0.08, 0.0, t, advance=False)
+            t += 1 / 30
+            arena.advance(t)
+        steps.append(len(count))
+    at_once, fine = arenas
+    np.testing.assert_allclose([r.pose for r in at_once.robots], [r.pose for r in fine.robots],
+                               rtol=0, atol=1e-9)
+    assert at_once.contacts == fine.contacts == 1
+    assert at_once.contact_time == pytest.approx(fine.contact_time)
+    assert at_once.smallest_gap == pytest.approx(fine.smallest_gap, abs=1e-9)
+    print(f'steps: {steps[0]} at once where apart, {steps[1]} of physics_dt')
+    assert steps[0] < steps[1] / 2
+
+
 def test_a_double_parameter_takes_an_integer_and_a_wrong_type_is_named(ros):
     """ROS users type `-p k1:=2`: an integer for a double is taken; a string is refused."""
     context, add, _ = ros

@@ -22,7 +22,7 @@ and no cycle can keep a dead leader alive.
 """
 
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 import math
 from typing import Optional, TYPE_CHECKING
@@ -133,6 +133,9 @@ class AgentConfig:
     avoidance: Avoidance = AVOIDANCE_OFF   # the safety filter, from every robot's pose
     predict_pose: bool = False      # carry the pose forward to the tick (AgentController)
     feed_forward: bool = True       # add a moving curve's target velocity to the command
+    # The law and filter (control.agent_command) compiled by numba as in the batch simulator:
+    # the same source, about 15x faster a tick; loading it costs ~0.7 s and ~65 MB.
+    compiled: bool = False
 
     @property
     def is_leader(self) -> bool:
@@ -185,6 +188,18 @@ class _Neighbour:
     received: Optional[float] = None    # s, this controller's clock
 
 
+def compiled_command(config: AgentConfig) -> Callable[..., tuple]:
+    """control.agent_command compiled (core.simulator.compiled) and called once with the
+    argument types of config's ticks, so that no tick waits for numba.
+    """
+    from curve_formation.core.simulator import compiled
+    command = compiled(agent_command)
+    command(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+            *config.pc_disturbance, config.law, config.limits, NO_OTHERS, config.index - 1,
+            config.avoidance)
+    return command
+
+
 @dataclass
 class AgentController:
     """Local law of one agent with its estimator; feed it inputs, call tick() at rate_hz."""
@@ -221,6 +236,7 @@ class AgentController:
         # pose may be (pose_timeout), for predict_pose
         self.sent: deque[tuple[float, float, float]] = deque(
             maxlen=int(math.ceil(self.config.rate_hz * self.config.pose_timeout)) + 2)
+        self.command = compiled_command(self.config) if self.config.compiled else agent_command
 
     def set_curve(self, curve: Curve, curve_id: int,
                   s_all: Sequence[float] | FloatArray | None, rate: Curve | None = None,
@@ -426,7 +442,7 @@ class AgentController:
         if law.code == OBSERVER:
             self._observe()
         ahead = self.ahead if cfg.feed_forward else (0.0, 0.0)
-        v, w, ref_v, ref_w, ddv, ddw, code = agent_command(
+        v, w, ref_v, ref_w, ddv, ddw, code = self.command(
             fx, fy, *ahead, ex, ey, *pose, self.dhat[0], self.dhat[1], *self.last_command,
             *cfg.pc_disturbance, law, cfg.limits, self.others, cfg.index - 1, cfg.avoidance)
         if law.code != OBSERVER:

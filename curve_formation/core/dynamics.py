@@ -56,6 +56,14 @@ class DrivenUnicycle:
         self.pending.append((now + self.latency, v, w))
         self.last_command_time = now
 
+    def top_speed(self, until):
+        """The fastest (m/s) the centre moves up to `until` under the command in force and
+        those due by then.
+        """
+        commands = [self.command] + [(v, w) for due, v, w in self.pending if due <= until]
+        return max(0.0 if (v, w) == (0.0, 0.0) else abs(v + self.disturbance[0])
+                   for v, w in commands)
+
     def advance(self, until):
         """Move exactly up to `until`, switching commands at their due times. Returns
         True when the watchdog turned the motors off on the way.

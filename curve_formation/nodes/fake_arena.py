@@ -89,6 +89,7 @@ class FakeArena(Node):
         self.contacts = 0
         self.contact_time = 0.0
         self.smallest_gap = math.inf
+        self.clearance = -math.inf   # the smallest gap, or twice a body's room to a wall (m)
         self.time = None
         self.rng = np.random.default_rng(p.seed)
         self.pose_pubs = [topics.publisher(self, p.pose_topic, robot=i)
@@ -162,17 +163,31 @@ class FakeArena(Node):
         self.robots[i - 1].drive(v, w, now_seconds(self), advance=False)
 
     def advance(self, until):
-        """Move every robot up to `until` (s), resolving contacts every physics_dt."""
+        """Move every robot up to `until` (s), resolving contacts every physics_dt; in one
+        step while no two bodies, nor a body and a wall, can meet before then at the fastest
+        speed commanded (nothing to resolve on the way).
+        """
         if self.time is None:
             self.time = until
         while self.time < until:
             step = min(self.params.physics_dt, until - self.time)
+            if self._apart_over(until - self.time):
+                step = until - self.time
             self.time += step
             for i, robot in enumerate(self.robots):
                 if robot.advance(self.time):
                     self.get_logger().warning(f'robot {i + 1}: no command for '
                                               f'{self.params.command_timeout:g} s: motors off')
             self._touch(step)
+
+    def _apart_over(self, span):
+        """Whether no contact can happen in the next `span` s: the bodies' smallest gap and
+        twice their room to the walls exceed twice the fastest robot's travel.
+        """
+        if self.radius <= 0:
+            return True
+        speed = max(robot.top_speed(self.time + span) for robot in self.robots)
+        return self.clearance > 2.0 * speed * span
 
     def _touch(self, step):
         if self.radius <= 0:
@@ -183,6 +198,11 @@ class FakeArena(Node):
         self.contacts += new
         self.contact_time += step if now else 0.0
         self.smallest_gap = min(self.smallest_gap, gap)
+        self.clearance = -math.inf if now else gap
+        for axis, size in enumerate(self.size):   # walls: 0 <= x <= width, 0 <= y <= height
+            if size > 0:
+                room = np.minimum(poses[:, axis], size - poses[:, axis]) - self.radius
+                self.clearance = min(self.clearance, 2.0 * float(room.min()))
         for robot, pose in zip(self.robots, poses, strict=True):
             robot.pose = tuple(pose)
 
