@@ -212,8 +212,9 @@ TOPICS = (
     Use('pub', topics.CMD_VEL, 'velocity command at rate_hz'),
     Use('pub', topics.STATE, 'own state on every pose, for out-neighbours (names e_x, e_y, '
         'curve_id, leader_age)'),
-    Use('pub', topics.TICK, 'every tick: the command sent (v, w) and the stamps of the inputs '
-        'it came from (own pose, each in-neighbour state), to trace or replay a command'),
+    Use('pub', topics.TICK, 'every tick while it has a subscriber: the command sent (v, w) and '
+        'the stamps of the inputs it came from (own pose, each in-neighbour state), to trace or '
+        'replay a command'),
     Use('pub', topics.ESTIMATE),
     Use('pub', topics.DIAGNOSTICS, 'driving or why stopped; curve id, s_i, estimate, rejected '
         'inputs'),
