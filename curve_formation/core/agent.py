@@ -420,8 +420,8 @@ class AgentController:
         else:
             if is_stale(self.leader_heard, now, cfg.leader_timeout):
                 return self._stop('no news from the leader yet' if self.leader_heard is None
-                                  else f'no news from the leader for '
-                                  f'{now - self.leader_heard:.2f} s', base)
+                                  else f'no news from the leader '
+                                  f'({now - self.leader_heard:.2f} s old)', base)
             for j, nb in self.neighbours.items():
                 if nb.received is None:
                     return self._stop(f'no state from neighbour {j} yet', base)
