@@ -51,9 +51,12 @@ def test_analysis_of_the_bag_reproduces_the_runs_own_metrics(switched, tmp_path)
     result = analyze_bag(folder / 'bag', tmp_path)
     assert len(live['phases']) == len(result['phases']) == 2
     assert live['all_settled'] and result['all_settled']
+    # Each rounds the moment the error settles up to its own sampling grid (the monitor's
+    # timer, the analysis's grid from t = 0: independent phases), up to a period apart; a
+    # sample the monitor skipped (its process held up) widens its grid's gap to two.
     for ours, theirs in zip(result['phases'], live['phases'], strict=True):
         np.testing.assert_allclose(ours['settle_time'], theirs['settle_time'],
-                                   atol=RECORD_PERIOD)
+                                   atol=2 * RECORD_PERIOD)
         assert abs(ours['final_error_norm'] - theirs['final_error_norm']) < (
             0.01 * theirs['tolerance'])
         for key in ('cv', 'min_over_max'):
