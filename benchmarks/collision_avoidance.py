@@ -112,6 +112,11 @@ def arena_table(name, seeds):
               f'{np.median(off_bound):19.2f}, {max(off_bound):8.2f} '
               f'{np.median(turn_bound):27.2f}, {max(turn_bound):8.2f}   (worst: seed '
               f'{rows[worst]["seed"]})')
+        # What any differential drive at the wheel limit needs, over the straight trip.
+        floor = np.array([r['turn_bound'][k] / r['bound'][k] for r in rows])
+        print(f'{"":5s} the turn-and-straight bound itself: {np.median(floor):.2f}x the straight '
+              f'trip median, {floor.max():.2f}x at most; {int(np.sum(floor >= 1.3))} of '
+              f"{len(rows)} starts at 1.3x or more: out of any robot's reach there")
     print(f'contacts: {sum(r["contacts"] for r in rows)} in all; smallest surface gap '
           f'{min(r["gap"] for r in rows) * 1000:.2f} mm (law alone: '
           f'{min(r["off_gap"] for r in rows) * 1000:.1f} mm, i.e. bodies overlapping); '
