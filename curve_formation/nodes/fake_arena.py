@@ -16,6 +16,7 @@ answers each line 'ok' or 'err'; no cmd_vel is read (robot_bridge writes those l
 import math
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseStamped
 import numpy as np
 from rclpy.duration import Duration
 from rclpy.node import Node
@@ -94,6 +95,7 @@ class FakeArena(Node):
         self.rng = np.random.default_rng(p.seed)
         self.pose_pubs = [topics.publisher(self, p.pose_topic, robot=i)
                           for i in range(1, self.n + 1)]
+        self.pose_msgs = [PoseStamped() for _ in self.pose_pubs]   # filled anew each period
         self.all_pub = (topics.publisher(self, topics.ROBOT_POSES)
                         if p.publish_robot_poses else None)
         self.diag_pub = topics.publisher(self, topics.DIAGNOSTICS)
@@ -213,9 +215,9 @@ class FakeArena(Node):
         poses = np.array([r.pose for r in self.robots])
         if noise[0] > 0 or noise[1] > 0:
             poses = poses + self.rng.normal(0.0, [noise[0], noise[0], noise[1]], poses.shape)
-        for pub, (x, y, th) in zip(self.pose_pubs, poses, strict=True):
+        for pub, msg, (x, y, th) in zip(self.pose_pubs, self.pose_msgs, poses, strict=True):
             if self.rng.random() >= self.params.fault_pose_drop:
-                pub.publish(messages.pose_to_msg(x, y, th, now, self.params.frame_id))
+                pub.publish(messages.pose_to_msg(x, y, th, now, self.params.frame_id, msg))
         if self.all_pub is not None:
             self.all_pub.publish(messages.robot_poses_to_msg(poses, now, self.params.frame_id))
 

@@ -243,6 +243,7 @@ class FormationController(Node):
         self.state_pub = topics.publisher(self, topics.STATE)
         self.estimate_pub = topics.publisher(self, topics.ESTIMATE)
         self.tick_pub = topics.publisher(self, topics.TICK)
+        self.state_msg = None   # the state message, filled anew for every pose
         self.diag_pub = topics.publisher(self, topics.DIAGNOSTICS)
         topics.subscription(self, topics.POSE, self._on_pose)
         subscribe_to_curve(self, self._on_curve)
@@ -281,7 +282,8 @@ class FormationController(Node):
             return
         state = self.controller.state()
         if state is not None and self.rng.random() >= self.params.fault_state_drop:
-            self.state_pub.publish(messages.state_to_msg(state, self.params.frame_id))
+            self.state_msg = messages.state_to_msg(state, self.params.frame_id, self.state_msg)
+            self.state_pub.publish(self.state_msg)
 
     def _on_neighbour(self, j, msg):
         try:
