@@ -241,6 +241,9 @@ def test_curve_server_fits_and_publishes_an_observed_curve(ros):
     # Observed points are parameterised by chord length; an ellipse in that parameter is not a
     # finite Fourier series, so K = 6 leaves a small residual (measured 0.012, 0.3 % of size).
     assert np.abs((pts[:, 0] - 3) ** 2 / 4 + (pts[:, 1] - 1) ** 2 - 1).max() < 0.02
+    # The same message again (the tracker resends one it has not seen answered: a busy
+    # tracker may not have read the answer yet) is not a new curve.
+    pub.publish(msg)
     # Refused, the current curve staying: too few points for the basis, two points, a NaN,
     # more points than MAX_OBSERVED_POINTS.
     from curve_formation.nodes.curve_server import MAX_OBSERVED_POINTS
@@ -254,6 +257,10 @@ def test_curve_server_fits_and_publishes_an_observed_curve(ros):
     deadline = time.monotonic() + 2.0
     spin_until(lambda: time.monotonic() > deadline)
     assert server.next_id == 2
+    msg.polygon.points = good   # the same line seen again later (another stamp) is taken
+    msg.header.stamp.sec = 5
+    pub.publish(msg)
+    spin_until(lambda: server.next_id == 3)
 
 
 def test_curve_message_round_trip_with_and_without_agent_parameters():

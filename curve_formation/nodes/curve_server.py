@@ -97,6 +97,7 @@ class CurveServer(Node):
                                      self.experiment.gains.offset)
         self.start = None
         self.current = None   # (curve, curve id, s, rate) last published
+        self.last_observed = None   # (stamp s, closed, points bytes) of the last observed curve
         self.moving = None    # the Phase being published as it moves
         self.poses = None     # (poses (n, 3), stamp s) last received
         every = self.params.reassign_every
@@ -224,6 +225,12 @@ class CurveServer(Node):
                                     f'{MAX_OBSERVED_POINTS}')
             return
         points, closed = messages.polygon_from_msg(msg)
+        # The camera tracker sends an observed curve again until it reads the answer; a busy
+        # tracker may not have read it yet: the same message (stamp and points) is no news.
+        seen = (messages.stamp_to_seconds(msg.header.stamp), closed, points.tobytes())
+        if seen == self.last_observed:
+            return
+        self.last_observed = seen
         kind = self.params.observed_basis
         if kind == 'auto':
             kind = 'fourier' if closed else 'polynomial'
