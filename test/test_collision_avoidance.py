@@ -121,10 +121,10 @@ def test_encounters_that_block_robots_resolve_without_a_contact(name):
 
 
 @pytest.mark.parametrize('name, seed', [('mona_arena', 0), ('mona_arena', 5),
-                                        ('arena_demo', 1), ('arena_demo', 9)])
+                                        ('arena_demo', 1), ('arena_demo', 18)])
 def test_the_arena_cases_settle_every_phase_without_a_contact(name, seed):
-    """The shipped arena experiments from fixed random starts (seed 5 is the slowest first
-    phase of mona_arena's 20 benchmark starts, 59.9 s of its 60 s).
+    """The shipped arena experiments from fixed random starts where the law alone would
+    bring bodies into each other (seed 18: arena_demo's slowest of the benchmark's 20).
     """
     case = load_experiment(resolve_config(name))
     start = seeded_start(case, seed)

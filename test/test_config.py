@@ -58,6 +58,8 @@ BROKEN = [
      'agents.initial.poses', 'expected 6'),
     ('wrong disturbance shape', ('disturbance', 'value'), [1, 2, 3], 'disturbance.value',
      'at most 2 items'),
+    ('negative tail radius', ('controller', 'tail'), {'radius': -0.01, 'gain': 2.0},
+     'controller.tail.radius', 'greater than 0'),
 ]
 
 
@@ -77,6 +79,15 @@ def test_switch_times_must_increase(arena_dict):
     arena_dict['curves'][1]['start'] = 0.0
     with pytest.raises(ConfigError, match=r'curves\[1\]\.start: switch times must increase'):
         build_experiment(arena_dict, 'arena.yaml')
+
+
+def test_a_tail_gain_that_would_overshoot_a_sampled_command_is_refused(arena_dict):
+    arena_dict['controller']['tail'] = {'radius': 0.05, 'gain': 20.0}
+    with pytest.raises(ConfigError, match=r'arena.yaml: controller: .*tail.gain 20 times k1 '
+                       r'0.666667 must stay below rate_hz 10'):
+        build_experiment(arena_dict, 'arena.yaml')
+    arena_dict['controller']['tail'] = {'radius': 0.05, 'gain': 3.0}
+    assert build_experiment(arena_dict, 'arena.yaml').gains.tail_gain == 3.0
 
 
 def test_initial_poses_outside_the_arena(arena_dict):

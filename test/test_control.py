@@ -12,6 +12,7 @@ from curve_formation.core.control import (
     leader_feedback,
     saturate,
     stacked_paper_input,
+    tail_feedback,
     wheel_speeds,
 )
 from curve_formation.core.curves import FourierBasis, PolynomialBasis
@@ -85,3 +86,39 @@ def test_angular_rate_bound():
     sv, sw = saturate(0.1, 10.0, 0.0, math.inf, 2.0)
     assert sw == pytest.approx(2.0)
     assert sv == pytest.approx(0.02)
+
+
+def test_the_tail_scales_the_feedback_as_its_square_root_near_the_target_only():
+    radius, gain = 0.05, 3.0
+    assert tail_feedback(0.03, -0.04, radius, gain) == (0.03, -0.04)     # |f| = radius
+    assert tail_feedback(0.003, 0.004, 0.0, gain) == (0.003, 0.004)      # off
+    assert tail_feedback(0.0, 0.0, radius, gain) == (0.0, 0.0)
+    for size in (0.04, 0.02, 0.01, radius / gain ** 2):
+        fx, fy = tail_feedback(0.6 * size, -0.8 * size, radius, gain)
+        assert math.hypot(fx, fy) == pytest.approx(math.sqrt(radius * size))
+        assert math.atan2(fy, fx) == pytest.approx(math.atan2(-0.8, 0.6))
+    # Below radius / gain^2 the gain is capped: linear again, `gain` times the paper's.
+    fx, fy = tail_feedback(1e-4, 0.0, radius, gain)
+    assert (fx, fy) == pytest.approx((gain * 1e-4, 0.0))
+
+
+def test_the_tail_ends_a_lone_robots_approach_sooner_than_the_linear_law():
+    """One leader, no disturbance, no limits, continuous: the linear law takes ln(e0 / e) / k1
+    from 20 mm to 0.1 mm; with the tail the time from radius to radius / gain^2 is finite
+    (2 (sqrt(e0) - sqrt(e)) / (k1 sqrt(radius))) and the rest is k1 gain fast.
+    """
+    k1, radius, gain, dt = 0.5, 0.05, 3.0, 1e-3
+    times = []
+    for tail in (0.0, radius):
+        e, t = 0.02, 0.0
+        while e > 1e-4:
+            fx, _ = tail_feedback(e, 0.0, tail, gain)
+            e -= k1 * fx * dt
+            t += dt
+        times.append(t)
+    linear, tailed = times
+    assert linear == pytest.approx(math.log(0.02 / 1e-4) / k1, rel=1e-3)
+    expected = (2 * (math.sqrt(0.02) - math.sqrt(radius / gain ** 2)) / (k1 * math.sqrt(radius))
+                + math.log(radius / gain ** 2 / 1e-4) / (k1 * gain))
+    assert tailed == pytest.approx(expected, rel=1e-2)
+    assert tailed < 0.5 * linear

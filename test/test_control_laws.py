@@ -93,7 +93,7 @@ def test_the_arena_case_settles_every_60_s_phase_at_10_hz(seed):
     for t in times + floor:
         assert t is not None and t < 60.0, (seed, times, floor)
     paper = with_start(paper_arena(), start)
-    consensus, _ = settle_times(paper, dataclasses.replace(case.gains, k2=0.0), 10.0, start,
+    consensus, _ = settle_times(paper, dataclasses.replace(paper.gains, k2=0.0), 10.0, start,
                                 disturbance=[0.0, 0.0])
     assert consensus[0] is None, consensus
 

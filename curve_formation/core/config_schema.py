@@ -91,6 +91,20 @@ class GraphSpec(Strict):
         "b e_i + sum_j a_ij (e_i - e_j) (the leader's is 1); 0 = the paper's consensus law")
 
 
+class TailSpec(Strict):
+    """The finite-time tail of the approach (control.tail_feedback)."""
+
+    radius: float = Field(gt=0, description='feedback size (m) below which the law speeds up '
+                          'as the square root of it instead of linearly')
+    gain: float = Field(ge=1, description='cap on the speed-up (the gain is at most k1 gain)')
+
+    @model_validator(mode='after')
+    def _finite(self):
+        if not (math.isfinite(self.radius) and math.isfinite(self.gain)):
+            raise ValueError('radius and gain must be finite')
+        return self
+
+
 class ControllerSpec(Strict):
     law: Literal['paper', 'adaptive', 'observer'] = Field(
         'paper', description="disturbance estimator: 'paper' (the paper's adaptive law), "
@@ -116,6 +130,10 @@ class ControllerSpec(Strict):
     feed_forward: bool = Field(
         True, description="a moving curve's velocity at each target, G(s_i) xi-dot, is added "
         'to the command, so the formation keeps up instead of lagging (curves[].motion)')
+    tail: Optional[TailSpec] = Field(
+        None, description="near the target the law's speed shrinks as the square root of the "
+        'error instead of linearly, so the approach ends in finite time instead of an '
+        "exponential tail; null = the paper's linear law")
 
     @field_validator('adaptation')
     @classmethod
@@ -130,6 +148,14 @@ class ControllerSpec(Strict):
         if value == 0 or not math.isfinite(value):
             raise ValueError('the offset l must be finite and non-zero')
         return value
+
+    @model_validator(mode='after')
+    def _tail_within_the_period(self):
+        if self.tail is not None and self.rate_hz and self.k1 * self.tail.gain >= self.rate_hz:
+            raise ValueError(f'tail.gain {self.tail.gain:g} times k1 {self.k1:g} must stay '
+                             f'below rate_hz {self.rate_hz:g}: a sampled command would '
+                             'overshoot the target')
+        return self
 
 
 class DisturbanceSpec(Strict):

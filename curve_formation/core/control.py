@@ -39,6 +39,7 @@ class Gains:
     tracks the measured body velocity minus the command, over k2, at `observer_rate` (1/s)).
     sampled_heading: under a zero-order hold, turn as the continuous law would over one
     period (sampled_feedback) instead of holding its instantaneous turn rate.
+    tail_radius (m; 0: off), tail_gain: the finite-time tail (tail_feedback).
     """
 
     k1: float
@@ -48,6 +49,8 @@ class Gains:
     adaptation: tuple[float, float] = (1.0, 1.0)
     observer_rate: float = 5.0
     sampled_heading: bool = False
+    tail_radius: float = 0.0
+    tail_gain: float = 1.0
 
     @property
     def law_code(self) -> int:
@@ -72,7 +75,7 @@ class Gains:
         gamma_v, gamma_w = self.estimator_gains()
         return Law(self.law_code, self.k1, self.k2, self.offset, gamma_v, gamma_w,
                    self.hold_period(rate_hz), 1.0 / rate_hz if rate_hz else 0.0,
-                   self.observer_rate, on_pc)
+                   self.observer_rate, on_pc, self.tail_radius, self.tail_gain)
 
 
 class Law(NamedTuple):
@@ -80,7 +83,8 @@ class Law(NamedTuple):
 
     code: LAWS; k1 (1/s), k2, offset l (m), per-channel estimator gains, hold: the period of
     the sampled heading (s; 0: the paper's heading), period: the control period (s; 0:
-    continuous), observer_rate (1/s), on_pc: the disturbance is added on the PC.
+    continuous), observer_rate (1/s), on_pc: the disturbance is added on the PC,
+    tail_radius (m), tail_gain: tail_feedback's.
     """
 
     code: int
@@ -93,6 +97,8 @@ class Law(NamedTuple):
     period: float
     observer_rate: float
     on_pc: bool
+    tail_radius: float = 0.0
+    tail_gain: float = 1.0
 
 
 class WheelLimits(NamedTuple):
@@ -124,14 +130,15 @@ def agent_command(fx: float, fy: float, ahead_x: float, ahead_y: float, ex: floa
     target error (m); x, y, theta: own pose; dhat: estimate; prev: the previous command sent
     (for the acceleration limits); pc: disturbance added on the PC (the paper's arena
     experiment); law: Law; limits: WheelLimits; others (n, 3), me, avoidance:
-    safety.safe_command's. The feed-forward, the feedback shaped around robots and walls
-    nearby, the law, then PC disturbance, acceleration and wheel limits, then the safety
-    filter.
+    safety.safe_command's. The finite-time tail, the feed-forward, the feedback shaped
+    around robots and walls nearby, the law, then PC disturbance, acceleration and wheel
+    limits, then the safety filter.
     Returns (v, w, ref_v, ref_w, ddhat_v, ddhat_w, code): the command, what the observer
     compares the measured motion with (the law's command where the disturbance enters, plus
     what the filter changed), the continuous-time estimator rate (paper and adaptive laws)
     and the filter's outcome (safety.UNCHANGED, ADJUSTED, STOPPED).
     """
+    fx, fy = tail_feedback(fx, fy, law.tail_radius, law.tail_gain)
     fx, fy = with_feed_forward(fx, fy, ahead_x, ahead_y, law.k1)
     fx, fy = shaped_feedback(fx, fy, x, y, others, me, law.k1, limits.max_wheel_speed,
                              avoidance)
@@ -162,6 +169,23 @@ def agent_command(fx: float, fy: float, ahead_x: float, ahead_y: float, ex: floa
     ref_v = (u_v if law.on_pc else v) + (safe_v - v)
     ref_w = (u_w if law.on_pc else w) + (safe_w - w)
     return safe_v, safe_w, ref_v, ref_w, ddhat_v, ddhat_w, code
+
+
+def tail_feedback(fx: float, fy: float, radius: float, gain: float) -> Point:
+    """The feedback (m) scaled up near the target, so the approach ends in finite time.
+
+    Within `radius` (m) of zero the feedback f is multiplied by sqrt(radius / |f|), capped
+    at `gain`: the law's speed k1 |f| becomes k1 sqrt(radius |f|) (the finite-time shape
+    |f|^1/2 of Bhat and Bernstein) down to |f| = radius / gain^2, then linear again at
+    gain k1, so a sampled command cannot chatter (k1 gain period < 1, config_schema).
+    Outside radius, or with radius 0, f is returned unchanged (the paper's exponential
+    approach, rate k1).
+    """
+    size = math.hypot(fx, fy)
+    if radius <= 0.0 or size >= radius or size == 0.0:
+        return fx, fy
+    scale = min(gain, math.sqrt(radius / size))
+    return scale * fx, scale * fy
 
 
 def offset_point(x: float, y: float, theta: float, offset: float) -> Point:

@@ -582,4 +582,6 @@ def _gains(controller: ControllerSpec) -> Gains:
     return Gains(controller.k1, controller.k2, controller.offset, law=controller.law,
                  adaptation=(controller.adaptation[0], controller.adaptation[1]),
                  observer_rate=controller.observer_rate,
-                 sampled_heading=controller.heading == 'sampled')
+                 sampled_heading=controller.heading == 'sampled',
+                 tail_radius=controller.tail.radius if controller.tail else 0.0,
+                 tail_gain=controller.tail.gain if controller.tail else 1.0)

@@ -54,6 +54,9 @@ PARAMETERS = (
           "multiplying the paper's estimator rate per channel"),
     Param('observer_rate', 'double', 5.0, 'law observer: observer bandwidth (1/s)',
           positive=True),
+    Param('tail_radius', 'double', 0.0, 'feedback size (m) below which the law speeds up as '
+          'its square root (finite-time tail); 0 = off', low=0.0),
+    Param('tail_gain', 'double', 1.0, 'cap on the finite-time speed-up', low=1.0),
     Param('heading', 'string', 'sampled', 'sampled: each command turns as the continuous law '
           'would over one period; paper: holds its instantaneous turn rate',
           choices=('paper', 'sampled')),
@@ -118,6 +121,7 @@ def node_parameters(config):
         'rate_hz': float(config.rate_hz), 'law': gains.law,
         'adaptation': [float(g) for g in gains.adaptation],
         'observer_rate': float(gains.observer_rate),
+        'tail_radius': float(gains.tail_radius), 'tail_gain': float(gains.tail_gain),
         'heading': 'sampled' if gains.sampled_heading else 'paper',
         'wheel_base': float(limits.wheel_base), 'max_wheel_speed': limit(limits.max_wheel_speed),
         'max_angular_rate': limit(limits.max_angular_rate),
@@ -178,7 +182,8 @@ def agent_config(p):
         index=p.index, agent_count=p.agent_count,
         neighbours=tuple(zip(p.in_neighbours, weights, strict=True)), pinning=p.pinning,
         gains=Gains(p.k1, p.k2, p.offset, law=p.law, adaptation=tuple(p.adaptation),
-                    observer_rate=p.observer_rate, sampled_heading=p.heading == 'sampled'),
+                    observer_rate=p.observer_rate, sampled_heading=p.heading == 'sampled',
+                    tail_radius=p.tail_radius, tail_gain=p.tail_gain),
         limits=WheelLimits(p.wheel_base, p.max_wheel_speed or inf, p.max_angular_rate or inf,
                            p.max_linear_accel or inf, p.max_angular_accel or inf),
         rate_hz=p.rate_hz, pose_timeout=p.pose_timeout, neighbour_timeout=p.neighbour_timeout,
