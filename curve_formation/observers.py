@@ -67,7 +67,8 @@ class Observers:
         # callbacks share the GIL: more executor threads would not run them faster.
         self.executor = make_executor(self.context)
         self.monitor = Monitor(self.experiment.n, self.record_hz, context=self.context,
-                               ground_truth=self.ground_truth, watch=self.watch)
+                               ground_truth=self.ground_truth, watch=self.watch,
+                               adoption=len(self.experiment.phases) > 1)
         self._stack.callback(self.monitor.destroy_node)
         if recorded:
             self.recorder = Recorder(self.bag_writer, recorded, context=self.context)

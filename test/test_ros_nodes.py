@@ -511,6 +511,29 @@ def test_monitor_skips_the_sample_a_stalled_machine_would_take_with_old_poses(ro
     assert monitor.late_samples >= 1
 
 
+def test_only_a_monitor_that_times_curve_switches_reads_every_controllers_state(ros):
+    """States come at the pose rate from every robot; a run without a curve switch
+    (adoption=False) does not take them in.
+    """
+    from curve_formation.nodes.monitor import Monitor
+    context, add, spin_until = ros
+    timing = add(Monitor(2, context=context))
+    other = add(Monitor(2, context=context, adoption=False))
+    probe = add(rclpy.create_node('probe', context=context))
+    state_pub = topics.publisher(probe, topics.STATE, 2)
+    state = messages.state_to_msg(State((0.01, 0.0), 3, 1.0, 0.0))
+
+    def adopted():
+        state_pub.publish(state)
+        return (2, 3) in timing.adopted
+    spin_until(adopted)
+    assert other.adopted == {}
+
+    def state_readers(node):
+        return sum(sub.topic_name.endswith(topics.STATE) for sub in node.subscriptions)
+    assert (state_readers(timing), state_readers(other)) == (2, 0)
+
+
 POSE_PUBLISHER = """
 import time, rclpy
 from curve_formation.nodes import messages, topics

@@ -38,10 +38,13 @@ class Recording:
 class Monitor(Node):
     """Subscribes to all robots' topics and keeps a Recording."""
 
-    def __init__(self, n, record_hz=20.0, ground_truth=False, watch=True, **kwargs):
+    def __init__(self, n, record_hz=20.0, ground_truth=False, watch=True, adoption=True,
+                 **kwargs):
         """ground_truth: also record the fake robots' true poses (when a camera tracks them).
         watch False: only the curve (for t0), on a host of a split run that neither measures
-        nor starts the curve server.
+        nor starts the curve server. adoption: also read every controller's state, to time
+        when each robot takes up a new curve (`adopted`); states come at the pose rate (1500
+        messages a second with 50 robots), so a run without a curve switch leaves it out.
         """
         super().__init__('formation_monitor', start_parameter_services=False, **kwargs)
         self.n = n
@@ -74,8 +77,9 @@ class Monitor(Node):
             self._subscribe(topics.CMD_VEL,
                             WithMessageInfo(lambda m, info, i=i: self._on_cmd(i, m, info)), i)
             self._subscribe(topics.ESTIMATE, lambda m, i=i: self._on_estimate(i, m), i)
-            self._subscribe(topics.STATE,
-                            WithMessageInfo(lambda m, info, i=i: self._on_state(i, m, info)), i)
+            if adoption:
+                self._subscribe(topics.STATE, WithMessageInfo(
+                    lambda m, info, i=i: self._on_state(i, m, info)), i)
             if ground_truth:
                 self._subscribe(topics.TRUE_POSE, lambda m, i=i: self._on_true_pose(i, m), i)
                 self._subscribe(topics.TICK, lambda m, i=i: self._on_tick(i, m), i)
