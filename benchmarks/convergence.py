@@ -79,8 +79,9 @@ def one_run(case, gains, rate, start, disturbance=None):
 
 
 def load_case(name):
-    """A shipped experiment; 'mona_arena/paper' is the arena case with the paper's agents and
-    graph (fixed assignment, no follower pinning) and point robots (no bodies, no avoidance).
+    """A shipped experiment; 'mona_arena/paper' is the arena case with the paper's agents,
+    graph and law (fixed assignment, no follower pinning, edge weights 1, no finite-time tail)
+    and point robots (no bodies, no avoidance).
     """
     base, _, variant = name.partition('/')
     if not variant:
@@ -91,6 +92,9 @@ def load_case(name):
     data.pop('robots', None)
     data.pop('avoidance', None)
     data['graph']['pinning'] = 0.0
+    for edge in data['graph']['edges']:
+        edge.pop('weight', None)
+    data['controller'].pop('tail', None)
     return build_experiment(data, name)
 
 
