@@ -88,6 +88,21 @@ def test_error_jumps_at_a_curve_switch():
     assert after > 30.0   # the second curve is centred 36 away from the first
 
 
+def test_a_switch_between_steps_takes_effect_at_the_next_step_not_before():
+    """A recorded run's switch time (analyze --compare-sim) falls between simulation steps:
+    at 6.000107 s the sample at 6.00 s must still be on the first curve, which the robots
+    have reached (it was labelled with the second curve's targets, so the first phase never
+    settled: seen once in a test run).
+    """
+    case = load_experiment(Path(__file__).resolve().parent / 'data' / 'nearest_switch.yaml')
+    switch = 6.000107
+    phases = (case.phases[0], dataclasses.replace(case.phases[1], start=switch))
+    result = simulate(dataclasses.replace(case, phases=phases))
+    assert np.all((result.phase == 1) == (result.t >= switch))
+    data = metrics.result_metrics(result)
+    assert [p['settled'] for p in data['phases']] == [True, True], data['phases']
+
+
 def test_paper_settings_stall_with_agents_circling():
     """Reference behaviour of the paper's law (paper-notes.md): reproduced, not hidden."""
     case = load_experiment(resolve_config('closed_curve'))

@@ -415,7 +415,9 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
     schedule = (tick_offsets, start_steps)
     every = experiment.spec.agents.reassign_every
     period = 0 if every is None else whole_steps(every, dt, 'agents.reassign_every')
-    starts = [int(round(p.start / dt)) for p in experiment.phases] + [total]
+    # A phase begins at the first step at or after its start (a recorded run's switch falls
+    # between steps): no sample before a phase's start carries its targets.
+    starts = [int(math.ceil(p.start / dt - 1e-9)) for p in experiment.phases] + [total]
     followed = []
     for phase, a, b in zip(experiment.phases, starts[:-1], starts[1:], strict=True):
         if a >= total:
