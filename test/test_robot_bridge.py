@@ -155,10 +155,11 @@ def test_the_bridge_never_sends_faster_than_the_robot_takes(bench):
         operator.send(0.02, 0.1)
         spin(duration=0.01)
     spin(duration=0.2)
+    elapsed = time.monotonic() - start     # 2.2 s, longer on a busy machine
     commands = [said for said in robot.said(start) if said[0] == 'command']
     # never the 100 Hz it was given: at most 12 lines in any second (10 Hz and two more, so
     # that a 10 Hz controller's late ticks are never held back)
-    assert 15 <= len(commands) <= 2 * 12 + 1, len(commands)
+    assert 15 <= len(commands) <= 12 * elapsed + 1, (len(commands), elapsed)
     times = np.array([t for t, said in robot.lines if t >= start and said[0] == 'command'])
     in_a_second = [np.sum((times >= t) & (times < t + 0.99)) for t in times]
     assert max(in_a_second) <= 12, in_a_second
