@@ -94,15 +94,10 @@ class GraphSpec(Strict):
 class TailSpec(Strict):
     """The finite-time tail of the approach (control.tail_feedback)."""
 
-    radius: float = Field(gt=0, description='feedback size (m) below which the law speeds up '
-                          'as the square root of it instead of linearly')
-    gain: float = Field(ge=1, description='cap on the speed-up (the gain is at most k1 gain)')
-
-    @model_validator(mode='after')
-    def _finite(self):
-        if not (math.isfinite(self.radius) and math.isfinite(self.gain)):
-            raise ValueError('radius and gain must be finite')
-        return self
+    radius: float = Field(gt=0, allow_inf_nan=False, description='feedback size (m) below '
+                          'which the law speeds up as the square root of it instead of linearly')
+    gain: float = Field(ge=1, allow_inf_nan=False,
+                        description='cap on the speed-up (the gain is at most k1 gain)')
 
 
 class ControllerSpec(Strict):
