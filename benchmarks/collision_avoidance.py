@@ -9,11 +9,12 @@ settling time with avoidance; the same start with the law alone (point robots pa
 through each other: today's behaviour, `avoidance: off`), and their ratio where that settles;
 the physical lower bound, the longest straight trip of any robot from where the phase begins
 to its assigned target at the wheel limit, and the ratio to it; a tighter bound that still
-no robot can beat, each robot's turn in place to face its target with both wheels at the
-limit and then its straight trip (for a differential drive with bounded wheel speeds that is
-the fastest way to a point: Balkcom and Mason, "Time optimal trajectories for bounded
-velocity differential drive vehicles", IJRR 2002), and the ratio to it; contacts between
-bodies and the smallest gap between two surfaces over the run.
+no robot can beat, each robot's turn in place to face its target, forwards or backwards
+(whichever turn is smaller), with both wheels at the limit and then its straight trip (for a
+differential drive with bounded wheel speeds that is the fastest way to a point: Balkcom and
+Mason, "Time optimal trajectories for bounded velocity differential drive vehicles", IJRR
+2002), and the ratio to it; contacts between bodies and the smallest gap between two
+surfaces over the run.
 """
 
 import argparse
@@ -46,7 +47,8 @@ HARD_CASES = (DATA / 'dense_arena.yaml', DATA / 'crossing_switch.yaml')
 def lower_bounds(result, turning=False):
     """Per phase: the longest straight trip (m) of any robot's control point, from where it
     is when the phase begins to its target then, over the wheel limit (s); with turning, each
-    robot first turns in place to face its target (both wheels at the limit, w = 2 u / B).
+    robot first turns in place to face its target forwards or backwards, whichever is the
+    smaller turn (both wheels at the limit, w = 2 u / B).
     """
     experiment = result.experiment
     speed = experiment.limits.max_wheel_speed
@@ -61,8 +63,9 @@ def lower_bounds(result, turning=False):
         times = np.linalg.norm(trips, axis=1) / speed
         if turning:
             facing = np.arctan2(-trips[:, 1], -trips[:, 0])
-            times += np.abs(np.remainder(facing - result.poses[k, :, 2] + np.pi,
-                                         2 * np.pi) - np.pi) / turn_rate
+            bearing = np.abs(np.remainder(facing - result.poses[k, :, 2] + np.pi,
+                                          2 * np.pi) - np.pi)
+            times += np.minimum(bearing, np.pi - bearing) / turn_rate
         out.append(float(times.max()))
     return out
 

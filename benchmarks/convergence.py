@@ -25,6 +25,7 @@ import yaml
 
 from curve_formation.core import metrics
 from curve_formation.core.experiment import (
+    as_in_the_paper,
     build_experiment,
     load_experiment,
     seeded_start,
@@ -80,21 +81,12 @@ def one_run(case, gains, rate, start, disturbance=None):
 
 def load_case(name):
     """A shipped experiment; 'mona_arena/paper' is the arena case with the paper's agents,
-    graph and law (fixed assignment, no follower pinning, edge weights 1, no finite-time tail)
-    and point robots (no bodies, no avoidance).
+    graph and law and point robots (core.experiment.as_in_the_paper).
     """
     base, _, variant = name.partition('/')
     if not variant:
         return load_experiment(resolve_config(base))
-    data = yaml.safe_load(resolve_config(base).read_text())
-    data['agents']['assignment'] = 'fixed'
-    data['agents'].pop('reassign_every', None)
-    data.pop('robots', None)
-    data.pop('avoidance', None)
-    data['graph']['pinning'] = 0.0
-    for edge in data['graph']['edges']:
-        edge.pop('weight', None)
-    data['controller'].pop('tail', None)
+    data = as_in_the_paper(yaml.safe_load(resolve_config(base).read_text()))
     return build_experiment(data, name)
 
 

@@ -29,19 +29,12 @@ def arena_dict():
 
 
 def paper_arena():
-    """The shipped Mona arena case with the paper's agents, graph and law: fixed assignment,
-    no follower pinning, edge weights 1, no finite-time tail, point robots (no bodies, no
-    safety filter, no re-assignment).
+    """The shipped Mona arena case with the paper's agents, graph and law
+    (core.experiment.as_in_the_paper).
     """
-    from curve_formation.core.experiment import build_experiment
+    from curve_formation.core.experiment import as_in_the_paper, build_experiment
     data = yaml.safe_load((CONFIG_DIR / 'mona_arena.yaml').read_text())
-    data['agents']['assignment'] = 'fixed'
-    del data['agents']['reassign_every'], data['robots'], data['avoidance']
-    data['graph']['pinning'] = 0.0
-    for edge in data['graph']['edges']:
-        edge.pop('weight', None)
-    del data['controller']['tail']
-    return build_experiment(data, 'mona_arena (paper agents and graph)')
+    return build_experiment(as_in_the_paper(data), 'mona_arena (paper agents and graph)')
 
 DATA_DIR = Path(__file__).resolve().parent / 'data'
 

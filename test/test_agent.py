@@ -37,7 +37,8 @@ def test_node_controllers_reproduce_the_simulator_exactly(name, compiled):
     the same tick pipeline (core.control.agent_command), run as Python or, as a single-process
     run's nodes do, compiled (loaded before the first tick, never again). The shipped arena
     case has nearest assignment, follower pinning, bodies, the safety filter and re-assignment
-    every second (done here as the curve server does it, with assignment.reassigned).
+    every second (done here as the curve server does it, with assignment.reassigned), and
+    robots that drive backwards to a target behind them (controller.reverse).
     """
     experiment = paper_arena() if name == 'fixed' else load_experiment(resolve_config(name))
     rate, dt, duration = 10.0, 0.001, 5.0
@@ -86,6 +87,8 @@ def test_node_controllers_reproduce_the_simulator_exactly(name, compiled):
     # The simulator records after its tick at t = 5 s; the last tick here was at 4.9 s.
     np.testing.assert_allclose([c.dhat for c in ctrls], sim.dhat[-2], atol=1e-9)
     assert reassigned_at == [when for when, _, _ in sim.experiment.phases[0].changes]
+    if experiment.gains.reverse:   # the case covers both ways of driving
+        assert {c.front for c in ctrls} == {1.0, -1.0}
     if compiled:   # no tick compiled anything
         assert len(ctrls[0].command.signatures) == compiled_for
 

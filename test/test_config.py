@@ -158,3 +158,12 @@ def test_invalid_yaml_names_the_file(tmp_path):
     bad.write_text('name: [unclosed\n')
     with pytest.raises(ConfigError, match='broken.yaml: not valid YAML'):
         load_experiment(bad)
+
+
+def test_reversing_without_wheel_limits_to_time_it_by_is_refused(arena_dict):
+    arena_dict['controller']['reverse'] = True
+    assert build_experiment(arena_dict, 'arena.yaml').gains.reverse
+    del arena_dict['limits']
+    with pytest.raises(ConfigError, match=r'arena.yaml: controller.reverse: needs '
+                       r'limits.wheel_base and limits.max_wheel_speed'):
+        build_experiment(arena_dict, 'arena.yaml')

@@ -50,3 +50,19 @@ def test_closest_approach_finds_the_nearest_pair_over_time():
     poses[:, 1, 0] = [1.0, 0.3, 0.8]
     poses[:, 2, 1] = [2.0, 2.0, 0.5]
     assert closest_approach(poses) == (pytest.approx(0.3), 1)
+
+
+def test_a_reversing_robot_is_measured_by_the_point_it_steers():
+    """controller.reverse: a robot backing onto its target steers the point behind its axle;
+    its error is that point's, not the 2 l of the point ahead (which it is without reverse).
+    """
+    from curve_formation.core.control import Gains
+    offset = 0.01
+    poses = np.array([[[0.5, 0.2, 0.0], [0.1, 0.1, np.pi / 2]]])   # (R=1, n=2, 3)
+    targets = np.array([[[0.49, 0.2], [0.1, 0.11]]])   # behind robot 1, ahead of robot 2
+    forwards = Gains(1.0, 0.0, offset)
+    both = Gains(1.0, 0.0, offset, reverse=True)
+    ahead = metrics.steered_points(poses, targets, forwards) - targets
+    np.testing.assert_allclose(np.linalg.norm(ahead, axis=-1), [[2 * offset, 0.0]], atol=1e-12)
+    steered = metrics.steered_points(poses, targets, both) - targets
+    np.testing.assert_allclose(steered, 0.0, atol=1e-12)

@@ -34,6 +34,7 @@ from curve_formation.core.assignment import AssignmentError, check_assumptions
 from curve_formation.core.control import (
     agent_command,
     body_velocity,
+    drive_direction,
     follower_feedback,
     Gains,
     inside_fence,
@@ -43,6 +44,7 @@ from curve_formation.core.control import (
     OBSERVER,
     observer_step,
     offset_point,
+    steered_law,
     WheelLimits,
 )
 from curve_formation.core.curves import Curve
@@ -232,6 +234,9 @@ class AgentController:
         # where the disturbance enters (before a PC-injected disturbance, else as sent).
         self.anchor: tuple[Pose, float] | None = None
         self.reference: Command = (0.0, 0.0)
+        # +1: the law steers the point ahead of the axle, -1: the one behind it (reversing,
+        # control.drive_direction, chosen whenever the robot's pose comes)
+        self.front = 1.0
         # (time s on this controller's clock, v, w) of the commands sent, as far back as a
         # pose may be (pose_timeout), for predict_pose
         self.sent: deque[tuple[float, float, float]] = deque(
@@ -294,6 +299,9 @@ class AgentController:
         self.pose, self.pose_stamp, self.pose_received = (x, y, theta), stamp, at
         if self.config.is_leader:
             self.leader_heard = at
+        if self.target is not None:   # the point steered, from this pose on
+            self.front = drive_direction(self.front, x, y, theta, *self.target, self.dhat[0],
+                                         self.dhat[1], self.config.law, self.config.limits)
         return True
 
     def on_neighbour(self, j: int, ex: float, ey: float, curve_id: int, stamp: float,
@@ -358,7 +366,7 @@ class AgentController:
         return self._error_at(self.pose, self.target)
 
     def _error_at(self, pose: Pose, target: Point) -> Point:
-        bx, by = offset_point(*pose, self.config.gains.offset)
+        bx, by = offset_point(*pose, self.front * self.config.gains.offset)
         return bx - target[0], by - target[1]
 
     def tick(self, now: float) -> Tick:
@@ -413,6 +421,7 @@ class AgentController:
             pose = self.predicted(pose, stamp, received, now)
         if not self._move_target(now):
             return self._stop(f'moving curve not renewed for {now - self.curve_received:.2f} s')
+        law = cfg.law
         ex, ey = self._error_at(pose, self.target)
         base = Tick(error=(ex, ey), error_stamp=stamp, curve_id=self.curve_id)
         if cfg.is_leader:
@@ -438,13 +447,13 @@ class AgentController:
             return self._stop('no poses of the other robots yet' if self.others_received is None
                               else f"other robots' poses stale "
                               f'({now - self.others_received:.2f} s old)', base)
-        law = cfg.law
         if law.code == OBSERVER:
             self._observe()
         ahead = self.ahead if cfg.feed_forward else (0.0, 0.0)
         v, w, ref_v, ref_w, ddv, ddw, code = self.command(
             fx, fy, *ahead, ex, ey, *pose, self.dhat[0], self.dhat[1], *self.last_command,
-            *cfg.pc_disturbance, law, cfg.limits, self.others, cfg.index - 1, cfg.avoidance)
+            *cfg.pc_disturbance, steered_law(law, self.front), cfg.limits, self.others,
+            cfg.index - 1, cfg.avoidance)
         if law.code != OBSERVER:
             self.dhat[0] += law.period * ddv
             self.dhat[1] += law.period * ddw

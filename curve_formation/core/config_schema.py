@@ -129,6 +129,10 @@ class ControllerSpec(Strict):
         None, description="near the target the law's speed shrinks as the square root of the "
         'error instead of linearly, so the approach ends in finite time instead of an '
         "exponential tail; null = the paper's linear law")
+    reverse: bool = Field(
+        False, description='a robot may drive backwards, steering the point behind its axle '
+        'onto its target, when turning round and driving forwards would take longer (needs '
+        "limits.wheel_base and max_wheel_speed to time both); false = the paper's forwards only")
 
     @field_validator('adaptation')
     @classmethod

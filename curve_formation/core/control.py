@@ -40,6 +40,8 @@ class Gains:
     sampled_heading: under a zero-order hold, turn as the continuous law would over one
     period (sampled_feedback) instead of holding its instantaneous turn rate.
     tail_radius (m; 0: off), tail_gain: the finite-time tail (tail_feedback).
+    reverse: a robot may drive backwards, steering the point behind its axle
+    (drive_direction), when that reaches its target sooner.
     """
 
     k1: float
@@ -51,6 +53,7 @@ class Gains:
     sampled_heading: bool = False
     tail_radius: float = 0.0
     tail_gain: float = 1.0
+    reverse: bool = False
 
     @property
     def law_code(self) -> int:
@@ -75,7 +78,7 @@ class Gains:
         gamma_v, gamma_w = self.estimator_gains()
         return Law(self.law_code, self.k1, self.k2, self.offset, gamma_v, gamma_w,
                    self.hold_period(rate_hz), 1.0 / rate_hz if rate_hz else 0.0,
-                   self.observer_rate, on_pc, self.tail_radius, self.tail_gain)
+                   self.observer_rate, on_pc, self.tail_radius, self.tail_gain, self.reverse)
 
 
 class Law(NamedTuple):
@@ -84,7 +87,8 @@ class Law(NamedTuple):
     code: LAWS; k1 (1/s), k2, offset l (m), per-channel estimator gains, hold: the period of
     the sampled heading (s; 0: the paper's heading), period: the control period (s; 0:
     continuous), observer_rate (1/s), on_pc: the disturbance is added on the PC,
-    tail_radius (m), tail_gain: tail_feedback's.
+    tail_radius (m), tail_gain: tail_feedback's, reverse: drive_direction may choose to
+    drive backwards.
     """
 
     code: int
@@ -97,8 +101,9 @@ class Law(NamedTuple):
     period: float
     observer_rate: float
     on_pc: bool
-    tail_radius: float = 0.0
-    tail_gain: float = 1.0
+    tail_radius: float
+    tail_gain: float
+    reverse: bool
 
 
 class WheelLimits(NamedTuple):
@@ -169,6 +174,64 @@ def agent_command(fx: float, fy: float, ahead_x: float, ahead_y: float, ex: floa
     ref_v = (u_v if law.on_pc else v) + (safe_v - v)
     ref_w = (u_w if law.on_pc else w) + (safe_w - w)
     return safe_v, safe_w, ref_v, ref_w, ddhat_v, ddhat_w, code
+
+
+# drive_direction: no change of direction within this distance (m) of the target, where the
+# bearing of the target says little, nor unless the other direction is estimated to arrive
+# this much sooner (s).
+REVERSE_LOCK = 0.05
+REVERSE_HYSTERESIS = 1.0
+
+
+def drive_direction(front: float, x: float, y: float, theta: float, tx: float, ty: float,
+                    dhat_v: float, dhat_w: float, law: 'Law', limits: 'WheelLimits') -> float:
+    """Which of its two offset points a robot steers to its target: +1, the point ahead of
+    the axle (driving forwards, the paper's), or -1, the point behind it (driving backwards).
+
+    A differential drive reaches a point fastest by turning in place to face it, forwards or
+    backwards, and driving straight (Balkcom and Mason, IJRR 2002): this estimates both
+    times: the turn at both wheels' limit; the drive at what the wheel limit leaves once
+    the turn drift estimated on the robot is cancelled (k2 dhat_w, rad/s), plus (forwards)
+    or less (backwards) its forward drift (k2 dhat_v, m/s), at most the limit (no drift
+    counts when the disturbance is added on the PC: the law cancels it before the limits).
+    It changes `front` (the current choice) only when the other way is REVERSE_HYSTERESIS
+    sooner and the target (tx, ty; m, arena frame) is at least REVERSE_LOCK from the axle
+    (x, y). Without law.reverse, or without wheel limits to time the trips by, always +1.
+    """
+    if not law.reverse or not timed_by(limits):
+        return 1.0
+    speed = limits.max_wheel_speed
+    dx = tx - x
+    dy = ty - y
+    distance = math.hypot(dx, dy)
+    if distance < REVERSE_LOCK:
+        return front
+    c = math.cos(theta)
+    s = math.sin(theta)
+    bearing = abs(math.atan2(-s * dx + c * dy, c * dx + s * dy))   # [0, pi], from ahead
+    turn_rate = 2.0 * speed / limits.wheel_base
+    push = 0.0 if law.on_pc else law.k2 * dhat_v
+    drive = speed - (0.0 if law.on_pc else 0.5 * limits.wheel_base * abs(law.k2 * dhat_w))
+    forwards = bearing / turn_rate + distance / max(min(drive + push, speed), 0.1 * speed)
+    backwards = ((math.pi - bearing) / turn_rate
+                 + distance / max(min(drive - push, speed), 0.1 * speed))
+    if front > 0.0:
+        return -1.0 if backwards < forwards - REVERSE_HYSTERESIS else 1.0
+    return 1.0 if forwards < backwards - REVERSE_HYSTERESIS else -1.0
+
+
+def timed_by(limits: 'WheelLimits') -> bool:
+    """True when the wheel limits time a trip (a wheel base and a finite wheel speed limit):
+    drive_direction needs them to choose between forwards and backwards.
+    """
+    return limits.wheel_base > 0.0 and 0.0 < limits.max_wheel_speed < math.inf
+
+
+def steered_law(law: 'Law', front: float) -> 'Law':
+    """The law steering the point `front` * offset ahead of the axle (drive_direction)."""
+    return Law(law.code, law.k1, law.k2, front * law.offset, law.gamma_v, law.gamma_w,
+               law.hold, law.period, law.observer_rate, law.on_pc, law.tail_radius,
+               law.tail_gain, law.reverse)
 
 
 def tail_feedback(fx: float, fy: float, radius: float, gain: float) -> Point:

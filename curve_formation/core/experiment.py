@@ -4,6 +4,7 @@ Every problem is raised as :class:`ConfigError` naming the file, the key and wha
 """
 
 from collections.abc import Sequence
+import copy
 import dataclasses
 from dataclasses import dataclass
 import math
@@ -25,7 +26,7 @@ from curve_formation.core.config_schema import (
     MotionSpec,
     RobotsSpec,
 )
-from curve_formation.core.control import Gains, NO_LIMITS, WheelLimits
+from curve_formation.core.control import Gains, NO_LIMITS, timed_by, WheelLimits
 from curve_formation.core.curves import Curve, CurveError, Fit, fit_curve, make_basis
 from curve_formation.core.expressions import ExpressionError
 from curve_formation.core.graph import DirectedGraph, Edge, GraphError
@@ -184,6 +185,25 @@ def build_experiment(data: Any, source: str = '<experiment>') -> Experiment:
     return _build(spec, str(source))
 
 
+def as_in_the_paper(data: dict[str, Any]) -> dict[str, Any]:
+    """A copy of an experiment's parsed YAML mapping with the paper's agents, graph and law:
+    fixed assignment, no re-assignment, no follower pinning, edge weights 1, no finite-time
+    tail, forwards only, point robots (no bodies, no safety filter). The reference against
+    which the arena files' additions are measured (tests, benchmarks/convergence.py).
+    """
+    data = copy.deepcopy(data)
+    data['agents']['assignment'] = 'fixed'
+    data['agents'].pop('reassign_every', None)
+    data.pop('robots', None)
+    data.pop('avoidance', None)
+    data['graph']['pinning'] = 0.0
+    for edge in data['graph']['edges']:
+        edge.pop('weight', None)
+    data['controller'].pop('tail', None)
+    data['controller'].pop('reverse', None)
+    return data
+
+
 def validation_problem(exc: ValidationError) -> tuple[str, str]:
     """(key path, what was wrong and what was given) of a pydantic error's first problem."""
     err = exc.errors()[0]
@@ -222,12 +242,16 @@ def _build(spec: ExperimentSpec, source: str) -> Experiment:
     _check_camera(spec, source)
     _check_time(spec, source)
     gains = _gains(spec.controller)
+    limits = _limits(spec)
+    if gains.reverse and not timed_by(limits):
+        raise ConfigError(source, 'controller.reverse', 'needs limits.wheel_base and '
+                          'limits.max_wheel_speed (> 0) to time a trip forwards and backwards')
     initial = _initial_poses(spec, source)
     phases = tuple(_build_phases(spec, source, offset_points(initial, gains.offset)))
     avoidance = _avoidance(spec, source)
     _check_bodies(spec, source, initial, phases)
     return Experiment(spec=spec, source=source, graph=graph, gains=gains,
-                      limits=_limits(spec), disturbance=_disturbance(spec, source),
+                      limits=limits, disturbance=_disturbance(spec, source),
                       initial_poses=initial, phases=phases, radius=spec.robots.radius,
                       avoidance=avoidance,
                       warnings=tuple(_body_warnings(spec, phases, avoidance, gains.offset)))
@@ -584,4 +608,5 @@ def _gains(controller: ControllerSpec) -> Gains:
                  observer_rate=controller.observer_rate,
                  sampled_heading=controller.heading == 'sampled',
                  tail_radius=controller.tail.radius if controller.tail else 0.0,
-                 tail_gain=controller.tail.gain if controller.tail else 1.0)
+                 tail_gain=controller.tail.gain if controller.tail else 1.0,
+                 reverse=controller.reverse)

@@ -45,13 +45,32 @@ def offset_points(poses, offset):
 
 
 def target_errors(poses, phase, experiment, gains=None, t=None):
-    """(R, n, 2) e_i = xb_i - G(s_i) xi of the active curve (offset l from gains).
+    """(R, n, 2) e_i = xb_i - G(s_i) xi of the active curve (offset l from gains; the point
+    steered, steered_points).
 
     t (R,) s: the sample times, needed when a phase's targets were re-assigned on the way
     (Phase.changes).
     """
     gains = experiment.gains if gains is None else gains
-    return offset_points(poses, gains.offset) - sample_targets(experiment, phase, t)
+    targets = sample_targets(experiment, phase, t)
+    return steered_points(poses, targets, gains) - targets
+
+
+def steered_points(poses, targets, gains):
+    """(R, n, 2) the points the robots steer to their targets (R, n, 2): xb (offset l).
+
+    With gains.reverse a robot may steer the point behind its axle instead
+    (control.drive_direction): the nearer of its two offset points to its target is taken.
+    The two are 2 |l| apart and the law brings the steered one onto the target, so once a
+    robot is within |l| of its target this is the steered point.
+    """
+    points = offset_points(poses, gains.offset)
+    if gains.reverse:
+        behind = offset_points(poses, -gains.offset)
+        nearer = (np.linalg.norm(behind - targets, axis=-1)
+                  < np.linalg.norm(points - targets, axis=-1))
+        points = np.where(nearer[..., None], behind, points)
+    return points
 
 
 def sample_targets(experiment, phase, t=None):
@@ -266,7 +285,8 @@ def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance
     gains = experiment.gains if gains is None else gains
     disturbance = experiment.disturbance if disturbance is None else disturbance
     limits = experiment.limits if limits is None else limits
-    errors = target_errors(poses, phase, experiment, gains, t)
+    targets = sample_targets(experiment, phase, t)
+    errors = steered_points(poses, targets, gains) - targets
     norm = error_norm(errors)
     ends = [p.start for p in experiment.phases[1:]] + [float('inf')]
     phases = []
@@ -291,7 +311,8 @@ def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance
             'initial_error_norm': float(norm[window][0]),
             'final_error_norm': float(norm[last]),
             'final_max_agent_error': float(agent_err.max()),
-            'spacing': spacing_uniformity(p.curve, offset_points(poses[last], gains.offset)),
+            'spacing': spacing_uniformity(p.curve, steered_points(poses[last], targets[last],
+                                                                   gains)),
             'target_spacing': spacing_uniformity(p.curve, p.targets),
             'reassignments': len(p.changes),
         })

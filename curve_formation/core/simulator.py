@@ -101,6 +101,8 @@ def compiled(function: Callable[..., Any]) -> Callable[..., Any]:
 _agent_command = compiled(control.agent_command)
 _arc = compiled(dynamics.arc_step)
 _observer_step = compiled(control.observer_step)
+_drive_direction = compiled(control.drive_direction)
+_steered_law = compiled(control.steered_law)
 separate = compiled(bodies.separate)
 OBSERVER = control.LAWS['observer']
 
@@ -135,29 +137,31 @@ class Contacts(NamedTuple):
 
 # The graph as the kernels take it: (targets, sources, weights) edge arrays and the pins.
 EdgeArrays = tuple[IntArray, IntArray, FloatArray, FloatArray]
-# (poses (n, 3), dhat, motion, cmd, ref (n, 2)), advanced in place.
-SimState = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]
+# (poses (n, 3), dhat, motion, cmd, ref (n, 2), fronts (n,)), advanced in place.
+SimState = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]
 
 
 @numba.njit(cache=True)
 def _controls(poses: FloatArray, dhat: FloatArray, targets: FloatArray, ahead: FloatArray,
               graph: EdgeArrays, law: Law, limits: WheelLimits, avoidance: Avoidance,
-              d_pc: FloatArray, d_robot: FloatArray, err: FloatArray, fb: FloatArray,
-              motion: FloatArray, cmd: FloatArray, ref: FloatArray, ddhat: FloatArray,
-              codes: IntArray) -> None:
+              d_pc: FloatArray, d_robot: FloatArray, fronts: FloatArray, err: FloatArray,
+              fb: FloatArray, motion: FloatArray, cmd: FloatArray, ref: FloatArray,
+              ddhat: FloatArray, codes: IntArray) -> None:
     """Evaluate every agent's tick (control.agent_command): fills err, fb, cmd (sent), motion
     (actual), ref (the observer's reference), ddhat (continuous-time estimator rate) and
     codes (the safety filter's outcome); cmd on entry holds each agent's previous command.
 
     graph: (tgt, src, weights, pins) edge arrays. d_pc (n, 2) is added to the command before
     the limits (injected on the PC), d_robot (n, 2) after them (physical). ahead (n, 2): each
-    target's velocity (m/s, a moving curve's feed-forward; zeros otherwise).
+    target's velocity (m/s, a moving curve's feed-forward; zeros otherwise). fronts (n,):
+    the offset point each agent steers (control.drive_direction).
     """
     tgt, src, wts, pins = graph
     n = poses.shape[0]
     for i in range(n):
-        err[i, 0] = poses[i, 0] + law.offset * math.cos(poses[i, 2]) - targets[i, 0]
-        err[i, 1] = poses[i, 1] + law.offset * math.sin(poses[i, 2]) - targets[i, 1]
+        offset = fronts[i] * law.offset
+        err[i, 0] = poses[i, 0] + offset * math.cos(poses[i, 2]) - targets[i, 0]
+        err[i, 1] = poses[i, 1] + offset * math.sin(poses[i, 2]) - targets[i, 1]
         fb[i, 0] = pins[i] * err[i, 0]
         fb[i, 1] = pins[i] * err[i, 1]
     for k in range(tgt.shape[0]):
@@ -169,7 +173,7 @@ def _controls(poses: FloatArray, dhat: FloatArray, targets: FloatArray, ahead: F
         v, w, ref_v, ref_w, ddv, ddw, code = _agent_command(
             fb[i, 0], fb[i, 1], ahead[i, 0], ahead[i, 1], err[i, 0], err[i, 1], poses[i, 0],
             poses[i, 1], poses[i, 2], dhat[i, 0], dhat[i, 1], cmd[i, 0], cmd[i, 1], d_pc[i, 0],
-            d_pc[i, 1], law, limits, poses, i, avoidance)
+            d_pc[i, 1], _steered_law(law, fronts[i]), limits, poses, i, avoidance)
         motion[i, 0] = v + d_robot[i, 0]
         motion[i, 1] = w + d_robot[i, 1]
         cmd[i, 0] = v
@@ -210,16 +214,18 @@ def _run(state: SimState, targets: FloatArray, ahead: FloatArray, graph: EdgeArr
          limits: WheelLimits, avoidance: Avoidance, d_pc: FloatArray, d_robot: FloatArray,
          clock: Clock, step0: int, steps: int, schedule: tuple[IntArray, IntArray],
          contacts: Contacts, record: tuple[FloatArray, FloatArray, FloatArray]) -> None:
-    """Advance the state (poses (n, 3), dhat (n, 2), and the held motion, cmd, ref (n, 2))
-    in place by `steps` fine steps from `step0`.
+    """Advance the state (poses (n, 3), dhat (n, 2), the held motion, cmd, ref (n, 2) and the
+    steered points' fronts (n,)) in place by `steps` fine steps from `step0`.
 
     schedule: (tick_offsets, start_steps): agent i ticks at the steps where
     (step - tick_offsets[i]) % control_every == 0, from step start_steps[i] on. With the
     observer, a tick first updates dhat from the motion over the period just ended (exact
-    here: the held motion is what the pose difference would measure). record: (poses, dhat,
-    cmd) arrays filled every record_every steps.
+    here: the held motion is what the pose difference would measure); before that it chooses
+    the point it steers (control.drive_direction, as the node does when a pose comes; under
+    continuous control at every fine step).
+    record: (poses, dhat, cmd) arrays filled every record_every steps.
     """
-    poses, dhat, motion, cmd, ref = state
+    poses, dhat, motion, cmd, ref, fronts = state
     tick_offsets, start_steps = schedule
     rec_poses, rec_dhat, rec_cmd = record
     n = poses.shape[0]
@@ -240,6 +246,10 @@ def _run(state: SimState, targets: FloatArray, ahead: FloatArray, graph: EdgeArr
             for i in range(n):
                 if (step - tick_offsets[i]) % control_every == 0:
                     ticking = True
+                    if step >= start_steps[i]:
+                        fronts[i] = _drive_direction(fronts[i], poses[i, 0], poses[i, 1],
+                                                     poses[i, 2], targets[i, 0], targets[i, 1],
+                                                     dhat[i, 0], dhat[i, 1], law, limits)
                     if law.code == OBSERVER and step >= start_steps[i]:
                         dhat[i, 0], dhat[i, 1] = _observer_step(
                             dhat[i, 0], dhat[i, 1], motion[i, 0], motion[i, 1], ref[i, 0],
@@ -247,7 +257,7 @@ def _run(state: SimState, targets: FloatArray, ahead: FloatArray, graph: EdgeArr
             if ticking:
                 new_cmd[:] = cmd   # each agent's previous command
                 _controls(poses, dhat, targets, ahead, graph, law, limits, avoidance, d_pc,
-                          d_robot, err, fb, new_motion, new_cmd, new_ref, ddhat, codes)
+                          d_robot, fronts, err, fb, new_motion, new_cmd, new_ref, ddhat, codes)
                 for i in range(n):
                     if step < start_steps[i]:
                         continue   # not started yet: motors off, estimator idle
@@ -277,8 +287,12 @@ def _run(state: SimState, targets: FloatArray, ahead: FloatArray, graph: EdgeArr
     p_stage = np.zeros((n, 3))
     d_stage = np.zeros((n, 2))
     for step in range(step0, step0 + steps):
+        for i in range(n):
+            fronts[i] = _drive_direction(fronts[i], poses[i, 0], poses[i, 1], poses[i, 2],
+                                         targets[i, 0], targets[i, 1], dhat[i, 0], dhat[i, 1],
+                                         law, limits)
         _controls(poses, dhat, targets, ahead, graph, law, limits, avoidance, d_pc, d_robot,
-                  err, fb, motion, cmd, ref, ddhat, codes)
+                  fronts, err, fb, motion, cmd, ref, ddhat, codes)
         if step % clock.record_every == 0:
             r = step // clock.record_every
             rec_poses[r] = poses
@@ -298,7 +312,7 @@ def _run(state: SimState, targets: FloatArray, ahead: FloatArray, graph: EdgeArr
                     for c in range(2):
                         d_stage[i, c] = dhat[i, c] + frac * kd[stage - 1, i, c]
                 _controls(p_stage, d_stage, targets, ahead, graph, law, limits, avoidance, d_pc,
-                          d_robot, err, fb, motion, cmd, ref, ddhat, codes)
+                          d_robot, fronts, err, fb, motion, cmd, ref, ddhat, codes)
                 for i in range(n):
                     kp[stage, i, 0] = motion[i, 0] * math.cos(p_stage[i, 2])
                     kp[stage, i, 1] = motion[i, 0] * math.sin(p_stage[i, 2])
@@ -383,6 +397,8 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
     record_dt = spec.simulation.record_dt if record_dt is None else record_dt
     gains = experiment.gains if gains is None else gains
     limits = experiment.limits if limits is None else limits
+    if gains.reverse and not control.timed_by(limits):   # forwards only (drive_direction)
+        gains = dataclasses.replace(gains, reverse=False)
     avoidance = experiment.avoidance if avoidance is None else avoidance
     radius = experiment.radius if radius is None else radius
     dist = experiment.disturbance if disturbance is None else np.asarray(disturbance, float)
@@ -404,7 +420,8 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
     record = (np.zeros((n_rec, experiment.n, 3)), np.zeros((n_rec, experiment.n, 2)),
               np.zeros((n_rec, experiment.n, 2)))
     n = experiment.n
-    state = (poses, np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 2)))
+    state = (poses, np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 2)),
+             np.ones(n))
     width, height = spec.arena.size if spec.arena is not None else (0.0, 0.0)
     contacts = Contacts(float(radius), float(width), float(height), np.zeros((n, n), bool),
                         np.array([0.0, 0.0, math.inf]))

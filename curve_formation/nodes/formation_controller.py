@@ -57,6 +57,8 @@ PARAMETERS = (
     Param('tail_radius', 'double', 0.0, 'feedback size (m) below which the law speeds up as '
           'its square root (finite-time tail); 0 = off', low=0.0),
     Param('tail_gain', 'double', 1.0, 'cap on the finite-time speed-up', low=1.0),
+    Param('reverse', 'bool', False, 'drive backwards (steering the point behind the axle) '
+          'when that reaches the target sooner; needs wheel_base and max_wheel_speed'),
     Param('heading', 'string', 'sampled', 'sampled: each command turns as the continuous law '
           'would over one period; paper: holds its instantaneous turn rate',
           choices=('paper', 'sampled')),
@@ -122,6 +124,7 @@ def node_parameters(config):
         'adaptation': [float(g) for g in gains.adaptation],
         'observer_rate': float(gains.observer_rate),
         'tail_radius': float(gains.tail_radius), 'tail_gain': float(gains.tail_gain),
+        'reverse': bool(gains.reverse),
         'heading': 'sampled' if gains.sampled_heading else 'paper',
         'wheel_base': float(limits.wheel_base), 'max_wheel_speed': limit(limits.max_wheel_speed),
         'max_angular_rate': limit(limits.max_angular_rate),
@@ -150,6 +153,9 @@ def agent_config(p):
     """AgentConfig from validated parameters; ParameterError on inconsistent ones."""
     if p.offset == 0:
         raise ParameterError("parameter 'offset' must be non-zero")
+    if p.reverse and not (p.wheel_base > 0 and p.max_wheel_speed > 0):
+        raise ParameterError("parameter 'reverse' needs 'wheel_base' and 'max_wheel_speed' "
+                             '(> 0) to time a trip forwards and backwards')
     if p.index > p.agent_count:
         raise ParameterError(f"parameter 'index' ({p.index}) exceeds 'agent_count' "
                              f'({p.agent_count})')
@@ -183,7 +189,7 @@ def agent_config(p):
         neighbours=tuple(zip(p.in_neighbours, weights, strict=True)), pinning=p.pinning,
         gains=Gains(p.k1, p.k2, p.offset, law=p.law, adaptation=tuple(p.adaptation),
                     observer_rate=p.observer_rate, sampled_heading=p.heading == 'sampled',
-                    tail_radius=p.tail_radius, tail_gain=p.tail_gain),
+                    tail_radius=p.tail_radius, tail_gain=p.tail_gain, reverse=p.reverse),
         limits=WheelLimits(p.wheel_base, p.max_wheel_speed or inf, p.max_angular_rate or inf,
                            p.max_linear_accel or inf, p.max_angular_accel or inf),
         rate_hz=p.rate_hz, pose_timeout=p.pose_timeout, neighbour_timeout=p.neighbour_timeout,
