@@ -159,6 +159,10 @@ def test_a_robot_drives_backwards_only_to_a_target_well_behind_it():
     assert drive_direction(1.0, 0, 0, 0, -0.3, 0.0, push, 0.0, law, MONA) == 1.0
     assert drive_direction(1.0, 0, 0, 0, -0.3, 0.0, push, 0.0, reversing_law(on_pc=True),
                            MONA) == -1.0
+    # A negative offset l leads backwards: +1 drives backwards, -1 forwards.
+    behind = steered_law(law, -1.0)
+    assert drive_direction(1.0, 0, 0, 0, -0.3, 0.02, 0.0, 0.0, behind, MONA) == 1.0
+    assert drive_direction(1.0, 0, 0, 0, 0.3, 0.02, 0.0, 0.0, behind, MONA) == -1.0
 
 
 def lone_trip(target, reverse):

@@ -185,8 +185,9 @@ REVERSE_HYSTERESIS = 1.0
 
 def drive_direction(front: float, x: float, y: float, theta: float, tx: float, ty: float,
                     dhat_v: float, dhat_w: float, law: 'Law', limits: 'WheelLimits') -> float:
-    """Which of its two offset points a robot steers to its target: +1, the point ahead of
-    the axle (driving forwards, the paper's), or -1, the point behind it (driving backwards).
+    """Which of its two offset points a robot steers to its target: +1, the configured one
+    (l ahead of the axle for l > 0: driving forwards, the paper's), or -1, the one opposite
+    (driving backwards).
 
     A differential drive reaches a point fastest by turning in place to face it, forwards or
     backwards, and driving straight (Balkcom and Mason, IJRR 2002): this estimates both
@@ -208,16 +209,18 @@ def drive_direction(front: float, x: float, y: float, theta: float, tx: float, t
         return front
     c = math.cos(theta)
     s = math.sin(theta)
-    bearing = abs(math.atan2(-s * dx + c * dy, c * dx + s * dy))   # [0, pi], from ahead
+    # the way the configured point leads (+1: forwards), the target's bearing from it
+    lead = 1.0 if law.offset > 0.0 else -1.0
+    bearing = abs(math.atan2(lead * (-s * dx + c * dy), lead * (c * dx + s * dy)))
     turn_rate = 2.0 * speed / limits.wheel_base
-    push = 0.0 if law.on_pc else law.k2 * dhat_v
+    push = 0.0 if law.on_pc else lead * law.k2 * dhat_v
     drive = speed - (0.0 if law.on_pc else 0.5 * limits.wheel_base * abs(law.k2 * dhat_w))
-    forwards = bearing / turn_rate + distance / max(min(drive + push, speed), 0.1 * speed)
-    backwards = ((math.pi - bearing) / turn_rate
-                 + distance / max(min(drive - push, speed), 0.1 * speed))
+    configured = bearing / turn_rate + distance / max(min(drive + push, speed), 0.1 * speed)
+    opposite = ((math.pi - bearing) / turn_rate
+                + distance / max(min(drive - push, speed), 0.1 * speed))
     if front > 0.0:
-        return -1.0 if backwards < forwards - REVERSE_HYSTERESIS else 1.0
-    return 1.0 if forwards < backwards - REVERSE_HYSTERESIS else -1.0
+        return -1.0 if opposite < configured - REVERSE_HYSTERESIS else 1.0
+    return 1.0 if configured < opposite - REVERSE_HYSTERESIS else -1.0
 
 
 def timed_by(limits: 'WheelLimits') -> bool:
