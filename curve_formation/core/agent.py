@@ -299,7 +299,7 @@ class AgentController:
         self.pose, self.pose_stamp, self.pose_received = (x, y, theta), stamp, at
         if self.config.is_leader:
             self.leader_heard = at
-        if self.target is not None:   # the point steered, from this pose on
+        if self.config.gains.reverse and self.target is not None:   # the point steered
             self.front = drive_direction(self.front, x, y, theta, *self.target, self.dhat[0],
                                          self.dhat[1], self.config.law, self.config.limits)
         return True
