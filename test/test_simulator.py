@@ -162,6 +162,17 @@ def test_metrics_use_the_settings_the_run_used():
     assert data['all_settled'] and data['final_error_norm'] < 1e-3
 
 
+def test_every_module_compiled_into_the_simulator_is_watched_for_changes():
+    """A core module whose functions the kernels compile in must be among the SOURCES whose
+    change drops numba's cache (else an edit of it would leave the old code running).
+    """
+    from curve_formation.core import simulator
+    compiled_in = {function.__module__.rsplit('.', 1)[1] + '.py'
+                   for function in simulator._COMPILED}
+    assert 'driving.py' in compiled_in
+    assert compiled_in <= set(simulator.SOURCES)
+
+
 def test_compiled_cache_is_dropped_when_a_law_source_changes(tmp_path):
     """numba would keep running a stepping loop compiled from an older control.py."""
     import shutil

@@ -34,7 +34,6 @@ from curve_formation.core.assignment import AssignmentError, check_assumptions
 from curve_formation.core.control import (
     agent_command,
     body_velocity,
-    drive_direction,
     follower_feedback,
     Gains,
     inside_fence,
@@ -44,10 +43,10 @@ from curve_formation.core.control import (
     OBSERVER,
     observer_step,
     offset_point,
-    steered_law,
     WheelLimits,
 )
 from curve_formation.core.curves import Curve
+from curve_formation.core.driving import drive_direction, steered_law
 from curve_formation.core.dynamics import arc_step
 from curve_formation.core.safety import Avoidance, AVOIDANCE_OFF, STOPPED
 from curve_formation.core.shapes import Command, FloatArray, Point, Pose
@@ -235,7 +234,7 @@ class AgentController:
         self.anchor: tuple[Pose, float] | None = None
         self.reference: Command = (0.0, 0.0)
         # +1: the law steers the point ahead of the axle, -1: the one behind it (reversing,
-        # control.drive_direction, chosen whenever the robot's pose comes)
+        # driving.drive_direction, chosen whenever the robot's pose comes)
         self.front = 1.0
         # (time s on this controller's clock, v, w) of the commands sent, as far back as a
         # pose may be (pose_timeout), for predict_pose

@@ -60,7 +60,7 @@ def steered_points(poses, targets, gains):
     """(R, n, 2) the points the robots steer to their targets (R, n, 2): xb (offset l).
 
     With gains.reverse a robot may steer the point behind its axle instead
-    (control.drive_direction): the nearer of its two offset points to its target is taken.
+    (driving.drive_direction): the nearer of its two offset points to its target is taken.
     The two are 2 |l| apart and the law brings the steered one onto the target, so once a
     robot is within |l| of its target this is the steered point.
     """

@@ -27,7 +27,7 @@ import numba
 import numpy as np
 from numpy.typing import ArrayLike
 
-from curve_formation.core import bodies, control, dynamics, metrics
+from curve_formation.core import bodies, control, driving, dynamics, metrics
 from curve_formation.core.assignment import reassigned
 from curve_formation.core.control import Gains, Law, WheelLimits
 from curve_formation.core.experiment import Experiment, whole_steps
@@ -35,7 +35,7 @@ from curve_formation.core.safety import Avoidance
 from curve_formation.core.shapes import BoolArray, FloatArray, IntArray
 
 
-SOURCES = ('control.py', 'dynamics.py', 'safety.py', 'bodies.py', 'simulator.py')
+SOURCES = ('control.py', 'driving.py', 'dynamics.py', 'safety.py', 'bodies.py', 'simulator.py')
 
 
 def cache_folder(folder: Path) -> Path:
@@ -101,8 +101,8 @@ def compiled(function: Callable[..., Any]) -> Callable[..., Any]:
 _agent_command = compiled(control.agent_command)
 _arc = compiled(dynamics.arc_step)
 _observer_step = compiled(control.observer_step)
-_drive_direction = compiled(control.drive_direction)
-_steered_law = compiled(control.steered_law)
+_drive_direction = compiled(driving.drive_direction)
+_steered_law = compiled(driving.steered_law)
 separate = compiled(bodies.separate)
 OBSERVER = control.LAWS['observer']
 
@@ -154,7 +154,7 @@ def _controls(poses: FloatArray, dhat: FloatArray, targets: FloatArray, ahead: F
     graph: (tgt, src, weights, pins) edge arrays. d_pc (n, 2) is added to the command before
     the limits (injected on the PC), d_robot (n, 2) after them (physical). ahead (n, 2): each
     target's velocity (m/s, a moving curve's feed-forward; zeros otherwise). fronts (n,):
-    the offset point each agent steers (control.drive_direction).
+    the offset point each agent steers (driving.drive_direction).
     """
     tgt, src, wts, pins = graph
     n = poses.shape[0]
@@ -221,7 +221,7 @@ def _run(state: SimState, targets: FloatArray, ahead: FloatArray, graph: EdgeArr
     (step - tick_offsets[i]) % control_every == 0, from step start_steps[i] on. With the
     observer, a tick first updates dhat from the motion over the period just ended (exact
     here: the held motion is what the pose difference would measure); before that it chooses
-    the point it steers (control.drive_direction, as the node does when a pose comes; under
+    the point it steers (driving.drive_direction, as the node does when a pose comes; under
     continuous control at every fine step).
     record: (poses, dhat, cmd) arrays filled every record_every steps.
     """
@@ -397,7 +397,7 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
     record_dt = spec.simulation.record_dt if record_dt is None else record_dt
     gains = experiment.gains if gains is None else gains
     limits = experiment.limits if limits is None else limits
-    if gains.reverse and not control.timed_by(limits):   # forwards only (drive_direction)
+    if gains.reverse and not driving.timed_by(limits):   # forwards only (drive_direction)
         gains = dataclasses.replace(gains, reverse=False)
     avoidance = experiment.avoidance if avoidance is None else avoidance
     radius = experiment.radius if radius is None else radius
