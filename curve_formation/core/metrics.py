@@ -57,7 +57,8 @@ def target_errors(poses, phase, experiment, gains=None, t=None):
 
 
 def steered_points(poses, targets, gains):
-    """(R, n, 2) the points the robots steer to their targets (R, n, 2): xb (offset l).
+    """(R, n, 2) the points the robots steer to their targets (R, n, 2; m, arena frame):
+    xb, offset l ahead of the axle.
 
     With gains.reverse a robot may steer the point behind its axle instead
     (driving.drive_direction): the nearer of its two offset points to its target is taken.
