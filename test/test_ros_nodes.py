@@ -200,6 +200,7 @@ def test_nan_inputs_are_rejected_not_forwarded(ros):
     ({'index': 1, 'agent_count': 3, 'role': 'follower'}, 'role'),
     ({'index': 1, 'agent_count': 3, 'role': 'leader', 'offset': 0.0}, 'offset'),
     ({'index': 1, 'agent_count': 3, 'role': 'leader', 'k2': 'fast'}, 'k2'),
+    ({'index': 1, 'agent_count': 3, 'role': 'leader', 'reverse': True}, 'reverse'),
 ])
 def test_bad_parameters_are_refused_naming_the_parameter(ros, params, name):
     context, _, _ = ros

@@ -420,7 +420,6 @@ class AgentController:
             pose = self.predicted(pose, stamp, received, now)
         if not self._move_target(now):
             return self._stop(f'moving curve not renewed for {now - self.curve_received:.2f} s')
-        law = cfg.law
         ex, ey = self._error_at(pose, self.target)
         base = Tick(error=(ex, ey), error_stamp=stamp, curve_id=self.curve_id)
         if cfg.is_leader:
@@ -446,6 +445,7 @@ class AgentController:
             return self._stop('no poses of the other robots yet' if self.others_received is None
                               else f"other robots' poses stale "
                               f'({now - self.others_received:.2f} s old)', base)
+        law = cfg.law
         if law.code == OBSERVER:
             self._observe()
         ahead = self.ahead if cfg.feed_forward else (0.0, 0.0)

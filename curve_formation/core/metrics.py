@@ -287,7 +287,8 @@ def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance
     disturbance = experiment.disturbance if disturbance is None else disturbance
     limits = experiment.limits if limits is None else limits
     targets = sample_targets(experiment, phase, t)
-    errors = steered_points(poses, targets, gains) - targets
+    points = steered_points(poses, targets, gains)
+    errors = points - targets
     norm = error_norm(errors)
     ends = [p.start for p in experiment.phases[1:]] + [float('inf')]
     phases = []
@@ -312,8 +313,7 @@ def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance
             'initial_error_norm': float(norm[window][0]),
             'final_error_norm': float(norm[last]),
             'final_max_agent_error': float(agent_err.max()),
-            'spacing': spacing_uniformity(p.curve, steered_points(poses[last], targets[last],
-                                                                   gains)),
+            'spacing': spacing_uniformity(p.curve, points[last]),
             'target_spacing': spacing_uniformity(p.curve, p.targets),
             'reassignments': len(p.changes),
         })

@@ -19,6 +19,7 @@ from sensor_msgs.msg import JointState
 from curve_formation.core.agent import AgentConfig, AgentController
 from curve_formation.core.assignment import AssignmentError
 from curve_formation.core.control import Gains, LAWS, WheelLimits
+from curve_formation.core.driving import timed_by
 from curve_formation.core.safety import Avoidance, AVOIDANCE_OFF
 from curve_formation.nodes import messages, topics
 from curve_formation.nodes.params import (
@@ -153,9 +154,6 @@ def agent_config(p):
     """AgentConfig from validated parameters; ParameterError on inconsistent ones."""
     if p.offset == 0:
         raise ParameterError("parameter 'offset' must be non-zero")
-    if p.reverse and not (p.wheel_base > 0 and p.max_wheel_speed > 0):
-        raise ParameterError("parameter 'reverse' needs 'wheel_base' and 'max_wheel_speed' "
-                             '(> 0) to time a trip forwards and backwards')
     if p.index > p.agent_count:
         raise ParameterError(f"parameter 'index' ({p.index}) exceeds 'agent_count' "
                              f'({p.agent_count})')
@@ -183,6 +181,11 @@ def agent_config(p):
         raise ParameterError(f"parameter 'geofence' must be [xmin, ymin, xmax, ymax] with "
                              f'xmin < xmax and ymin < ymax, got {p.geofence}')
     inf = float('inf')
+    limits = WheelLimits(p.wheel_base, p.max_wheel_speed or inf, p.max_angular_rate or inf,
+                         p.max_linear_accel or inf, p.max_angular_accel or inf)
+    if p.reverse and not timed_by(limits):
+        raise ParameterError("parameter 'reverse' needs 'wheel_base' and 'max_wheel_speed' "
+                             '(> 0) to time a trip forwards and backwards')
     return AgentConfig(
         avoidance=_avoidance(p),
         index=p.index, agent_count=p.agent_count,
@@ -190,8 +193,7 @@ def agent_config(p):
         gains=Gains(p.k1, p.k2, p.offset, law=p.law, adaptation=tuple(p.adaptation),
                     observer_rate=p.observer_rate, sampled_heading=p.heading == 'sampled',
                     tail_radius=p.tail_radius, tail_gain=p.tail_gain, reverse=p.reverse),
-        limits=WheelLimits(p.wheel_base, p.max_wheel_speed or inf, p.max_angular_rate or inf,
-                           p.max_linear_accel or inf, p.max_angular_accel or inf),
+        limits=limits,
         rate_hz=p.rate_hz, pose_timeout=p.pose_timeout, neighbour_timeout=p.neighbour_timeout,
         pc_disturbance=tuple(p.pc_disturbance), leader_timeout=p.leader_timeout,
         geofence=None if fence is None else tuple(fence), predict_pose=p.predict_pose,
