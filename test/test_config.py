@@ -162,8 +162,19 @@ def test_invalid_yaml_names_the_file(tmp_path):
 
 def test_reversing_without_wheel_limits_to_time_it_by_is_refused(arena_dict):
     arena_dict['controller']['reverse'] = True
+    arena_dict['controller']['observer_growth'] = 1.0
     assert build_experiment(arena_dict, 'arena.yaml').gains.reverse
     del arena_dict['limits']
     with pytest.raises(ConfigError, match=r'arena.yaml: controller.reverse: needs '
+                       r'limits.wheel_base and limits.max_wheel_speed'):
+        build_experiment(arena_dict, 'arena.yaml')
+
+
+def test_observer_growth_without_wheel_limits_to_saturate_is_refused(arena_dict):
+    arena_dict['controller']['observer_growth'] = 8.0
+    arena_dict['controller']['reverse'] = False
+    assert build_experiment(arena_dict, 'arena.yaml').gains.observer_growth == 8.0
+    del arena_dict['limits']
+    with pytest.raises(ConfigError, match=r'arena.yaml: controller.observer_growth: needs '
                        r'limits.wheel_base and limits.max_wheel_speed'):
         build_experiment(arena_dict, 'arena.yaml')

@@ -14,7 +14,12 @@ import pytest
 
 from conftest import paper_arena
 from curve_formation.core import metrics
-from curve_formation.core.control import body_velocity, sampled_feedback
+from curve_formation.core.control import (
+    body_velocity,
+    ray_growth,
+    sampled_feedback,
+    WheelLimits,
+)
 from curve_formation.core.dynamics import arc_step
 from curve_formation.core.experiment import load_experiment, seeded_start, with_start
 from curve_formation.core.simulator import simulate
@@ -74,6 +79,54 @@ def test_observer_learns_a_disturbance_injected_before_saturated_wheels():
     wheel = np.abs(ours.commands[..., 0]) + 0.5 * case.limits.wheel_base * np.abs(
         ours.commands[..., 1])
     assert wheel.max() <= case.limits.max_wheel_speed * (1 + 1e-9)
+
+
+@pytest.mark.parametrize('seed', [None, 0, 1, 2, 3])
+def test_observer_growth_learns_a_pc_disturbance_beyond_the_limits_within_seconds(seed):
+    """Mona case (d 20x the wheel limit, added before the limits): with the shipped
+    observer_growth every robot's estimate is within 10 % of d / k2 from 5 s on (the search
+    along the saturated ray); with it off (1) most robots are still learning at 5 s (each
+    tick moves the estimate at most the limits' width), some for over 15 s.
+    """
+    case = load_experiment(resolve_config('mona_arena'))
+    assert case.gains.observer_growth > 1
+    if seed is not None:
+        case = with_start(case, seeded_start(case, seed))
+
+    def learning(growth):
+        result = simulate(case, duration=20.0,
+                          gains=dataclasses.replace(case.gains, observer_growth=growth))
+        off = (np.linalg.norm(result.gains.k2 * result.dhat - result.disturbance, axis=2)
+               / np.linalg.norm(result.disturbance, axis=1))
+        return off[result.t >= 5.0].max(axis=0)   # per robot, worst from 5 s on
+
+    assert learning(case.gains.observer_growth).max() < 0.1
+    assert np.sum(learning(1.0) >= 0.1) >= 4
+
+
+def test_ray_growth_searches_along_a_saturated_ray():
+    """Doubling while the measured motion stays saturated along one ray, up to the law's
+    cap; a reversal divides by 4; an unsaturated motion resets to 1; off without the cap,
+    without a PC disturbance or without wheel limits.
+    """
+    case = load_experiment(resolve_config('mona_arena'))
+    law = case.gains.tick_law(10.0, on_pc=True)._replace(max_growth=8.0)
+    limits = case.limits
+    top = limits.max_wheel_speed
+    ray = (1.0, 0.0, 0.0)
+    factors = []
+    for _ in range(6):   # straight ahead at the wheel limit: saturated
+        ray = ray_growth(*ray, top, 0.0, law, limits)
+        factors.append(ray[0])
+    assert factors == [1.0, 2.0, 4.0, 8.0, 8.0, 8.0]
+    assert ray_growth(*ray, 0.99 * top, 0.01, law, limits)[0] == 8.0   # still along it
+    assert ray_growth(*ray, -top, 0.0, law, limits)[0] == 2.0          # reversed
+    assert ray_growth(*ray, 0.0, 2 * top / limits.wheel_base, law, limits)[0] == 8.0   # turn
+    assert ray_growth(*ray, 0.9 * top, 0.0, law, limits) == (1.0, 0.0, 0.0)   # unsaturated
+    for off_law, off_limits in ((law._replace(max_growth=1.0), limits),
+                                (law._replace(on_pc=False), limits),
+                                (law, WheelLimits())):
+        assert ray_growth(*ray, top, 0.0, off_law, off_limits) == (1.0, 0.0, 0.0)
 
 
 @pytest.mark.parametrize('seed', [0, 1, 2])

@@ -201,6 +201,10 @@ def test_nan_inputs_are_rejected_not_forwarded(ros):
     ({'index': 1, 'agent_count': 3, 'role': 'leader', 'offset': 0.0}, 'offset'),
     ({'index': 1, 'agent_count': 3, 'role': 'leader', 'k2': 'fast'}, 'k2'),
     ({'index': 1, 'agent_count': 3, 'role': 'leader', 'reverse': True}, 'reverse'),
+    ({'index': 1, 'agent_count': 3, 'role': 'leader', 'observer_growth': 4.0},
+     'observer_growth'),
+    ({'index': 1, 'agent_count': 3, 'role': 'leader', 'observer_growth': 0.5},
+     'observer_growth'),
 ])
 def test_bad_parameters_are_refused_naming_the_parameter(ros, params, name):
     context, _, _ = ros

@@ -43,6 +43,7 @@ from curve_formation.core.control import (
     OBSERVER,
     observer_step,
     offset_point,
+    ray_growth,
     WheelLimits,
 )
 from curve_formation.core.curves import Curve
@@ -233,6 +234,8 @@ class AgentController:
         # where the disturbance enters (before a PC-injected disturbance, else as sent).
         self.anchor: tuple[Pose, float] | None = None
         self.reference: Command = (0.0, 0.0)
+        # control.ray_growth's state: (factor, last right, last left wheel speed m/s)
+        self.ray: tuple[float, float, float] = (1.0, 0.0, 0.0)
         # +1: the law steers the point ahead of the axle, -1: the one behind it (reversing,
         # driving.drive_direction, chosen whenever the robot's pose comes)
         self.front = 1.0
@@ -471,7 +474,8 @@ class AgentController:
         """Observer law: move dhat towards (motion measured since the last tick - command) / k2.
 
         The motion is the constant (v, w) that carries the previous tick's pose to the current
-        one over the difference of their stamps; without a newer pose nothing is updated.
+        one over the difference of their stamps, scaled along its ray when saturated
+        (control.ray_growth); without a newer pose nothing is updated.
         """
         if self.anchor is None or self.pose is None or self.pose_stamp is None:
             return
@@ -479,14 +483,18 @@ class AgentController:
         elapsed = self.pose_stamp - stamp0
         if elapsed <= 0.0:
             return
-        measured = body_velocity(x0, y0, th0, *self.pose, elapsed)
+        measured_v, measured_w = body_velocity(x0, y0, th0, *self.pose, elapsed)
+        self.ray = ray_growth(*self.ray, measured_v, measured_w, self.config.law,
+                              self.config.limits)
         blend = 1.0 - math.exp(-self.config.gains.observer_rate * elapsed)
-        self.dhat[:] = observer_step(self.dhat[0], self.dhat[1], *measured, *self.reference,
+        self.dhat[:] = observer_step(self.dhat[0], self.dhat[1], self.ray[0] * measured_v,
+                                     self.ray[0] * measured_w, *self.reference,
                                      self.config.gains.k2, blend)
 
     def _stop(self, reason: str, base: Tick | None = None) -> Tick:
         tick = base or Tick()
         self.anchor = None
+        self.ray = (1.0, 0.0, 0.0)
         tick.v, tick.w, tick.stopped = 0.0, 0.0, reason
         tick.dhat = (self.dhat[0], self.dhat[1])
         self.last_command = (0.0, 0.0)

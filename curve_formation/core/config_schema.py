@@ -112,6 +112,12 @@ class ControllerSpec(Strict):
         'continuous-time turn rate')
     observer_rate: float = Field(5.0, gt=0, description='law observer: bandwidth of the '
                                  'disturbance observer (1/s)')
+    observer_growth: float = Field(
+        1.0, ge=1, allow_inf_nan=False, description='law observer with a disturbance '
+        "injected on_pc: while the wheel limits saturate the command, the robot's motion "
+        "shows the disturbance's direction but not its size; the observer then searches "
+        'along that direction, its step doubling each tick up to this factor '
+        '(control.ray_growth; needs limits.wheel_base and max_wheel_speed); 1 = off')
     k1: float = Field(gt=0, description='gain on the target error (1/s)')
     k2: float = Field(ge=0, description='estimator gain; 0 = estimator off (every law '
                       'estimates d / k2, as the paper)')

@@ -27,6 +27,14 @@ LAWS = {'paper': 0, 'adaptive': 1, 'observer': 2}
 OBSERVER = LAWS['observer']
 # Share of the wheel and turn-rate limits the observer law's feedback may use (observer_input).
 FEEDBACK_HEADROOM = 0.95
+# The observer's search along a saturated motion's ray (ray_growth): a measured motion with a
+# wheel within RAY_SATURATED of the wheel limit counts as saturated (the feedback alone uses
+# at most FEEDBACK_HEADROOM); two saturated motions lie along one ray when their wheel speeds
+# point within acos(RAY_ALIGNED) (18 degrees) of each other; a reversal shrinks the growth
+# by RAY_SHRINK.
+RAY_SATURATED = 0.99
+RAY_ALIGNED = 0.95
+RAY_SHRINK = 0.25
 
 
 @dataclass(frozen=True)
@@ -42,6 +50,8 @@ class Gains:
     tail_radius (m; 0: off), tail_gain: the finite-time tail (tail_feedback).
     reverse: a robot may drive backwards, steering the point behind its axle
     (core.driving), when that reaches its target sooner.
+    observer_growth: law observer with the disturbance added on the PC: the largest factor
+    of ray_growth's search along a saturated motion (1: off).
     """
 
     k1: float
@@ -54,6 +64,7 @@ class Gains:
     tail_radius: float = 0.0
     tail_gain: float = 1.0
     reverse: bool = False
+    observer_growth: float = 1.0
 
     @property
     def law_code(self) -> int:
@@ -78,7 +89,8 @@ class Gains:
         gamma_v, gamma_w = self.estimator_gains()
         return Law(self.law_code, self.k1, self.k2, self.offset, gamma_v, gamma_w,
                    self.hold_period(rate_hz), 1.0 / rate_hz if rate_hz else 0.0,
-                   self.observer_rate, on_pc, self.tail_radius, self.tail_gain, self.reverse)
+                   self.observer_rate, on_pc, self.tail_radius, self.tail_gain, self.reverse,
+                   self.observer_growth)
 
 
 class Law(NamedTuple):
@@ -88,7 +100,7 @@ class Law(NamedTuple):
     the sampled heading (s; 0: the paper's heading), period: the control period (s; 0:
     continuous), observer_rate (1/s), on_pc: the disturbance is added on the PC,
     tail_radius (m), tail_gain: tail_feedback's, reverse: driving.drive_direction may
-    choose to drive backwards.
+    choose to drive backwards, max_growth: ray_growth's largest factor (1: off).
     """
 
     code: int
@@ -104,6 +116,7 @@ class Law(NamedTuple):
     tail_radius: float
     tail_gain: float
     reverse: bool
+    max_growth: float
 
 
 class WheelLimits(NamedTuple):
@@ -288,6 +301,42 @@ def observer_step(dhat_v: float, dhat_w: float, measured_v: float, measured_w: f
         return dhat_v, dhat_w
     return (dhat_v + blend * ((measured_v - ref_v) / k2 - dhat_v),
             dhat_w + blend * ((measured_w - ref_w) / k2 - dhat_w))
+
+
+def ray_growth(growth: float, last_right: float, last_left: float, measured_v: float,
+               measured_w: float, law: 'Law', limits: 'WheelLimits'
+               ) -> tuple[float, float, float]:
+    """The factor by which the observer takes this tick's measured motion (observer_step),
+    for a disturbance d added on the PC, before the wheel limits (law.on_pc).
+
+    A command saturated by the wheel limits moves the robot at the limit in the direction of
+    the law's command plus d: the motion shows d's direction, not its size (d lies on the ray
+    s * measured - reference, s >= 1), and observer_step, taking s = 1, moves the estimate at
+    most the limits' width a tick (in the paper's arena d is 20x the limit). While the motion
+    stays saturated along one ray, the factor s doubles each tick up to law.max_growth (a
+    search along the ray); a reversal (the estimate overshot) divides it by 1 / RAY_SHRINK;
+    an unsaturated motion resets it to 1. Off (always 1) with law.max_growth <= 1, without
+    law.on_pc, or without a finite wheel limit and a wheel base.
+
+    growth: last tick's factor; last_right, last_left: last tick's measured wheel speeds
+    (m/s) when saturated, else 0; measured: body velocity (m/s, rad/s). Returns (factor,
+    right, left): this tick's factor and the values of last_right, last_left for the next.
+    """
+    if (law.max_growth <= 1.0 or not law.on_pc or limits.wheel_base <= 0.0
+            or not limits.max_wheel_speed < math.inf):
+        return 1.0, 0.0, 0.0
+    right, left = wheel_speeds(measured_v, measured_w, limits.wheel_base)
+    if max(abs(right), abs(left)) < RAY_SATURATED * limits.max_wheel_speed:
+        return 1.0, 0.0, 0.0
+    if last_right != 0.0 or last_left != 0.0:
+        cosine = ((right * last_right + left * last_left)
+                  / math.sqrt((right * right + left * left)
+                              * (last_right * last_right + last_left * last_left)))
+        if cosine > RAY_ALIGNED:
+            growth = min(law.max_growth, 2.0 * growth)
+        elif cosine < 0.0:
+            growth = max(1.0, RAY_SHRINK * growth)
+    return growth, right, left
 
 
 def body_velocity(x0: float, y0: float, theta0: float, x1: float, y1: float, theta1: float,

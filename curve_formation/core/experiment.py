@@ -189,8 +189,9 @@ def build_experiment(data: Any, source: str = '<experiment>') -> Experiment:
 def as_in_the_paper(data: dict[str, Any]) -> dict[str, Any]:
     """A copy of an experiment's parsed YAML mapping with the paper's agents, graph and law:
     fixed assignment, no re-assignment, no follower pinning, edge weights 1, no finite-time
-    tail, forwards only, point robots (no bodies, no safety filter). The reference against
-    which the arena files' additions are measured (tests, benchmarks/convergence.py).
+    tail, forwards only, no observer growth, point robots (no bodies, no safety filter). The
+    reference against which the arena files' additions are measured (tests,
+    benchmarks/convergence.py).
     """
     data = copy.deepcopy(data)
     data['agents']['assignment'] = 'fixed'
@@ -202,6 +203,7 @@ def as_in_the_paper(data: dict[str, Any]) -> dict[str, Any]:
         edge.pop('weight', None)
     data['controller'].pop('tail', None)
     data['controller'].pop('reverse', None)
+    data['controller'].pop('observer_growth', None)
     return data
 
 
@@ -247,6 +249,10 @@ def _build(spec: ExperimentSpec, source: str) -> Experiment:
     if gains.reverse and not timed_by(limits):
         raise ConfigError(source, 'controller.reverse', 'needs limits.wheel_base and '
                           'limits.max_wheel_speed (> 0) to time a trip forwards and backwards')
+    if gains.observer_growth > 1 and not timed_by(limits):
+        raise ConfigError(source, 'controller.observer_growth', 'needs limits.wheel_base and '
+                          'limits.max_wheel_speed (> 0): it acts while the wheel limits '
+                          'saturate the command')
     initial = _initial_poses(spec, source)
     phases = tuple(_build_phases(spec, source, offset_points(initial, gains.offset)))
     avoidance = _avoidance(spec, source)
@@ -610,4 +616,4 @@ def _gains(controller: ControllerSpec) -> Gains:
                  sampled_heading=controller.heading == 'sampled',
                  tail_radius=controller.tail.radius if controller.tail else 0.0,
                  tail_gain=controller.tail.gain if controller.tail else 1.0,
-                 reverse=controller.reverse)
+                 reverse=controller.reverse, observer_growth=controller.observer_growth)

@@ -101,6 +101,7 @@ def compiled(function: Callable[..., Any]) -> Callable[..., Any]:
 _agent_command = compiled(control.agent_command)
 _arc = compiled(dynamics.arc_step)
 _observer_step = compiled(control.observer_step)
+_ray_growth = compiled(control.ray_growth)
 _drive_direction = compiled(driving.drive_direction)
 _steered_law = compiled(driving.steered_law)
 separate = compiled(bodies.separate)
@@ -137,8 +138,10 @@ class Contacts(NamedTuple):
 
 # The graph as the kernels take it: (targets, sources, weights) edge arrays and the pins.
 EdgeArrays = tuple[IntArray, IntArray, FloatArray, FloatArray]
-# (poses (n, 3), dhat, motion, cmd, ref (n, 2), fronts (n,)), advanced in place.
-SimState = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]
+# (poses (n, 3), dhat, motion, cmd, ref (n, 2), fronts (n,), rays (n, 3)), advanced in
+# place; rays: the observer's control.ray_growth state (factor, last right, last left).
+SimState = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
+                 FloatArray]
 
 
 @numba.njit(cache=True)
@@ -214,18 +217,20 @@ def _run(state: SimState, targets: FloatArray, ahead: FloatArray, graph: EdgeArr
          limits: WheelLimits, avoidance: Avoidance, d_pc: FloatArray, d_robot: FloatArray,
          clock: Clock, step0: int, steps: int, schedule: tuple[IntArray, IntArray],
          contacts: Contacts, record: tuple[FloatArray, FloatArray, FloatArray]) -> None:
-    """Advance the state (poses (n, 3), dhat (n, 2), the held motion, cmd, ref (n, 2) and the
-    steered points' fronts (n,)) in place by `steps` fine steps from `step0`.
+    """Advance the state (poses (n, 3), dhat (n, 2), the held motion, cmd, ref (n, 2), the
+    steered points' fronts (n,) and the observer's rays (n, 3)) in place by `steps` fine
+    steps from `step0`.
 
     schedule: (tick_offsets, start_steps): agent i ticks at the steps where
     (step - tick_offsets[i]) % control_every == 0, from step start_steps[i] on. With the
     observer, a tick first updates dhat from the motion over the period just ended (exact
-    here: the held motion is what the pose difference would measure); before that it chooses
+    here: the held motion is what the pose difference would measure; scaled along its ray
+    by control.ray_growth); before that it chooses
     the point it steers (driving.drive_direction, as the node does when a pose comes; under
     continuous control at every fine step).
     record: (poses, dhat, cmd) arrays filled every record_every steps.
     """
-    poses, dhat, motion, cmd, ref, fronts = state
+    poses, dhat, motion, cmd, ref, fronts, rays = state
     tick_offsets, start_steps = schedule
     rec_poses, rec_dhat, rec_cmd = record
     n = poses.shape[0]
@@ -251,9 +256,12 @@ def _run(state: SimState, targets: FloatArray, ahead: FloatArray, graph: EdgeArr
                                                      poses[i, 2], targets[i, 0], targets[i, 1],
                                                      dhat[i, 0], dhat[i, 1], law, limits)
                     if law.code == OBSERVER and step >= start_steps[i]:
+                        rays[i, 0], rays[i, 1], rays[i, 2] = _ray_growth(
+                            rays[i, 0], rays[i, 1], rays[i, 2], motion[i, 0], motion[i, 1],
+                            law, limits)
                         dhat[i, 0], dhat[i, 1] = _observer_step(
-                            dhat[i, 0], dhat[i, 1], motion[i, 0], motion[i, 1], ref[i, 0],
-                            ref[i, 1], law.k2, blend)
+                            dhat[i, 0], dhat[i, 1], rays[i, 0] * motion[i, 0],
+                            rays[i, 0] * motion[i, 1], ref[i, 0], ref[i, 1], law.k2, blend)
             if ticking:
                 new_cmd[:] = cmd   # each agent's previous command
                 _controls(poses, dhat, targets, ahead, graph, law, limits, avoidance, d_pc,
@@ -421,7 +429,7 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
               np.zeros((n_rec, experiment.n, 2)))
     n = experiment.n
     state = (poses, np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 2)),
-             np.ones(n))
+             np.ones(n), np.column_stack([np.ones(n), np.zeros((n, 2))]))
     width, height = spec.arena.size if spec.arena is not None else (0.0, 0.0)
     contacts = Contacts(float(radius), float(width), float(height), np.zeros((n, n), bool),
                         np.array([0.0, 0.0, math.inf]))

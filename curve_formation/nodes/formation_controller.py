@@ -55,6 +55,9 @@ PARAMETERS = (
           "multiplying the paper's estimator rate per channel"),
     Param('observer_rate', 'double', 5.0, 'law observer: observer bandwidth (1/s)',
           positive=True),
+    Param('observer_growth', 'double', 1.0, 'law observer, pc_disturbance set: largest '
+          "factor of the observer's search along a saturated motion (control.ray_growth); "
+          '1 = off; needs wheel_base and max_wheel_speed', low=1.0),
     Param('tail_radius', 'double', 0.0, 'feedback size (m) below which the law speeds up as '
           'its square root (finite-time tail); 0 = off', low=0.0),
     Param('tail_gain', 'double', 1.0, 'cap on the finite-time speed-up', low=1.0),
@@ -124,6 +127,7 @@ def node_parameters(config):
         'rate_hz': float(config.rate_hz), 'law': gains.law,
         'adaptation': [float(g) for g in gains.adaptation],
         'observer_rate': float(gains.observer_rate),
+        'observer_growth': float(gains.observer_growth),
         'tail_radius': float(gains.tail_radius), 'tail_gain': float(gains.tail_gain),
         'reverse': bool(gains.reverse),
         'heading': 'sampled' if gains.sampled_heading else 'paper',
@@ -186,13 +190,18 @@ def agent_config(p):
     if p.reverse and not timed_by(limits):
         raise ParameterError("parameter 'reverse' needs 'wheel_base' and 'max_wheel_speed' "
                              '(> 0) to time a trip forwards and backwards')
+    if p.observer_growth > 1 and not timed_by(limits):
+        raise ParameterError("parameter 'observer_growth' needs 'wheel_base' and "
+                             "'max_wheel_speed' (> 0): it acts while the wheel limits saturate "
+                             'the command')
     return AgentConfig(
         avoidance=_avoidance(p),
         index=p.index, agent_count=p.agent_count,
         neighbours=tuple(zip(p.in_neighbours, weights, strict=True)), pinning=p.pinning,
         gains=Gains(p.k1, p.k2, p.offset, law=p.law, adaptation=tuple(p.adaptation),
                     observer_rate=p.observer_rate, sampled_heading=p.heading == 'sampled',
-                    tail_radius=p.tail_radius, tail_gain=p.tail_gain, reverse=p.reverse),
+                    tail_radius=p.tail_radius, tail_gain=p.tail_gain, reverse=p.reverse,
+                    observer_growth=p.observer_growth),
         limits=limits,
         rate_hz=p.rate_hz, pose_timeout=p.pose_timeout, neighbour_timeout=p.neighbour_timeout,
         pc_disturbance=tuple(p.pc_disturbance), leader_timeout=p.leader_timeout,
