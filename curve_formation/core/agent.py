@@ -24,6 +24,7 @@ and no cycle can keep a dead leader alive.
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 import math
 from typing import Optional, TYPE_CHECKING
 
@@ -144,9 +145,9 @@ class AgentConfig:
         """The leader is the agent that receives from nobody."""
         return not self.neighbours
 
-    @property
+    @cached_property
     def law(self) -> Law:
-        """The control.Law of this agent's ticks."""
+        """The control.Law of this agent's ticks (built once: the settings are frozen)."""
         return self.gains.tick_law(self.rate_hz, on_pc=any(self.pc_disturbance))
 
 
