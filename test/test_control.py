@@ -6,7 +6,9 @@ from test_graph import random_rooted_graph
 
 from curve_formation.core.assignment import check_assumptions, uniform_parameters
 from curve_formation.core.control import (
+    agent_command,
     agent_input,
+    FEEDBACK_HEADROOM,
     follower_feedback,
     Gains,
     leader_feedback,
@@ -14,8 +16,10 @@ from curve_formation.core.control import (
     stacked_paper_input,
     tail_feedback,
     wheel_speeds,
+    WheelLimits,
 )
 from curve_formation.core.curves import FourierBasis, PolynomialBasis
+from curve_formation.core.safety import AVOIDANCE_OFF
 
 
 def local_arena_input(poses, dhat, targets, graph, gains):
@@ -86,6 +90,22 @@ def test_angular_rate_bound():
     sv, sw = saturate(0.1, 10.0, 0.0, math.inf, 2.0)
     assert sw == pytest.approx(2.0)
     assert sv == pytest.approx(0.02)
+
+
+@pytest.mark.parametrize('on_pc', [False, True])
+def test_the_observer_feedback_uses_the_whole_limits_unless_d_enters_before_them(on_pc):
+    """A target far ahead, the estimate at zero: with the disturbance on the robot the
+    observer law drives at the wheel limit; with it added on the PC, before the limits, its
+    feedback keeps FEEDBACK_HEADROOM of them (else a saturated command would look the same for
+    a whole ray of estimates).
+    """
+    limits = WheelLimits(0.08, 0.0225)
+    law = Gains(2 / 3, 1 / 3, 0.01, law='observer', sampled_heading=True).tick_law(10.0, on_pc)
+    v, w, *_ = agent_command(-1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+                             0.0, 0.0, 0.0, law, limits, np.zeros((1, 3)), 0, AVOIDANCE_OFF)
+    assert w == pytest.approx(0.0, abs=1e-12)
+    share = FEEDBACK_HEADROOM if on_pc else 1.0
+    assert v == pytest.approx(share * limits.max_wheel_speed, rel=1e-12)
 
 
 def test_the_tail_scales_the_feedback_as_its_square_root_near_the_target_only():

@@ -25,7 +25,9 @@ from curve_formation.core.shapes import Command, FloatArray, Point
 # compiled simulator.
 LAWS = {'paper': 0, 'adaptive': 1, 'observer': 2}
 OBSERVER = LAWS['observer']
-# Share of the wheel and turn-rate limits the observer law's feedback may use (observer_input).
+# Share of the wheel and turn-rate limits the observer law's feedback may use (observer_input)
+# where the disturbance is added on the PC, before the limits; with it on the robot the
+# feedback may use the whole limits.
 FEEDBACK_HEADROOM = 0.95
 # The observer's search along a saturated motion's ray (ray_growth): a measured motion with a
 # wheel within RAY_SATURATED of the wheel limit counts as saturated (the feedback alone uses
@@ -161,9 +163,10 @@ def agent_command(fx: float, fy: float, ahead_x: float, ahead_y: float, ex: floa
     fx, fy = shaped_feedback(fx, fy, x, y, others, me, law.k1, limits.max_wheel_speed,
                              avoidance)
     if law.code == OBSERVER:
+        room = FEEDBACK_HEADROOM if law.on_pc else 1.0
         u_v, u_w = observer_input(fx, fy, theta, dhat_v, dhat_w, law.k1, law.k2, law.offset,
-                                  law.hold, limits.wheel_base, limits.max_wheel_speed,
-                                  limits.max_angular_rate)
+                                  law.hold, limits.wheel_base, room * limits.max_wheel_speed,
+                                  room * limits.max_angular_rate)
         ddhat_v = 0.0
         ddhat_w = 0.0
     else:
@@ -272,19 +275,20 @@ def sampled_feedback(along: float, across: float, offset: float, period: float) 
 def observer_input(fx: float, fy: float, theta: float, dhat_v: float, dhat_w: float,
                    k1: float, k2: float, offset: float, period: float, wheel_base: float,
                    max_wheel_speed: float, max_angular_rate: float) -> Command:
-    """The observer law's command (m/s, rad/s): feedback within the wheel limits, minus k2 dhat.
+    """The observer law's command (m/s, rad/s): feedback within the limits given, minus k2 dhat.
 
     The feedback part of agent_input (fx, fy, period as there) is saturated before the
     compensation is subtracted, so that a command saturated by the limits is never mistaken
     for a disturbance: at dhat = d / k2 the robot moves exactly as the saturated feedback asks.
-    It is saturated to FEEDBACK_HEADROOM of the limits, strictly inside them: where the
-    disturbance is added before the limits (on the PC), a feedback on the limit would move the
-    robot the same for a whole ray of estimates, along which the estimate drifts.
+    agent_command passes FEEDBACK_HEADROOM of the wheel limits where the disturbance is added
+    before them (on the PC): a feedback on the limit would then move the robot the same for a
+    whole ray of estimates, along which the estimate drifts. With the disturbance on the robot
+    the observer compares the motion with the command actually sent, and the feedback may use
+    the whole limits.
     """
     v, w, _, _ = agent_input(fx, fy, 0.0, 0.0, theta, 0.0, 0.0, k1, k2, offset, 1.0, 1.0,
                              period)
-    v, w = saturate(v, w, wheel_base, FEEDBACK_HEADROOM * max_wheel_speed,
-                    FEEDBACK_HEADROOM * max_angular_rate)
+    v, w = saturate(v, w, wheel_base, max_wheel_speed, max_angular_rate)
     return v - k2 * dhat_v, w - k2 * dhat_w
 
 
