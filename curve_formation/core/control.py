@@ -136,6 +136,14 @@ class WheelLimits(NamedTuple):
 NO_LIMITS = WheelLimits()
 
 
+def timed_by(limits: WheelLimits) -> bool:
+    """True when the wheel limits time a trip and can saturate a command (a wheel base and a
+    finite wheel speed limit): driving.drive_direction needs them to choose between forwards
+    and backwards, ray_growth to tell a saturated motion.
+    """
+    return limits.wheel_base > 0.0 and 0.0 < limits.max_wheel_speed < math.inf
+
+
 def agent_command(fx: float, fy: float, ahead_x: float, ahead_y: float, ex: float,
                   ey: float, x: float, y: float,
                   theta: float, dhat_v: float, dhat_w: float, prev_v: float, prev_w: float,
@@ -320,14 +328,13 @@ def ray_growth(growth: float, last_right: float, last_left: float, measured_v: f
     stays saturated along one ray, the factor s doubles each tick up to law.max_growth (a
     search along the ray); a reversal (the estimate overshot) divides it by 1 / RAY_SHRINK;
     an unsaturated motion resets it to 1. Off (always 1) with law.max_growth <= 1, without
-    law.on_pc, or without a finite wheel limit and a wheel base.
+    law.on_pc, or without wheel limits that can saturate (timed_by).
 
     growth: last tick's factor; last_right, last_left: last tick's measured wheel speeds
     (m/s) when saturated, else 0; measured: body velocity (m/s, rad/s). Returns (factor,
     right, left): this tick's factor and the values of last_right, last_left for the next.
     """
-    if (law.max_growth <= 1.0 or not law.on_pc or limits.wheel_base <= 0.0
-            or not limits.max_wheel_speed < math.inf):
+    if law.max_growth <= 1.0 or not law.on_pc or not timed_by(limits):
         return 1.0, 0.0, 0.0
     right, left = wheel_speeds(measured_v, measured_w, limits.wheel_base)
     if max(abs(right), abs(left)) < RAY_SATURATED * limits.max_wheel_speed:

@@ -8,7 +8,7 @@ the same source.
 
 import math
 
-from curve_formation.core.control import Law, WheelLimits
+from curve_formation.core.control import Law, timed_by, WheelLimits
 
 
 # drive_direction: no change of direction within this distance (m) of the target, where the
@@ -56,13 +56,6 @@ def drive_direction(front: float, x: float, y: float, theta: float, tx: float, t
     if front > 0.0:
         return -1.0 if opposite < configured - REVERSE_HYSTERESIS else 1.0
     return 1.0 if configured < opposite - REVERSE_HYSTERESIS else -1.0
-
-
-def timed_by(limits: WheelLimits) -> bool:
-    """True when the wheel limits time a trip (a wheel base and a finite wheel speed limit):
-    drive_direction needs them to choose between forwards and backwards.
-    """
-    return limits.wheel_base > 0.0 and 0.0 < limits.max_wheel_speed < math.inf
 
 
 def steered_law(law: Law, front: float) -> Law:

@@ -26,9 +26,8 @@ from curve_formation.core.config_schema import (
     MotionSpec,
     RobotsSpec,
 )
-from curve_formation.core.control import Gains, NO_LIMITS, WheelLimits
+from curve_formation.core.control import Gains, NO_LIMITS, timed_by, WheelLimits
 from curve_formation.core.curves import Curve, CurveError, Fit, fit_curve, make_basis
-from curve_formation.core.driving import timed_by
 from curve_formation.core.expressions import ExpressionError
 from curve_formation.core.graph import DirectedGraph, Edge, GraphError
 from curve_formation.core.metrics import offset_points

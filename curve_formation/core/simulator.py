@@ -225,9 +225,9 @@ def _run(state: SimState, targets: FloatArray, ahead: FloatArray, graph: EdgeArr
     (step - tick_offsets[i]) % control_every == 0, from step start_steps[i] on. With the
     observer, a tick first updates dhat from the motion over the period just ended (exact
     here: the held motion is what the pose difference would measure; scaled along its ray
-    by control.ray_growth); before that it chooses
-    the point it steers (driving.drive_direction, as the node does when a pose comes; under
-    continuous control at every fine step).
+    by control.ray_growth); before that it chooses the point it steers
+    (driving.drive_direction, as the node does when a pose comes; under continuous control
+    at every fine step).
     record: (poses, dhat, cmd) arrays filled every record_every steps.
     """
     poses, dhat, motion, cmd, ref, fronts, rays = state
@@ -405,7 +405,7 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
     record_dt = spec.simulation.record_dt if record_dt is None else record_dt
     gains = experiment.gains if gains is None else gains
     limits = experiment.limits if limits is None else limits
-    if gains.reverse and not driving.timed_by(limits):   # forwards only (drive_direction)
+    if gains.reverse and not control.timed_by(limits):   # forwards only (drive_direction)
         gains = dataclasses.replace(gains, reverse=False)
     avoidance = experiment.avoidance if avoidance is None else avoidance
     radius = experiment.radius if radius is None else radius

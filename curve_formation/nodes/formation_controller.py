@@ -18,8 +18,7 @@ from sensor_msgs.msg import JointState
 
 from curve_formation.core.agent import AgentConfig, AgentController
 from curve_formation.core.assignment import AssignmentError
-from curve_formation.core.control import Gains, LAWS, WheelLimits
-from curve_formation.core.driving import timed_by
+from curve_formation.core.control import Gains, LAWS, timed_by, WheelLimits
 from curve_formation.core.safety import Avoidance, AVOIDANCE_OFF
 from curve_formation.nodes import messages, topics
 from curve_formation.nodes.params import (
