@@ -79,6 +79,24 @@ def test_with_nothing_near_the_filter_leaves_the_command_as_it_is(x, y, theta, v
                                   arena.avoidance) == (0.3, -0.2)
 
 
+@pytest.mark.parametrize('bias', [0.0, 1.0])
+def test_the_passing_rule_turns_a_head_on_meeting_to_the_right_only_when_asked(bias):
+    """A robot heading +x at another one 2 cm beyond the safe distance: with the passing rule
+    (bias > 0) its intended velocity gains a part to its right (-y); without it (the
+    default) it keeps heading straight at it (the barriers then stop it, and the robot of
+    lower priority gives way).
+    """
+    av = safety.Avoidance(True, radius=0.04, margin=0.02, bias=bias, bias_range=0.08)
+    others = np.array([[0.0, 0.0, 0.0], [0.12, 0.0, math.pi]])
+    fx, fy = safety.shaped_feedback(-0.1, 0.0, 0.0, 0.0, others, 0, 2 / 3, 0.0225, av)
+    # the law steers along -k1 f: heading right is f_y > 0
+    assert fx < 0.0
+    if bias > 0.0:
+        assert fy > 0.1 * abs(fx)
+    else:
+        assert fy == 0.0
+
+
 def barriers(result):
     """(pairs, walls) (R,): the smallest h over pairs, |c_i - c_j|^2 - D^2 (m^2), and over
     walls, the distance of a body to a wall minus radius and half the margin (m).

@@ -425,11 +425,11 @@ class AvoidanceSpec(Strict):
                           'within a tick')
     rate: float = Field(5.0, gt=0, description='barrier rate alpha (1/s): how fast a robot '
                         'may close the distance to the safe one; at most the control rate')
-    passing: float = Field(1.0, ge=0, description='passing rule: sideways speed to the right '
+    passing: float = Field(0.0, ge=0, description='passing rule: sideways speed to the right '
                            'per unit of approach speed towards a robot nearby (0 = none)')
     passing_range: Optional[float] = Field(None, gt=0, description='gap above the safe '
-                                           'distance within which the passing rule acts (m); '
-                                           'default: one body diameter')
+                                           'distance within which a robot steers around others '
+                                           'and gives way (m); default: one body diameter')
 
 
 class MetricsSpec(Strict):

@@ -32,7 +32,8 @@ else a vertex). If the polygon is empty the robot is stopped: zero velocity keep
 Deadlock: a robot whose law heads into a barrier would stop there (the filter takes away the
 forward motion, and a unicycle cannot slide sideways). So before the law, shaped_feedback
 turns the law's intended velocity into the closest one the barriers allow a point robot
-(sliding along what blocks it), with a passing rule for head-on meetings (both turn right).
+(sliding along what blocks it), and a blocked robot gives way to the robots of higher
+priority it heads at; an optional passing rule (`bias`) steers head-on meetings to the right.
 Targets are also re-assigned among the robots while they travel (assignment.reassigned), so
 paths that cross are swapped. That liveness is measured, not proved
 (benchmarks/collision_avoidance.py).
@@ -54,7 +55,7 @@ class Avoidance(NamedTuple):
     radius: float = 0.0       # body radius (m)
     margin: float = 0.0       # extra distance kept between bodies and from walls (m)
     alpha: float = 5.0        # barrier rate (1/s); alpha * control period <= 1
-    bias: float = 1.0         # sideways term per unit of approach speed (passing rule)
+    bias: float = 0.0         # sideways term per unit of approach speed (passing rule; 0: off)
     bias_range: float = 0.0   # gap above the safe distance within which it acts (m)
     width: float = 0.0        # arena (m); <= 0: no walls
     height: float = 0.0
@@ -137,7 +138,7 @@ def shaped_feedback(fx, fy, x, y, others, me, k1, speed, avoidance):
     robot slides along what blocks it. Where d heads within 45 degrees at a robot whose gap is
     below `bias_range`, `bias` times the part heading at it is first added to the right
     (passing rule: two robots meeting head-on both turn right and pass left side to left
-    side). Nothing nearby: f is returned as it is.
+    side; off with bias 0, the default). Nothing nearby: f is returned as it is.
     """
     if not avoidance.on:
         return fx, fy

@@ -89,8 +89,8 @@ PARAMETERS = (
           low=0.0),
     Param('avoidance_rate', 'double', 5.0, 'barrier rate alpha (1/s), at most rate_hz',
           positive=True),
-    Param('passing', 'double', 1.0, 'passing rule: sideways speed to the right per unit of '
-          'approach speed', low=0.0),
+    Param('passing', 'double', 0.0, 'passing rule: sideways speed to the right per unit of '
+          'approach speed; 0 = none', low=0.0),
     Param('passing_range', 'double', 0.0, 'gap above the safe distance within which the law '
           'is steered around robots (m); 0 = one body diameter', low=0.0),
     Param('arena', 'double[]', [], '[width, height] (m) of the walls the filter keeps the '
