@@ -297,6 +297,40 @@ def test_curve_server_sends_each_agents_assigned_parameter(ros, tmp_path, arena_
     assert not np.all(np.diff(received[0]) > 0)   # re-ordered, not the paper's s_i = (i-1)/n
 
 
+def test_a_switch_after_a_re_assignment_assigns_from_the_re_assigned_targets(ros, tmp_path,
+                                                                          arena_dict):
+    """Robots sit on the first curve's targets, two pairs of them swapped: the server
+    re-assigns (at 1 s) and at the switch (3 s) assigns the second curve from the targets as
+    re-assigned (Phase.assigned_from), as the simulator does, not as at load time.
+    """
+    arena_dict['curves'][1]['start'] = 3.0
+    path = tmp_path / 'arena.yaml'
+    path.write_text(yaml.safe_dump(arena_dict))
+    experiment = load_experiment(path)
+    first, second = experiment.phases
+    swap = np.array([1, 0, 3, 2, 4, 5, 6, 7, 8])
+    there = first.targets[swap]
+    expected = second.assigned_from(there).s
+    assert not np.array_equal(expected, second.s)
+    l = experiment.gains.offset
+    poses = np.column_stack([there[:, 0] - l, there[:, 1], np.zeros(9)])
+    context, add, spin_until = ros
+    probe = add(rclpy.create_node('observer', context=context))
+    received = []
+    probe.create_subscription(Float64MultiArray, topics.CURVE, lambda m: received.append(
+        messages.curve_from_msg(m)[1:] + (messages.agent_parameters_from_msg(m),)),
+        qos.LATCHED)
+    pub = topics.publisher(probe, topics.ROBOT_POSES)
+    probe.create_timer(0.1, lambda: pub.publish(messages.robot_poses_to_msg(
+        poses, probe.get_clock().now().nanoseconds * 1e-9)))
+    add(CurveServer(context=context, parameter_overrides=overrides(experiment=str(path))))
+    spin_until(lambda: any(cid == 1 for cid, _ in received), timeout=10.0)
+    ids = [cid for cid, _ in received]
+    assert ids[0] == 0 and ids.count(0) >= 2, ids   # the first curve, then re-assigned
+    np.testing.assert_allclose(received[ids.index(0) + 1][1], first.s[swap])
+    np.testing.assert_allclose(next(s for cid, s in received if cid == 1), expected)
+
+
 def test_unknown_executor_choice_exits_2_naming_the_variable(ros_domain):
     env = dict(os.environ, CURVE_FORMATION_EXECUTOR='multi')
     proc = subprocess.run([sys.executable, '-m', 'curve_formation.nodes.fake_robot'], env=env,

@@ -18,7 +18,7 @@ from scipy.spatial.distance import pdist
 
 from curve_formation.core import curve_sources, safe_yaml
 from curve_formation.core.aruco import MARKER_IDS
-from curve_formation.core.assignment import AssignmentError, phase_parameters
+from curve_formation.core.assignment import AssignmentError, nearest_order, phase_parameters
 from curve_formation.core.config_schema import (
     ControllerSpec,
     CurveSpec,
@@ -66,6 +66,19 @@ class Phase:
         """The curve at time t (s, experiment time): moved, for a moving phase."""
         return self.curve if self.motion is None else self.motion.curve(self.curve,
                                                                          t - self.start)
+
+    def assigned_from(self, points: FloatArray) -> 'Phase':
+        """The phase with its targets permuted among the agents so that the agents headed for
+        `points` (n, 2; arena frame, m) take the nearest of them (assignment.nearest_order):
+        at a switch after the previous curve's targets were re-assigned, the agents are not
+        where the assignment made at load time assumed.
+        """
+        order = nearest_order(points, self.targets)
+        if np.array_equal(order, np.arange(len(order))):
+            return self
+        s = self.s[order]
+        return dataclasses.replace(self, s=s, targets=self.targets[order],
+                                   g_bar=self.fit.curve.basis.G(s).reshape(self.g_bar.shape))
 
 
 @dataclass(frozen=True)

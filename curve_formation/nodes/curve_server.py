@@ -10,7 +10,8 @@ order curves are published. Each curve carries every agent's curve parameter s_i
 experiment's `spacing` and `assignment` give them (an observed curve is assigned from the previous
 curve's targets); with `reassign_every`, the current curve is published again (same id) whenever
 re-assigning its targets among the robots, from their poses on /formation/robot_poses, shortens
-their squared trips by 10 %.
+their squared trips by 10 %; the next scheduled curve is then assigned from the targets as
+re-assigned (Phase.assigned_from), as the simulator does.
 """
 
 from geometry_msgs.msg import Point, PoseStamped
@@ -100,6 +101,7 @@ class CurveServer(Node):
         self.last_observed = None   # (stamp s, closed, points bytes) of the last observed curve
         self.moving = None    # the Phase being published as it moves
         self.poses = None     # (poses (n, 3), stamp s) last received
+        self.reassigned = False   # targets re-assigned since the last scheduled curve
         every = self.params.reassign_every
         if every < 0:
             every = self.experiment.spec.agents.reassign_every or 0.0
@@ -133,6 +135,11 @@ class CurveServer(Node):
         while self.next_phase < len(phases) and phases[self.next_phase].start <= elapsed:
             phase = phases[self.next_phase]
             self.next_phase += 1
+            if self.reassigned and self.experiment.spec.agents.assignment == 'nearest':
+                # The load-time assignment assumed the agents at the previous targets as
+                # first assigned; take them from where they were re-assigned to instead.
+                phase = phase.assigned_from(self.targets)
+            self.reassigned = False
             self.moving = phase if phase.motion is not None else None
             rate = None if phase.motion is None else phase.motion.rate(phase.curve, 0.0)
             self.publish_curve(phase.curve, phase.s, rate=rate)
@@ -172,6 +179,7 @@ class CurveServer(Node):
         curve, curve_id, s, rate = self.current
         new = reassigned(curve, s, offset_points(poses, self.experiment.gains.offset))
         if new is not s:
+            self.reassigned = True
             self.publish_curve(curve, new, curve_id, rate)
             self.get_logger().info(f'curve {curve_id}: targets re-assigned')
 
