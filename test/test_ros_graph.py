@@ -205,7 +205,9 @@ def test_bodies_avoid_each_other_over_dds_as_the_simulator_predicts(ros_domain, 
     """
     with Run(DATA_DIR / 'arena_bodies.yaml', tmp_path, RunOptions(bridge=bridge),
              log=quiet) as run:
-        run.spin_for(25.0)
+        # 200 simulations with random tick phases settle at median 18.6 s, at most 23.4 s:
+        # 28 s leaves the ROS run room to settle (a 25 s run once ended before it had).
+        run.spin_for(28.0)
         data = run.recording()
         result = run.write_results()
     experiment = run.experiment
@@ -215,7 +217,7 @@ def test_bodies_avoid_each_other_over_dds_as_the_simulator_predicts(ros_domain, 
     # edge of 12 simulations at 19.8 s ranged from 0.0095 to 0.30 over 20 seeds, so the
     # envelope is drawn from 100 (2 s of simulation), not from 12 as for the runs without
     # bodies. A single ROS run was measured 16x above a 12-run envelope at 19.8 s.
-    low, high = simulated_envelope(experiment, data['t'], 26.0, runs=100)
+    low, high = simulated_envelope(experiment, data['t'], 29.0, runs=100)
     tolerance = 1e-3 * experiment.phases[0].curve.size()
     assert_within_envelope(data['t'], ros, low, high, data['t'] > 0.5, tolerance)
     assert result['all_settled'], result['phases']
