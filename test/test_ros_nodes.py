@@ -312,8 +312,8 @@ def test_a_switch_after_a_re_assignment_assigns_from_the_re_assigned_targets(ros
     there = first.targets[swap]
     expected = second.assigned_from(there).s
     assert not np.array_equal(expected, second.s)
-    l = experiment.gains.offset
-    poses = np.column_stack([there[:, 0] - l, there[:, 1], np.zeros(9)])
+    offset = experiment.gains.offset
+    poses = np.column_stack([there[:, 0] - offset, there[:, 1], np.zeros(9)])
     context, add, spin_until = ros
     probe = add(rclpy.create_node('observer', context=context))
     received = []

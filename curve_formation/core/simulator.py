@@ -444,13 +444,14 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
     # between steps): no sample before a phase's start carries its targets.
     starts = [int(math.ceil(p.start / dt - 1e-9)) for p in experiment.phases] + [total]
     followed = []
+    sent = experiment.phases[0].targets   # the targets last sent (m, arena frame)
     for phase, a, b in zip(experiment.phases, starts[:-1], starts[1:], strict=True):
         if a >= total:
             break
         b = min(b, total)
         if followed and followed[-1].changes and spec.agents.assignment == 'nearest':
             # Re-assigned on the way: take the new curve's targets from where they went.
-            phase = phase.assigned_from(now)
+            phase = phase.assigned_from(sent)
         s, targets, changes = phase.s, phase.targets, []
         # The curve server's re-assignment instants, k * period from t = 0.
         reassign = set() if not period else set(range((a // period + 1) * period, b, period))
@@ -473,6 +474,7 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
                 now = moving.points(targets, tau)
                 if feed_forward:
                     ahead = moving.velocities(targets, tau)
+            sent = now
             _run(state, np.ascontiguousarray(now), np.ascontiguousarray(ahead), graph, law,
                  limits, avoidance, d_pc, d_robot, clock, begin, end - begin, schedule,
                  contacts, record)
