@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike
 from curve_formation.core import bodies, control, driving, dynamics, metrics
 from curve_formation.core.assignment import reassigned
 from curve_formation.core.control import Gains, Law, WheelLimits
-from curve_formation.core.experiment import Experiment, whole_steps
+from curve_formation.core.experiment import Experiment, Phase, whole_steps
 from curve_formation.core.safety import Avoidance
 from curve_formation.core.shapes import BoolArray, FloatArray, IntArray
 
@@ -443,7 +443,7 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
     # A phase begins at the first step at or after its start (a recorded run's switch falls
     # between steps): no sample before a phase's start carries its targets.
     starts = [int(math.ceil(p.start / dt - 1e-9)) for p in experiment.phases] + [total]
-    followed = []
+    followed: list[Phase] = []
     sent = experiment.phases[0].targets   # the targets last sent (m, arena frame)
     for phase, a, b in zip(experiment.phases, starts[:-1], starts[1:], strict=True):
         if a >= total:
