@@ -168,13 +168,24 @@ def agent_command(fx: float, fy: float, ahead_x: float, ahead_y: float, ex: floa
     """
     fx, fy = tail_feedback(fx, fy, law.tail_radius, law.tail_gain)
     fx, fy = with_feed_forward(fx, fy, ahead_x, ahead_y, law.k1)
+    free_x, free_y = fx, fy
     fx, fy = shaped_feedback(fx, fy, x, y, others, me, law.k1, limits.max_wheel_speed,
                              avoidance)
+    # Saturated, the law turns in place first (the fastest way to a point), unless the
+    # shaped feedback turns it back to give way: a robot that turned round in place each
+    # time it gave way and each time it headed on again would stand still (head-on meeting);
+    # there it keeps the law's curvature and slides past while turning. Not with the
+    # disturbance added on the PC: there a turn in place at the limits, while d is not yet
+    # learnt, is a saturated ray along which the observer's search winds its turn channel up.
+    turn_first = not law.on_pc and fx * free_x + fy * free_y > 0.0
     if law.code == OBSERVER:
         room = FEEDBACK_HEADROOM if law.on_pc else 1.0
+        # Where the disturbance acts on the robot the command is the motion minus the
+        # estimated drift: the limits bound the motion around that drift.
+        centre = 0.0 if law.on_pc else 1.0   # a share of k2 dhat
         u_v, u_w = observer_input(fx, fy, theta, dhat_v, dhat_w, law.k1, law.k2, law.offset,
                                   law.hold, limits.wheel_base, room * limits.max_wheel_speed,
-                                  room * limits.max_angular_rate)
+                                  room * limits.max_angular_rate, centre, turn_first)
         ddhat_v = 0.0
         ddhat_w = 0.0
     else:
@@ -282,12 +293,18 @@ def sampled_feedback(along: float, across: float, offset: float, period: float) 
 
 def observer_input(fx: float, fy: float, theta: float, dhat_v: float, dhat_w: float,
                    k1: float, k2: float, offset: float, period: float, wheel_base: float,
-                   max_wheel_speed: float, max_angular_rate: float) -> Command:
+                   max_wheel_speed: float, max_angular_rate: float,
+                   centre: float = 0.0, turn_first: bool = True) -> Command:
     """The observer law's command (m/s, rad/s): feedback within the limits given, minus k2 dhat.
 
     The feedback part of agent_input (fx, fy, period as there) is saturated before the
     compensation is subtracted, so that a command saturated by the limits is never mistaken
     for a disturbance: at dhat = d / k2 the robot moves exactly as the saturated feedback asks.
+    The feedback is the robot's motion; the limits bound the command, which is that motion
+    minus centre * k2 dhat (centre 1 where the disturbance acts on the robot, so a robot
+    drifting forwards may move forwards faster than its wheels alone; 0 where it is added
+    on the PC, which cancels the compensation). Saturated, it turns first (saturate_turning)
+    or, with turn_first False, keeps its curvature (saturate).
     agent_command passes FEEDBACK_HEADROOM of the wheel limits where the disturbance is added
     before them (on the PC): a feedback on the limit would then move the robot the same for a
     whole ray of estimates, along which the estimate drifts. With the disturbance on the robot
@@ -296,8 +313,57 @@ def observer_input(fx: float, fy: float, theta: float, dhat_v: float, dhat_w: fl
     """
     v, w, _, _ = agent_input(fx, fy, 0.0, 0.0, theta, 0.0, 0.0, k1, k2, offset, 1.0, 1.0,
                              period)
-    v, w = saturate(v, w, wheel_base, max_wheel_speed, max_angular_rate)
+    cv, cw = centre * k2 * dhat_v, centre * k2 * dhat_w
+    if turn_first:
+        v, w = saturate_turning(v, w, cv, cw, wheel_base, max_wheel_speed, max_angular_rate)
+    else:
+        v, w = saturate(v - cv, w - cw, wheel_base, max_wheel_speed, max_angular_rate)
+        v, w = v + cv, w + cw
     return v - k2 * dhat_v, w - k2 * dhat_w
+
+
+# Share of the law's turn saturate_turning keeps (at least): the sampled heading asks for
+# most of the heading error in one tick, which a command 2 ticks late would overshoot.
+TURN_SHARE = 0.25
+
+
+def saturate_turning(v: float, w: float, drift_v: float, drift_w: float, wheel_base: float,
+                     max_wheel_speed: float, max_angular_rate: float) -> Command:
+    """The motion (v, w) (m/s, rad/s) within the limits, turning first.
+
+    The command is the motion minus the drift (drift_v, drift_w); the limits bound the
+    command: |v_c| + |w_c| B / 2 <= max wheel speed and |w_c| <= max turn rate. A motion
+    within them is returned as it is. Otherwise TURN_SHARE of its turn (or what scaling down
+    would keep, if more) is kept as far as the limits allow a robot standing still, and its
+    speed gets what the wheels have left: a robot far from facing its target turns in place
+    at the wheels' limit and then drives straight, the fastest way a differential drive with
+    bounded wheel speeds has to a point (Balkcom and Mason, IJRR 2002), where scaling (v, w)
+    down together (saturate) keeps the curvature and drives a wide arc. A drift the wheels
+    cannot cancel standing still: saturate.
+    """
+    fast = 0.0 < max_wheel_speed < math.inf
+    turn = 0.0 < max_angular_rate < math.inf
+    half = 0.5 * wheel_base
+    cv, cw = v - drift_v, w - drift_w
+    if ((not fast or abs(cv) + abs(cw) * half <= max_wheel_speed)
+            and (not turn or abs(cw) <= max_angular_rate)):
+        return v, w
+    top = math.inf
+    if fast:
+        if abs(drift_v) >= max_wheel_speed or half <= 0.0:
+            cv, cw = saturate(cv, cw, wheel_base, max_wheel_speed, max_angular_rate)
+            return cv + drift_v, cw + drift_w
+        top = (max_wheel_speed - abs(drift_v)) / half
+    if turn:
+        top = min(top, max_angular_rate)
+    sv, _ = saturate(cv, cw, wheel_base, max_wheel_speed, max_angular_rate)
+    scaled = abs(sv / cv) if cv != 0.0 else 1.0   # what saturate would keep
+    cw *= max(TURN_SHARE, scaled)
+    cw = min(max(cw, -top), top)
+    if fast:
+        room = max_wheel_speed - abs(cw) * half
+        cv = min(max(cv, -room), room)
+    return cv + drift_v, cw + drift_w
 
 
 def observer_step(dhat_v: float, dhat_w: float, measured_v: float, measured_w: float,
