@@ -178,14 +178,16 @@ def agent_command(fx: float, fy: float, ahead_x: float, ahead_y: float, ex: floa
     # disturbance added on the PC: there a turn in place at the limits, while d is not yet
     # learnt, is a saturated ray along which the observer's search winds its turn channel up.
     turn_first = not law.on_pc and fx * free_x + fy * free_y > 0.0
+    # The robot drifts by the estimated disturbance unless it is added on the PC (then the
+    # command already carries it).
+    drift_v = 0.0 if law.on_pc else law.k2 * dhat_v
+    drift_w = 0.0 if law.on_pc else law.k2 * dhat_w
     if law.code == OBSERVER:
         room = FEEDBACK_HEADROOM if law.on_pc else 1.0
-        # Where the disturbance acts on the robot the command is the motion minus the
-        # estimated drift: the limits bound the motion around that drift.
-        centre = 0.0 if law.on_pc else 1.0   # a share of k2 dhat
         u_v, u_w = observer_input(fx, fy, theta, dhat_v, dhat_w, law.k1, law.k2, law.offset,
                                   law.hold, limits.wheel_base, room * limits.max_wheel_speed,
-                                  room * limits.max_angular_rate, centre, turn_first)
+                                  room * limits.max_angular_rate, drift_v, drift_w,
+                                  turn_first)
         ddhat_v = 0.0
         ddhat_w = 0.0
     else:
@@ -196,10 +198,6 @@ def agent_command(fx: float, fy: float, ahead_x: float, ahead_y: float, ex: floa
                               limits.max_linear_accel, limits.max_angular_accel)
     # The wheel limits come last: whatever the ramp, no wheel exceeds its speed limit.
     v, w = saturate(v, w, limits.wheel_base, limits.max_wheel_speed, limits.max_angular_rate)
-    # The robot drifts by the estimated disturbance unless it is added on the PC (then the
-    # command already carries it).
-    drift_v = 0.0 if law.on_pc else law.k2 * dhat_v
-    drift_w = 0.0 if law.on_pc else law.k2 * dhat_w
     safe_v, safe_w, code = safe_command(v, w, x, y, theta, drift_v, drift_w, others, me,
                                         law.offset, law.period, avoidance, limits.wheel_base,
                                         limits.max_wheel_speed, limits.max_angular_rate)
@@ -293,18 +291,18 @@ def sampled_feedback(along: float, across: float, offset: float, period: float) 
 
 def observer_input(fx: float, fy: float, theta: float, dhat_v: float, dhat_w: float,
                    k1: float, k2: float, offset: float, period: float, wheel_base: float,
-                   max_wheel_speed: float, max_angular_rate: float,
-                   centre: float = 0.0, turn_first: bool = True) -> Command:
+                   max_wheel_speed: float, max_angular_rate: float, drift_v: float = 0.0,
+                   drift_w: float = 0.0, turn_first: bool = True) -> Command:
     """The observer law's command (m/s, rad/s): feedback within the limits given, minus k2 dhat.
 
     The feedback part of agent_input (fx, fy, period as there) is saturated before the
     compensation is subtracted, so that a command saturated by the limits is never mistaken
     for a disturbance: at dhat = d / k2 the robot moves exactly as the saturated feedback asks.
     The feedback is the robot's motion; the limits bound the command, which is that motion
-    minus centre * k2 dhat (centre 1 where the disturbance acts on the robot, so a robot
-    drifting forwards may move forwards faster than its wheels alone; 0 where it is added
-    on the PC, which cancels the compensation). Saturated, it turns first (saturate_turning)
-    or, with turn_first False, keeps its curvature (saturate).
+    minus the drift (drift_v, drift_w: k2 dhat where the disturbance acts on the robot, so a
+    robot drifting forwards may move forwards faster than its wheels alone; 0 where it is
+    added on the PC, which cancels the compensation). Saturated, it turns first
+    (saturate_turning) or, with turn_first False, keeps its curvature (saturate).
     agent_command passes FEEDBACK_HEADROOM of the wheel limits where the disturbance is added
     before them (on the PC): a feedback on the limit would then move the robot the same for a
     whole ray of estimates, along which the estimate drifts. With the disturbance on the robot
@@ -313,12 +311,13 @@ def observer_input(fx: float, fy: float, theta: float, dhat_v: float, dhat_w: fl
     """
     v, w, _, _ = agent_input(fx, fy, 0.0, 0.0, theta, 0.0, 0.0, k1, k2, offset, 1.0, 1.0,
                              period)
-    cv, cw = centre * k2 * dhat_v, centre * k2 * dhat_w
     if turn_first:
-        v, w = saturate_turning(v, w, cv, cw, wheel_base, max_wheel_speed, max_angular_rate)
+        v, w = saturate_turning(v, w, drift_v, drift_w, wheel_base, max_wheel_speed,
+                                max_angular_rate)
     else:
-        v, w = saturate(v - cv, w - cw, wheel_base, max_wheel_speed, max_angular_rate)
-        v, w = v + cv, w + cw
+        v, w = saturate(v - drift_v, w - drift_w, wheel_base, max_wheel_speed,
+                        max_angular_rate)
+        v, w = v + drift_v, w + drift_w
     return v - k2 * dhat_v, w - k2 * dhat_w
 
 
