@@ -9,6 +9,8 @@ from curve_formation.core.assignment import (
     AssignmentError,
     check_assumptions,
     nearest_order,
+    REASSIGN_LONGEST,
+    reassigned,
     uniform_parameters,
 )
 from curve_formation.core.curve_sources import expression_samples
@@ -99,3 +101,34 @@ def test_nearest_assignment_keeps_the_set_of_parameters():
     check_assumptions(curve.basis, got)          # a permutation keeps Assumption 1
     with pytest.raises(AssignmentError, match='nearest'):
         assigned_parameters(curve, s, points, 'closest')
+
+
+class TwoPoints:
+    """A 'curve' with two points: s = 0 at (0, 0), s = 1 at (1.3, 0) (m)."""
+
+    def points(self, s):
+        return np.where(np.asarray(s)[:, None] < 0.5, [[0.0, 0.0]], [[1.3, 0.0]])
+
+
+@pytest.mark.parametrize('swapped_longest', [1.1, 1.3])
+def test_a_re_assignment_may_not_lengthen_the_longest_trip_beyond_the_cap(swapped_longest):
+    """Robot A 1 m from its target, B 1 m from its own and 0.3 m from A's: swapping cuts the
+    squared sum (2 -> under 1.8, past the 10 % asked) but makes A's trip swapped_longest m.
+    Taken within REASSIGN_LONGEST (1.2x the longest trip now), refused beyond it, and taken
+    there again without the cap.
+    """
+    assert 1.1 < REASSIGN_LONGEST < 1.3
+    # A on the unit circle round (0, 0) at distance swapped_longest from (1.3, 0)
+    cos = (1.0 + 1.3 ** 2 - swapped_longest ** 2) / (2 * 1.3)
+    a = [cos, np.sqrt(1.0 - cos ** 2)]
+    points = np.array([a, [0.3, 0.0]])
+    s = np.array([0.0, 1.0])
+    trips = np.linalg.norm(points - TwoPoints().points(s), axis=1)
+    np.testing.assert_allclose(trips, [1.0, 1.0])
+    taken = reassigned(TwoPoints(), s, points)
+    if swapped_longest < REASSIGN_LONGEST:
+        np.testing.assert_array_equal(taken, [1.0, 0.0])
+    else:
+        np.testing.assert_array_equal(taken, s)
+        np.testing.assert_array_equal(reassigned(TwoPoints(), s, points, longest=np.inf),
+                                      [1.0, 0.0])
