@@ -12,6 +12,7 @@ from curve_formation.core.control import (
     follower_feedback,
     Gains,
     leader_feedback,
+    observer_input,
     saturate,
     saturate_turning,
     stacked_paper_input,
@@ -151,6 +152,34 @@ def test_the_observer_feedback_uses_the_whole_limits_unless_d_enters_before_them
     assert w == pytest.approx(0.0, abs=1e-12)
     share = FEEDBACK_HEADROOM if on_pc else 1.0
     assert v == pytest.approx(share * limits.max_wheel_speed, rel=1e-12)
+
+
+@pytest.mark.parametrize('learnt', [True, False])
+def test_with_d_added_on_the_pc_the_law_turns_in_place_once_its_command_is_not_clipped(learnt):
+    """The Mona arena case (d = (0.5, 0.5) added on the PC, before the wheel limits), target
+    30 cm to the robot's left. With d learnt (k2 dhat = d) the command is the law's own and
+    turns in place at FEEDBACK_HEADROOM of the wheels' limit. Not yet learnt, the command
+    is clipped and the law keeps its curvature (observer_input's turn_first off): a turn in
+    place clipped at the limits would be a saturated ray along which the observer's search
+    winds up its turn channel.
+    """
+    limits = WheelLimits(0.08, 0.0225)
+    law = Gains(2 / 3, 1 / 3, 0.01, law='observer', sampled_heading=True).tick_law(10.0, True)
+    d = (0.5, 0.5)
+    dhat = (d[0] / law.k2, d[1] / law.k2) if learnt else (0.0, 0.0)
+    v, w, ref_v, ref_w, *_ = agent_command(0.0, -0.3, 0.0, 0.0, 0.0, -0.3, 0.0, 0.0, 0.0,
+                                           *dhat, 0.0, 0.0, *d, law, limits, np.zeros((1, 3)),
+                                           0, AVOIDANCE_OFF)
+    room = FEEDBACK_HEADROOM * limits.max_wheel_speed
+    if learnt:
+        assert v == pytest.approx(0.0, abs=1e-12)
+        assert w == pytest.approx(room / (0.5 * limits.wheel_base), rel=1e-9)
+    else:
+        kept = observer_input(0.0, -0.3, 0.0, *dhat, law.k1, law.k2, law.offset, law.hold,
+                              limits.wheel_base, room, math.inf, turn_first=False)
+        assert (ref_v, ref_w) == pytest.approx(kept, rel=1e-12)
+        assert saturate(kept[0] + d[0], kept[1] + d[1], limits.wheel_base,
+                        limits.max_wheel_speed, math.inf) == pytest.approx((v, w), rel=1e-12)
 
 
 def test_the_tail_scales_the_feedback_as_its_square_root_near_the_target_only():

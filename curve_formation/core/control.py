@@ -174,10 +174,11 @@ def agent_command(fx: float, fy: float, ahead_x: float, ahead_y: float, ex: floa
     # Saturated, the law turns in place first (the fastest way to a point), unless the
     # shaped feedback turns it back to give way: a robot that turned round in place each
     # time it gave way and each time it headed on again would stand still (head-on meeting);
-    # there it keeps the law's curvature and slides past while turning. Not with the
-    # disturbance added on the PC: there a turn in place at the limits, while d is not yet
-    # learnt, is a saturated ray along which the observer's search winds its turn channel up.
-    turn_first = not law.on_pc and fx * free_x + fy * free_y > 0.0
+    # there it keeps the law's curvature and slides past while turning. With the
+    # disturbance added on the PC, only while the command it adds up to is not clipped (d
+    # learnt): a turn in place clipped at the limits is a saturated ray along which the
+    # observer's search (ray_growth) winds its turn channel up.
+    turn_first = fx * free_x + fy * free_y > 0.0
     # The robot drifts by the estimated disturbance unless it is added on the PC (then the
     # command already carries it).
     drift_v = 0.0 if law.on_pc else law.k2 * dhat_v
@@ -188,6 +189,11 @@ def agent_command(fx: float, fy: float, ahead_x: float, ahead_y: float, ex: floa
                                   law.hold, limits.wheel_base, room * limits.max_wheel_speed,
                                   room * limits.max_angular_rate, drift_v, drift_w,
                                   turn_first)
+        if turn_first and law.on_pc and clipped(u_v + pc_v, u_w + pc_w, limits):
+            u_v, u_w = observer_input(fx, fy, theta, dhat_v, dhat_w, law.k1, law.k2,
+                                      law.offset, law.hold, limits.wheel_base,
+                                      room * limits.max_wheel_speed,
+                                      room * limits.max_angular_rate, drift_v, drift_w, False)
         ddhat_v = 0.0
         ddhat_w = 0.0
     else:
@@ -207,6 +213,12 @@ def agent_command(fx: float, fy: float, ahead_x: float, ahead_y: float, ex: floa
     ref_v = (u_v if law.on_pc else v) + (safe_v - v)
     ref_w = (u_w if law.on_pc else w) + (safe_w - w)
     return safe_v, safe_w, ref_v, ref_w, ddhat_v, ddhat_w, code
+
+
+def clipped(v: float, w: float, limits: WheelLimits) -> bool:
+    """True when the wheel limits change the command (v, w) (m/s, rad/s)."""
+    sv, sw = saturate(v, w, limits.wheel_base, limits.max_wheel_speed, limits.max_angular_rate)
+    return sv != v or sw != w
 
 
 def tail_feedback(fx: float, fy: float, radius: float, gain: float) -> Point:
