@@ -140,11 +140,12 @@ def test_encounters_that_block_robots_resolve_without_a_contact(name):
 
 
 @pytest.mark.parametrize('name, seed', [('mona_arena', 0), ('mona_arena', 3),
-                                        ('arena_demo', 1), ('arena_demo', 18)])
+                                        ('arena_demo', 1), ('arena_demo', 12)])
 def test_the_arena_cases_settle_every_phase_without_a_contact(name, seed):
     """The shipped arena experiments from fixed random starts where the law alone would
-    bring bodies into each other (seed 18: arena_demo's slowest of the benchmark's 20; on
-    mona_arena seed 5 the law alone has passed 90 mm apart since it turns in place first).
+    bring bodies into each other (mona_arena seed 5 and arena_demo seed 18, arena_demo's
+    slowest of the benchmark's 20, were here until the law alone, turning in place first,
+    passed 90 mm and 81 mm apart from them).
     """
     case = load_experiment(resolve_config(name))
     start = seeded_start(case, seed)

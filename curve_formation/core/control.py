@@ -344,13 +344,15 @@ def saturate_turning(v: float, w: float, drift_v: float, drift_w: float, wheel_b
 
     The command is the motion minus the drift (drift_v, drift_w); the limits bound the
     command: |v_c| + |w_c| B / 2 <= max wheel speed and |w_c| <= max turn rate. A motion
-    within them is returned as it is. Otherwise TURN_SHARE of its turn (or what scaling down
-    would keep, if more) is kept as far as the limits allow a robot standing still, and its
-    speed gets what the wheels have left: a robot far from facing its target turns in place
-    at the wheels' limit and then drives straight, the fastest way a differential drive with
-    bounded wheel speeds has to a point (Balkcom and Mason, IJRR 2002), where scaling (v, w)
-    down together (saturate) keeps the curvature and drives a wide arc. A drift the wheels
-    cannot cancel standing still: saturate.
+    within them is returned as it is. Otherwise TURN_SHARE of the motion's turn (or what
+    scaling down would keep, if more) is kept, its command at most the wheels' turn with no
+    forward command, and the speed gets what the wheels have left: a robot far from facing
+    its target turns in place (carried along only by drift_v) at the wheels' limit and then
+    drives straight, the fastest way a differential drive with bounded wheel speeds has to a
+    point (Balkcom and Mason, IJRR 2002), where scaling (v, w) down together (saturate) keeps
+    the curvature and drives a wide arc. The share is of the motion's turn, not of the
+    command's: a quarter of a command that also cancels a turn drift against the turn could
+    leave no turn at all. A drift the wheels cannot cancel standing still: saturate.
     """
     fast = 0.0 < max_wheel_speed < math.inf
     turn = 0.0 < max_angular_rate < math.inf
@@ -364,13 +366,14 @@ def saturate_turning(v: float, w: float, drift_v: float, drift_w: float, wheel_b
         if abs(drift_v) >= max_wheel_speed or half <= 0.0:
             cv, cw = saturate(cv, cw, wheel_base, max_wheel_speed, max_angular_rate)
             return cv + drift_v, cw + drift_w
-        top = (max_wheel_speed - abs(drift_v)) / half
+        top = max_wheel_speed / half
     if turn:
         top = min(top, max_angular_rate)
-    sv, _ = saturate(cv, cw, wheel_base, max_wheel_speed, max_angular_rate)
-    scaled = abs(sv / cv) if cv != 0.0 else 1.0   # what saturate would keep
-    cw *= max(TURN_SHARE, scaled)
-    cw = min(max(cw, -top), top)
+    _, sw = saturate(cv, cw, wheel_base, max_wheel_speed, max_angular_rate)
+    kept = TURN_SHARE * w   # of the motion's turn, not the command's (which cancels drift_w)
+    if (sw + drift_w) * w > 0.0 and abs(sw + drift_w) > abs(kept):
+        kept = sw + drift_w   # what scaling down would keep, if more
+    cw = min(max(kept - drift_w, -top), top)
     if fast:
         room = max_wheel_speed - abs(cw) * half
         cv = min(max(cv, -room), room)
