@@ -136,3 +136,13 @@ def test_observed_points_are_fitted_by_their_shape_not_their_spacing():
     assert polyline_rms_distance(chord.sample(3000)[1], truth, False) > 0.005
     assert polyline_rms_distance(shape.sample(3000)[1], truth, False) < 0.001
     np.testing.assert_allclose(shape.points([0.0, 1.0]), arc[[0, -1]], atol=0.005)
+
+
+@pytest.mark.parametrize('basis', [FourierBasis(3), PolynomialBasis(4)])
+def test_the_stacked_basis_puts_each_agents_g_under_the_last(basis):
+    """G_bar xi stacks the agents' points: rows 2i, 2i + 1 are G(s_i)."""
+    s = np.array([0.1, 0.45, 0.8])
+    xi = np.random.default_rng(0).normal(size=2 * basis.H)
+    g_bar = basis.stacked(s)
+    assert g_bar.shape == (6, 2 * basis.H)
+    np.testing.assert_allclose((g_bar @ xi).reshape(3, 2), basis.G(s) @ xi)

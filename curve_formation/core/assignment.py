@@ -145,7 +145,7 @@ def check_assumptions(basis, s):
     if np.any(gaps < 1e-9):
         first = order[np.argmin(gaps)]
         raise AssignmentError(f'two agents share the curve parameter s = {first:.6g}')
-    g_bar = basis.G(s).reshape(2 * n, 2 * basis.H)
+    g_bar = basis.stacked(s)
     rank = np.linalg.matrix_rank(g_bar)
     if rank != min(2 * n, 2 * basis.H):
         raise AssignmentError(f'Assumption 1 fails: rank of stacked G is {rank}, expected '

@@ -60,6 +60,10 @@ class Basis:
         out[:, coords, np.arange(2 * self.H)] = self.phi(s)[:, rows]
         return out
 
+    def stacked(self, s: ArrayLike) -> FloatArray:
+        """The paper's G_bar (2m, 2H): G(s_i) for the m agents' s stacked row-wise."""
+        return self.G(s).reshape(-1, 2 * self.H)
+
     def _layout(self) -> tuple[IntArray, IntArray]:
         """(h_k, c_k) for each coefficient k: where to_matrix puts e_k (cached)."""
         if getattr(self, '_layout_cache', None) is None:

@@ -78,7 +78,7 @@ class Phase:
             return self
         s = self.s[order]
         return dataclasses.replace(self, s=s, targets=self.targets[order],
-                                   g_bar=self.fit.curve.basis.G(s).reshape(self.g_bar.shape))
+                                   g_bar=self.fit.curve.basis.stacked(s))
 
 
 @dataclass(frozen=True)
@@ -328,8 +328,8 @@ def received_phases(experiment: Experiment,
         fit = scheduled.fit if same and scheduled is not None else Fit(curve, math.nan,
                                                                        math.nan, 0)
         motion = scheduled.motion if same and scheduled is not None else None
-        g_bar = curve.basis.G(s).reshape(2 * len(s), 2 * curve.basis.H)
-        phases.append(Phase(k, float(when), fit, s, curve.points(s), g_bar, motion=motion))
+        phases.append(Phase(k, float(when), fit, s, curve.points(s), curve.basis.stacked(s),
+                            motion=motion))
         ids.append(curve_id)
     return tuple(phases)
 
@@ -370,9 +370,8 @@ def _assign_phases(spec: ExperimentSpec, source: str,
                                  spec.agents.assignment, points)
         except (AssignmentError, CurveError) as exc:
             raise ConfigError(source, f'curves[{index}]', str(exc)) from None
-        g_bar = fit.curve.basis.G(s).reshape(2 * len(s), 2 * fit.curve.basis.H)
-        points = fit.curve.points(s)
-        out.append(Phase(index, start, fit, s, points, g_bar, motion=motion))
+        out.append(Phase(index, start, fit, s, fit.curve.points(s), fit.curve.basis.stacked(s),
+                         motion=motion))
     return out
 
 
