@@ -105,6 +105,16 @@ class Experiment:
     def name(self) -> str:
         return self.spec.name
 
+    def switched_to(self, phase: Phase, reassigned: bool, targets: FloatArray) -> Phase:
+        """The phase a scheduled switch starts: as assigned at load time, or, with `nearest`
+        assignment after the previous curve's targets were re-assigned on the way, assigned
+        from those targets (n, 2; arena frame, m) as last sent (Phase.assigned_from). The
+        curve server and the simulator both switch through here.
+        """
+        if reassigned and self.spec.agents.assignment == 'nearest':
+            return phase.assigned_from(targets)
+        return phase
+
     def report(self) -> dict[str, Any]:
         """What was checked, as a JSON-ready dict: graph, Theorem 1, Assumptions 1-2, fits."""
         cert = self.graph.certificate()
@@ -370,7 +380,8 @@ def _assign_phases(spec: ExperimentSpec, source: str,
                                  spec.agents.assignment, points)
         except (AssignmentError, CurveError) as exc:
             raise ConfigError(source, f'curves[{index}]', str(exc)) from None
-        out.append(Phase(index, start, fit, s, fit.curve.points(s), fit.curve.basis.stacked(s),
+        points = fit.curve.points(s)   # the next curve is assigned from these
+        out.append(Phase(index, start, fit, s, points, fit.curve.basis.stacked(s),
                          motion=motion))
     return out
 

@@ -449,9 +449,7 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
         if a >= total:
             break
         b = min(b, total)
-        if followed and followed[-1].changes and spec.agents.assignment == 'nearest':
-            # Re-assigned on the way: take the new curve's targets from where they went.
-            phase = phase.assigned_from(sent)
+        phase = experiment.switched_to(phase, bool(followed and followed[-1].changes), sent)
         s, targets, changes = phase.s, phase.targets, []
         # The curve server's re-assignment instants, k * period from t = 0.
         reassign = set() if not period else set(range((a // period + 1) * period, b, period))

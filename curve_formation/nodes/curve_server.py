@@ -135,10 +135,7 @@ class CurveServer(Node):
         while self.next_phase < len(phases) and phases[self.next_phase].start <= elapsed:
             phase = phases[self.next_phase]
             self.next_phase += 1
-            if self.reassigned and self.experiment.spec.agents.assignment == 'nearest':
-                # The load-time assignment assumed the agents at the previous targets as
-                # first assigned; take them from where they were re-assigned to instead.
-                phase = phase.assigned_from(self.targets)
+            phase = self.experiment.switched_to(phase, self.reassigned, self.targets)
             self.reassigned = False
             self.moving = phase if phase.motion is not None else None
             rate = None if phase.motion is None else phase.motion.rate(phase.curve, 0.0)
