@@ -89,7 +89,8 @@ def arena_table(name, seeds):
                      'off_bound': lower_bounds(alone),
                      'contacts': ours.contacts['count'], 'gap': ours.contacts['smallest_gap'],
                      'off_gap': metrics.closest_approach(alone.poses)[0] - 2 * case.radius,
-                     'reassigned': [p['reassignments'] for p in data['phases']]})
+                     'reassigned': [p['reassignments'] for p in data['phases']],
+                     'standstill': standstill(ours)})
     phases = len(case.phases)
     print(f'\n{name}: {len(seeds)} random starts, 10 Hz, bodies of radius {case.radius} m, '
           f'margin {case.avoidance.margin} m')
@@ -125,7 +126,19 @@ def arena_table(name, seeds):
           f'{min(r["off_gap"] for r in rows) * 1000:.1f} mm, i.e. bodies overlapping); '
           f're-assignments per run: median {np.median([sum(r["reassigned"]) for r in rows]):g},'
           f' max {max(sum(r["reassigned"]) for r in rows)}')
+    longest = max(rows, key=lambda r: r['standstill'][0])
+    seconds, robot, end = longest['standstill']
+    print(f'longest a robot stood still over 3 cm from its target (giving way or stuck): '
+          f'{seconds:.1f} s (seed {longest["seed"]}, robot {robot + 1}, until {end:.1f} s); '
+          f'median over the starts {np.median([r["standstill"][0] for r in rows]):.1f} s')
     return rows
+
+
+def standstill(result):
+    """metrics.longest_standstill of a simulation: (s, robot index, end s)."""
+    errors = metrics.target_errors(result.poses, result.phase, result.experiment, result.gains,
+                                   result.t)
+    return metrics.longest_standstill(result.t, result.poses, np.linalg.norm(errors, axis=2))
 
 
 def hard_cases():

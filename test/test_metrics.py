@@ -66,3 +66,24 @@ def test_a_reversing_robot_is_measured_by_the_point_it_steers():
     np.testing.assert_allclose(np.linalg.norm(ahead, axis=-1), [[2 * offset, 0.0]], atol=1e-12)
     steered = metrics.steered_points(poses, targets, both) - targets
     np.testing.assert_allclose(steered, 0.0, atol=1e-12)
+
+
+def test_the_longest_standstill_away_from_the_target_is_found_with_its_robot_and_end():
+    """Robot 1 stands 2 s far from its target, then 3 s more at it; robot 0 stands 1 s far
+    from its target: the longest wait is robot 1's 2 s, ending at 3 s. Standing at the
+    target, or driving, does not count.
+    """
+    t = np.arange(0.0, 8.01, 0.1)
+    poses = np.zeros((len(t), 2, 3))
+    poses[:, 0, 0] = 0.01 * t                                  # robot 0 drives...
+    poses[(t >= 4.0) & (t <= 5.0), 0, 0] = 0.04                  # ...but stands 1 s
+    poses[t > 5.0, 0, 0] = 0.04 + 0.01 * (t[t > 5.0] - 5.0)
+    poses[:, 1, 1] = np.where(t < 1.0, 0.01 * t, 0.01)            # robot 1 stops at 1 s
+    errors = np.full((len(t), 2), 0.5)
+    errors[t > 3.0, 1] = 0.0                                      # its target comes to it
+    seconds, robot, end = metrics.longest_standstill(t, poses, errors)
+    assert robot == 1
+    assert seconds == pytest.approx(2.0)
+    assert end == pytest.approx(3.0)
+    none = metrics.longest_standstill(t, poses, np.zeros_like(errors))
+    assert none[0] == 0.0 and none[1] == -1

@@ -5,6 +5,8 @@ way: t (R,) s, poses (R, n, 3), dhat (R, n, 2) or None, commands (R, n, 2) or No
 index of the active curve, and the experiment (curves, gains, graph, disturbance).
 """
 
+import math
+
 import numpy as np
 from scipy.spatial.distance import pdist
 
@@ -181,6 +183,27 @@ def closest_approach(poses):
     per_row = np.array([np.nan_to_num(pdist(row[:, :2]), nan=np.inf).min() for row in poses])
     k = int(np.argmin(per_row))   # robots not seen yet (NaN) count as infinitely far
     return float(per_row[k]), k
+
+
+def longest_standstill(t, poses, errors, away=0.03, still=1e-3):
+    """The longest time (s) one robot stood still (axle centre slower than `still`, m/s)
+    while more than `away` (m) from its target, with which robot (index) and when it ended
+    (s): waiting to give way, or a deadlock. t (R,), poses (R, n, 3), errors (R, n): each
+    robot's distance to its target (m). (0.0, -1, nan) if none ever did.
+    """
+    t = np.asarray(t, float)
+    if len(t) < 2:
+        return 0.0, -1, math.nan
+    speed = np.linalg.norm(np.diff(poses[:, :, :2], axis=0), axis=2) / np.diff(t)[:, None]
+    standing = (speed < still) & (np.asarray(errors)[1:] > away)
+    best = (0.0, -1, math.nan)
+    for i in range(standing.shape[1]):
+        # runs of True: starts and ends as indices into the R - 1 intervals
+        edges = np.diff(np.concatenate([[0], standing[:, i].astype(np.int8), [0]]))
+        for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True):
+            if t[b] - t[a] > best[0]:
+                best = (float(t[b] - t[a]), i, float(t[b]))
+    return best
 
 
 def surface_gaps(poses, radius):
