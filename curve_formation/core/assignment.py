@@ -106,8 +106,10 @@ def reassigned(curve, s, points, improvement=REASSIGN_IMPROVEMENT, longest=REASS
     points = np.asarray(points, float)
     targets = curve.points(s)
     cost = ((points[:, None, :] - targets[None, :, :]) ** 2).sum(axis=2)
-    allowed = np.where(cost <= longest ** 2 * np.diag(cost).max(), cost, np.inf)
-    rows, cols = linear_sum_assignment(allowed)   # the order as it is is always allowed
+    # at least the longest trip now, so that the order as it is is always allowed
+    cap = max(longest, 1.0) ** 2 * np.diag(cost).max()
+    allowed = np.where(cost <= cap, cost, np.inf)
+    rows, cols = linear_sum_assignment(allowed)
     if cost[rows, cols].sum() < (1.0 - improvement) * np.trace(cost):
         return s[cols[np.argsort(rows)]]
     return s
