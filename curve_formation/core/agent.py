@@ -235,6 +235,7 @@ class AgentController:
         # where the disturbance enters (before a PC-injected disturbance, else as sent).
         self.anchor: tuple[Pose, float] | None = None
         self.reference: Command = (0.0, 0.0)
+        self.shift: Command = (0.0, 0.0)   # what the safety filter changed in the last command
         # control.ray_growth's state: (factor, last right, last left wheel speed m/s)
         self.ray: tuple[float, float, float] = (1.0, 0.0, 0.0)
         # +1: the law steers the point ahead of the axle, -1: the one behind it (reversing,
@@ -453,7 +454,7 @@ class AgentController:
         if law.code == OBSERVER:
             self._observe()
         ahead = self.ahead if cfg.feed_forward else (0.0, 0.0)
-        v, w, ref_v, ref_w, ddv, ddw, code = self.command(
+        v, w, ref_v, ref_w, ddv, ddw, code, shift_v, shift_w = self.command(
             fx, fy, *ahead, ex, ey, *pose, self.dhat[0], self.dhat[1], *self.last_command,
             *cfg.pc_disturbance, steered_law(law, self.front), cfg.limits, self.others,
             cfg.index - 1, cfg.avoidance)
@@ -465,6 +466,7 @@ class AgentController:
         self.filtered += code != 0
         self.anchor = (measured, stamp)
         self.reference = (ref_v, ref_w)
+        self.shift = (shift_v, shift_w)
         self.last_command = (v, w)
         base.v, base.w, base.dhat, base.feedback = v, w, (self.dhat[0], self.dhat[1]), (fx, fy)
         base.pose = pose
@@ -475,7 +477,8 @@ class AgentController:
         """Observer law: move dhat towards (motion measured since the last tick - command) / k2.
 
         The motion is the constant (v, w) that carries the previous tick's pose to the current
-        one over the difference of their stamps, scaled along its ray when saturated
+        one over the difference of their stamps; its part before the safety filter (the motion
+        minus what the filter changed) is scaled along its ray when saturated
         (control.ray_growth); without a newer pose nothing is updated.
         """
         if self.anchor is None or self.pose is None or self.pose_stamp is None:
@@ -485,11 +488,12 @@ class AgentController:
         if elapsed <= 0.0:
             return
         measured_v, measured_w = body_velocity(x0, y0, th0, *self.pose, elapsed)
-        self.ray = ray_growth(*self.ray, measured_v, measured_w, self.config.law,
-                              self.config.limits)
+        pre_v, pre_w = measured_v - self.shift[0], measured_w - self.shift[1]
+        self.ray = ray_growth(*self.ray, pre_v, pre_w, self.config.law, self.config.limits)
         blend = 1.0 - math.exp(-self.config.gains.observer_rate * elapsed)
-        self.dhat[:] = observer_step(self.dhat[0], self.dhat[1], self.ray[0] * measured_v,
-                                     self.ray[0] * measured_w, *self.reference,
+        self.dhat[:] = observer_step(self.dhat[0], self.dhat[1],
+                                     self.ray[0] * pre_v + self.shift[0],
+                                     self.ray[0] * pre_w + self.shift[1], *self.reference,
                                      self.config.gains.k2, blend)
 
     def _stop(self, reason: str, base: Tick | None = None) -> Tick:

@@ -149,7 +149,7 @@ def agent_command(fx: float, fy: float, ahead_x: float, ahead_y: float, ex: floa
                   theta: float, dhat_v: float, dhat_w: float, prev_v: float, prev_w: float,
                   pc_v: float, pc_w: float, law: 'Law', limits: 'WheelLimits',
                   others: FloatArray, me: int, avoidance: Avoidance
-                  ) -> tuple[float, float, float, float, float, float, int]:
+                  ) -> tuple[float, float, float, float, float, float, int, float, float]:
     """One control tick of one agent, from its inputs to the command sent: the one pipeline
     the ROS controller (core.agent) and the batch simulator both run.
 
@@ -161,10 +161,12 @@ def agent_command(fx: float, fy: float, ahead_x: float, ahead_y: float, ex: floa
     safety.safe_command's. The finite-time tail, the feed-forward, the feedback shaped
     around robots and walls nearby, the law, then PC disturbance, acceleration and wheel
     limits, then the safety filter.
-    Returns (v, w, ref_v, ref_w, ddhat_v, ddhat_w, code): the command, what the observer
-    compares the measured motion with (the law's command where the disturbance enters, plus
-    what the filter changed), the continuous-time estimator rate (paper and adaptive laws)
-    and the filter's outcome (safety.UNCHANGED, ADJUSTED, STOPPED).
+    Returns (v, w, ref_v, ref_w, ddhat_v, ddhat_w, code, shift_v, shift_w): the command, what
+    the observer compares the measured motion with (the law's command where the disturbance
+    enters, plus what the filter changed), the continuous-time estimator rate (paper and
+    adaptive laws), the filter's outcome (safety.UNCHANGED, ADJUSTED, STOPPED) and what the
+    filter changed (m/s, rad/s: the measured motion minus it is the motion before the
+    filter, which ray_growth searches along).
     """
     fx, fy = tail_feedback(fx, fy, law.tail_radius, law.tail_gain)
     fx, fy = with_feed_forward(fx, fy, ahead_x, ahead_y, law.k1)
@@ -212,7 +214,7 @@ def agent_command(fx: float, fy: float, ahead_x: float, ahead_y: float, ex: floa
                                   limits.max_angular_rate)
     ref_v = (u_v if law.on_pc else v) + (safe_v - v)
     ref_w = (u_w if law.on_pc else w) + (safe_w - w)
-    return safe_v, safe_w, ref_v, ref_w, ddhat_v, ddhat_w, code
+    return safe_v, safe_w, ref_v, ref_w, ddhat_v, ddhat_w, code, safe_v - v, safe_w - w
 
 
 def clipped(v: float, w: float, limits: WheelLimits) -> bool:

@@ -138,8 +138,9 @@ class Contacts(NamedTuple):
 
 # The graph as the kernels take it: (targets, sources, weights) edge arrays and the pins.
 EdgeArrays = tuple[IntArray, IntArray, FloatArray, FloatArray]
-# (poses (n, 3), dhat, motion, cmd, ref (n, 2), fronts (n,), rays (n, 3)), advanced in
-# place; rays: the observer's control.ray_growth state (factor, last right, last left).
+# (poses (n, 3), dhat, motion, cmd (n, 2), ref (n, 4), fronts (n,), rays (n, 3)), advanced in
+# place; ref: the observer's reference (v, w) and what the safety filter changed (v, w);
+# rays: the observer's control.ray_growth state (factor, last right, last left).
 SimState = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
                  FloatArray]
 
@@ -151,8 +152,9 @@ def _controls(poses: FloatArray, dhat: FloatArray, targets: FloatArray, ahead: F
               fb: FloatArray, motion: FloatArray, cmd: FloatArray, ref: FloatArray,
               ddhat: FloatArray, codes: IntArray) -> None:
     """Evaluate every agent's tick (control.agent_command): fills err, fb, cmd (sent), motion
-    (actual), ref (the observer's reference), ddhat (continuous-time estimator rate) and
-    codes (the safety filter's outcome); cmd on entry holds each agent's previous command.
+    (actual), ref (n, 4: the observer's reference and what the safety filter changed), ddhat
+    (continuous-time estimator rate) and codes (the safety filter's outcome); cmd on entry
+    holds each agent's previous command.
 
     graph: (tgt, src, weights, pins) edge arrays. d_pc (n, 2) is added to the command before
     the limits (injected on the PC), d_robot (n, 2) after them (physical). ahead (n, 2): each
@@ -173,7 +175,7 @@ def _controls(poses: FloatArray, dhat: FloatArray, targets: FloatArray, ahead: F
         fb[i, 0] += wts[k] * (err[i, 0] - err[j, 0])
         fb[i, 1] += wts[k] * (err[i, 1] - err[j, 1])
     for i in range(n):
-        v, w, ref_v, ref_w, ddv, ddw, code = _agent_command(
+        v, w, ref_v, ref_w, ddv, ddw, code, shift_v, shift_w = _agent_command(
             fb[i, 0], fb[i, 1], ahead[i, 0], ahead[i, 1], err[i, 0], err[i, 1], poses[i, 0],
             poses[i, 1], poses[i, 2], dhat[i, 0], dhat[i, 1], cmd[i, 0], cmd[i, 1], d_pc[i, 0],
             d_pc[i, 1], _steered_law(law, fronts[i]), limits, poses, i, avoidance)
@@ -183,6 +185,8 @@ def _controls(poses: FloatArray, dhat: FloatArray, targets: FloatArray, ahead: F
         cmd[i, 1] = w
         ref[i, 0] = ref_v
         ref[i, 1] = ref_w
+        ref[i, 2] = shift_v
+        ref[i, 3] = shift_w
         codes[i] = code
         if law.code == OBSERVER and law.k2 != 0.0:   # k2 = 0: estimator off
             ddv = law.observer_rate * ((motion[i, 0] - ref[i, 0]) / law.k2 - dhat[i, 0])
@@ -217,17 +221,17 @@ def _run(state: SimState, targets: FloatArray, ahead: FloatArray, graph: EdgeArr
          limits: WheelLimits, avoidance: Avoidance, d_pc: FloatArray, d_robot: FloatArray,
          clock: Clock, step0: int, steps: int, schedule: tuple[IntArray, IntArray],
          contacts: Contacts, record: tuple[FloatArray, FloatArray, FloatArray]) -> None:
-    """Advance the state (poses (n, 3), dhat (n, 2), the held motion, cmd, ref (n, 2), the
+    """Advance the state (poses (n, 3), dhat (n, 2), the held motion, cmd, ref (n, 4), the
     steered points' fronts (n,) and the observer's rays (n, 3)) in place by `steps` fine
     steps from `step0`.
 
     schedule: (tick_offsets, start_steps): agent i ticks at the steps where
     (step - tick_offsets[i]) % control_every == 0, from step start_steps[i] on. With the
     observer, a tick first updates dhat from the motion over the period just ended (exact
-    here: the held motion is what the pose difference would measure; scaled along its ray
-    by control.ray_growth); before that it chooses the point it steers
-    (driving.drive_direction, as the node does when a pose comes; under continuous control
-    at every fine step).
+    here: the held motion is what the pose difference would measure; its part before the
+    safety filter scaled along its ray by control.ray_growth); before that it chooses the
+    point it steers (driving.drive_direction, as the node does when a pose comes; under
+    continuous control at every fine step).
     record: (poses, dhat, cmd) arrays filled every record_every steps.
     """
     poses, dhat, motion, cmd, ref, fronts, rays = state
@@ -245,7 +249,7 @@ def _run(state: SimState, targets: FloatArray, ahead: FloatArray, graph: EdgeArr
         blend = 1.0 - math.exp(-law.observer_rate * dt_control)
         new_motion = np.zeros((n, 2))
         new_cmd = np.zeros((n, 2))
-        new_ref = np.zeros((n, 2))
+        new_ref = np.zeros((n, 4))
         for step in range(step0, step0 + steps):
             ticking = False
             for i in range(n):
@@ -256,12 +260,15 @@ def _run(state: SimState, targets: FloatArray, ahead: FloatArray, graph: EdgeArr
                                                      poses[i, 2], targets[i, 0], targets[i, 1],
                                                      dhat[i, 0], dhat[i, 1], law, limits)
                     if law.code == OBSERVER and step >= start_steps[i]:
+                        # the search runs along the motion before the safety filter
+                        pre_v = motion[i, 0] - ref[i, 2]
+                        pre_w = motion[i, 1] - ref[i, 3]
                         rays[i, 0], rays[i, 1], rays[i, 2] = _ray_growth(
-                            rays[i, 0], rays[i, 1], rays[i, 2], motion[i, 0], motion[i, 1],
-                            law, limits)
+                            rays[i, 0], rays[i, 1], rays[i, 2], pre_v, pre_w, law, limits)
                         dhat[i, 0], dhat[i, 1] = _observer_step(
-                            dhat[i, 0], dhat[i, 1], rays[i, 0] * motion[i, 0],
-                            rays[i, 0] * motion[i, 1], ref[i, 0], ref[i, 1], law.k2, blend)
+                            dhat[i, 0], dhat[i, 1], rays[i, 0] * pre_v + ref[i, 2],
+                            rays[i, 0] * pre_w + ref[i, 3], ref[i, 0], ref[i, 1], law.k2,
+                            blend)
             if ticking:
                 new_cmd[:] = cmd   # each agent's previous command
                 _controls(poses, dhat, targets, ahead, graph, law, limits, avoidance, d_pc,
@@ -276,6 +283,8 @@ def _run(state: SimState, targets: FloatArray, ahead: FloatArray, graph: EdgeArr
                         cmd[i, 1] = new_cmd[i, 1]
                         ref[i, 0] = new_ref[i, 0]
                         ref[i, 1] = new_ref[i, 1]
+                        ref[i, 2] = new_ref[i, 2]
+                        ref[i, 3] = new_ref[i, 3]
                         if law.code != OBSERVER:
                             dhat[i, 0] += dt_control * ddhat[i, 0]
                             dhat[i, 1] += dt_control * ddhat[i, 1]
@@ -428,7 +437,7 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
     record = (np.zeros((n_rec, experiment.n, 3)), np.zeros((n_rec, experiment.n, 2)),
               np.zeros((n_rec, experiment.n, 2)))
     n = experiment.n
-    state = (poses, np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 2)),
+    state = (poses, np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 4)),
              np.ones(n), np.column_stack([np.ones(n), np.zeros((n, 2))]))
     width, height = spec.arena.size if spec.arena is not None else (0.0, 0.0)
     contacts = Contacts(float(radius), float(width), float(height), np.zeros((n, n), bool),
