@@ -41,10 +41,9 @@ from curve_formation.core.control import (
     Law,
     leader_feedback,
     NO_LIMITS,
+    observe,
     OBSERVER,
-    observer_step,
     offset_point,
-    ray_growth,
     WheelLimits,
 )
 from curve_formation.core.curves import Curve
@@ -488,13 +487,12 @@ class AgentController:
         if elapsed <= 0.0:
             return
         measured_v, measured_w = body_velocity(x0, y0, th0, *self.pose, elapsed)
-        pre_v, pre_w = measured_v - self.shift[0], measured_w - self.shift[1]
-        self.ray = ray_growth(*self.ray, pre_v, pre_w, self.config.law, self.config.limits)
         blend = 1.0 - math.exp(-self.config.gains.observer_rate * elapsed)
-        self.dhat[:] = observer_step(self.dhat[0], self.dhat[1],
-                                     self.ray[0] * pre_v + self.shift[0],
-                                     self.ray[0] * pre_w + self.shift[1], *self.reference,
-                                     self.config.gains.k2, blend)
+        dhat_v, dhat_w, *ray = observe(self.dhat[0], self.dhat[1], *self.ray, measured_v,
+                                       measured_w, *self.reference, *self.shift,
+                                       self.config.law, self.config.limits, blend)
+        self.dhat[:] = (dhat_v, dhat_w)
+        self.ray = (ray[0], ray[1], ray[2])
 
     def _stop(self, reason: str, base: Tick | None = None) -> Tick:
         tick = base or Tick()

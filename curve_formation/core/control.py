@@ -432,6 +432,25 @@ def ray_growth(growth: float, last_right: float, last_left: float, measured_v: f
     return growth, right, left
 
 
+def observe(dhat_v: float, dhat_w: float, growth: float, last_right: float, last_left: float,
+            measured_v: float, measured_w: float, ref_v: float, ref_w: float, shift_v: float,
+            shift_w: float, law: 'Law', limits: 'WheelLimits', blend: float
+            ) -> tuple[float, float, float, float, float]:
+    """The observer's update at a tick, as the node and the simulator both make it: the
+    measured motion's part before the safety filter (measured minus shift, what the filter
+    changed in the last command) searched along its ray (ray_growth: growth, last_right,
+    last_left), then observer_step towards that scaled motion plus the shift against the
+    reference (agent_command's ref). Returns (dhat_v, dhat_w, growth, last_right, last_left).
+    """
+    pre_v = measured_v - shift_v
+    pre_w = measured_w - shift_w
+    growth, last_right, last_left = ray_growth(growth, last_right, last_left, pre_v, pre_w,
+                                               law, limits)
+    dhat_v, dhat_w = observer_step(dhat_v, dhat_w, growth * pre_v + shift_v,
+                                   growth * pre_w + shift_w, ref_v, ref_w, law.k2, blend)
+    return dhat_v, dhat_w, growth, last_right, last_left
+
+
 def body_velocity(x0: float, y0: float, theta0: float, x1: float, y1: float, theta1: float,
                   dt: float) -> Command:
     """Constant (v, w) (m/s, rad/s) that moves a unicycle from pose 0 to pose 1 in dt (s).

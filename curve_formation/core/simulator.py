@@ -100,8 +100,7 @@ def compiled(function: Callable[..., Any]) -> Callable[..., Any]:
 
 _agent_command = compiled(control.agent_command)
 _arc = compiled(dynamics.arc_step)
-_observer_step = compiled(control.observer_step)
-_ray_growth = compiled(control.ray_growth)
+_observe = compiled(control.observe)
 _drive_direction = compiled(driving.drive_direction)
 _steered_law = compiled(driving.steered_law)
 separate = compiled(bodies.separate)
@@ -260,15 +259,11 @@ def _run(state: SimState, targets: FloatArray, ahead: FloatArray, graph: EdgeArr
                                                      poses[i, 2], targets[i, 0], targets[i, 1],
                                                      dhat[i, 0], dhat[i, 1], law, limits)
                     if law.code == OBSERVER and step >= start_steps[i]:
-                        # the search runs along the motion before the safety filter
-                        pre_v = motion[i, 0] - ref[i, 2]
-                        pre_w = motion[i, 1] - ref[i, 3]
-                        rays[i, 0], rays[i, 1], rays[i, 2] = _ray_growth(
-                            rays[i, 0], rays[i, 1], rays[i, 2], pre_v, pre_w, law, limits)
-                        dhat[i, 0], dhat[i, 1] = _observer_step(
-                            dhat[i, 0], dhat[i, 1], rays[i, 0] * pre_v + ref[i, 2],
-                            rays[i, 0] * pre_w + ref[i, 3], ref[i, 0], ref[i, 1], law.k2,
-                            blend)
+                        (dhat[i, 0], dhat[i, 1], rays[i, 0], rays[i, 1],
+                         rays[i, 2]) = _observe(dhat[i, 0], dhat[i, 1], rays[i, 0], rays[i, 1],
+                                                rays[i, 2], motion[i, 0], motion[i, 1],
+                                                ref[i, 0], ref[i, 1], ref[i, 2], ref[i, 3], law,
+                                                limits, blend)
             if ticking:
                 new_cmd[:] = cmd   # each agent's previous command
                 _controls(poses, dhat, targets, ahead, graph, law, limits, avoidance, d_pc,
