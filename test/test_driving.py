@@ -5,10 +5,13 @@ import math
 import numpy as np
 import pytest
 
+from curve_formation.core.agent import agent_configs, AgentController
 from curve_formation.core.control import agent_command, Gains, WheelLimits
 from curve_formation.core.driving import drive_direction, steered_law
 from curve_formation.core.dynamics import arc_step
+from curve_formation.core.experiment import load_experiment
 from curve_formation.core.safety import AVOIDANCE_OFF
+from curve_formation.paths import resolve_config
 
 
 MONA = WheelLimits(0.08, 0.0225)   # wheel base (m), wheel speed limit (m/s)
@@ -81,3 +84,39 @@ def test_driving_backwards_saves_the_half_turn_to_a_target_behind(target):
     assert backwards < 1.15 * fastest
     assert forwards > backwards + 0.6 * (math.pi - 2 * off_behind) / turn_rate
     assert lone_trip((0.3, 0.05), True) == lone_trip((0.3, 0.05), False)   # ahead: unchanged
+
+
+def test_a_curves_first_pose_takes_the_sooner_way_outright():
+    """Until the robot has turned for either way there is nothing for the hysteresis to
+    keep: a target 98 degrees to its right (82 behind) is reached backwards, 0.5 s sooner,
+    from a curve's first pose; on the way the choice holds until the other way is
+    REVERSE_HYSTERESIS sooner; a new curve decides afresh.
+    """
+    law = reversing_law(on_pc=True)
+    right = math.radians(-98.0)
+    tx, ty = 0.3 * math.cos(right), 0.3 * math.sin(right)
+    assert drive_direction(1.0, 0, 0, 0, tx, ty, 0.0, 0.0, law, MONA) == 1.0
+    assert drive_direction(1.0, 0, 0, 0, tx, ty, 0.0, 0.0, law, MONA, 0.0) == -1.0
+    experiment = load_experiment(resolve_config('mona_arena'))
+    controller = AgentController(agent_configs(experiment, 10.0)[0])
+    phase = experiment.phases[0]
+    heading = 0.3
+
+    def pose_with_target_at(bearing):
+        """The robot's pose 30 cm from its target, which lies `bearing` (rad) off its heading."""
+        tx, ty = controller.target
+        way = heading + bearing
+        return tx - 0.3 * math.cos(way), ty - 0.3 * math.sin(way), heading
+
+    controller.set_curve(phase.curve, 0, phase.s)
+    controller.on_pose(*pose_with_target_at(right), 0.0)
+    assert controller.front == -1.0
+    ahead = math.radians(82.0)   # forwards now 0.5 s sooner
+    controller.on_pose(*pose_with_target_at(ahead), 0.1)
+    assert controller.front == -1.0
+    controller.set_curve(phase.curve, 0, phase.s)   # re-assigned: the same curve
+    controller.on_pose(*pose_with_target_at(ahead), 0.2)
+    assert controller.front == -1.0
+    controller.set_curve(phase.curve, 1, phase.s)   # a new curve
+    controller.on_pose(*pose_with_target_at(ahead), 0.3)
+    assert controller.front == 1.0

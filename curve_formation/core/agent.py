@@ -47,7 +47,7 @@ from curve_formation.core.control import (
     WheelLimits,
 )
 from curve_formation.core.curves import Curve
-from curve_formation.core.driving import drive_direction, steered_law
+from curve_formation.core.driving import drive_direction, REVERSE_HYSTERESIS, steered_law
 from curve_formation.core.dynamics import arc_step
 from curve_formation.core.safety import Avoidance, AVOIDANCE_OFF, STOPPED
 from curve_formation.core.shapes import Command, FloatArray, Point, Pose
@@ -238,8 +238,10 @@ class AgentController:
         # control.ray_growth's state: (factor, last right, last left wheel speed m/s)
         self.ray: tuple[float, float, float] = (1.0, 0.0, 0.0)
         # +1: the law steers the point ahead of the axle, -1: the one behind it (reversing,
-        # driving.drive_direction, chosen whenever the robot's pose comes)
+        # driving.drive_direction, chosen whenever the robot's pose comes); first_pose: the
+        # next pose is a new curve's first, where the choice takes the sooner way outright
         self.front = 1.0
+        self.first_pose = True
         # (time s on this controller's clock, v, w) of the commands sent, as far back as a
         # pose may be (pose_timeout), for predict_pose
         self.sent: deque[tuple[float, float, float]] = deque(
@@ -266,6 +268,7 @@ class AgentController:
                                   f'team has {n} agents')
         s = np.array(s_all, dtype=float)
         check_assumptions(curve.basis, s)
+        self.first_pose = self.first_pose or int(curve_id) != self.curve_id
         self.curve, self.curve_id = curve, int(curve_id)
         self.curve_rate, self.curve_received = rate, received
         self.s = float(s[self.config.index - 1])
@@ -304,7 +307,9 @@ class AgentController:
             self.leader_heard = at
         if self.config.gains.reverse and self.target is not None:   # the point steered
             self.front = drive_direction(self.front, x, y, theta, *self.target, self.dhat[0],
-                                         self.dhat[1], self.config.law, self.config.limits)
+                                         self.dhat[1], self.config.law, self.config.limits,
+                                         0.0 if self.first_pose else REVERSE_HYSTERESIS)
+            self.first_pose = False
         return True
 
     def on_neighbour(self, j: int, ex: float, ey: float, curve_id: int, stamp: float,

@@ -19,7 +19,8 @@ REVERSE_HYSTERESIS = 1.0
 
 
 def drive_direction(front: float, x: float, y: float, theta: float, tx: float, ty: float,
-                    dhat_v: float, dhat_w: float, law: Law, limits: WheelLimits) -> float:
+                    dhat_v: float, dhat_w: float, law: Law, limits: WheelLimits,
+                    hysteresis: float = REVERSE_HYSTERESIS) -> float:
     """Which of its two offset points a robot steers to its target: +1, the configured one
     (l ahead of the axle for l > 0: driving forwards, the paper's), or -1, the one opposite
     (driving backwards).
@@ -30,9 +31,11 @@ def drive_direction(front: float, x: float, y: float, theta: float, tx: float, t
     the turn drift estimated on the robot is cancelled (k2 dhat_w, rad/s), plus (forwards)
     or less (backwards) its forward drift (k2 dhat_v, m/s), at most the limit (no drift
     counts when the disturbance is added on the PC: the law cancels it before the limits).
-    It changes `front` (the current choice) only when the other way is REVERSE_HYSTERESIS
+    It changes `front` (the current choice) only when the other way is `hysteresis` (s)
     sooner and the target (tx, ty; m, arena frame) is at least REVERSE_LOCK from the axle
-    (x, y). Without law.reverse, or without wheel limits to time the trips by, always +1.
+    (x, y): REVERSE_HYSTERESIS while the robot is on its way, 0 when a curve's first pose
+    comes (nothing has been turned for the current choice yet). Without law.reverse, or
+    without wheel limits to time the trips by, always +1.
     """
     if not law.reverse or not timed_by(limits):
         return 1.0
@@ -54,8 +57,8 @@ def drive_direction(front: float, x: float, y: float, theta: float, tx: float, t
     opposite = ((math.pi - bearing) / turn_rate
                 + distance / max(min(drive - push, speed), 0.1 * speed))
     if front > 0.0:
-        return -1.0 if opposite < configured - REVERSE_HYSTERESIS else 1.0
-    return 1.0 if configured < opposite - REVERSE_HYSTERESIS else -1.0
+        return -1.0 if opposite < configured - hysteresis else 1.0
+    return 1.0 if configured < opposite - hysteresis else -1.0
 
 
 def steered_law(law: Law, front: float) -> Law:

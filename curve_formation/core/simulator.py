@@ -30,6 +30,7 @@ from numpy.typing import ArrayLike
 from curve_formation.core import bodies, control, driving, dynamics, metrics
 from curve_formation.core.assignment import reassigned
 from curve_formation.core.control import Gains, Law, WheelLimits
+from curve_formation.core.driving import REVERSE_HYSTERESIS
 from curve_formation.core.experiment import Experiment, Phase, whole_steps
 from curve_formation.core.safety import Avoidance
 from curve_formation.core.shapes import BoolArray, FloatArray, IntArray
@@ -257,7 +258,8 @@ def _run(state: SimState, targets: FloatArray, ahead: FloatArray, graph: EdgeArr
                     if step >= start_steps[i]:
                         fronts[i] = _drive_direction(fronts[i], poses[i, 0], poses[i, 1],
                                                      poses[i, 2], targets[i, 0], targets[i, 1],
-                                                     dhat[i, 0], dhat[i, 1], law, limits)
+                                                     dhat[i, 0], dhat[i, 1], law, limits,
+                                                     REVERSE_HYSTERESIS)
                     if law.code == OBSERVER and step >= start_steps[i]:
                         (dhat[i, 0], dhat[i, 1], rays[i, 0], rays[i, 1],
                          rays[i, 2]) = _observe(dhat[i, 0], dhat[i, 1], rays[i, 0], rays[i, 1],
@@ -302,7 +304,7 @@ def _run(state: SimState, targets: FloatArray, ahead: FloatArray, graph: EdgeArr
         for i in range(n):
             fronts[i] = _drive_direction(fronts[i], poses[i, 0], poses[i, 1], poses[i, 2],
                                          targets[i, 0], targets[i, 1], dhat[i, 0], dhat[i, 1],
-                                         law, limits)
+                                         law, limits, REVERSE_HYSTERESIS)
         _controls(poses, dhat, targets, ahead, graph, law, limits, avoidance, d_pc, d_robot,
                   fronts, err, fb, motion, cmd, ref, ddhat, codes)
         if step % clock.record_every == 0:
@@ -339,6 +341,18 @@ def _run(state: SimState, targets: FloatArray, ahead: FloatArray, graph: EdgeArr
                     dhat[i, c] += h / 6.0 * (kd[0, i, c] + 2.0 * kd[1, i, c]
                                              + 2.0 * kd[2, i, c] + kd[3, i, c])
         _touch(poses, contacts)
+
+
+def _choose_directions(state: SimState, targets: FloatArray, law: Law,
+                       limits: WheelLimits) -> None:
+    """Each robot's drive direction (state's fronts) as a curve's first pose sets it in the
+    node (driving.drive_direction with no hysteresis), towards targets (n, 2; m).
+    """
+    poses, dhat, fronts = state[0], state[1], state[5]
+    for i in range(len(fronts)):
+        fronts[i] = driving.drive_direction(fronts[i], poses[i, 0], poses[i, 1], poses[i, 2],
+                                            targets[i, 0], targets[i, 1], dhat[i, 0],
+                                            dhat[i, 1], law, limits, 0.0)
 
 
 @dataclass
@@ -477,6 +491,8 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
                 if feed_forward:
                     ahead = moving.velocities(targets, tau)
             sent = now
+            if begin == a:   # a curve's first pose: the sooner way outright
+                _choose_directions(state, now, law, limits)
             _run(state, np.ascontiguousarray(now), np.ascontiguousarray(ahead), graph, law,
                  limits, avoidance, d_pc, d_robot, clock, begin, end - begin, schedule,
                  contacts, record)
