@@ -1,6 +1,8 @@
 """Driving backwards (controller.reverse): which way a robot drives, and what it saves."""
 
 import math
+from pathlib import Path
+import sys
 
 import numpy as np
 import pytest
@@ -120,3 +122,31 @@ def test_a_curves_first_pose_takes_the_sooner_way_outright():
     controller.set_curve(phase.curve, 1, phase.s)   # a new curve
     controller.on_pose(*pose_with_target_at(ahead), 0.3)
     assert controller.front == 1.0
+
+
+def test_the_benchmarks_fastest_time_with_drift_turns_the_quicker_way_round():
+    """benchmarks/collision_avoidance.fastest_with_drift, the estimate its table reports:
+    without drift the turn-and-straight time; a turn drift to the left makes a right turn
+    slower than the limit allows, and a long right turn quicker the other way round; a
+    forward drift makes backwards slower than turning round.
+    """
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'benchmarks'))
+    from collision_avoidance import fastest_with_drift
+    u, base = MONA.max_wheel_speed, MONA.wheel_base
+    rate = 2 * u / base
+    right = (0.0, -0.3)   # 30 cm to the right of a robot facing +x
+    assert fastest_with_drift(right, 0.0, (0.0, 0.0), MONA, False) == pytest.approx(
+        0.5 * math.pi / rate + 0.3 / u)
+    straight = u - 0.5 * base * 0.1
+    assert fastest_with_drift(right, 0.0, (0.0, 0.1), MONA, False) == pytest.approx(
+        0.5 * math.pi / (rate - 0.1) + 0.3 / straight)
+    # 170 degrees to its right: the left way round (190 degrees) is quicker with the drift.
+    behind = (0.3 * math.cos(math.radians(-170)), 0.3 * math.sin(math.radians(-170)))
+    assert fastest_with_drift(behind, 0.0, (0.0, 0.5), MONA, False) == pytest.approx(
+        math.radians(190) / (rate + 0.5) + 0.3 / (u - 0.5 * base * 0.5))
+    # Straight behind with a forward drift of half the limit: turning round is quicker
+    # than backing at half the limit; without the drift, backing is.
+    back = (-0.3, 0.0)
+    assert fastest_with_drift(back, 0.0, (0.5 * u, 0.0), MONA, True) == pytest.approx(
+        math.pi / rate + 0.3 / (1.5 * u))
+    assert fastest_with_drift(back, 0.0, (0.0, 0.0), MONA, True) == pytest.approx(0.3 / u)
