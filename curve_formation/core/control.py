@@ -329,10 +329,18 @@ def observer_input(fx: float, fy: float, theta: float, dhat_v: float, dhat_w: fl
         v, w = saturate_turning(v, w, drift_v, drift_w, wheel_base, max_wheel_speed,
                                 max_angular_rate)
     else:
-        v, w = saturate(v - drift_v, w - drift_w, wheel_base, max_wheel_speed,
-                        max_angular_rate)
-        v, w = v + drift_v, w + drift_w
+        v, w = saturate_drifting(v, w, drift_v, drift_w, wheel_base, max_wheel_speed,
+                                 max_angular_rate)
     return v - k2 * dhat_v, w - k2 * dhat_w
+
+
+def saturate_drifting(v: float, w: float, drift_v: float, drift_w: float, wheel_base: float,
+                      max_wheel_speed: float, max_angular_rate: float) -> Command:
+    """The motion (v, w) (m/s, rad/s) whose command, the motion minus the drift (drift_v,
+    drift_w), is scaled down into the limits (saturate): the curvature of the command kept.
+    """
+    cv, cw = saturate(v - drift_v, w - drift_w, wheel_base, max_wheel_speed, max_angular_rate)
+    return cv + drift_v, cw + drift_w
 
 
 # Share of the law's turn saturate_turning keeps (at least): the sampled heading asks for
@@ -366,8 +374,8 @@ def saturate_turning(v: float, w: float, drift_v: float, drift_w: float, wheel_b
     top = math.inf
     if fast:
         if abs(drift_v) >= max_wheel_speed or half <= 0.0:
-            cv, cw = saturate(cv, cw, wheel_base, max_wheel_speed, max_angular_rate)
-            return cv + drift_v, cw + drift_w
+            return saturate_drifting(v, w, drift_v, drift_w, wheel_base, max_wheel_speed,
+                                     max_angular_rate)
         top = max_wheel_speed / half
     if turn:
         top = min(top, max_angular_rate)
