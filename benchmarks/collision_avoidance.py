@@ -57,34 +57,32 @@ def lower_bounds(result, turning=False, drift=False):
     drift also carries the robot while it turns.
     """
     experiment = result.experiment
-    speed = experiment.limits.max_wheel_speed
-    turn_rate = 2 * speed / experiment.limits.wheel_base
     points = metrics.offset_points(result.poses, experiment.gains.offset)
-    on_robot = experiment.spec.disturbance.injected != 'on_pc'
+    # turning alone: no drift, and the smaller turn whichever way the robot then drives
+    on_robot = drift and experiment.spec.disturbance.injected != 'on_pc'
+    reverse = experiment.gains.reverse if drift else True
     out = []
     for p in experiment.phases:
         k = int(np.searchsorted(result.t, p.start))
         if k >= len(result.t):
             break
-        trips = points[k] - p.targets
-        times = np.linalg.norm(trips, axis=1) / speed
-        if drift:
-            times = np.array([fastest_with_drift(-trips[i], result.poses[k, i, 2],
-                                                 result.disturbance[i] if on_robot else (0, 0),
-                                                 experiment.limits, experiment.gains.reverse)
-                              for i in range(experiment.n)])
-        elif turning:
-            facing = np.arctan2(-trips[:, 1], -trips[:, 0])
-            bearing = np.abs(np.remainder(facing - result.poses[k, :, 2] + np.pi,
-                                          2 * np.pi) - np.pi)
-            times += np.minimum(bearing, np.pi - bearing) / turn_rate
-        out.append(float(times.max()))
+        trips = p.targets - points[k]
+        if turning or drift:
+            times = [fastest_with_drift(trips[i], result.poses[k, i, 2],
+                                        result.disturbance[i] if on_robot else (0.0, 0.0),
+                                        experiment.limits, reverse)
+                     for i in range(experiment.n)]
+        else:
+            times = np.linalg.norm(trips, axis=1) / experiment.limits.max_wheel_speed
+        out.append(float(np.max(times)))
     return out
 
 
 def fastest_with_drift(trip, heading, disturbance, limits, reverse):
     """Seconds to turn in place and drive straight along trip (m, arena frame) from heading
-    (rad) under the drift (d_v m/s, d_w rad/s) acting on the robot (lower_bounds).
+    (rad) under the drift (d_v m/s, d_w rad/s) acting on the robot (lower_bounds); with no
+    drift and reverse, the turn-and-straight bound: the smaller of the turns to face the
+    target forwards or backwards, at 2 u / B, then the trip at u.
     """
     u, base = limits.max_wheel_speed, limits.wheel_base
     d_v, d_w = disturbance
