@@ -41,7 +41,8 @@ class NodeGraph:
     def __exit__(self, *exc):
         self.stop()
 
-    def start(self, launch):
+    def start(self, launch, mode='w'):
+        """Start one node; its output goes to logs_dir/<key>.log (mode 'a': appended)."""
         if self.single_process:
             from rclpy.parameter import Parameter
             node = node_class(launch.module)(
@@ -57,7 +58,7 @@ class NodeGraph:
             env[PUBLICATIONS_ENV] = str(self.publications_dir)
         cmd = [sys.executable, '-m', launch.module, '--ros-args', '-r',
                f'__ns:={launch.namespace}', '--params-file', str(self.params_files[launch.key])]
-        with open(self.logs_dir / f'{launch.key}.log', 'w') as log_file:
+        with open(self.logs_dir / f'{launch.key}.log', mode) as log_file:
             self.processes[launch.key] = subprocess.Popen(
                 cmd, env=env, stdout=log_file, stderr=subprocess.STDOUT,
                 start_new_session=True, preexec_fn=_stop_with_parent)
@@ -85,7 +86,8 @@ class NodeGraph:
         return proc.returncode
 
     def restart(self, key):
-        self.start(next(launch for launch in self.launches if launch.key == key))
+        """Start a killed node again; its log goes on after what it wrote before."""
+        self.start(next(launch for launch in self.launches if launch.key == key), mode='a')
 
     def stop(self):
         """SIGINT every node process (they send a last zero command), then kill what lingers;
