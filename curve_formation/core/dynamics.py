@@ -74,11 +74,14 @@ class DrivenUnicycle:
             due, v, w = self.pending.popleft()
             self._move(max(due, self.time))
             self.command = (v, w)
-        self._move(until)
         if (self.timeout > 0 and self.command != (0.0, 0.0) and self.last_command_time
-                is not None and until - self.last_command_time > self.timeout + self.latency):
+                is not None and until > self.last_command_time + self.timeout + self.latency):
+            # The motors stop at the watchdog's time, not at the caller's next step.
+            self._move(self.last_command_time + self.timeout + self.latency)
             self.command = (0.0, 0.0)
+            self.time = max(self.time, until)
             return True
+        self._move(until)
         return False
 
     def _move(self, until):
