@@ -430,6 +430,9 @@ class AvoidanceSpec(Strict):
     passing_range: Optional[float] = Field(None, gt=0, description='gap above the safe '
                                            'distance within which a robot steers around others '
                                            'and gives way (m); default: one body diameter')
+    drift: float = Field(0.0, ge=0, description='forward drift (m/s) the barriers hold '
+                         "against beyond what the command cancels: a bound on the robots' "
+                         'drift before the observer has learnt it (0 = none)')
 
 
 class MetricsSpec(Strict):

@@ -487,7 +487,7 @@ def _avoidance(spec: ExperimentSpec, source: str) -> Avoidance:
     width, height = spec.arena.size if spec.arena is not None else (0.0, 0.0)
     passing_range = av.passing_range if av.passing_range is not None else 2.0 * radius
     return Avoidance(True, radius, av.margin, av.rate, av.passing, passing_range,
-                     float(width), float(height))
+                     float(width), float(height), av.drift)
 
 
 def _check_bodies(spec: ExperimentSpec, source: str, poses: FloatArray,

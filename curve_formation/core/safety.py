@@ -5,25 +5,27 @@ rad/s); the arena is [0, width] x [0, height] (m), no walls where width or heigh
 
 The formation law steers each robot's offset point b = (x + l cos th, y + l sin th), which
 moves as a single integrator b' = m with m = R(th) (u + d) (paper-notes: R is invertible).
-The filter works on m, as Robotarium's unicycle barrier certificates do, with these
-half-planes (control barrier functions, alpha in 1/s):
+The filter works on m, as Robotarium's unicycle barrier certificates do; the barriers are on
+the axle centres c, which move along the heading e at V = e^T m (docs/collision-avoidance.md
+derives them), with D = 2 radius + margin and alpha in 1/s:
 
-- every other robot j: h_ij = |b_i - b_j|^2 - D^2 with D = 2 radius + 2 |l| + margin, and
-  (b_i - b_j)^T m_i >= -(alpha / 4) h_ij. Each robot takes half the responsibility (Wang,
-  Ames, Egerstedt, 2017), so it needs only the other robots' poses, not their commands.
-- each wall: h_w = distance from b to the wall - (radius + |l| + margin / 2), and
-  n_w^T m >= -alpha h_w (n_w pointing into the arena).
+- every other robot j: h_ij = |c_i - c_j|^2 - D^2, and over the robot's own step in a tick
+  2 T k V + T^2 V^2 >= -(alpha T / 2) h_ij, k = (c_i - c_j)^T e. Each robot takes half the
+  responsibility (Wang, Ames, Egerstedt, 2017), so it needs only the other robots' poses,
+  not their commands.
+- each wall: h_w = distance from c to the wall - (radius + margin / 2), and
+  V (n_w^T e) >= -alpha h_w (n_w pointing into the arena).
+- both for every forward speed within `drift` (m/s) of V: a forward drift the command does
+  not cancel (the robots' drift before the observer has learnt it).
 - the wheel limits, |v| + |w| B / 2 <= max wheel speed and |w| <= max turn rate, written
   as half-planes of m through v, w = R^-1 m - d.
 
 What is proved (docs/collision-avoidance.md): if at a control tick both robots of a pair
-(or a robot and a wall) satisfy their half-planes and move straight at m for the period T
-with alpha T <= 1, then h(k + 1) >= h(k) + 2 T (b_i - b_j)^T (m_i - m_j) >= (1 - alpha T) h(k),
-so h >= 0 is kept forever: offset points never closer than D, bodies never closer than
-2 radius + margin to each other nor than margin / 2 to a wall (each offset point lies within
-|l| of its axle centre). What is not proved
-and is covered by the margin: the arc an offset point draws within a tick instead of a straight
-line, pose latency, and a disturbance estimate that is not yet exact.
+(or a robot and a wall) satisfy their half-planes and move straight for the period T with
+alpha T <= 1, then h(k + 1) >= (1 - alpha T) h(k) up to 2 T^2 v_max^2 for a pair, so bodies
+stay 2 radius + margin apart (less that residue) and margin / 2 off the walls. What is not
+proved and is covered by the margin: the arc the centre draws within a tick instead of a
+straight line, pose latency, and a disturbance estimate further from the truth than `drift`.
 
 The filtered motion is the point of that polygon closest to the nominal motion (a QP in two
 variables, solved exactly: the nominal if it is inside, else the projection onto one edge,
@@ -59,6 +61,7 @@ class Avoidance(NamedTuple):
     bias_range: float = 0.0   # gap above the safe distance within which it acts (m)
     width: float = 0.0        # arena (m); <= 0: no walls
     height: float = 0.0
+    drift: float = 0.0        # forward drift (m/s) the barriers hold against, unestimated
 
 
 AVOIDANCE_OFF = Avoidance(False)
@@ -99,16 +102,20 @@ def safe_command(v, w, x, y, theta, drift_v, drift_w, others, me, offset, period
     for k in range(near.shape[0]):
         ux, uy, dist, gap = near[k, 0], near[k, 1], near[k, 2], near[k, 3]
         count = _pair_barrier(planes, count, c, s, dist * (ux * c + uy * s),
-                              gap * (dist + safe), avoidance.alpha, period, c * m0x + s * m0y)
+                              gap * (dist + safe), avoidance.alpha, period, c * m0x + s * m0y,
+                              avoidance.drift)
     low = avoidance.radius + 0.5 * avoidance.margin
+    slack = avoidance.drift
     if avoidance.width > 0.0:
-        count = _forward_barrier(planes, count, c, s, c, avoidance.alpha * (x - low))
+        count = _forward_barrier(planes, count, c, s, c,
+                                 avoidance.alpha * (x - low) - abs(c) * slack)
         count = _forward_barrier(planes, count, c, s, -c,
-                                 avoidance.alpha * (avoidance.width - low - x))
+                                 avoidance.alpha * (avoidance.width - low - x) - abs(c) * slack)
     if avoidance.height > 0.0:
-        count = _forward_barrier(planes, count, c, s, s, avoidance.alpha * (y - low))
+        count = _forward_barrier(planes, count, c, s, s,
+                                 avoidance.alpha * (y - low) - abs(s) * slack)
         count = _forward_barrier(planes, count, c, s, -s,
-                                 avoidance.alpha * (avoidance.height - low - y))
+                                 avoidance.alpha * (avoidance.height - low - y) - abs(s) * slack)
     barriers = count
     count = _wheel_planes(planes, count, c, s, offset, wheel_base, max_wheel_speed,
                           max_angular_rate, drift_v, drift_w)
@@ -208,27 +215,28 @@ def _yield(dx, dy, x, y, others, me, safe, near):
     return yx * speed, yy * speed
 
 
-def _pair_barrier(planes, count, c, s, k, h, alpha, period, forward):
+def _pair_barrier(planes, count, c, s, k, h, alpha, period, forward, drift=0.0):
     """Append the half-plane that keeps h = |c_i - c_j|^2 - D^2 (m^2) from falling faster
     than (alpha / 2) h per tick by this robot's own step, which moves its axle centre by
     T V along its heading e = (c, s) (V = e^T m, the forward speed, m/s; k = (c_i - c_j)^T e):
 
-        2 T k V + T^2 V^2 >= -(alpha T / 2) h.
+        2 T k V' + T^2 V'^2 >= -(alpha T / 2) h   for every V' within `drift` (m/s) of V,
 
-    The quadratic term is what lets a robot drive past another along a tangent (k = 0); the
-    allowed V form one or two intervals, and the one kept is the one that holds the nominal
-    forward speed, else the one that holds V = 0 (stopping). Continuous control (T = 0): the
-    linear condition k V >= -(alpha / 4) h.
+    the forward drift the robot may have that the command does not cancel. The quadratic
+    term is what lets a robot drive past another along a tangent (k = 0); the allowed V form
+    one or two intervals, and the one kept is the one that holds the nominal forward speed,
+    else the one that holds V = 0 (stopping). Continuous control (T = 0): the linear
+    condition k V' >= -(alpha / 4) h.
     """
     if period <= 0.0:
-        return _forward_barrier(planes, count, c, s, k, 0.25 * alpha * h)
+        return _forward_barrier(planes, count, c, s, k, 0.25 * alpha * h - abs(k) * drift)
     gamma = alpha * period
     disc = k * k - 0.5 * gamma * h
     if disc <= 0.0:
         return count   # no forward speed brings it too close in one tick
     root = math.sqrt(disc)
-    low = (-k - root) / period    # V in (low, high) is forbidden
-    high = (-k + root) / period
+    low = (-k - root) / period - drift    # V in (low, high) is forbidden
+    high = (-k + root) / period + drift
     if forward >= high or (forward > low and high <= 0.0):
         return _plane(planes, count, -c, -s, -high)      # V >= high
     if forward <= low or low >= 0.0:

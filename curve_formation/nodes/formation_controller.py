@@ -89,6 +89,8 @@ PARAMETERS = (
           low=0.0),
     Param('avoidance_rate', 'double', 5.0, 'barrier rate alpha (1/s), at most rate_hz',
           positive=True),
+    Param('avoidance_drift', 'double', 0.0, 'forward drift (m/s) the barriers hold against '
+          'beyond what the command cancels; 0 = none', low=0.0),
     Param('passing', 'double', 0.0, 'passing rule: sideways speed to the right per unit of '
           'approach speed; 0 = none', low=0.0),
     Param('passing_range', 'double', 0.0, 'gap above the safe distance within which the law '
@@ -149,6 +151,7 @@ def node_parameters(config):
         params.update({'avoidance': True, 'radius': float(av.radius),
                        'avoidance_margin': float(av.margin), 'avoidance_rate': float(av.alpha),
                        'passing': float(av.bias), 'passing_range': float(av.bias_range),
+                       'avoidance_drift': float(av.drift),
                        'arena': [float(av.width), float(av.height)] if av.width > 0 else []})
     return {name: value for name, value in params.items() if value != []}
 
@@ -220,7 +223,8 @@ def _avoidance(p):
                              f"exceed 'rate_hz' ({p.rate_hz:g})")
     width, height = p.arena or (0.0, 0.0)
     return Avoidance(True, p.radius, p.avoidance_margin, p.avoidance_rate, p.passing,
-                     p.passing_range or 2.0 * p.radius, float(width), float(height))
+                     p.passing_range or 2.0 * p.radius, float(width), float(height),
+                     p.avoidance_drift)
 
 
 TOPICS = (
