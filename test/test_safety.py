@@ -105,9 +105,9 @@ def test_estop_a_killed_follower_and_the_killed_leader_each_stop_whom_they_shoul
     # (one period late at most, plus a period between the states 2 sent).
     timeout = 0.5
     for robot in (3, 4):
-        log = (tmp_path / 'logs' / f'robot_{robot}.formation_controller.log').read_text()
-        ages = re.findall(r'stopped: neighbour 2 stale \((\d+\.\d+) s old\)', log)
-        assert ages and timeout <= float(ages[0]) <= timeout + 2 * PERIOD, log
+        stops = logged(tmp_path, f'robot_{robot}.formation_controller',
+                       r'stopped: neighbour 2 stale \((\d+\.\d+) s old\)')
+        assert stops and timeout <= float(stops[0][1]) <= timeout + 2 * PERIOD, (robot, stops)
     # The killed leader: each follower's last stop came at its first tick past its timeout
     # (leader_timeout 1 s; neighbour_timeout for an out-neighbour of the leader).
     for i in FOLLOWERS:

@@ -105,17 +105,15 @@ def safe_command(v, w, x, y, theta, drift_v, drift_w, others, me, offset, period
                               gap * (dist + safe), avoidance.alpha, period, c * m0x + s * m0y,
                               avoidance.drift)
     low = avoidance.radius + 0.5 * avoidance.margin
-    slack = avoidance.drift
+    drift = avoidance.drift
     if avoidance.width > 0.0:
-        count = _forward_barrier(planes, count, c, s, c,
-                                 avoidance.alpha * (x - low) - abs(c) * slack)
+        count = _forward_barrier(planes, count, c, s, c, avoidance.alpha * (x - low), drift)
         count = _forward_barrier(planes, count, c, s, -c,
-                                 avoidance.alpha * (avoidance.width - low - x) - abs(c) * slack)
+                                 avoidance.alpha * (avoidance.width - low - x), drift)
     if avoidance.height > 0.0:
-        count = _forward_barrier(planes, count, c, s, s,
-                                 avoidance.alpha * (y - low) - abs(s) * slack)
+        count = _forward_barrier(planes, count, c, s, s, avoidance.alpha * (y - low), drift)
         count = _forward_barrier(planes, count, c, s, -s,
-                                 avoidance.alpha * (avoidance.height - low - y) - abs(s) * slack)
+                                 avoidance.alpha * (avoidance.height - low - y), drift)
     barriers = count
     count = _wheel_planes(planes, count, c, s, offset, wheel_base, max_wheel_speed,
                           max_angular_rate, drift_v, drift_w)
@@ -215,7 +213,7 @@ def _yield(dx, dy, x, y, others, me, safe, near):
     return yx * speed, yy * speed
 
 
-def _pair_barrier(planes, count, c, s, k, h, alpha, period, forward, drift=0.0):
+def _pair_barrier(planes, count, c, s, k, h, alpha, period, forward, drift):
     """Append the half-plane that keeps h = |c_i - c_j|^2 - D^2 (m^2) from falling faster
     than (alpha / 2) h per tick by this robot's own step, which moves its axle centre by
     T V along its heading e = (c, s) (V = e^T m, the forward speed, m/s; k = (c_i - c_j)^T e):
@@ -229,7 +227,7 @@ def _pair_barrier(planes, count, c, s, k, h, alpha, period, forward, drift=0.0):
     condition k V' >= -(alpha / 4) h.
     """
     if period <= 0.0:
-        return _forward_barrier(planes, count, c, s, k, 0.25 * alpha * h - abs(k) * drift)
+        return _forward_barrier(planes, count, c, s, k, 0.25 * alpha * h, drift)
     gamma = alpha * period
     disc = k * k - 0.5 * gamma * h
     if disc <= 0.0:
@@ -247,15 +245,16 @@ def _pair_barrier(planes, count, c, s, k, h, alpha, period, forward, drift=0.0):
     return _plane(planes, count, c, s, low)
 
 
-def _forward_barrier(planes, count, c, s, k, b):
-    """Append k (e^T m) >= -b, e = (c, s) the heading: the axle centre, which moves by e^T m
-    along e, may close in on what lies along -k e no faster than b (m^2/s) allows; b < 0
-    asks it to back off.
+def _forward_barrier(planes, count, c, s, k, b, drift):
+    """Append k V' >= -b for every V' within `drift` (m/s) of V = e^T m, e = (c, s) the
+    heading: the axle centre, which moves by V along e, may close in on what lies along -k e
+    no faster than b (m^2/s) allows, whatever forward drift up to `drift` the command does
+    not cancel; b < 0 asks it to back off.
     """
     if abs(k) < 1e-12:
         return count   # moving along the heading does not change this distance
     sign = 1.0 if k > 0.0 else -1.0
-    return _plane(planes, count, -sign * c, -sign * s, b / abs(k))
+    return _plane(planes, count, -sign * c, -sign * s, b / abs(k) - drift)
 
 
 def _near(others, me, x, y, safe, reach):
