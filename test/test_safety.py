@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from std_msgs.msg import Bool
 
-from conftest import DATA_DIR
+from conftest import CONFIG_DIR, DATA_DIR
 from curve_formation.core import metrics
 from curve_formation.core.simulator import simulate
 from curve_formation.nodes import qos, topics
@@ -122,19 +122,34 @@ def test_estop_a_killed_follower_and_the_killed_leader_each_stop_whom_they_shoul
         assert all(a != b for a, b in zip(kinds, kinds[1:], strict=False)), (i, log)
 
 
-def test_dropped_messages_and_latency_still_converge_at_arena_speeds(ros_domain, tmp_path):
+@pytest.mark.parametrize('told', [True, pytest.param(False, marks=pytest.mark.slow)],
+                         ids=['latency-told', 'latency-untold'])
+def test_dropped_messages_and_latency_still_converge_at_arena_speeds(ros_domain, tmp_path, told):
     """20 % of poses and of neighbour states dropped, commands delayed 200 ms, on the arena demo
     (Mona wheel limits, 10 Hz, robots drifting with d = [5 mm/s, 0.1 rad/s]). Tolerance: the
     error never exceeds its start by more than 1 % (the drift acts before the observer has
-    learnt it), and it comes down to 30 %, 10 % and 3 % of its start at most 1 s later than in
-    the fault-free batch simulation (measured 0.08-0.31 s over 7 runs).
+    learnt it), and it comes down to 30 %, 10 % and 3 % of its start at most `late` s later
+    than in the fault-free batch simulation.
+    told: the experiment states the latency (controller.command_latency), so the controllers
+    carry poses forward to when a command acts and the observer pairs the motion with the
+    command acting on it: 0.3-0.4 s late measured (the 0.2 s itself and DDS), 1 s allowed.
+    Not told (slow test): 0.6-1.3 s late here, 2.0 s once in CI; 3 s allowed.
     Not a ratio of errors at a fixed time: at 30 s the simulated error falls threefold per
     second (0.025 at 29 s, 0.0086 at 30 s), so such a ratio only measures a 0.2 s timing.
     At the fast test case's ~10 m/s the same faults make the law diverge (docs/safety.md).
     """
+    experiment = CONFIG_DIR / 'arena_demo.yaml'
+    late = 3.0
+    if told:
+        text = experiment.read_text()
+        assert text.count('predict_pose: true,') == 1
+        experiment = tmp_path / 'arena_demo_told.yaml'
+        experiment.write_text(text.replace('predict_pose: true,',
+                                           'predict_pose: true, command_latency: 0.2,'))
+        late = 1.0
     options = RunOptions(command_latency=0.2, bag_path=tmp_path / 'bag',
                          faults={'pose_drop': 0.2, 'state_drop': 0.2})
-    with Run('arena_demo', tmp_path, options, log=quiet) as run:
+    with Run(experiment, tmp_path, options, log=quiet) as run:
         run.spin_for(30.0)
         data = run.recording()
     # The faults drop messages before they are published: the bag has every one that was
@@ -155,5 +170,5 @@ def test_dropped_messages_and_latency_still_converge_at_arena_speeds(ros_domain,
         lags[fraction] = None if faulty is None else round(faulty - clean, 2)
     # On failure: how late, which robot lagged, and the logs (a stop for stale inputs shows).
     per_robot = np.linalg.norm(errors[-1], axis=1).round(4).tolist()
-    assert all(lag is not None and lag <= 1.0 for lag in lags.values()), (
+    assert all(lag is not None and lag <= late for lag in lags.values()), (
         lags, per_robot, tmp_path / 'logs')

@@ -26,7 +26,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 import math
-from typing import Optional, TYPE_CHECKING
+from typing import NamedTuple, Optional, TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -83,6 +83,7 @@ def agent_configs(experiment: 'Experiment', rate_hz: float) -> list['AgentConfig
         pc_disturbance=((float(experiment.disturbance[i - 1][0]),
                          float(experiment.disturbance[i - 1][1])) if on_pc else (0.0, 0.0)),
         avoidance=experiment.avoidance, predict_pose=spec.controller.predict_pose,
+        command_latency=spec.controller.command_latency,
         feed_forward=spec.controller.feed_forward)
         for i in range(1, experiment.n + 1)]
 
@@ -134,6 +135,10 @@ class AgentConfig:
     pc_disturbance: Command = (0.0, 0.0)  # added to the command before the limits (m/s, rad/s)
     avoidance: Avoidance = AVOIDANCE_OFF   # the safety filter, from every robot's pose
     predict_pose: bool = False      # carry the pose forward to the tick (AgentController)
+    # s from a command leaving this controller to the robot's wheels acting on it (the link's
+    # delay): predict_pose carries the pose to when this tick's command acts, the observer
+    # compares the motion with the command acting on it then
+    command_latency: float = 0.0
     feed_forward: bool = True       # add a moving curve's target velocity to the command
     # The law and filter (control.agent_command) compiled by numba as in the batch simulator:
     # the same source, about 15x faster a tick; loading it costs ~0.7 s and ~65 MB.
@@ -180,6 +185,20 @@ class State:
     curve_id: int
     stamp: float
     leader_age: Optional[float]
+
+
+class Sent(NamedTuple):
+    """A command as sent at `at` (s, the controller's clock): (v, w) (m/s, rad/s); the
+    observer's reference and the safety filter's shift of it (control.observe); driven: False
+    for a stop (motors off, no drift).
+    """
+
+    at: float
+    v: float
+    w: float
+    reference: Command
+    shift: Command
+    driven: bool
 
 
 @dataclass
@@ -230,11 +249,12 @@ class AgentController:
         self.leader_heard: float | None = None
         self.estop = False
         self.last_command: Command = (0.0, 0.0)
-        # Observer law: the pose and stamp of the previous command's tick, and that command
-        # where the disturbance enters (before a PC-injected disturbance, else as sent).
-        self.anchor: tuple[Pose, float] | None = None
+        # Observer law: the pose and stamp of the previous command's tick and that tick's
+        # time (s, this controller's clock); the last command where the disturbance enters
+        # (before a PC-injected disturbance, else as sent) and what the safety filter changed.
+        self.anchor: tuple[Pose, float, float] | None = None
         self.reference: Command = (0.0, 0.0)
-        self.shift: Command = (0.0, 0.0)   # what the safety filter changed in the last command
+        self.shift: Command = (0.0, 0.0)
         # control.ray_growth's state: (factor, last right, last left wheel speed m/s)
         self.ray: tuple[float, float, float] = (1.0, 0.0, 0.0)
         # +1: the law steers the point ahead of the axle, -1: the one behind it (reversing,
@@ -242,10 +262,10 @@ class AgentController:
         # next pose is a new curve's first, where the choice takes the sooner way outright
         self.front = 1.0
         self.first_pose = True
-        # (time s on this controller's clock, v, w) of the commands sent, as far back as a
-        # pose may be (pose_timeout), for predict_pose
-        self.sent: deque[tuple[float, float, float]] = deque(
-            maxlen=int(math.ceil(self.config.rate_hz * self.config.pose_timeout)) + 2)
+        # The commands sent (Sent), as far back as a pose may be (pose_timeout) plus the
+        # command latency, for predict_pose and the observer.
+        self.sent: deque[Sent] = deque(maxlen=int(math.ceil(
+            self.config.rate_hz * (self.config.pose_timeout + self.config.command_latency))) + 2)
         self.command = compiled_command(self.config) if self.config.compiled else agent_command
 
     def set_curve(self, curve: Curve, curve_id: int,
@@ -380,13 +400,15 @@ class AgentController:
     def tick(self, now: float) -> Tick:
         """One control step at time `now` (s, this controller's clock)."""
         tick = self._tick(now)
-        self.sent.append((now, tick.v, tick.w))
+        self.sent.append(Sent(now, tick.v, tick.w, self.reference, self.shift,
+                              tick.stopped is None))
         return tick
 
     def predicted(self, pose: Pose, stamp: float, received: float, now: float) -> Pose:
-        """The pose taken at `stamp` (received at `received`) carried forward to `now` by the
-        commands sent since and the estimated drift: the robot's pose when this tick's
-        command leaves (arena frame).
+        """The pose taken at `stamp` (received at `received`) carried forward to `now` plus
+        the command latency by the commands acting since (each from its sending plus the
+        latency) and the estimated drift: the robot's pose when this tick's command reaches
+        its wheels (arena frame).
 
         The pose's age is now - stamp when that lies in [0, MAX_PREDICTION], i.e. when the
         pose's source and this controller share a clock (or are synchronised); otherwise
@@ -398,18 +420,20 @@ class AgentController:
         if not 0.0 <= age <= longest:
             age = min(max(now - received, 0.0), longest)
         start = now - age
+        delay = cfg.command_latency
         law = cfg.law
         # the robot moves by its command plus the disturbance while driven (motors off at 0)
         drift_v = 0.0 if law.on_pc else law.k2 * self.dhat[0]
         drift_w = 0.0 if law.on_pc else law.k2 * self.dhat[1]
         x, y, theta = pose
         v, w, at = 0.0, 0.0, start
-        for sent_at, sent_v, sent_w in self.sent:
-            if sent_at > start:
-                x, y, theta = _drive(x, y, theta, v, w, drift_v, drift_w, sent_at - at)
-                at = sent_at
-            v, w = sent_v, sent_w
-        return _drive(x, y, theta, v, w, drift_v, drift_w, now - at)
+        for sent in self.sent:
+            acts = sent.at + delay
+            if acts > start:
+                x, y, theta = _drive(x, y, theta, v, w, drift_v, drift_w, acts - at)
+                at = acts
+            v, w = sent.v, sent.w
+        return _drive(x, y, theta, v, w, drift_v, drift_w, now + delay - at)
 
     def _tick(self, now: float) -> Tick:
         cfg = self.config
@@ -468,7 +492,7 @@ class AgentController:
         if code == STOPPED:
             return self._stop('safety filter: no motion keeps the robots apart', base)
         self.filtered += code != 0
-        self.anchor = (measured, stamp)
+        self.anchor = (measured, stamp, now)
         self.reference = (ref_v, ref_w)
         self.shift = (shift_v, shift_w)
         self.last_command = (v, w)
@@ -477,24 +501,38 @@ class AgentController:
         base.filtered = code != 0
         return base
 
+    def _acting(self, at: float) -> Sent | None:
+        """The command acting on the robot at `at` (s, this controller's clock): the last
+        sent a command latency or more before; None if none is known.
+        """
+        acting = None
+        for sent in self.sent:
+            if sent.at > at - self.config.command_latency + 1e-9:
+                break
+            acting = sent
+        return acting
+
     def _observe(self) -> None:
         """Observer law: move dhat towards (motion measured since the last tick - command) / k2.
 
         The motion is the constant (v, w) that carries the previous tick's pose to the current
-        one over the difference of their stamps; its part before the safety filter (the motion
+        one over the difference of their stamps; the command is the one acting on the robot
+        from the previous tick on (sent then, or a command latency before; nothing is learnt
+        while the motors were off). The motion's part before the safety filter (the motion
         minus what the filter changed) is scaled along its ray when saturated
         (control.ray_growth); without a newer pose nothing is updated.
         """
         if self.anchor is None or self.pose is None or self.pose_stamp is None:
             return
-        (x0, y0, th0), stamp0 = self.anchor
+        (x0, y0, th0), stamp0, ticked = self.anchor
         elapsed = self.pose_stamp - stamp0
-        if elapsed <= 0.0:
+        acting = self._acting(ticked)
+        if elapsed <= 0.0 or acting is None or not acting.driven:
             return
         measured_v, measured_w = body_velocity(x0, y0, th0, *self.pose, elapsed)
         blend = 1.0 - math.exp(-self.config.gains.observer_rate * elapsed)
         dhat_v, dhat_w, *ray = observe(self.dhat[0], self.dhat[1], *self.ray, measured_v,
-                                       measured_w, *self.reference, *self.shift,
+                                       measured_w, *acting.reference, *acting.shift,
                                        self.config.law, self.config.limits, blend)
         self.dhat[:] = (dhat_v, dhat_w)
         self.ray = (ray[0], ray[1], ray[2])
@@ -502,6 +540,7 @@ class AgentController:
     def _stop(self, reason: str, base: Tick | None = None) -> Tick:
         tick = base or Tick()
         self.anchor = None
+        self.reference = self.shift = (0.0, 0.0)
         self.ray = (1.0, 0.0, 0.0)
         tick.v, tick.w, tick.stopped = 0.0, 0.0, reason
         tick.dhat = (self.dhat[0], self.dhat[1])

@@ -128,6 +128,11 @@ class ControllerSpec(Strict):
         False, description="ROS controllers: carry the robot's pose forward from its stamp "
         '(capture time) to the tick, through the commands sent since, so a pose that is '
         '80 ms old does not make an 80 ms old command (PCs with synchronised clocks)')
+    command_latency: float = Field(
+        0.0, ge=0, le=0.25, allow_inf_nan=False, description="ROS controllers: the delay (s) "
+        "from a command leaving the PC to the robot's wheels (the link's, e.g. Wi-Fi and the "
+        'bridge): with predict_pose the pose is carried forward to when the command acts, '
+        'and the observer compares the motion with the command acting on it then')
     feed_forward: bool = Field(
         True, description="a moving curve's velocity at each target, G(s_i) xi-dot, is added "
         'to the command, so the formation keeps up instead of lagging (curves[].motion)')

@@ -101,6 +101,9 @@ PARAMETERS = (
           'xi-dot to the command'),
     Param('predict_pose', 'bool', False, 'carry the pose forward from its stamp to the tick '
           'through the commands sent since (clocks of pose source and this PC in sync)'),
+    Param('command_latency', 'double', 0.0, "delay (s) from a command leaving to the robot's "
+          'wheels: predict_pose carries the pose to when the command acts, the observer '
+          'compares the motion with the command acting on it', low=0.0, high=0.25),
     Param('fault_state_drop', 'double', 0.0, 'fault injection: probability of not publishing '
           'a formation_state message', low=0.0, high=1.0),
     Param('pc_disturbance', 'double[]', [0.0, 0.0], 'disturbance [d_v, d_w] added to the '
@@ -144,6 +147,7 @@ def node_parameters(config):
         'in_neighbours': [int(j) for j, _ in config.neighbours],
         'weights': [float(w) for _, w in config.neighbours],
         'predict_pose': bool(config.predict_pose),
+        'command_latency': float(config.command_latency),
         'feed_forward': bool(config.feed_forward),
         'compiled_law': bool(config.compiled),
     }
@@ -208,7 +212,7 @@ def agent_config(p):
         rate_hz=p.rate_hz, pose_timeout=p.pose_timeout, neighbour_timeout=p.neighbour_timeout,
         pc_disturbance=tuple(p.pc_disturbance), leader_timeout=p.leader_timeout,
         geofence=None if fence is None else tuple(fence), predict_pose=p.predict_pose,
-        feed_forward=p.feed_forward, compiled=p.compiled_law)
+        command_latency=p.command_latency, feed_forward=p.feed_forward, compiled=p.compiled_law)
 
 
 def _avoidance(p):
