@@ -354,23 +354,26 @@ def test_a_late_pose_is_carried_forward_to_the_tick_by_the_commands_sent_since()
     assert 0.5 < np.sqrt(np.mean(skewed ** 2)) / np.sqrt(np.mean(late ** 2)) < 0.95
 
 
-def delayed_leader(latency, told, seconds=12.0):
-    """The arena demo's leader alone at 10 Hz on poses at 30 Hz, each command acting on its
-    wheels `latency` s after it leaves (DrivenUnicycle), the controller told of that
-    (command_latency) or not. Returns dhat (ticks, 2) and the distances (m) between the pose
-    each tick's law used and the robot's true pose when that tick's command acted.
+def delayed_leader(name, latency, told, seconds=12.0):
+    """The leader of shipped experiment `name` alone (no safety filter) at 10 Hz on poses at
+    30 Hz, each command acting on its wheels `latency` s after it leaves (DrivenUnicycle), the
+    controller told of that (command_latency) or not. Returns its error norms (m) and dhat
+    (ticks, 2), and the distances (m) between the pose each tick's law used and the robot's
+    true pose when that tick's command acted.
     """
-    experiment = load_experiment(resolve_config('arena_demo'))
+    experiment = load_experiment(resolve_config(name))
     config = dataclasses.replace(agent_configs(experiment, 10.0)[0], avoidance=AVOIDANCE_OFF,
                                  command_latency=latency if told else 0.0)
-    assert config.predict_pose and not config.law.on_pc
+    assert config.predict_pose
     controller = AgentController(config)
     phase = experiment.phases[0]
     controller.set_curve(phase.curve, 0, phase.s)
-    robot = DrivenUnicycle(experiment.initial_poses[0], experiment.disturbance[0], latency)
+    # injected on the PC, the disturbance is in the commands already
+    drift = (0.0, 0.0) if config.law.on_pc else experiment.disturbance[0]
+    robot = DrivenUnicycle(experiment.initial_poses[0], drift, latency)
     steps_per_s = 30
     acted = round(latency * steps_per_s)
-    truth, used, dhat = [], [], []
+    truth, used, errors, dhat = [], [], [], []
     for step in range(int(seconds * steps_per_s)):
         t = step / steps_per_s
         robot.advance(t)
@@ -380,9 +383,10 @@ def delayed_leader(latency, told, seconds=12.0):
             tick = controller.tick(t)
             robot.drive(tick.v, tick.w, t)
             used.append((step + acted, tick.pose))
+            errors.append(math.hypot(*tick.error))
             dhat.append(tuple(controller.dhat))
     gaps = [math.dist(pose[:2], truth[at][:2]) for at, pose in used if at < len(truth)]
-    return np.array(dhat), np.array(gaps)
+    return np.array(errors), np.array(dhat), np.array(gaps)
 
 
 def test_a_stated_command_latency_is_predicted_over_and_kept_out_of_the_drift_estimate():
@@ -395,7 +399,7 @@ def test_a_stated_command_latency_is_predicted_over_and_kept_out_of_the_drift_es
     """
     true_dhat = np.array([0.005, 0.1]) / (1.0 / 3.0)
     for told in (False, True):
-        dhat, gaps = delayed_leader(0.2, told)
+        _, dhat, gaps = delayed_leader('arena_demo', 0.2, told)
         rms = np.sqrt(np.mean(gaps ** 2))
         overshoot = np.abs(dhat).max(axis=0) / true_dhat - 1.0
         if told:
@@ -404,5 +408,31 @@ def test_a_stated_command_latency_is_predicted_over_and_kept_out_of_the_drift_es
         else:
             assert rms > 0.002 and overshoot[1] > 0.5, (rms, overshoot)
     # With no latency, as before: the law's pose is the robot's.
-    _, gaps = delayed_leader(0.0, True)
+    _, _, gaps = delayed_leader('arena_demo', 0.0, True)
     assert np.abs(gaps).max() < 1e-9
+
+
+def settled_at(errors, period=0.1, fraction=0.01):
+    """When (s) errors (one a tick) come down to `fraction` of the first for good; None."""
+    above = np.flatnonzero(errors > fraction * errors[0])
+    if len(above) == 0 or above[-1] == len(errors) - 1:
+        return None if len(above) else 0.0
+    return (above[-1] + 1) * period
+
+
+def test_a_stated_command_latency_keeps_the_observers_search_from_cycling():
+    """mona_arena's leader, its disturbance 22x the wheel limit added on the PC: the
+    observer searches along the saturated motion, its step doubling each tick
+    (control.ray_growth). Commands acting 0.1 s late answer a step a tick later than the
+    search expects: not told, it overshoots, reverses and cycles, and the leader has not
+    settled after 60 s (27.9 s with no latency). Told, the step doubles once per tick and
+    latency in ticks (2^(1/2) a tick at 0.1 s, 2^(1/3) at 0.2 s): 29.6 s and 31.6 s.
+    """
+    seconds = 60.0
+    prompt = settled_at(delayed_leader('mona_arena', 0.0, True, seconds)[0])
+    assert prompt is not None and prompt < 40.0
+    for latency in (0.1, 0.2):
+        told = settled_at(delayed_leader('mona_arena', latency, True, seconds)[0])
+        assert told is not None and told < 1.2 * prompt, (latency, told, prompt)
+    untold = settled_at(delayed_leader('mona_arena', 0.1, False, seconds)[0])
+    assert untold is None or untold > 1.5 * prompt, (untold, prompt)

@@ -152,7 +152,8 @@ class AgentConfig:
     @cached_property
     def law(self) -> Law:
         """The control.Law of this agent's ticks (built once: the settings are frozen)."""
-        return self.gains.tick_law(self.rate_hz, on_pc=any(self.pc_disturbance))
+        return self.gains.tick_law(self.rate_hz, on_pc=any(self.pc_disturbance),
+                                   command_latency=self.command_latency)
 
 
 @dataclass

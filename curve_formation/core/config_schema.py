@@ -132,7 +132,8 @@ class ControllerSpec(Strict):
         0.0, ge=0, le=0.25, allow_inf_nan=False, description="ROS controllers: the delay (s) "
         "from a command leaving the PC to the robot's wheels (the link's, e.g. Wi-Fi and the "
         'bridge): with predict_pose the pose is carried forward to when the command acts, '
-        'and the observer compares the motion with the command acting on it then')
+        'the observer compares the motion with the command acting on it, and its search '
+        '(observer_growth) waits for the motion to answer')
     feed_forward: bool = Field(
         True, description="a moving curve's velocity at each target, G(s_i) xi-dot, is added "
         'to the command, so the formation keeps up instead of lagging (curves[].motion)')

@@ -103,7 +103,8 @@ PARAMETERS = (
           'through the commands sent since (clocks of pose source and this PC in sync)'),
     Param('command_latency', 'double', 0.0, "delay (s) from a command leaving to the robot's "
           'wheels: predict_pose carries the pose to when the command acts, the observer '
-          'compares the motion with the command acting on it', low=0.0, high=0.25),
+          'compares the motion with the command acting on it and searches no faster than '
+          'the motion answers', low=0.0, high=0.25),
     Param('fault_state_drop', 'double', 0.0, 'fault injection: probability of not publishing '
           'a formation_state message', low=0.0, high=1.0),
     Param('pc_disturbance', 'double[]', [0.0, 0.0], 'disturbance [d_v, d_w] added to the '
