@@ -72,8 +72,9 @@ def assert_within_envelope(t, ros, low, high, window, tolerance):
     below = ros[transient] / low[transient]
     above = ros[transient] / high[transient]
     assert below.min() > 1 / ENVELOPE_MARGIN and above.max() < ENVELOPE_MARGIN, (
-        f'ROS/sim-envelope ratios {below.min():.3f} .. {above.max():.3f} '
-        f'(at t = {t[transient][np.argmax(above)]:.1f} s)')
+        f'ROS/sim-envelope ratios {below.min():.3f} (at t = '
+        f'{t[transient][np.argmin(below)]:.2f} s) .. {above.max():.3f} (at t = '
+        f'{t[transient][np.argmax(above)]:.2f} s)')
     settled = window & (high < tolerance)
     assert np.all(ros[settled] < ENVELOPE_MARGIN * tolerance), (
         f'ROS error {ros[settled].max():.3g} above {ENVELOPE_MARGIN} x the tolerance '
@@ -217,7 +218,13 @@ def test_bodies_avoid_each_other_over_dds_as_the_simulator_predicts(ros_domain, 
     # edge of 12 simulations at 19.8 s ranged from 0.0095 to 0.30 over 20 seeds, so the
     # envelope is drawn from 100 (2 s of simulation), not from 12 as for the runs without
     # bodies. A single ROS run was measured 16x above a 12-run envelope at 19.8 s.
-    low, high = simulated_envelope(experiment, data['t'], 29.0, runs=100)
+    # Half the simulations start every follower at once: news of the leader may cross every
+    # hop within one pose instant (each state is sent on the pose fake_arena sends to all at
+    # once): a ROS run was 0.52x the staggered starts' lower edge at 12.4 s (1 of 5 runs),
+    # 100 simulations starting at once reach 0.51x of it there; the upper edge is unchanged.
+    staggered = simulated_envelope(experiment, data['t'], 29.0, runs=50)
+    at_once = simulated_envelope(experiment, data['t'], 29.0, runs=50, staggered_start=False)
+    low, high = np.minimum(staggered[0], at_once[0]), np.maximum(staggered[1], at_once[1])
     tolerance = 1e-3 * experiment.phases[0].curve.size()
     assert_within_envelope(data['t'], ros, low, high, data['t'] > 0.5, tolerance)
     assert result['all_settled'], result['phases']
