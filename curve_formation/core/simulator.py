@@ -480,7 +480,8 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
         for begin, end in zip([a] + cuts, cuts + [b], strict=True):
             if begin in reassign:
                 points = metrics.offset_points(poses, gains.offset)
-                new = reassigned(phase.curve_at(begin * dt), s, points)
+                new = reassigned(phase.curve_at(begin * dt), s, points,
+                                 meets=experiment.meeting(poses, avoidance))
                 if new is not s:
                     s, targets = new, phase.curve.points(new)
                     changes.append((begin * dt, s, targets))
