@@ -54,8 +54,7 @@ def test_node_controllers_reproduce_the_simulator_exactly(name, compiled):
     reassigned_at = []
     for step in range(int(round(duration / dt))):
         if every and step and step % int(round(every / dt)) == 0:
-            new = reassigned(phase.curve, s, offset_points(poses, experiment.gains.offset),
-                             meets=experiment.meeting(poses))
+            new = reassigned(phase.curve, s, offset_points(poses, experiment.gains.offset))
             if new is not s:
                 s = new
                 reassigned_at.append(step * dt)

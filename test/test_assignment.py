@@ -8,8 +8,6 @@ from curve_formation.core.assignment import (
     assigned_parameters,
     AssignmentError,
     check_assumptions,
-    Meeting,
-    meeting_distance,
     nearest_order,
     REASSIGN_LONGEST,
     reassigned,
@@ -134,57 +132,3 @@ def test_a_re_assignment_may_not_lengthen_the_longest_trip_beyond_the_cap(swappe
         np.testing.assert_array_equal(taken, s)
         np.testing.assert_array_equal(reassigned(TwoPoints(), s, points, longest=np.inf),
                                       [1.0, 0.0])
-
-
-@pytest.mark.parametrize('meets_now, meets_swapped, taken', [
-    (False, False, False),   # no meeting to take them out of: the longest trip may not grow
-    (True, False, True),     # the swap takes them out of a meeting: within the cap, taken
-    (True, True, False),     # still meeting after it: not worth a longer trip
-])
-def test_a_re_assignment_lengthens_the_longest_trip_only_to_take_robots_out_of_a_meeting(
-        meets_now, meets_swapped, taken):
-    """The swap of the cap test that makes A's trip 1.1 m (1.1x the longest now, within
-    REASSIGN_LONGEST), with a `meets` that says whether the robots' ways to the targets it
-    is given meet.
-    """
-    cos = (1.0 + 1.3 ** 2 - 1.1 ** 2) / (2 * 1.3)
-    points = np.array([[cos, np.sqrt(1.0 - cos ** 2)], [0.3, 0.0]])
-    s = np.array([0.0, 1.0])
-    now = TwoPoints().points(s)
-    asked = []
-
-    def meets(targets):
-        asked.append(np.array(targets))
-        return meets_now if np.array_equal(targets, now) else meets_swapped
-
-    got = reassigned(TwoPoints(), s, points, meets=meets)
-    np.testing.assert_array_equal(got, [1.0, 0.0] if taken else s)
-    assert any(np.array_equal(a, now) for a in asked)
-
-
-def test_meeting_sees_head_on_ways_and_a_target_on_another_robots_way():
-    """Two robots facing each other 1 m apart, each sent to where the other is, meet; sent
-    along parallel lanes 0.3 m apart they do not (0.1 m clearance). A robot parked on its
-    target in the middle of another's way meets it; one that reaches a target beside the way
-    does not. Turning first counts: a robot facing away from its target turns (a quarter
-    turn backwards with reverse, half a turn forwards without) before it drives.
-    """
-    speed, turn_rate, clearance = 0.0225, 0.5625, 0.1
-    facing = np.array([[0.0, 0.0], [1.0, 0.0]]), np.array([0.0, np.pi])
-    assert meeting_distance(*facing, [[1.0, 0.0], [0.0, 0.0]], speed, turn_rate) < 0.01
-    lanes = np.array([[0.0, 0.0], [1.0, 0.3]]), np.array([0.0, np.pi])
-    assert not Meeting(*lanes, speed, turn_rate, clearance)([[1.0, 0.0], [0.0, 0.3]])
-    assert abs(meeting_distance(*lanes, [[1.0, 0.0], [0.0, 0.3]], speed, turn_rate)
-               - 0.3) < 2 * speed * 0.1   # sampled every 0.1 s
-    # robot 2 a few cm from its target at (0.5, 0): there long before robot 1 passes
-    parked = np.array([[0.0, 0.0], [0.5, 0.05]]), np.array([0.0, -np.pi / 2])
-    assert Meeting(*parked, speed, turn_rate, clearance)([[1.0, 0.0], [0.5, 0.0]])
-    assert not Meeting(*parked, speed, turn_rate, clearance)([[1.0, 0.0], [0.5, 0.2]])
-    # robot 1 faces away: turning half a turn first (forwards only) lets robot 2 cross
-    # its way first (robot 2 crosses y = 0 at 4.4 s, robot 1 gets there after 5.6 s of
-    # turning), a quarter turn backwards (2.8 s) does not
-    crossing = np.array([[0.0, 0.0], [0.3, -0.1]]), np.array([np.pi, np.pi / 2])
-    ways = [[0.6, 0.0], [0.3, 0.3]]
-    forwards = meeting_distance(*crossing, ways, speed, turn_rate)
-    backwards = meeting_distance(*crossing, ways, speed, turn_rate, reverse=True)
-    assert forwards > backwards

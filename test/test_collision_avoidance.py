@@ -179,13 +179,13 @@ def test_the_drift_allowance_keeps_the_margin_while_the_drift_is_unlearnt():
 
 
 def test_a_switch_after_a_re_assignment_assigns_the_new_curve_from_where_robots_went():
-    """mona_arena from seed 25 re-assigns the first curve's targets at 10 s. At the switch the
+    """mona_arena from seed 13 re-assigns the first curve's targets at 1 s. At the switch the
     robots are at the re-assigned targets, not where the assignment made at load time assumed
     them: the second curve is assigned from there (the curve server does the same), which
-    here shortens the longest trip of the switch from 0.59 m to 0.47 m.
+    here shortens the longest trip of the switch from 0.70 m to 0.47 m.
     """
     case = load_experiment(resolve_config('mona_arena'))
-    experiment = with_start(case, seeded_start(case, 25))
+    experiment = with_start(case, seeded_start(case, 13))
     result = simulate(experiment, duration=90.0)
     first, second = result.experiment.phases[:2]
     assert first.changes
@@ -194,7 +194,7 @@ def test_a_switch_after_a_re_assignment_assigns_the_new_curve_from_where_robots_
     assert not np.array_equal(second.s, loaded.s)
     np.testing.assert_array_equal(second.s, loaded.s[nearest_order(there, loaded.targets)])
     longest = np.linalg.norm(second.targets - there, axis=1).max()
-    assert longest < 0.9 * np.linalg.norm(loaded.targets - there, axis=1).max()
+    assert longest < 0.8 * np.linalg.norm(loaded.targets - there, axis=1).max()
     # and that is where they went
     points = metrics.steered_points(result.poses[-1:], second.targets[None], result.gains)[0]
     assert np.linalg.norm(points - second.targets, axis=1).max() < 1e-3

@@ -1,12 +1,8 @@
 """Curve parameters s_i of the agents and the paper's Assumptions 1 and 2."""
 
-from dataclasses import dataclass
-import math
-
 import numpy as np
 
 from curve_formation.core.curves import CurveError
-from curve_formation.core.shapes import FloatArray
 
 
 SPACINGS = ('uniform_s', 'arc_length')
@@ -84,25 +80,19 @@ def assigned_parameters(curve, s, points, assignment):
 
 # Re-assignment takes a new order only if it shortens the squared trips by this share.
 REASSIGN_IMPROVEMENT = 0.1
-# ... and only if no trip becomes longer than the longest one now, or, where the robots' ways
-# as they are would meet (Meeting: bodies closer than they may come) and the new ones would
-# not, no longer than this many times it (mona_arena seed 27: a 7-robot rotation cut the
-# squared sum by 10.5 % and lengthened the longest trip 49 -> 64 cm, 1.51x the straight-trip
-# bound instead of 1.25x; arena_demo seed 18: a swap that lengthened it 33 -> 39 cm (1.18x)
-# took two robots out of each other's way, 1.22x instead of 1.36x;
+# ... and only if no trip becomes longer than this many times the longest one now (mona_arena
+# seed 27: a 7-robot rotation cut the squared sum by 10.5 % and lengthened the longest trip
+# 49 -> 64 cm, 1.51x the straight-trip bound instead of 1.25x; arena_demo seed 18: a swap
+# that lengthened it 33 -> 39 cm (1.18x) untangled a jam, 1.27x instead of 1.55x;
 # docs/collision-avoidance.md).
 REASSIGN_LONGEST = 1.2
 
 
-def reassigned(curve, s, points, improvement=REASSIGN_IMPROVEMENT, longest=REASSIGN_LONGEST,
-               meets=None):
+def reassigned(curve, s, points, improvement=REASSIGN_IMPROVEMENT, longest=REASSIGN_LONGEST):
     """The agents' parameters s (n,) permuted among them so that the agents at `points` (n, 2;
     their control points, arena frame, m) go to the same n curve points with the smallest sum
     of squared distances, no trip longer than `longest` times the longest one now, if that
     sum is smaller than the current one by more than `improvement` (a share); else s as it is.
-    With `meets` (targets (n, 2) -> bool: would the robots' ways to them bring two bodies too
-    close; Meeting), a trip may become longer than the longest now only where the order as it
-    is meets and the new one does not.
 
     The sum of squared trips is the assignment under which straight paths do not cross
     (Turpin, Michael, Kumar: CAPT, 2014): re-assigning while robots travel swaps the targets of
@@ -116,64 +106,13 @@ def reassigned(curve, s, points, improvement=REASSIGN_IMPROVEMENT, longest=REASS
     points = np.asarray(points, float)
     targets = curve.points(s)
     cost = ((points[:, None, :] - targets[None, :, :]) ** 2).sum(axis=2)
-    now = np.diag(cost).max()
-
-    def cheapest(factor):   # at least the longest trip now: the order as it is qualifies
-        rows, cols = linear_sum_assignment(np.where(cost <= max(factor, 1.0) ** 2 * now, cost,
-                                                    np.inf))
-        return cols[np.argsort(rows)]
-
-    order = cheapest(longest)
-    if meets is not None and longest > 1.0 and (not meets(targets) or meets(targets[order])):
-        order = cheapest(1.0)
-    if cost[np.arange(len(s)), order].sum() < (1.0 - improvement) * np.trace(cost):
-        return s[order]
+    # at least the longest trip now, so that the order as it is is always allowed
+    cap = max(longest, 1.0) ** 2 * np.diag(cost).max()
+    allowed = np.where(cost <= cap, cost, np.inf)
+    rows, cols = linear_sum_assignment(allowed)
+    if cost[rows, cols].sum() < (1.0 - improvement) * np.trace(cost):
+        return s[cols[np.argsort(rows)]]
     return s
-
-
-@dataclass(frozen=True)
-class Meeting:
-    """Would robots on their ways to targets (n, 2) come closer than `clearance` (m)?
-
-    Each robot turns in place to face its target (forwards or, with `reverse`, backwards,
-    whichever turn is smaller) at `turn_rate` (rad/s), then drives straight to it at `speed`
-    (m/s) and waits there: the fastest way with bounded wheel speeds (Balkcom and Mason, IJRR
-    2002). points (n, 2): control points (m), headings (n,) (rad), arena frame.
-    """
-
-    points: FloatArray
-    headings: FloatArray
-    speed: float
-    turn_rate: float
-    clearance: float
-    reverse: bool = False
-
-    def __call__(self, targets: FloatArray) -> bool:
-        return meeting_distance(self.points, self.headings, targets, self.speed,
-                                self.turn_rate, self.reverse) < self.clearance
-
-
-def meeting_distance(points, headings, targets, speed, turn_rate, reverse=False, step=0.1):
-    """The closest two robots come (m) on their ways to `targets` (Meeting's motion), sampled
-    every `step` (s): at most 2 speed step below the true closest.
-    """
-    points = np.asarray(points, float)
-    if len(points) < 2:
-        return math.inf
-    trips = np.asarray(targets, float) - points
-    length = np.linalg.norm(trips, axis=1)
-    ways = trips / np.maximum(length, 1e-12)[:, None]
-    off = np.abs(np.remainder(np.arctan2(trips[:, 1], trips[:, 0]) - headings + np.pi,
-                              2.0 * np.pi) - np.pi)
-    if reverse:
-        off = np.minimum(off, np.pi - off)
-    turned = off / turn_rate
-    t = np.arange(0.0, float((turned + length / speed).max()) + step, step)
-    along = np.clip((t[None, :] - turned[:, None]) * speed, 0.0, length[:, None])   # (n, T)
-    where = points[:, None, :] + along[..., None] * ways[:, None, :]
-    gaps = np.linalg.norm(where[:, None] - where[None, :], axis=3).min(axis=2)
-    gaps[np.diag_indices(len(points))] = np.inf
-    return float(gaps.min())
 
 
 def phase_parameters(curve, n, spacing, assignment, from_points):

@@ -18,12 +18,7 @@ from scipy.spatial.distance import pdist
 
 from curve_formation.core import curve_sources, safe_yaml
 from curve_formation.core.aruco import MARKER_IDS
-from curve_formation.core.assignment import (
-    AssignmentError,
-    Meeting,
-    nearest_order,
-    phase_parameters,
-)
+from curve_formation.core.assignment import AssignmentError, nearest_order, phase_parameters
 from curve_formation.core.config_schema import (
     ControllerSpec,
     CurveSpec,
@@ -119,20 +114,6 @@ class Experiment:
         if reassigned and self.spec.agents.assignment == 'nearest':
             return phase.assigned_from(targets)
         return phase
-
-    def meeting(self, poses: FloatArray, avoidance: Avoidance | None = None
-                ) -> Meeting | None:
-        """Whether robots at `poses` (n, 3; arena frame) would meet on their ways to given
-        targets (assignment.Meeting: bodies closer than 2 radius + margin), for re-assignment;
-        None without avoidance (point robots re-assign as they always have).
-        """
-        avoidance = self.avoidance if avoidance is None else avoidance
-        speed, base = self.limits.max_wheel_speed, self.limits.wheel_base
-        if not avoidance.on or not 0.0 < speed < math.inf or base <= 0.0:
-            return None
-        return Meeting(offset_points(poses, self.gains.offset), np.asarray(poses)[:, 2], speed,
-                       2.0 * speed / base, 2.0 * avoidance.radius + avoidance.margin,
-                       self.gains.reverse)
 
     def report(self) -> dict[str, Any]:
         """What was checked, as a JSON-ready dict: graph, Theorem 1, Assumptions 1-2, fits."""

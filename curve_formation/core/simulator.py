@@ -480,8 +480,7 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
         for begin, end in zip([a] + cuts, cuts + [b], strict=True):
             if begin in reassign:
                 points = metrics.offset_points(poses, gains.offset)
-                new = reassigned(phase.curve_at(begin * dt), s, points,
-                                 meets=experiment.meeting(poses, avoidance))
+                new = reassigned(phase.curve_at(begin * dt), s, points)
                 if new is not s:
                     s, targets = new, phase.curve.points(new)
                     changes.append((begin * dt, s, targets))

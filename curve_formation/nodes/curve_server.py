@@ -174,8 +174,7 @@ class CurveServer(Node):
                 or now_seconds(self) - stamp > self.params.pose_timeout):
             return
         curve, curve_id, s, rate = self.current
-        new = reassigned(curve, s, offset_points(poses, self.experiment.gains.offset),
-                         meets=self.experiment.meeting(poses))
+        new = reassigned(curve, s, offset_points(poses, self.experiment.gains.offset))
         if new is not s:
             self.reassigned = True
             self.publish_curve(curve, new, curve_id, rate)
