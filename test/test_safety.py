@@ -146,7 +146,7 @@ def test_dropped_messages_and_latency_still_converge_at_arena_speeds(ros_domain,
         experiment = tmp_path / 'arena_demo_told.yaml'
         experiment.write_text(text.replace('predict_pose: true,',
                                            'predict_pose: true, command_latency: 0.2,'))
-        late = -9.0
+        late = 1.0
     options = RunOptions(command_latency=0.2, bag_path=tmp_path / 'bag',
                          faults={'pose_drop': 0.2, 'state_drop': 0.2})
     with Run(experiment, tmp_path, options, log=quiet) as run:
