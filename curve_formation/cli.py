@@ -281,12 +281,15 @@ def _cmd_estop(args):
         while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
             time.sleep(0.05)
         pub.wait_for_all_acked()
-        # Latched: stay up so that controllers starting now also get it, until Ctrl-C.
+        # Latched: stay up so that controllers starting now also get it, until Ctrl-C; sent
+        # again every second for one that missed the latched message (Fast DDS can fail to
+        # deliver a late joiner its history).
         print(f'e-stop {args.state} ({pub.get_subscription_count()} controllers acknowledged);'
               ' Ctrl-C to quit')
         if args.hold:
             while True:
                 time.sleep(1.0)
+                pub.publish(Bool(data=args.state == 'on'))
     except KeyboardInterrupt:
         pass
     finally:
@@ -443,7 +446,8 @@ def build_parser():
     estop.add_argument('--wait', type=not_negative, default=2.0,
                        help='seconds to wait for controllers to be reached')
     estop.add_argument('--hold', action='store_true',
-                       help='stay up so late-starting controllers get it too')
+                       help='stay up, sending it again every second, so late-starting '
+                       'controllers get it too')
     estop.set_defaults(func=_cmd_estop)
     server = sub.add_parser('discovery-server', help='run a Fast DDS discovery server (for '
                             'networks where multicast fails; runs use it with '

@@ -128,6 +128,31 @@ def test_curve_server_also_waits_until_its_publisher_reaches_that_many_readers(r
     assert server.next_id == 1
 
 
+@pytest.mark.parametrize('period', [0.4, 0.0])
+def test_curve_server_publishes_its_curve_again_for_a_reader_that_missed_it(ros, period):
+    """A reader that never got the latched curve (here: a volatile subscription, which is
+    given no history, as a restarted controller is not when Fast DDS fails to deliver it)
+    receives the current curve, same id, within refresh_period; with 0, never.
+    """
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    context, add, spin_until = ros
+    server = add(CurveServer(context=context, parameter_overrides=overrides(
+        experiment='closed_curve', refresh_period=period)))
+    spin_until(lambda: server.next_id == 1)
+    node = add(rclpy.create_node('late', context=context))
+    received = []
+    node.create_subscription(Float64MultiArray, topics.CURVE,
+                             lambda m: received.append(messages.curve_from_msg(m)[1]),
+                             QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                        durability=DurabilityPolicy.VOLATILE))
+    deadline = time.monotonic() + 3.0
+    spin_until(lambda: len(received) >= 2 or time.monotonic() > deadline)
+    if period:
+        assert received[:2] == [0, 0] and server.next_id == 1
+    else:
+        assert received == []
+
+
 def test_follower_drives_only_while_its_inputs_are_fresh(ros):
     context, add, spin_until = ros
     ctrl = add(FormationController(context=context, namespace='/robot_2', parameter_overrides=(

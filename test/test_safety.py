@@ -3,7 +3,11 @@
 Graph of fast_closed.yaml: 1 -> 2, 3; 2 -> 3, 4; 3 -> 4; 4 -> 5, 6; 5 -> 6; 6 -> 2.
 """
 
+import os
 import re
+import signal
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -120,6 +124,36 @@ def test_estop_a_killed_follower_and_the_killed_leader_each_stop_whom_they_shoul
         kinds = [re.sub(r'\(.*?\)|for [\d.]+ s', '#', line)   # the reason, not its age
                  for line in re.findall(r': (stopped: .*|driving)$', log, re.MULTILINE)]
         assert all(a != b for a, b in zip(kinds, kinds[1:], strict=False)), (i, log)
+
+
+def test_estop_command_holds_the_stop_sending_it_again_until_ctrl_c(ros):
+    """`curve-formation estop on --hold`: a controller that never got the latched message
+    (a volatile subscription here: no history) still gets the stop, within a second; a late
+    latched one gets it at once; Ctrl-C ends the command cleanly.
+    """
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    context, add, spin_until = ros
+    import rclpy
+    node = add(rclpy.create_node('probe', context=context))
+    volatile = []
+    node.create_subscription(Bool, topics.ESTOP, lambda m: volatile.append(m.data),
+                             QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE,
+                                        durability=DurabilityPolicy.VOLATILE))
+    proc = subprocess.Popen([sys.executable, '-m', 'curve_formation.cli', 'estop', 'on',
+                             '--hold', '--wait', '0'], env=dict(os.environ),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        spin_until(lambda: len(volatile) >= 2, timeout=20.0)
+        assert all(volatile)
+        latched = []
+        node.create_subscription(Bool, topics.ESTOP, lambda m: latched.append(m.data),
+                                 qos.LATCHED)
+        spin_until(lambda: latched, timeout=5.0)
+        assert latched[0] is True
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0 and 'e-stop on' in out, (out, err)
 
 
 @pytest.mark.parametrize('told', [True, pytest.param(False, marks=pytest.mark.slow)],

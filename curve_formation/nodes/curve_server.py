@@ -8,9 +8,10 @@ by its shape (curve_sources.fit_points) and publishes it as the next curve; with
 only observed curves are published (a curve drawn on the floor). Curve ids count up from 0 in the
 order curves are published. Each curve carries every agent's curve parameter s_i, as the
 experiment's `spacing` and `assignment` give them (an observed curve is assigned from the previous
-curve's targets); with `reassign_every`, the current curve is published again (same id) whenever
-re-assigning its targets among the robots, from their poses on /formation/robot_poses, shortens
-their squared trips by 10 %; the next scheduled curve is then assigned from the targets as
+curve's targets). The current curve is published again every `refresh_period` s (same id), for
+readers that missed it; with `reassign_every`, the current curve is published again (same id)
+whenever re-assigning its targets among the robots, from their poses on /formation/robot_poses,
+shortens their squared trips by 10 %; the next scheduled curve is then assigned from the targets as
 re-assigned (Phase.assigned_from), as the simulator does.
 """
 
@@ -59,6 +60,11 @@ PARAMETERS = (
           'have said on /formation/ready that they receive /formation/curve from this server, '
           'and its publisher has matched as many subscriptions, so all robots start together '
           '(readiness.py)', low=0),
+    Param('refresh_period', 'double', 1.0, 'the current curve is published again (same id, '
+          'same agent parameters) once nothing was published on /formation/curve for this '
+          'long (s), so a reader that missed the latched message (a restarted controller: '
+          'Fast DDS can fail to deliver a late joiner its history) gets it; 0 = never',
+          low=0.0),
 )
 
 
@@ -98,6 +104,7 @@ class CurveServer(Node):
                                      self.experiment.gains.offset)
         self.start = None
         self.current = None   # (curve, curve id, s, rate) last published
+        self.published_at = None   # s, when the last curve message was published
         self.last_observed = None   # (stamp s, closed, points bytes) of the last observed curve
         self.moving = None    # the Phase being published as it moves
         self.poses = None     # (poses (n, 3), stamp s) last received
@@ -130,6 +137,8 @@ class CurveServer(Node):
             if self.reassign_every > 0:
                 self.create_timer(self.reassign_every, self._reassign)
             self.create_timer(1.0 / self.params.moving_rate_hz, self._renew_moving)
+            if self.params.refresh_period > 0:
+                self.create_timer(self.params.refresh_period / 4, self._refresh)
         phases = self.experiment.phases if self.params.schedule else ()
         elapsed = now_seconds(self) - self.start
         while self.next_phase < len(phases) and phases[self.next_phase].start <= elapsed:
@@ -156,6 +165,17 @@ class CurveServer(Node):
         tau = now_seconds(self) - self.start - phase.start
         self.publish_curve(phase.motion.curve(phase.curve, tau), s, curve_id,
                            phase.motion.rate(phase.curve, tau), quiet=True)
+
+    def _refresh(self):
+        """Publish the current curve message again once refresh_period has passed without
+        one (a moving curve is renewed more often than that anyway).
+        """
+        if (self.current is None or self.moving is not None
+                or now_seconds(self) - self.published_at < self.params.refresh_period):
+            return
+        curve, curve_id, s, rate = self.current
+        self.published_at = now_seconds(self)
+        self.curve_pub.publish(messages.curve_to_msg(curve, curve_id, s, rate))
 
     def _on_poses(self, msg):
         try:
@@ -191,6 +211,7 @@ class CurveServer(Node):
         targets = curve.points(s)
         self.targets = targets
         self.current = (curve, curve_id, s, rate)
+        self.published_at = now_seconds(self)
         self.curve_pub.publish(messages.curve_to_msg(curve, curve_id, s, rate))
         stamp = self.get_clock().now().to_msg()
         _, pts = curve.sample(self.params.path_samples)
