@@ -18,6 +18,7 @@ re-assigned (Phase.assigned_from), as the simulator does.
 from geometry_msgs.msg import Point, PoseStamped
 from nav_msgs.msg import Path
 import numpy as np
+from rclpy.duration import Duration
 from rclpy.node import Node
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
@@ -176,6 +177,12 @@ class CurveServer(Node):
         curve, curve_id, s, rate = self.current
         self.published_at = now_seconds(self)
         self.curve_pub.publish(messages.curve_to_msg(curve, curve_id, s, rate))
+
+    def on_shutdown(self):
+        """Wait (0.5 s at most) until the last curve message is acknowledged, so that a
+        recorder misses none of them.
+        """
+        self.curve_pub.wait_for_all_acked(Duration(seconds=0.5))
 
     def _on_poses(self, msg):
         try:
