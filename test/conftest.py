@@ -39,6 +39,15 @@ def paper_arena():
 DATA_DIR = Path(__file__).resolve().parent / 'data'
 
 
+def no_history_qos():
+    """Reliable, volatile: a reader given none of a latched writer's history, as a late
+    joiner is when Fast DDS fails to deliver it.
+    """
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    return QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)
+
+
 @pytest.fixture
 def ros_domain(monkeypatch):
     """A private ROS_DOMAIN_ID for this test, DDS discovery on this machine only."""

@@ -15,7 +15,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 import yaml
 
-from conftest import DATA_DIR
+from conftest import DATA_DIR, no_history_qos
 from curve_formation.core.agent import State
 from curve_formation.core.curve_sources import expression_samples
 from curve_formation.core.curves import fit_curve, FourierBasis
@@ -134,7 +134,6 @@ def test_curve_server_publishes_its_curve_again_for_a_reader_that_missed_it(ros,
     given no history, as a restarted controller is not when Fast DDS fails to deliver it)
     receives the current curve, same id, within refresh_period; with 0, never.
     """
-    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     context, add, spin_until = ros
     server = add(CurveServer(context=context, parameter_overrides=overrides(
         experiment='closed_curve', refresh_period=period)))
@@ -143,8 +142,7 @@ def test_curve_server_publishes_its_curve_again_for_a_reader_that_missed_it(ros,
     received = []
     node.create_subscription(Float64MultiArray, topics.CURVE,
                              lambda m: received.append(messages.curve_from_msg(m)[1]),
-                             QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                                        durability=DurabilityPolicy.VOLATILE))
+                             no_history_qos())
     deadline = time.monotonic() + 3.0
     spin_until(lambda: len(received) >= 2 or time.monotonic() > deadline)
     if period:

@@ -11,9 +11,10 @@ import sys
 
 import numpy as np
 import pytest
+import rclpy
 from std_msgs.msg import Bool
 
-from conftest import CONFIG_DIR, DATA_DIR
+from conftest import CONFIG_DIR, DATA_DIR, no_history_qos
 from curve_formation.core import metrics
 from curve_formation.core.simulator import simulate
 from curve_formation.nodes import qos, topics
@@ -131,14 +132,11 @@ def test_estop_command_holds_the_stop_sending_it_again_until_ctrl_c(ros):
     (a volatile subscription here: no history) still gets the stop, within a second; a late
     latched one gets it at once; Ctrl-C ends the command cleanly.
     """
-    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     context, add, spin_until = ros
-    import rclpy
     node = add(rclpy.create_node('probe', context=context))
     volatile = []
     node.create_subscription(Bool, topics.ESTOP, lambda m: volatile.append(m.data),
-                             QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE,
-                                        durability=DurabilityPolicy.VOLATILE))
+                             no_history_qos())
     proc = subprocess.Popen([sys.executable, '-m', 'curve_formation.cli', 'estop', 'on',
                              '--hold', '--wait', '0'], env=dict(os.environ),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

@@ -105,7 +105,7 @@ class CurveServer(Node):
                                      self.experiment.gains.offset)
         self.start = None
         self.current = None   # (curve, curve id, s, rate) last published
-        self.published_at = None   # s, when the last curve message was published
+        self.refresh_timer = None   # fires refresh_period after the last curve message
         self.last_observed = None   # (stamp s, closed, points bytes) of the last observed curve
         self.moving = None    # the Phase being published as it moves
         self.poses = None     # (poses (n, 3), stamp s) last received
@@ -139,7 +139,8 @@ class CurveServer(Node):
                 self.create_timer(self.reassign_every, self._reassign)
             self.create_timer(1.0 / self.params.moving_rate_hz, self._renew_moving)
             if self.params.refresh_period > 0:
-                self.create_timer(self.params.refresh_period / 4, self._refresh)
+                self.refresh_timer = self.create_timer(self.params.refresh_period,
+                                                       self._refresh)
         phases = self.experiment.phases if self.params.schedule else ()
         elapsed = now_seconds(self) - self.start
         while self.next_phase < len(phases) and phases[self.next_phase].start <= elapsed:
@@ -168,14 +169,17 @@ class CurveServer(Node):
                            phase.motion.rate(phase.curve, tau), quiet=True)
 
     def _refresh(self):
-        """Publish the current curve message again once refresh_period has passed without
-        one (a moving curve is renewed more often than that anyway).
+        """Publish the current curve message again: refresh_period has passed without one
+        (a moving curve is renewed more often than that anyway).
         """
-        if (self.current is None or self.moving is not None
-                or now_seconds(self) - self.published_at < self.params.refresh_period):
-            return
+        if self.current is not None and self.moving is None:
+            self._send_current()
+
+    def _send_current(self):
+        """Publish the current curve message; the refresh waits a whole period from now."""
         curve, curve_id, s, rate = self.current
-        self.published_at = now_seconds(self)
+        if self.refresh_timer is not None:
+            self.refresh_timer.reset()
         self.curve_pub.publish(messages.curve_to_msg(curve, curve_id, s, rate))
 
     def on_shutdown(self):
@@ -218,8 +222,7 @@ class CurveServer(Node):
         targets = curve.points(s)
         self.targets = targets
         self.current = (curve, curve_id, s, rate)
-        self.published_at = now_seconds(self)
-        self.curve_pub.publish(messages.curve_to_msg(curve, curve_id, s, rate))
+        self._send_current()
         stamp = self.get_clock().now().to_msg()
         _, pts = curve.sample(self.params.path_samples)
         if curve.basis.closed:
