@@ -7,10 +7,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from curve_formation.core.experiment import load_experiment
+from curve_formation.core.experiment import load_experiment, received_phases
 from curve_formation.core.motion import CurveMotion
 from curve_formation.core.simulator import simulate
 from curve_formation.paths import resolve_config
+
+from conftest import DATA_DIR
 
 
 @pytest.fixture(scope='module')
@@ -31,6 +33,37 @@ def test_a_moved_curve_is_the_moved_points_and_its_rate_their_velocity(phase):
                    - motion.curve(curve, tau - h).points(s)) / (2 * h)
         np.testing.assert_allclose(motion.rate(curve, tau).points(s), numeric, atol=1e-8)
         np.testing.assert_allclose(motion.velocities(curve.points(s), tau), numeric, atol=1e-8)
+
+
+def test_the_time_a_moved_curve_has_moved_for_is_found_from_the_curve_alone():
+    curve = load_experiment(resolve_config('drawn_curve')).phases[0].curve
+    motion = CurveMotion((0.01, -0.02), 0.3, -0.05, (0.9, 0.4))
+    for tau in (0.05, 1.7, 6.0):
+        assert motion.elapsed(curve, motion.curve(curve, tau), guess=tau + 0.4) == \
+            pytest.approx(tau, abs=1e-6)
+    assert motion.elapsed(curve, curve, guess=1.0) is None
+    assert CurveMotion().elapsed(curve, CurveMotion().curve(curve, 2.0), guess=2.0) is None
+
+
+@pytest.mark.parametrize('late', [0.0, 0.3])
+def test_a_moving_curve_received_late_is_judged_from_when_its_renewals_show_it_began(late):
+    """A reader that gets a moving curve's first message `late` s after it was sent (seen:
+    0.3 s, a late-joining monitor) and its 10 Hz renewals 1-20 ms after theirs: its phase
+    starts `late` s before the first message, not at it (else every robot, on its moving
+    target, reads `late` * 1 cm/s ahead of it).
+    """
+    experiment = load_experiment(DATA_DIR / 'moving_loop.yaml')
+    phase = experiment.phases[0]
+    lags = np.random.default_rng(0).uniform(0.001, 0.02, 40)
+    sent = 0.1 * np.arange(40)
+    got = sent - late + lags
+    renewals = np.flatnonzero((sent > 0) & (got > 0))
+    messages = [(0.0, 0, phase.curve, phase.s)]
+    messages += [(got[k], 0, phase.motion.curve(phase.curve, sent[k]), phase.s)
+                 for k in renewals]
+    received, = received_phases(experiment, messages)
+    assert received.start == pytest.approx(min(0.0, (got - sent)[renewals].min()), abs=1e-5)
+    assert received.motion == phase.motion and not received.changes
 
 
 def test_the_next_phase_is_assigned_from_where_the_moving_curve_left_its_targets(moving):

@@ -317,8 +317,9 @@ def received_phases(experiment: Experiment,
     parameters the message carried. The first message of an id starts a phase; a later one
     with the same id re-assigns its targets (Phase.changes) or, for a moving curve, only
     renews it. A curve equal to the schedule's curve of the same index keeps that phase's fit
-    (residuals) and motion (from the phase's first message on); any other (an observed
-    curve) has no fit residual (NaN).
+    (residuals) and motion, from the phase's first message on or from earlier, where its
+    renewals show the first came late (_moving_since); any other (an observed curve) has no
+    fit residual (NaN).
     """
     phases: list[Phase] = []
     ids: list[int] = []
@@ -326,6 +327,8 @@ def received_phases(experiment: Experiment,
         s = np.asarray(given, dtype=float)
         if ids and curve_id == ids[-1]:
             last = phases[-1]
+            if last.motion is not None:
+                last = phases[-1] = _moving_since(last, when, curve)
             if not np.array_equal(s, last.changes[-1][1] if last.changes else last.s):
                 phases[-1] = dataclasses.replace(   # targets on the curve as it started
                     last, changes=last.changes + ((float(when), s, last.curve.points(s)),))
@@ -342,6 +345,20 @@ def received_phases(experiment: Experiment,
                             motion=motion))
         ids.append(curve_id)
     return tuple(phases)
+
+
+def _moving_since(phase: Phase, when: float, renewal: Curve) -> Phase:
+    """A moving phase started no later than a renewal received at `when` (s) tells: the
+    renewal is the curve `elapsed` s into its motion, so the phase began at most `when -
+    elapsed` (the earliest over the renewals: a message only arrives late). A reader that
+    joined late gets the first message when the curve has already moved (as a latched
+    message, 0.3 s late was seen), and would judge the robots against a curve left behind.
+    """
+    assert phase.motion is not None
+    elapsed = phase.motion.elapsed(phase.curve, renewal, when - phase.start)
+    if elapsed is None or when - elapsed >= phase.start:
+        return phase
+    return dataclasses.replace(phase, start=when - elapsed)
 
 
 def _build_phases(spec: ExperimentSpec, source: str, start_points: FloatArray

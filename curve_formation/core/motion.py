@@ -61,6 +61,22 @@ class CurveMotion:
         return self._mapped(curve, rate, np.asarray(self.velocity)
                             - np.asarray(self.about, float) @ rate.T)
 
+    def elapsed(self, curve: Curve, moved: Curve, guess: float, window: float = 5.0
+                ) -> float | None:
+        """tau (s) at which this motion takes `curve` (tau = 0) to `moved`, searched within
+        `window` s of `guess`; None where the motion does not tell (moved as the curve is).
+        """
+        from scipy.optimize import minimize_scalar   # only analysis needs it
+        if np.allclose(moved.coeffs, curve.coeffs, rtol=0.0, atol=1e-15):
+            return None
+
+        def mismatch(tau):
+            return float(((self.curve(curve, tau).coeffs - moved.coeffs) ** 2).sum())
+
+        found = minimize_scalar(mismatch, bounds=(max(0.0, guess - window), guess + window),
+                                method='bounded', options={'xatol': 1e-7})
+        return float(found.x)
+
     @staticmethod
     def _mapped(curve: Curve, linear: FloatArray, shift: FloatArray) -> Curve:
         """The curve s -> linear c(s) + shift."""
