@@ -7,12 +7,11 @@ import dataclasses
 import numpy as np
 import pytest
 
+from conftest import DATA_DIR
 from curve_formation.core.experiment import load_experiment, received_phases
 from curve_formation.core.motion import CurveMotion
 from curve_formation.core.simulator import simulate
 from curve_formation.paths import resolve_config
-
-from conftest import DATA_DIR
 
 
 @pytest.fixture(scope='module')

@@ -66,7 +66,8 @@ class CurveMotion:
         """tau (s) at which this motion takes `curve` (tau = 0) to `moved`, searched within
         `window` s of `guess`; None where the motion does not tell (moved as the curve is).
         """
-        from scipy.optimize import minimize_scalar   # only analysis needs it
+        # Imported here: only a run's analysis needs it, not a node's start-up.
+        from scipy.optimize import minimize_scalar
         if np.allclose(moved.coeffs, curve.coeffs, rtol=0.0, atol=1e-15):
             return None
 
