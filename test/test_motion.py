@@ -41,6 +41,8 @@ def test_the_time_a_moved_curve_has_moved_for_is_found_from_the_curve_alone():
         assert motion.elapsed(curve, motion.curve(curve, tau), guess=tau + 0.4) == \
             pytest.approx(tau, abs=1e-6)
     assert motion.elapsed(curve, curve, guess=1.0) is None
+    other = CurveMotion((0.0, 0.01)).curve(curve, 1.0)   # moved, but not by this motion
+    assert motion.elapsed(curve, other, guess=1.0) is None
     assert CurveMotion().elapsed(curve, CurveMotion().curve(curve, 2.0), guess=2.0) is None
 
 

@@ -328,7 +328,7 @@ def received_phases(experiment: Experiment,
         if ids and curve_id == ids[-1]:
             last = phases[-1]
             if last.motion is not None:
-                last = phases[-1] = _moving_since(last, when, curve)
+                last = phases[-1] = _moving_since(last, last.motion, when, curve)
             if not np.array_equal(s, last.changes[-1][1] if last.changes else last.s):
                 phases[-1] = dataclasses.replace(   # targets on the curve as it started
                     last, changes=last.changes + ((float(when), s, last.curve.points(s)),))
@@ -347,15 +347,15 @@ def received_phases(experiment: Experiment,
     return tuple(phases)
 
 
-def _moving_since(phase: Phase, when: float, renewal: Curve) -> Phase:
-    """A moving phase started no later than a renewal received at `when` (s) tells: the
-    renewal is the curve `elapsed` s into its motion, so the phase began at most `when -
-    elapsed` (the earliest over the renewals: a message only arrives late). A reader that
-    joined late gets the first message when the curve has already moved (as a latched
-    message, 0.3 s late was seen), and would judge the robots against a curve left behind.
+def _moving_since(phase: Phase, motion: CurveMotion, when: float, renewal: Curve) -> Phase:
+    """A phase moving by `motion` started no later than a renewal received at `when`
+    (s) tells: the renewal is the curve `elapsed` s into its motion, so the phase began at
+    most `when - elapsed` (the earliest over the renewals: a message only arrives late). A
+    reader that joined late gets the first message when the curve has already moved (as a
+    latched message, 0.3 s late was seen), and would judge the robots against a curve left
+    behind.
     """
-    assert phase.motion is not None
-    elapsed = phase.motion.elapsed(phase.curve, renewal, when - phase.start)
+    elapsed = motion.elapsed(phase.curve, renewal, when - phase.start)
     if elapsed is None or when - elapsed >= phase.start:
         return phase
     return dataclasses.replace(phase, start=when - elapsed)

@@ -64,7 +64,8 @@ class CurveMotion:
     def elapsed(self, curve: Curve, moved: Curve, guess: float, window: float = 5.0
                 ) -> float | None:
         """tau (s) at which this motion takes `curve` (tau = 0) to `moved`, searched within
-        `window` s of `guess`; None where the motion does not tell (moved as the curve is).
+        `window` s of `guess`; None where the motion does not tell: `moved` is the curve as
+        it is, or no curve of this motion (its coefficients 1 um or more from the nearest).
         """
         # Imported here: only a run's analysis needs it, not a node's start-up.
         from scipy.optimize import minimize_scalar
@@ -76,7 +77,7 @@ class CurveMotion:
 
         found = minimize_scalar(mismatch, bounds=(max(0.0, guess - window), guess + window),
                                 method='bounded', options={'xatol': 1e-7})
-        return float(found.x)
+        return float(found.x) if math.sqrt(found.fun) < 1e-6 else None
 
     @staticmethod
     def _mapped(curve: Curve, linear: FloatArray, shift: FloatArray) -> Curve:
