@@ -304,39 +304,52 @@ def test_clocks_that_differ_between_hosts_neither_stop_nor_keep_robots_driving()
     assert ctrls[2].pose_stamp == pytest.approx(4.05)
 
 
-def late_pose_gaps(predict, latency=0.08, seconds=8.0, clock_offset=0.0):
-    """The Mona arena's leader driven at 10 Hz on poses captured at 30 Hz and delivered
-    `latency` s late (stamped on a clock `clock_offset` s ahead): distances (m) between the
-    pose each tick's law used and the robot's true pose at that tick.
+def leader_alone(name, seconds=12.0, pose_latency=0.0, clock_offset=0.0, predict=True,
+                 command_latency=0.0, told=True):
+    """The leader of shipped experiment `name` alone (no safety filter) at 10 Hz on poses
+    captured at 30 Hz and delivered `pose_latency` s late, stamped on a clock `clock_offset`
+    s ahead, carried forward to the tick (predict_pose) or not; each command acting on its
+    wheels `command_latency` s after it leaves (DrivenUnicycle), the controller told of that
+    (its command_latency) or not. Returns its error norms (m) and dhat (ticks, 2), and the
+    distances (m) between the pose each tick's law used and the robot's true pose when that
+    tick's command acted (NaN errors before the first pose).
     """
-    import dataclasses
-    experiment = load_experiment(resolve_config('mona_arena'))
-    config = dataclasses.replace(agent_configs(experiment, 10.0)[0], predict_pose=predict,
-                                 avoidance=AVOIDANCE_OFF)   # the leader alone
+    experiment = load_experiment(resolve_config(name))
+    config = dataclasses.replace(agent_configs(experiment, 10.0)[0], avoidance=AVOIDANCE_OFF,
+                                 predict_pose=predict,
+                                 command_latency=command_latency if told else 0.0)
     controller = AgentController(config)
     phase = experiment.phases[0]
     controller.set_curve(phase.curve, 0, phase.s)
-    pose = tuple(float(v) for v in experiment.initial_poses[0])
     # injected on the PC, the disturbance is in the commands already
-    d_v, d_w = (0.0, 0.0) if config.law.on_pc else experiment.disturbance[0]
-    steps_per_s = 300
-    captured, command, gaps = [], (0.0, 0.0), []
+    drift = (0.0, 0.0) if config.law.on_pc else experiment.disturbance[0]
+    robot = DrivenUnicycle(experiment.initial_poses[0], drift, command_latency)
+    steps_per_s = 300   # a pose captured every 10 steps, a tick every 30
+    acted = round(command_latency * steps_per_s)
+    captured, truth, used, errors, dhat = [], [], [], [], []
     for step in range(int(seconds * steps_per_s)):
         t = step / steps_per_s
+        robot.advance(t)
+        truth.append(robot.pose)
         if step % 10 == 0:
-            captured.append((t, pose))
-        while captured and captured[0][0] + latency <= t + 1e-9:
+            captured.append((t, robot.pose))
+        while captured and captured[0][0] + pose_latency <= t + 1e-9:
             at, seen = captured.pop(0)
             controller.on_pose(*seen, at + clock_offset, received=t)
         if step % 30 == 0:
             tick = controller.tick(t)
-            command = (tick.v, tick.w)
+            robot.drive(tick.v, tick.w, t)
             if tick.pose is not None:
-                gaps.append(math.hypot(tick.pose[0] - pose[0], tick.pose[1] - pose[1]))
-        driven = command != (0.0, 0.0)
-        pose = arc_step(*pose, command[0] + d_v * driven, command[1] + d_w * driven,
-                        1 / steps_per_s)
-    return np.array(gaps)
+                used.append((step + acted, tick.pose))
+            errors.append(math.nan if tick.error is None else math.hypot(*tick.error))
+            dhat.append(tuple(controller.dhat))
+    gaps = [math.dist(pose[:2], truth[at][:2]) for at, pose in used if at < len(truth)]
+    return np.array(errors), np.array(dhat), np.array(gaps)
+
+
+def late_pose_gaps(predict, latency=0.08, clock_offset=0.0):
+    """mona_arena's leader on poses `latency` s late: leader_alone's gaps over 8 s."""
+    return leader_alone('mona_arena', 8.0, latency, clock_offset, predict)[2]
 
 
 def test_a_late_pose_is_carried_forward_to_the_tick_by_the_commands_sent_since():
@@ -355,38 +368,8 @@ def test_a_late_pose_is_carried_forward_to_the_tick_by_the_commands_sent_since()
 
 
 def delayed_leader(name, latency, told, seconds=12.0):
-    """The leader of shipped experiment `name` alone (no safety filter) at 10 Hz on poses at
-    30 Hz, each command acting on its wheels `latency` s after it leaves (DrivenUnicycle), the
-    controller told of that (command_latency) or not. Returns its error norms (m) and dhat
-    (ticks, 2), and the distances (m) between the pose each tick's law used and the robot's
-    true pose when that tick's command acted.
-    """
-    experiment = load_experiment(resolve_config(name))
-    config = dataclasses.replace(agent_configs(experiment, 10.0)[0], avoidance=AVOIDANCE_OFF,
-                                 command_latency=latency if told else 0.0)
-    assert config.predict_pose
-    controller = AgentController(config)
-    phase = experiment.phases[0]
-    controller.set_curve(phase.curve, 0, phase.s)
-    # injected on the PC, the disturbance is in the commands already
-    drift = (0.0, 0.0) if config.law.on_pc else experiment.disturbance[0]
-    robot = DrivenUnicycle(experiment.initial_poses[0], drift, latency)
-    steps_per_s = 30
-    acted = round(latency * steps_per_s)
-    truth, used, errors, dhat = [], [], [], []
-    for step in range(int(seconds * steps_per_s)):
-        t = step / steps_per_s
-        robot.advance(t)
-        truth.append(robot.pose)
-        controller.on_pose(*robot.pose, t, received=t)
-        if step % 3 == 0:
-            tick = controller.tick(t)
-            robot.drive(tick.v, tick.w, t)
-            used.append((step + acted, tick.pose))
-            errors.append(math.hypot(*tick.error))
-            dhat.append(tuple(controller.dhat))
-    gaps = [math.dist(pose[:2], truth[at][:2]) for at, pose in used if at < len(truth)]
-    return np.array(errors), np.array(dhat), np.array(gaps)
+    """`name`'s leader, its commands acting `latency` s after they leave (leader_alone)."""
+    return leader_alone(name, seconds, command_latency=latency, told=told)
 
 
 def test_a_stated_command_latency_is_predicted_over_and_kept_out_of_the_drift_estimate():
