@@ -276,7 +276,8 @@ def _cmd_estop(args):
     node = rclpy.create_node('estop')
     try:
         pub = topics.publisher(node, topics.ESTOP)
-        pub.publish(Bool(data=args.state == 'on'))
+        message = Bool(data=args.state == 'on')
+        pub.publish(message)
         deadline = time.monotonic() + args.wait
         while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
             time.sleep(0.05)
@@ -289,7 +290,7 @@ def _cmd_estop(args):
         if args.hold:
             while True:
                 time.sleep(1.0)
-                pub.publish(Bool(data=args.state == 'on'))
+                pub.publish(message)
     except KeyboardInterrupt:
         pass
     finally:
