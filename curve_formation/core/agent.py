@@ -190,8 +190,8 @@ class State:
 
 class Sent(NamedTuple):
     """A command as sent at `at` (s, the controller's clock): (v, w) (m/s, rad/s); the
-    observer's reference and the safety filter's shift of it (control.observe); driven: False
-    for a stop (motors off, no drift).
+    observer's reference and the safety filter's shift of it, and whether the wheel limits
+    clipped it (control.observe); driven: False for a stop (motors off, no drift).
     """
 
     at: float
@@ -199,6 +199,7 @@ class Sent(NamedTuple):
     w: float
     reference: Command
     shift: Command
+    limited: bool
     driven: bool
 
 
@@ -256,6 +257,7 @@ class AgentController:
         self.anchor: tuple[Pose, float, float] | None = None
         self.reference: Command = (0.0, 0.0)
         self.shift: Command = (0.0, 0.0)
+        self.limited = False
         # control.ray_growth's state: (factor, last right, last left wheel speed m/s)
         self.ray: tuple[float, float, float] = (1.0, 0.0, 0.0)
         # +1: the law steers the point ahead of the axle, -1: the one behind it (reversing,
@@ -401,7 +403,7 @@ class AgentController:
     def tick(self, now: float) -> Tick:
         """One control step at time `now` (s, this controller's clock)."""
         tick = self._tick(now)
-        self.sent.append(Sent(now, tick.v, tick.w, self.reference, self.shift,
+        self.sent.append(Sent(now, tick.v, tick.w, self.reference, self.shift, self.limited,
                               tick.stopped is None))
         return tick
 
@@ -483,7 +485,7 @@ class AgentController:
         if law.code == OBSERVER:
             self._observe()
         ahead = self.ahead if cfg.feed_forward else (0.0, 0.0)
-        v, w, ref_v, ref_w, ddv, ddw, code, shift_v, shift_w = self.command(
+        v, w, ref_v, ref_w, ddv, ddw, code, shift_v, shift_w, limited = self.command(
             fx, fy, *ahead, ex, ey, *pose, self.dhat[0], self.dhat[1], *self.last_command,
             *cfg.pc_disturbance, steered_law(law, self.front), cfg.limits, self.others,
             cfg.index - 1, cfg.avoidance)
@@ -496,6 +498,7 @@ class AgentController:
         self.anchor = (measured, stamp, now)
         self.reference = (ref_v, ref_w)
         self.shift = (shift_v, shift_w)
+        self.limited = limited
         self.last_command = (v, w)
         base.v, base.w, base.dhat, base.feedback = v, w, (self.dhat[0], self.dhat[1]), (fx, fy)
         base.pose = pose
@@ -534,7 +537,7 @@ class AgentController:
         blend = 1.0 - math.exp(-self.config.gains.observer_rate * elapsed)
         dhat_v, dhat_w, *ray = observe(self.dhat[0], self.dhat[1], *self.ray, measured_v,
                                        measured_w, *acting.reference, *acting.shift,
-                                       self.config.law, self.config.limits, blend)
+                                       acting.limited, self.config.law, self.config.limits, blend)
         self.dhat[:] = (dhat_v, dhat_w)
         self.ray = (ray[0], ray[1], ray[2])
 
@@ -542,6 +545,7 @@ class AgentController:
         tick = base or Tick()
         self.anchor = None
         self.reference = self.shift = (0.0, 0.0)
+        self.limited = False
         self.ray = (1.0, 0.0, 0.0)
         tick.v, tick.w, tick.stopped = 0.0, 0.0, reason
         tick.dhat = (self.dhat[0], self.dhat[1])

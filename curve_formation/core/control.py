@@ -26,15 +26,16 @@ from curve_formation.core.shapes import Command, FloatArray, Point
 LAWS = {'paper': 0, 'adaptive': 1, 'observer': 2}
 OBSERVER = LAWS['observer']
 # Share of the wheel and turn-rate limits the observer law's feedback may use (observer_input)
-# where the disturbance is added on the PC, before the limits; with it on the robot the
-# feedback may use the whole limits.
-FEEDBACK_HEADROOM = 0.95
-# The observer's search along a saturated motion's ray (ray_growth): a measured motion with a
-# wheel within RAY_SATURATED of the wheel limit counts as saturated (the feedback alone uses
-# at most FEEDBACK_HEADROOM); two saturated motions lie along one ray when their wheel speeds
-# point within acos(RAY_ALIGNED) (18 degrees) of each other; a reversal shrinks the growth
-# by RAY_SHRINK.
-RAY_SATURATED = 0.99
+# where the disturbance is added on the PC, before the limits, so that once d is learnt the
+# command it adds up to is not clipped (a clipped command moves the robot alike for a whole
+# ray of estimates); with it on the robot the feedback may use the whole limits. 0.98: the
+# observer's search (ray_growth) starts only where the limits clipped the command, which the
+# pipeline knows when it computes it; 0.99 let the camera's noise in the estimate (through
+# the fake camera) clip commands often enough to wind the search up (docs/control-laws.md).
+FEEDBACK_HEADROOM = 0.98
+# The observer's search along a saturated motion's ray (ray_growth): two motions the wheel
+# limits clipped lie along one ray when their wheel speeds point within acos(RAY_ALIGNED)
+# (18 degrees) of each other; a reversal shrinks the growth by RAY_SHRINK.
 RAY_ALIGNED = 0.95
 RAY_SHRINK = 0.25
 
@@ -157,7 +158,7 @@ def agent_command(fx: float, fy: float, ahead_x: float, ahead_y: float, ex: floa
                   theta: float, dhat_v: float, dhat_w: float, prev_v: float, prev_w: float,
                   pc_v: float, pc_w: float, law: 'Law', limits: 'WheelLimits',
                   others: FloatArray, me: int, avoidance: Avoidance
-                  ) -> tuple[float, float, float, float, float, float, int, float, float]:
+                  ) -> tuple[float, float, float, float, float, float, int, float, float, bool]:
     """One control tick of one agent, from its inputs to the command sent: the one pipeline
     the ROS controller (core.agent) and the batch simulator both run.
 
@@ -169,12 +170,13 @@ def agent_command(fx: float, fy: float, ahead_x: float, ahead_y: float, ex: floa
     safety.safe_command's. The finite-time tail, the feed-forward, the feedback shaped
     around robots and walls nearby, the law, then PC disturbance, acceleration and wheel
     limits, then the safety filter.
-    Returns (v, w, ref_v, ref_w, ddhat_v, ddhat_w, code, shift_v, shift_w): the command, what
-    the observer compares the measured motion with (the law's command where the disturbance
-    enters, plus what the filter changed), the continuous-time estimator rate (paper and
-    adaptive laws), the filter's outcome (safety.UNCHANGED, ADJUSTED, STOPPED) and what the
-    filter changed (m/s, rad/s: the measured motion minus it is the motion before the
-    filter, which ray_growth searches along).
+    Returns (v, w, ref_v, ref_w, ddhat_v, ddhat_w, code, shift_v, shift_w, limited): the
+    command, what the observer compares the measured motion with (the law's command where
+    the disturbance enters, plus what the filter changed), the continuous-time estimator
+    rate (paper and adaptive laws), the filter's outcome (safety.UNCHANGED, ADJUSTED,
+    STOPPED), what the filter changed (m/s, rad/s: the measured motion minus it is the
+    motion before the filter, which ray_growth searches along) and whether the wheel limits
+    clipped the command before the filter (ray_growth searches only then).
     """
     fx, fy = tail_feedback(fx, fy, law.tail_radius, law.tail_gain)
     fx, fy = with_feed_forward(fx, fy, ahead_x, ahead_y, law.k1)
@@ -213,6 +215,7 @@ def agent_command(fx: float, fy: float, ahead_x: float, ahead_y: float, ex: floa
     v, w = limit_acceleration(u_v + pc_v, u_w + pc_w, prev_v, prev_w, law.period,
                               limits.max_linear_accel, limits.max_angular_accel)
     # The wheel limits come last: whatever the ramp, no wheel exceeds its speed limit.
+    limited = clipped(v, w, limits)
     v, w = saturate(v, w, limits.wheel_base, limits.max_wheel_speed, limits.max_angular_rate)
     safe_v, safe_w, code = safe_command(v, w, x, y, theta, drift_v, drift_w, others, me,
                                         law.offset, law.period, avoidance, limits.wheel_base,
@@ -222,7 +225,7 @@ def agent_command(fx: float, fy: float, ahead_x: float, ahead_y: float, ex: floa
                                   limits.max_angular_rate)
     ref_v = (u_v if law.on_pc else v) + (safe_v - v)
     ref_w = (u_w if law.on_pc else w) + (safe_w - w)
-    return safe_v, safe_w, ref_v, ref_w, ddhat_v, ddhat_w, code, safe_v - v, safe_w - w
+    return safe_v, safe_w, ref_v, ref_w, ddhat_v, ddhat_w, code, safe_v - v, safe_w - w, limited
 
 
 def clipped(v: float, w: float, limits: WheelLimits) -> bool:
@@ -414,30 +417,35 @@ def observer_step(dhat_v: float, dhat_w: float, measured_v: float, measured_w: f
 
 
 def ray_growth(growth: float, last_right: float, last_left: float, measured_v: float,
-               measured_w: float, law: 'Law', limits: 'WheelLimits'
+               measured_w: float, limited: bool, law: 'Law', limits: 'WheelLimits'
                ) -> tuple[float, float, float]:
     """The factor by which the observer takes this tick's measured motion (observer_step),
     for a disturbance d added on the PC, before the wheel limits (law.on_pc).
 
-    A command saturated by the wheel limits moves the robot at the limit in the direction of
+    A command clipped by the wheel limits moves the robot at the limit in the direction of
     the law's command plus d: the motion shows d's direction, not its size (d lies on the ray
     s * measured - reference, s >= 1), and observer_step, taking s = 1, moves the estimate at
-    most the limits' width a tick (in the paper's arena d is 20x the limit). While the motion
-    stays saturated along one ray, the factor s grows by law.growth_step each tick (doubles,
-    or slower with a command latency) up to law.max_growth (a search along the ray); a
-    reversal (the estimate overshot) divides it by 1 / RAY_SHRINK; an unsaturated motion
-    resets it to 1. Off (always 1) with law.max_growth <= 1, without
-    law.on_pc, or without wheel limits that can saturate (timed_by).
+    most the limits' width a tick (in the paper's arena d is 20x the limit). While the
+    commands stay clipped and their motions lie along one ray, the factor s grows by
+    law.growth_step each tick (doubles, or slower with a command latency) up to
+    law.max_growth (a search along the ray); a reversal (the estimate overshot) divides it by
+    1 / RAY_SHRINK; a command the limits did not clip resets it to 1. Off (always 1) with
+    law.max_growth <= 1, without law.on_pc, or without wheel limits that can saturate
+    (timed_by).
 
     growth: last tick's factor; last_right, last_left: last tick's measured wheel speeds
-    (m/s) when saturated, else 0; measured: body velocity (m/s, rad/s). Returns (factor,
-    right, left): this tick's factor and the values of last_right, last_left for the next.
+    (m/s) when clipped, else 0; measured: body velocity (m/s, rad/s) under the command
+    whose `limited` (agent_command: the wheel limits clipped it) is given. Whether a command
+    was clipped is known when it is computed; the measured motion's size is not a sure sign
+    of it (a feedback at 98 % of the limits measured through a camera reaches 99 %). Returns
+    (factor, right, left): this tick's factor and the values of last_right, last_left for
+    the next.
     """
     if law.max_growth <= 1.0 or not law.on_pc or not timed_by(limits):
         return 1.0, 0.0, 0.0
-    right, left = wheel_speeds(measured_v, measured_w, limits.wheel_base)
-    if max(abs(right), abs(left)) < RAY_SATURATED * limits.max_wheel_speed:
+    if not limited:
         return 1.0, 0.0, 0.0
+    right, left = wheel_speeds(measured_v, measured_w, limits.wheel_base)
     if last_right != 0.0 or last_left != 0.0:
         cosine = ((right * last_right + left * last_left)
                   / math.sqrt((right * right + left * left)
@@ -451,18 +459,19 @@ def ray_growth(growth: float, last_right: float, last_left: float, measured_v: f
 
 def observe(dhat_v: float, dhat_w: float, growth: float, last_right: float, last_left: float,
             measured_v: float, measured_w: float, ref_v: float, ref_w: float, shift_v: float,
-            shift_w: float, law: 'Law', limits: 'WheelLimits', blend: float
+            shift_w: float, limited: bool, law: 'Law', limits: 'WheelLimits', blend: float
             ) -> tuple[float, float, float, float, float]:
     """The observer's update at a tick, as the node and the simulator both make it: the
     measured motion's part before the safety filter (measured minus shift, what the filter
     changed in the last command) searched along its ray (ray_growth: growth, last_right,
-    last_left), then observer_step towards that scaled motion plus the shift against the
-    reference (agent_command's ref). Returns (dhat_v, dhat_w, growth, last_right, last_left).
+    last_left; limited: the wheel limits clipped the command the motion was measured under),
+    then observer_step towards that scaled motion plus the shift against the reference
+    (agent_command's ref). Returns (dhat_v, dhat_w, growth, last_right, last_left).
     """
     pre_v = measured_v - shift_v
     pre_w = measured_w - shift_w
     growth, last_right, last_left = ray_growth(growth, last_right, last_left, pre_v, pre_w,
-                                               law, limits)
+                                               limited, law, limits)
     dhat_v, dhat_w = observer_step(dhat_v, dhat_w, growth * pre_v + shift_v,
                                    growth * pre_w + shift_w, ref_v, ref_w, law.k2, blend)
     return dhat_v, dhat_w, growth, last_right, last_left

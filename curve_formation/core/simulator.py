@@ -175,7 +175,7 @@ def _controls(poses: FloatArray, dhat: FloatArray, targets: FloatArray, ahead: F
         fb[i, 0] += wts[k] * (err[i, 0] - err[j, 0])
         fb[i, 1] += wts[k] * (err[i, 1] - err[j, 1])
     for i in range(n):
-        v, w, ref_v, ref_w, ddv, ddw, code, shift_v, shift_w = _agent_command(
+        v, w, ref_v, ref_w, ddv, ddw, code, shift_v, shift_w, limited = _agent_command(
             fb[i, 0], fb[i, 1], ahead[i, 0], ahead[i, 1], err[i, 0], err[i, 1], poses[i, 0],
             poses[i, 1], poses[i, 2], dhat[i, 0], dhat[i, 1], cmd[i, 0], cmd[i, 1], d_pc[i, 0],
             d_pc[i, 1], _steered_law(law, fronts[i]), limits, poses, i, avoidance)
@@ -187,6 +187,7 @@ def _controls(poses: FloatArray, dhat: FloatArray, targets: FloatArray, ahead: F
         ref[i, 1] = ref_w
         ref[i, 2] = shift_v
         ref[i, 3] = shift_w
+        ref[i, 4] = 1.0 if limited else 0.0
         codes[i] = code
         if law.code == OBSERVER and law.k2 != 0.0:   # k2 = 0: estimator off
             ddv = law.observer_rate * ((motion[i, 0] - ref[i, 0]) / law.k2 - dhat[i, 0])
@@ -249,7 +250,7 @@ def _run(state: SimState, targets: FloatArray, ahead: FloatArray, graph: EdgeArr
         blend = 1.0 - math.exp(-law.observer_rate * dt_control)
         new_motion = np.zeros((n, 2))
         new_cmd = np.zeros((n, 2))
-        new_ref = np.zeros((n, 4))
+        new_ref = np.zeros((n, 5))
         for step in range(step0, step0 + steps):
             ticking = False
             for i in range(n):
@@ -264,7 +265,8 @@ def _run(state: SimState, targets: FloatArray, ahead: FloatArray, graph: EdgeArr
                         (dhat[i, 0], dhat[i, 1], rays[i, 0], rays[i, 1],
                          rays[i, 2]) = _observe(dhat[i, 0], dhat[i, 1], rays[i, 0], rays[i, 1],
                                                 rays[i, 2], motion[i, 0], motion[i, 1],
-                                                ref[i, 0], ref[i, 1], ref[i, 2], ref[i, 3], law,
+                                                ref[i, 0], ref[i, 1], ref[i, 2], ref[i, 3],
+                                                ref[i, 4] != 0.0, law,
                                                 limits, blend)
             if ticking:
                 new_cmd[:] = cmd   # each agent's previous command
@@ -282,6 +284,7 @@ def _run(state: SimState, targets: FloatArray, ahead: FloatArray, graph: EdgeArr
                         ref[i, 1] = new_ref[i, 1]
                         ref[i, 2] = new_ref[i, 2]
                         ref[i, 3] = new_ref[i, 3]
+                        ref[i, 4] = new_ref[i, 4]
                         if law.code != OBSERVER:
                             dhat[i, 0] += dt_control * ddhat[i, 0]
                             dhat[i, 1] += dt_control * ddhat[i, 1]
@@ -446,7 +449,7 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
     record = (np.zeros((n_rec, experiment.n, 3)), np.zeros((n_rec, experiment.n, 2)),
               np.zeros((n_rec, experiment.n, 2)))
     n = experiment.n
-    state = (poses, np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 4)),
+    state = (poses, np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 5)),
              np.ones(n), np.column_stack([np.ones(n), np.zeros((n, 2))]))
     width, height = spec.arena.size if spec.arena is not None else (0.0, 0.0)
     contacts = Contacts(float(radius), float(width), float(height), np.zeros((n, n), bool),
