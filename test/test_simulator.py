@@ -193,3 +193,19 @@ def test_compiled_cache_is_dropped_when_a_law_source_changes(tmp_path):
     assert simulator.drop_stale_cache(tmp_path)
     assert not list(cache.glob('*.nbi'))
     shutil.rmtree(cache)
+
+
+def test_the_simulator_keeps_the_acceleration_limits_as_the_node_does():
+    """The one tick pipeline (control.agent_command) ramps each command from the previous
+    one in the simulator too: at 10 Hz under limits of 0.5 m/s^2 and 2 rad/s^2 no command
+    changes by more than 0.05 m/s or 0.2 rad/s from one tick to the next, where without them
+    the law's commands jump by far more (case 1, no wheel limits).
+    """
+    case = point_robots(load_experiment(resolve_config('closed_curve')))
+    ramped = NO_LIMITS._replace(max_linear_accel=0.5, max_angular_accel=2.0)
+    steps = {}
+    for label, limits in (('free', NO_LIMITS), ('ramped', ramped)):
+        result = simulate(case, rate_hz=10.0, duration=5.0, limits=limits)
+        steps[label] = np.abs(np.diff(result.commands, axis=0)).max(axis=(0, 1))
+    assert np.all(steps['ramped'] <= np.array([0.05, 0.2]) + 1e-12), steps
+    assert np.all(steps['free'] > 4 * np.array([0.05, 0.2])), steps
