@@ -138,8 +138,9 @@ class Contacts(NamedTuple):
 
 # The graph as the kernels take it: (targets, sources, weights) edge arrays and the pins.
 EdgeArrays = tuple[IntArray, IntArray, FloatArray, FloatArray]
-# (poses (n, 3), dhat, motion, cmd (n, 2), ref (n, 4), fronts (n,), rays (n, 3)), advanced in
-# place; ref: the observer's reference (v, w) and what the safety filter changed (v, w);
+# (poses (n, 3), dhat, motion, cmd (n, 2), ref (n, 5), fronts (n,), rays (n, 3)), advanced in
+# place; ref: the observer's reference (v, w), what the safety filter changed (v, w) and 1
+# where the wheel limits clipped the command (0 otherwise);
 # rays: the observer's control.ray_growth state (factor, last right, last left).
 SimState = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
                  FloatArray]
@@ -152,7 +153,8 @@ def _controls(poses: FloatArray, dhat: FloatArray, targets: FloatArray, ahead: F
               fb: FloatArray, motion: FloatArray, cmd: FloatArray, ref: FloatArray,
               ddhat: FloatArray, codes: IntArray) -> None:
     """Evaluate every agent's tick (control.agent_command): fills err, fb, cmd (sent), motion
-    (actual), ref (n, 4: the observer's reference and what the safety filter changed), ddhat
+    (actual), ref (n, 5: the observer's reference, what the safety filter changed, 1 where
+    the wheel limits clipped the command), ddhat
     (continuous-time estimator rate) and codes (the safety filter's outcome); cmd on entry
     holds each agent's previous command.
 
@@ -222,7 +224,7 @@ def _run(state: SimState, targets: FloatArray, ahead: FloatArray, graph: EdgeArr
          limits: WheelLimits, avoidance: Avoidance, d_pc: FloatArray, d_robot: FloatArray,
          clock: Clock, step0: int, steps: int, schedule: tuple[IntArray, IntArray],
          contacts: Contacts, record: tuple[FloatArray, FloatArray, FloatArray]) -> None:
-    """Advance the state (poses (n, 3), dhat (n, 2), the held motion, cmd, ref (n, 4), the
+    """Advance the state (poses (n, 3), dhat (n, 2), the held motion, cmd, ref (n, 5), the
     steered points' fronts (n,) and the observer's rays (n, 3)) in place by `steps` fine
     steps from `step0`.
 
