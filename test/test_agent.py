@@ -427,7 +427,7 @@ def test_a_stated_command_latency_keeps_the_observers_search_from_cycling():
 def test_pose_noise_does_not_start_the_observers_search_once_d_is_learnt():
     """mona_arena's leader, d added on the PC, on poses with camera-like noise (0.1 mm, 2
     mrad). Its feedback drives at FEEDBACK_HEADROOM (98 %) of the wheel limit; the search
-    along a saturated ray starts only on commands the limits clipped (control.ray_growth),
+    along a saturated ray starts only on commands the limits cut (control.ray_growth),
     so the noise costs the leader under 12 % of its settling time (27.7 to 28.7 s against
     26.9 s over seeds). Gated instead on the measured motion reaching 99 % of the limit, the
     noise starts the search on unclipped commands and the leader took 33.5 s (1.25x).

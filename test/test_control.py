@@ -13,6 +13,7 @@ from curve_formation.core.control import (
     Gains,
     leader_feedback,
     observer_input,
+    RAY_CLIPPED,
     saturate,
     saturate_turning,
     stacked_paper_input,
@@ -186,6 +187,24 @@ def test_with_d_added_on_the_pc_the_law_turns_in_place_once_its_command_is_not_c
         assert (ref_v, ref_w) == pytest.approx(kept, rel=1e-12)
         assert saturate(kept[0] + d[0], kept[1] + d[1], limits.wheel_base,
                         limits.max_wheel_speed, math.inf) == pytest.approx((v, w), rel=1e-12)
+
+
+@pytest.mark.parametrize('residual', [0.0, 0.02, 0.2, 20.0])
+def test_the_search_starts_on_a_command_cut_well_past_the_limits_only(residual):
+    """mona_arena's limits, d added on the PC, a target far ahead: the feedback drives at
+    FEEDBACK_HEADROOM of the wheel limit, and the estimate misses d by `residual` times the
+    limit along the heading. agent_command's `limited` (ray_growth's start) holds only where
+    the command goes past the limits by more than RAY_CLIPPED: a d not yet learnt (20x), not
+    the few % camera noise in the estimate of a learnt one adds.
+    """
+    limits = WheelLimits(0.08, 0.0225)
+    law = Gains(2 / 3, 1 / 3, 0.01, law='observer', sampled_heading=True).tick_law(10.0, True)
+    d = (0.5, 0.5)
+    miss = residual * limits.max_wheel_speed
+    dhat = ((d[0] - miss) / law.k2, d[1] / law.k2)
+    *_, limited = agent_command(-1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, *dhat, 0.0, 0.0,
+                                *d, law, limits, np.zeros((1, 3)), 0, AVOIDANCE_OFF)
+    assert limited == (FEEDBACK_HEADROOM + residual > RAY_CLIPPED)
 
 
 def test_the_tail_scales_the_feedback_as_its_square_root_near_the_target_only():

@@ -191,7 +191,8 @@ class State:
 class Sent(NamedTuple):
     """A command as sent at `at` (s, the controller's clock): (v, w) (m/s, rad/s); the
     observer's reference and the safety filter's shift of it, and whether the wheel limits
-    clipped it (control.observe); driven: False for a stop (motors off, no drift).
+    cut it by more than control.RAY_CLIPPED (control.observe); driven: False for a stop
+    (motors off, no drift).
     """
 
     at: float

@@ -140,7 +140,7 @@ class Contacts(NamedTuple):
 EdgeArrays = tuple[IntArray, IntArray, FloatArray, FloatArray]
 # (poses (n, 3), dhat, motion, cmd (n, 2), ref (n, 5), fronts (n,), rays (n, 3)), advanced in
 # place; ref: the observer's reference (v, w), what the safety filter changed (v, w) and 1
-# where the wheel limits clipped the command (0 otherwise);
+# where the wheel limits cut the command by more than control.RAY_CLIPPED (0 otherwise);
 # rays: the observer's control.ray_growth state (factor, last right, last left).
 SimState = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
                  FloatArray]
@@ -154,7 +154,7 @@ def _controls(poses: FloatArray, dhat: FloatArray, targets: FloatArray, ahead: F
               ddhat: FloatArray, codes: IntArray) -> None:
     """Evaluate every agent's tick (control.agent_command): fills err, fb, cmd (sent), motion
     (actual), ref (n, 5: the observer's reference, what the safety filter changed, 1 where
-    the wheel limits clipped the command), ddhat
+    the wheel limits cut the command by more than control.RAY_CLIPPED), ddhat
     (continuous-time estimator rate) and codes (the safety filter's outcome); cmd on entry
     holds each agent's previous command.
 
