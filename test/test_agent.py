@@ -410,9 +410,9 @@ def test_a_stated_command_latency_keeps_the_observers_search_from_cycling():
     observer searches along the saturated motion, its step doubling each tick
     (control.ray_growth). Commands acting 0.3 s late answer a step three ticks later than
     the search expects: not told, it overshoots, reverses and cycles, and the leader has not
-    settled after 60 s (26.9 s with no latency; 0.1 s untold: 27.6 s, 0.2 s: 36.6 s). Told,
+    settled after 60 s (26.9 s with no latency; 0.1 s untold: 27.5 s, 0.2 s: 35.9 s). Told,
     the step doubles once per tick and latency in ticks (2^(1/2) a tick at 0.1 s, 2^(1/4) at
-    0.3 s): 28.5 s, 30.4 s and 30.2 s at 0.1, 0.2 and 0.3 s.
+    0.3 s): 27.9 s, 30.4 s and 30.2 s at 0.1, 0.2 and 0.3 s.
     """
     seconds = 60.0
     prompt = settled_at(delayed_leader('mona_arena', 0.0, True, seconds)[0])
@@ -428,7 +428,7 @@ def test_pose_noise_does_not_start_the_observers_search_once_d_is_learnt():
     """mona_arena's leader, d added on the PC, on poses with camera-like noise (0.1 mm, 2
     mrad). Its feedback drives at FEEDBACK_HEADROOM (98 %) of the wheel limit; the search
     along a saturated ray starts only on commands the limits cut (control.ray_growth),
-    so the noise costs the leader under 12 % of its settling time (27.7 to 28.7 s against
+    so the noise costs the leader under 12 % of its settling time (27.0 to 27.6 s against
     26.9 s over seeds). Gated instead on the measured motion reaching 99 % of the limit, the
     noise starts the search on unclipped commands and the leader took 33.5 s (1.25x).
     """
