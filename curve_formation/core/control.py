@@ -179,9 +179,9 @@ def agent_command(fx: float, fy: float, ahead_x: float, ahead_y: float, ex: floa
     the disturbance enters, plus what the filter changed), the continuous-time estimator
     rate (paper and adaptive laws), the filter's outcome (safety.UNCHANGED, ADJUSTED,
     STOPPED), what the filter changed (m/s, rad/s: the measured motion minus it is the
-    motion before the filter, which ray_growth searches along) and whether the wheel limits
-    cut the command before the filter by more than RAY_CLIPPED (ray_growth searches only
-    then).
+    motion before the filter, which ray_growth searches along) and, with the disturbance
+    added on the PC, whether the wheel limits cut the command before the filter by more
+    than RAY_CLIPPED (ray_growth searches only then; False otherwise).
     """
     fx, fy = tail_feedback(fx, fy, law.tail_radius, law.tail_gain)
     fx, fy = with_feed_forward(fx, fy, ahead_x, ahead_y, law.k1)
@@ -220,7 +220,7 @@ def agent_command(fx: float, fy: float, ahead_x: float, ahead_y: float, ex: floa
     v, w = limit_acceleration(u_v + pc_v, u_w + pc_w, prev_v, prev_w, law.period,
                               limits.max_linear_accel, limits.max_angular_accel)
     # The wheel limits come last: whatever the ramp, no wheel exceeds its speed limit.
-    limited = clipped(v, w, limits, RAY_CLIPPED)
+    limited = law.on_pc and clipped(v, w, limits, RAY_CLIPPED)   # ray_growth's only use
     v, w = saturate(v, w, limits.wheel_base, limits.max_wheel_speed, limits.max_angular_rate)
     safe_v, safe_w, code = safe_command(v, w, x, y, theta, drift_v, drift_w, others, me,
                                         law.offset, law.period, avoidance, limits.wheel_base,
@@ -447,9 +447,8 @@ def ray_growth(growth: float, last_right: float, last_left: float, measured_v: f
     whose `limited` (agent_command: the wheel limits cut it by more than RAY_CLIPPED) is
     given. Whether a command was cut is known when it is computed; the measured motion's
     size is not a sure sign of it (a feedback at 98 % of the limits measured through a
-    camera reaches 99 %). Returns
-    (factor, right, left): this tick's factor and the values of last_right, last_left for
-    the next.
+    camera reaches 99 %). Returns (factor, right, left): this tick's factor and the values
+    of last_right, last_left for the next.
     """
     if law.max_growth <= 1.0 or not law.on_pc or not timed_by(limits):
         return 1.0, 0.0, 0.0
@@ -475,9 +474,9 @@ def observe(dhat_v: float, dhat_w: float, growth: float, last_right: float, last
     measured motion's part before the safety filter (measured minus shift, what the filter
     changed in the last command) searched along its ray (ray_growth: growth, last_right,
     last_left; limited: the wheel limits cut the command the motion was measured under by
-    more than RAY_CLIPPED),
-    then observer_step towards that scaled motion plus the shift against the reference
-    (agent_command's ref). Returns (dhat_v, dhat_w, growth, last_right, last_left).
+    more than RAY_CLIPPED), then observer_step towards that scaled motion plus the shift
+    against the reference (agent_command's ref). Returns (dhat_v, dhat_w, growth,
+    last_right, last_left).
     """
     pre_v = measured_v - shift_v
     pre_w = measured_w - shift_w

@@ -282,11 +282,7 @@ def _run(state: SimState, targets: FloatArray, ahead: FloatArray, graph: EdgeArr
                         motion[i, 1] = new_motion[i, 1]
                         cmd[i, 0] = new_cmd[i, 0]
                         cmd[i, 1] = new_cmd[i, 1]
-                        ref[i, 0] = new_ref[i, 0]
-                        ref[i, 1] = new_ref[i, 1]
-                        ref[i, 2] = new_ref[i, 2]
-                        ref[i, 3] = new_ref[i, 3]
-                        ref[i, 4] = new_ref[i, 4]
+                        ref[i] = new_ref[i]
                         if law.code != OBSERVER:
                             dhat[i, 0] += dt_control * ddhat[i, 0]
                             dhat[i, 1] += dt_control * ddhat[i, 1]
