@@ -20,6 +20,7 @@ from curve_formation.core.curve_codec import (
     decode_curve,
     yaw_from_quaternion,
 )
+from curve_formation.core.estop import parse_report, stopped_intervals
 from curve_formation.core.experiment import (
     build_experiment,
     control_rate,
@@ -34,6 +35,7 @@ from curve_formation.paths import resolve_config
 # and every node's parameters file.
 EXPERIMENT_KEY = 'curve_formation.experiment'
 PARAMETERS_KEY = 'curve_formation.parameters'
+ESTOP_STATE = '/formation/estop_state'
 _ROBOT_TOPIC = re.compile(r'^/robot_(\d+)/(pose|cmd_vel|disturbance_estimate)$')
 # The message type each topic the analysis reads must have (a bag of another tool may differ).
 TYPES = {'curve': 'std_msgs/msg/Float64MultiArray', 'pose': 'geometry_msgs/msg/PoseStamped',
@@ -53,6 +55,7 @@ class BagRun:
     phase: np.ndarray      # (R,)
     counts: dict           # {topic: messages read}
     contacts: dict = None  # fake_arena's last contact report, if the bag has one
+    estops: list = None    # [(start, stop or None)] s while a node held the e-stop
 
 
 def load_bag_run(path, experiment_path=None, sample_hz=20.0):
@@ -77,10 +80,18 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0):
     n = experiment.n
     events = {'pose': [[] for _ in range(n)], 'cmd_vel': [[] for _ in range(n)],
               'disturbance_estimate': [[] for _ in range(n)]}
-    curves, counts, contacts = [], {}, None
+    curves, counts, contacts, estop_events = [], {}, None, []
     for topic, _, stamp, msg in read_messages(path):
         counts[topic] = counts.get(topic, 0) + 1
         t = stamp * 1e-9
+        if topic == ESTOP_STATE:
+            try:
+                report = parse_report(msg.name, msg.hardware_id,
+                                      {kv.key: kv.value for kv in msg.values})
+            except (ValueError, AttributeError):
+                continue
+            estop_events.append((t, report.holder, report.engaged))
+            continue
         if topic == '/diagnostics':
             for status in msg.status:
                 if status.hardware_id == metrics.CONTACT_REPORTER:
@@ -119,9 +130,12 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0):
     phases = received_phases(experiment, [(t - t0, k, curve, s) for t, k, curve, s in curves])
     starts = np.array([p.start for p in phases]) + t0
     phase = np.searchsorted(starts, grid, side='right') - 1
+    estops = stopped_intervals([(t - t0, holder, engaged)
+                                for t, holder, engaged in estop_events], end - t0)
     return BagRun(replace(experiment, phases=phases), grid - t0,
                   _sample(events['pose'], grid, 3), _sample(events['cmd_vel'], grid, 2),
-                  _sample(events['disturbance_estimate'], grid, 2), phase, counts, contacts)
+                  _sample(events['disturbance_estimate'], grid, 2), phase, counts, contacts,
+                  estops)
 
 
 def _sample(per_robot, grid, width):
@@ -145,7 +159,8 @@ def analyze_bag(path, out_dir, experiment_path=None, compare=None, compare_sim=F
     run = load_bag_run(path, experiment_path)
     t, poses, phase, dhat, commands = _known(run, path)
     result = metrics.run_metrics(run.experiment, t, poses, phase, np.nan_to_num(dhat),
-                                 np.nan_to_num(commands), contacts=run.contacts)
+                                 np.nan_to_num(commands), contacts=run.contacts,
+                                 estops=run.estops)
     result['bag'] = {'path': str(path), 'messages': run.counts}
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -266,36 +266,11 @@ def _cmd_clean_shm(args):
 
 
 def _cmd_estop(args):
-    import time
-
-    import rclpy
-    from std_msgs.msg import Bool
-
-    from curve_formation.nodes import topics
-    rclpy.init()
-    node = rclpy.create_node('estop')
-    try:
-        pub = topics.publisher(node, topics.ESTOP)
-        message = Bool(data=args.state == 'on')
-        pub.publish(message)
-        deadline = time.monotonic() + args.wait
-        while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
-            time.sleep(0.05)
-        pub.wait_for_all_acked()
-        # Latched: stay up so that controllers starting now also get it, until Ctrl-C; sent
-        # again every second for one that missed the latched message (Fast DDS can fail to
-        # deliver a late joiner its history).
-        print(f'e-stop {args.state} ({pub.get_subscription_count()} controllers acknowledged);'
-              ' Ctrl-C to quit')
-        if args.hold:
-            while True:
-                time.sleep(1.0)
-                pub.publish(message)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    from curve_formation.estop_command import send_estop
+    expect = args.expect
+    if args.experiment is not None:
+        expect = load_experiment(resolve_config(args.experiment)).n
+    return send_estop(args.state == 'on', expect, args.wait, args.hold)
 
 
 def _cmd_calibrate_camera(args):
@@ -354,6 +329,17 @@ def not_negative(text):
     value = _finite_number(text)
     if value < 0:
         raise argparse.ArgumentTypeError(f'expected a number >= 0, got {text!r}')
+    return value
+
+
+def _at_least_one(text):
+    """argparse type: an integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f'expected an integer >= 1, got {text!r}')
     return value
 
 
@@ -442,13 +428,20 @@ def build_parser():
                      help='seconds to wait for subscribers before starting')
     rep.set_defaults(func=_cmd_replay)
     estop = sub.add_parser('estop', help='engage (on) or release (off) the e-stop of every '
-                           'robot on this ROS_DOMAIN_ID')
+                           'robot on this ROS_DOMAIN_ID; exits 0 once every robot confirmed '
+                           'it, 1 naming those that did not')
     estop.add_argument('state', choices=['on', 'off'])
-    estop.add_argument('--wait', type=not_negative, default=2.0,
-                       help='seconds to wait for controllers to be reached')
+    expected = estop.add_mutually_exclusive_group()
+    expected.add_argument('--expect', type=_at_least_one, metavar='N',
+                          help='robots to expect (default: as many as the controllers on the '
+                          'domain say the formation has)')
+    expected.add_argument('--experiment', metavar='FILE',
+                          help='expect the robots of this experiment')
+    estop.add_argument('--wait', type=not_negative, default=5.0,
+                       help='seconds to wait for every robot to confirm (default 5)')
     estop.add_argument('--hold', action='store_true',
-                       help='stay up, sending it again every second, so late-starting '
-                       'controllers get it too')
+                       help='once confirmed, keep sending it every second until Ctrl-C (each '
+                       'node holds it anyway)')
     estop.set_defaults(func=_cmd_estop)
     server = sub.add_parser('discovery-server', help='run a Fast DDS discovery server (for '
                             'networks where multicast fails; runs use it with '
@@ -506,7 +499,7 @@ def main(argv=None):
     # before any ROS context exists in this process; a run recording frames receives them
     use_dds_profile(large_data=getattr(args, 'bag_images', False))
     try:
-        args.func(args)
+        status = args.func(args)
     except (ConfigError, BagError, ValueError) as exc:
         return _error(exc, 2)
     except OSError as exc:   # a file or folder that cannot be read or written
@@ -519,7 +512,7 @@ def main(argv=None):
             raise
         return _error(f'unexpected {type(exc).__name__}: {exc} (a bug: please report it with '
                       'the command; CURVE_FORMATION_DEBUG=1 shows the traceback)', 1)
-    return 0
+    return status if isinstance(status, int) else 0
 
 
 def _error(message, status):

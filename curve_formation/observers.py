@@ -62,7 +62,8 @@ class Observers:
                 self.bag_writer.set_custom(key, text)
             recorded = topics.recorded(self.experiment.n, self.images)
             self.best_effort_topics = {t.name for t in recorded
-                                       if t.profile.reliability == ReliabilityPolicy.BEST_EFFORT}
+                                       if t.reader_profile.reliability
+                                       == ReliabilityPolicy.BEST_EFFORT}
         # The same executor as every node process (callbacks dispatched from C++). Python
         # callbacks share the GIL: more executor threads would not run them faster.
         self.executor = make_executor(self.context)

@@ -179,8 +179,9 @@ class Run:
         experiment, phase = self.followed(data['t'])
         camera = len(data['true_poses']) == len(data['t'])
         truth = data['true_poses'] if camera else data['poses']
+        estops = self.monitor.estop_intervals(float(data['t'][-1]))
         result = metrics.run_metrics(experiment, data['t'], data['poses'], phase,
-                                     data['dhat'], data['commands'])
+                                     data['dhat'], data['commands'], estops=estops)
         if 'bodies' in result:   # measured on the bodies, i.e. the true poses
             result['bodies'] = metrics.body_metrics(experiment, data['t'], truth,
                                                     self.monitor.contacts,
@@ -193,7 +194,8 @@ class Run:
                           else 'one process per node')
         if camera:
             gaps = [gap for robot in self.monitor.law_pose_gaps for gap in robot]
-            result['ground_truth'] = metrics.ground_truth_metrics(experiment, data, phase, gaps)
+            result['ground_truth'] = metrics.ground_truth_metrics(experiment, data, phase, gaps,
+                                                                  estops)
         self.out.mkdir(parents=True, exist_ok=True)
         (self.out / 'metrics.json').write_text(metrics.strict_json(result))
         plots.run_figures(self.out, experiment, data['t'], data['poses'], phase,

@@ -8,7 +8,7 @@ from rclpy.context import Context
 from rclpy.parameter import Parameter
 
 from curve_formation.launches import node_class
-from curve_formation.nodes import docs, topics
+from curve_formation.nodes import docs, qos, topics
 
 
 README = Path(__file__).resolve().parent.parent / 'README.md'
@@ -26,7 +26,7 @@ def test_readme_node_reference_is_the_generated_one():
 def test_a_run_records_every_robots_topics_once_with_their_registered_types():
     recorded = topics.recorded(3)
     names = [t.name for t in recorded]
-    assert len(names) == len(set(names)) == 4 + 5 * 3
+    assert len(names) == len(set(names)) == 5 + 5 * 3
     assert '/robot_3/cmd_vel' in names and '/formation/curve' in names
     assert topics.REGISTRY['cmd_vel'].type_name == 'geometry_msgs/msg/Twist'
     with_images = [t.name for t in topics.recorded(3, images=True)]
@@ -62,8 +62,12 @@ def test_nodes_create_the_documented_topics(ros_domain, name, module):
             infos = (node.get_publishers_info_by_topic if use.direction == 'pub'
                      else node.get_subscriptions_info_by_topic)(resolved)
             mine = [info.qos_profile for info in infos if info.node_name == node.get_name()]
-            assert [(q.reliability, q.durability) for q in mine] == [
-                (registered.profile.reliability, registered.profile.durability)], resolved
+            wanted = [registered.profile if use.direction == 'pub'
+                      else registered.reader_profile]
+            if use.direction == 'sub' and use.name == topics.ESTOP:   # nodes/estop.py
+                wanted.append(qos.ESTOP_RELIABLE)
+            assert sorted((q.reliability, q.durability) for q in mine) == sorted(
+                (q.reliability, q.durability) for q in wanted), resolved
     finally:
         node.destroy_node()
         rclpy.try_shutdown(context=context)

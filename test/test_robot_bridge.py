@@ -18,6 +18,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import Bool
 
+from conftest import no_history_qos
 from curve_formation import launches, links
 from curve_formation.core import wire
 from curve_formation.core.experiment import load_experiment
@@ -83,10 +84,10 @@ def bench(ros):
     operator = add(Operator(context))
     bridges = []
 
-    def make(link=None, **params):
+    def make(link=None, namespace='/robot_1', **params):
         link = link or f'udp:127.0.0.1:{endpoint.socket.getsockname()[1]}'
         values = {'link': link, 'wheel_base': BASE, 'rate_hz': 10.0, **params}
-        bridge = add(RobotBridge(context=context, namespace='/robot_1', parameter_overrides=[
+        bridge = add(RobotBridge(context=context, namespace=namespace, parameter_overrides=[
             Parameter(k, value=v) for k, v in values.items()]))
         bridges.append(bridge)
         return bridge
@@ -166,21 +167,53 @@ def test_the_bridge_never_sends_faster_than_the_robot_takes(bench):
 
 
 def test_e_stop_stops_the_robot_until_released(bench):
+    """Sent as `ros2 topic pub` sends it (reliable, volatile): the robot gets stop lines only,
+    whatever cmd_vel says, until the release.
+    """
     make, robot, operator, spin = bench
     make()
     connected(operator, spin)
+    estop = operator.create_publisher(Bool, topics.ESTOP, no_history_qos())
+    spin(lambda: estop.get_subscription_count() > 0)
     operator.send(0.02, 0.0)
     spin(lambda: robot.said())
-    operator.estop.publish(Bool(data=True))
+    estop.publish(Bool(data=True))
     spin(lambda: robot.said()[-1][0] == 'stop')
     engaged = time.monotonic()
     for _ in range(10):
         operator.send(0.02, 0.0)
         spin(duration=0.1)
     assert all(said[0] == 'stop' for said in robot.said(engaged))
-    operator.estop.publish(Bool(data=False))
+    estop.publish(Bool(data=False))
     spin(lambda: robot.said()[-1][0] == 'command', timeout=2.0)
-    spin(lambda: operator.estop.get_subscription_count() > 0)
+
+
+def test_a_bridge_that_starts_while_stopped_sends_only_stop_lines(bench):
+    """The stop was sent once, before this bridge existed, and its sender is gone: the bridge
+    learns it from the nodes that hold it (here another bridge) and its robot gets only zero
+    wheel speeds, whatever cmd_vel says.
+    """
+    make, robot, operator, spin = bench
+    other = links.UdpEndpoint(('127.0.0.1', 0))
+    try:
+        make(link=f'udp:127.0.0.1:{other.socket.getsockname()[1]}', namespace='/robot_2')
+        estop = operator.create_publisher(Bool, topics.ESTOP, no_history_qos())
+        spin(lambda: estop.get_subscription_count() > 0)
+        estop.publish(Bool(data=True))
+        operator.destroy_publisher(estop)
+        spin(duration=0.5)
+        bridge = make()
+        connected(operator, spin)
+        spin(lambda: bridge.estop.engaged, timeout=5.0)
+        started = time.monotonic()
+        for _ in range(10):
+            operator.send(0.02, 0.0)
+            spin(duration=0.1)
+        said = robot.said()
+        assert said and all(line[0] == 'stop' for line in said), said
+        assert len(robot.said(started)) >= 5
+    finally:
+        other.close()
 
 
 def test_shutdown_sends_the_stop_line_several_times(bench):

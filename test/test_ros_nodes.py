@@ -22,6 +22,7 @@ from curve_formation.core.curves import fit_curve, FourierBasis
 from curve_formation.core.experiment import load_experiment
 from curve_formation.nodes import messages, qos, topics
 from curve_formation.nodes.curve_server import CurveServer
+from curve_formation.nodes.estop import EstopHolder
 from curve_formation.nodes.formation_controller import FormationController
 from curve_formation.nodes.params import ParameterError
 from curve_formation.nodes.readiness import ReadyReport
@@ -41,10 +42,14 @@ def circle_curve():
 
 
 class Probe:
-    """A helper node: publishes poses/states/curves and records cmd_vel of one robot."""
+    """A helper node: publishes poses/states/curves and records cmd_vel of one robot; holds
+    the e-stop, released, as the curve server would (a controller drives only once it has
+    heard the e-stop state, or after nodes.estop.HEAR_WAIT s alone).
+    """
 
     def __init__(self, context, robot, skew=0.0):
         self.node = rclpy.create_node('probe', context=context)
+        self.estop = EstopHolder(self.node)
         self.skew = skew   # s, how far the probe's stamps lag the controller's clock
         self.pose_pub = self.node.create_publisher(
             messages.PoseStamped, topics.robot_topic(robot, topics.POSE), qos.SENSOR)

@@ -8,6 +8,7 @@ import re
 import signal
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -69,7 +70,10 @@ def test_estop_a_killed_follower_and_the_killed_leader_each_stop_whom_they_shoul
         run.spin_for(2.0)
         assert driving(run, ALL)
         # 1. e-stop, then release
-        estop = run.monitor.create_publisher(Bool, topics.ESTOP, qos.LATCHED)
+        # as `ros2 topic pub /formation/estop std_msgs/msg/Bool "data: true"` sends it:
+        # reliable and volatile, published as soon as it has found one reader
+        estop = run.monitor.create_publisher(Bool, topics.ESTOP, no_history_qos())
+        run.spin_until(lambda: estop.get_subscription_count() > 0, 10.0, 'a reader')
         estop.publish(Bool(data=True))
         wait_for(run, lambda: stopped(run, ALL), 'every robot to stop')
         run.spin_for(0.2)          # poses published before the stop are still arriving
@@ -77,6 +81,8 @@ def test_estop_a_killed_follower_and_the_killed_leader_each_stop_whom_they_shoul
         run.spin_for(1.0)
         assert stopped(run, ALL)
         np.testing.assert_allclose(run.monitor.poses, before, atol=1e-9)   # standing still
+        # a release must reach every node itself (nobody passes a release on)
+        run.spin_until(lambda: estop.get_subscription_count() >= 2 * 6, 10.0, 'every reader')
         estop.publish(Bool(data=False))
         wait_for(run, lambda: driving(run, ALL), 'every robot to drive again')
         # 2. a follower killed (SIGKILL: silent at once), then restarted
@@ -130,7 +136,8 @@ def test_estop_a_killed_follower_and_the_killed_leader_each_stop_whom_they_shoul
 def test_estop_command_holds_the_stop_sending_it_again_until_ctrl_c(ros):
     """`curve-formation estop on --hold`: a controller that never got the latched message
     (a volatile subscription here: no history) still gets the stop, within a second; a late
-    latched one gets it at once; Ctrl-C ends the command cleanly.
+    latched one gets it at once; Ctrl-C ends the command cleanly, with status 1 since no
+    controller confirmed the stop (this probe is none).
     """
     context, add, spin_until = ros
     node = add(rclpy.create_node('probe', context=context))
@@ -151,7 +158,8 @@ def test_estop_command_holds_the_stop_sending_it_again_until_ctrl_c(ros):
     finally:
         proc.send_signal(signal.SIGINT)
         out, err = proc.communicate(timeout=20)
-    assert proc.returncode == 0 and 'e-stop on' in out, (out, err)
+    assert proc.returncode == 1 and 'sending it every 1 s; Ctrl-C to quit' in out, (out, err)
+    assert 'no formation controller answered' in err
 
 
 @pytest.mark.parametrize('told', [True, pytest.param(False, marks=pytest.mark.slow)],
@@ -204,3 +212,154 @@ def test_dropped_messages_and_latency_still_converge_at_arena_speeds(ros_domain,
     per_robot = np.linalg.norm(errors[-1], axis=1).round(4).tolist()
     assert all(lag is not None and lag <= late for lag in lags.values()), (
         lags, per_robot, tmp_path / 'logs')
+
+
+def _holders(context, add, count, first=0):
+    from rclpy.node import Node
+
+    from curve_formation.nodes.estop import EstopHolder
+    out = []
+    for i in range(first, first + count):
+        node = add(Node('formation_controller', namespace=f'/robot_{i + 1}', context=context))
+        out.append(EstopHolder(node, f'robot_{i + 1}', 9))
+    return out
+
+
+@pytest.mark.parametrize('reliability', ['reliable', 'best_effort'])
+def test_any_publisher_stops_every_holder_even_when_it_reached_only_one(ros, reliability):
+    """A publisher as `ros2 topic pub` makes one (volatile; reliable by default, or best
+    effort) stops every node holding the e-stop although it sent a single message once it had
+    found one of them: the node that got it passes it on. Only a release command releases, and
+    it must reach each node itself.
+    """
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    context, add, spin_until = ros
+    holders = _holders(context, add, 3)
+    spin_until(lambda: all(len(h.node.get_subscriptions_info_by_topic(topics.ESTOP_STATE)) >= 3
+                           for h in holders), timeout=10.0)
+    profile = QoSProfile(depth=10, durability=DurabilityPolicy.VOLATILE,
+                         reliability=getattr(ReliabilityPolicy, reliability.upper()))
+    pedal = add(rclpy.create_node('foot_pedal', context=context))
+    pub = pedal.create_publisher(Bool, topics.ESTOP, profile)
+    spin_until(lambda: pub.get_subscription_count() >= 1, timeout=10.0)
+    pub.publish(Bool(data=True))
+    spin_until(lambda: all(h.engaged for h in holders), timeout=5.0)
+    assert all(h.latch.by == '/foot_pedal' for h in holders), [h.latch.by for h in holders]
+    readers = 6 if reliability == 'reliable' else 3   # reliable: two readers in each node
+    spin_until(lambda: pub.get_subscription_count() >= readers, timeout=10.0)
+    pub.publish(Bool(data=False))
+    spin_until(lambda: not any(h.engaged for h in holders), timeout=5.0)
+
+
+def test_a_node_that_starts_while_stopped_stays_stopped_without_a_command(ros):
+    """No sender left: the stop is held by the nodes that got it and taken up by a new one."""
+    context, add, spin_until = ros
+    holders = _holders(context, add, 2)
+    sender = add(rclpy.create_node('formation_estop', context=context))
+    pub = sender.create_publisher(Bool, topics.ESTOP, qos.LATCHED)
+    spin_until(lambda: pub.get_subscription_count() >= 4, timeout=10.0)
+    pub.publish(Bool(data=True))
+    spin_until(lambda: all(h.engaged for h in holders), timeout=5.0)
+    sender.destroy_publisher(pub)
+    late = _holders(context, add, 1, first=5)[0]
+    spin_until(lambda: late.engaged, timeout=5.0)
+    assert late.latch.by == '/formation_estop'
+
+
+def test_estop_with_nobody_on_the_domain_exits_1_naming_the_domain(ros_domain):
+    started = time.monotonic()
+    done = subprocess.run([sys.executable, '-m', 'curve_formation.cli', 'estop', 'on',
+                           '--wait', '1'], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 1, (done.stdout, done.stderr)
+    assert f'ROS_DOMAIN_ID={ros_domain}' in done.stderr and 'LOCALHOST' in done.stderr
+    assert 'Ctrl-C' not in done.stdout + done.stderr
+    assert time.monotonic() - started < 1.0 + 10.0   # --wait, and starting Python and rclpy
+
+
+class CommandLog:
+    """Every cmd_vel of robots 1..n with its DDS source time: (robot, sent s, v, w)."""
+
+    def __init__(self, context, n):
+        from geometry_msgs.msg import Twist
+        from rclpy.node import Node
+
+        from curve_formation.nodes.runtime import WithMessageInfo
+        self.node = Node('command_log', context=context, start_parameter_services=False)
+        self.rows = []
+        for i in range(1, n + 1):
+            self.node.create_subscription(
+                Twist, topics.robot_topic(i, topics.CMD_VEL),
+                WithMessageInfo(lambda m, info, i=i: self.rows.append(
+                    (i, info['source_timestamp'] * 1e-9, m.linear.x, m.angular.z))),
+                qos.COMMAND)
+
+    def since(self, t):
+        return [row for row in self.rows if row[1] >= t]
+
+
+def estop_cli(run, *args, wait=5.0):
+    """Run `curve-formation estop ...` while the run spins; (exit status, stdout, stderr)."""
+    proc = subprocess.Popen([sys.executable, '-m', 'curve_formation.cli', 'estop', *args,
+                             '--wait', str(wait)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    run.spin_until(lambda: proc.poll() is not None, 60.0, 'the estop command to end')
+    out, err = proc.communicate()
+    return proc.returncode, out, err
+
+
+def test_estop_cli_stops_all_nine_robots_at_once_holds_them_and_releases(ros_domain, tmp_path):
+    """The arena demo, one process per node: `estop on` (no --hold) at t = 5 s stops all 9
+    robots within 2 control periods of the first robot's receipt and exits 0 saying so; they
+    stay stopped for 10 s after it has exited, a controller killed and restarted meanwhile
+    included; with a controller killed, `estop on` exits 1 naming it; `estop off` releases
+    and the formation settles, the e-stop in metrics.json and the phase settled only after
+    the release.
+    """
+    import time as clock
+    with Run(CONFIG_DIR / 'arena_demo.yaml', tmp_path, RunOptions(bag_path=tmp_path / 'bag'),
+             log=quiet) as run:
+        log = CommandLog(run.observers.context, 9)
+        run.observers.add_node(log.node)
+        run.spin_until(lambda: run.monitor.recording.t and run.monitor.recording.t[-1] >= 5.0,
+                       30.0, 't = 5 s')
+        assert driving(run, range(1, 10))
+        status, out, err = estop_cli(run, 'on')
+        exited = clock.time()
+        assert status == 0 and '9 of 9 robots stopped within' in out, (out, err)
+        assert 'Ctrl-C' not in out + err
+        run.spin_for(0.3)             # poses published before the stop are still arriving
+        before = run.monitor.poses.copy()
+        run.spin_for(2.0)
+        run.kill('robot_4.formation_controller')
+        run.restart('robot_4.formation_controller')
+        run.spin_until(lambda: clock.time() >= exited + 10.0, 20.0, '10 s after the command')
+        held = log.since(exited)
+        assert {row[0] for row in held} == set(range(1, 10))
+        assert all(row[2] == 0.0 and row[3] == 0.0 for row in held), \
+            [row for row in held if row[2] or row[3]][:5]
+        np.testing.assert_allclose(run.monitor.poses, before, atol=1e-9)   # standing still
+        run.kill('robot_7.formation_controller')
+        status, out, err = estop_cli(run, 'on', wait=3.0)
+        assert status == 1 and 'robot_7' in err and '8 of 9' in err, (out, err)
+        run.restart('robot_7.formation_controller')
+        run.spin_for(3.0)
+        assert all(row[2] == 0.0 and row[3] == 0.0 for row in log.since(exited))
+        status, out, err = estop_cli(run, 'off')
+        assert status == 0 and '9 of 9 robots released' in out, (out, err)
+        released = run.monitor.recording.t[-1]
+        run.spin_for(25.0)   # settled ~15 s after the release (measured)
+        result = run.write_results()
+    # Every robot's first zero command within 2 periods of the first robot's receipt.
+    receipts = [logged(tmp_path, f'robot_{i}.formation_controller', 'e-stop engaged by')[0][0]
+                for i in range(1, 10)]
+    first = min(receipts)
+    zeros = [min(t for robot, t, v, w in log.rows if robot == i and t >= first and v == w == 0)
+             for i in range(1, 10)]
+    assert max(zeros) - first <= 2 * PERIOD, (first, zeros)
+    restarted = (tmp_path / 'logs' / 'robot_4.formation_controller.log').read_text()
+    assert 'passed on by' in restarted.split('agent 4/9')[-1], restarted[-2000:]
+    phase = result['phases'][0]
+    assert phase['settled'] and phase['interrupted_by_estop'], phase
+    assert phase['settle_time'] >= released, (phase, released)
+    (start, stop), = result['estop']['intervals']
+    assert 4.5 < start < 9.0 and released - 1.0 < stop <= released + 1.0, result['estop']

@@ -251,6 +251,7 @@ class AgentController:
         # when the newest news of the leader was made, our clock
         self.leader_heard: float | None = None
         self.estop = False
+        self.estop_reason = 'e-stop engaged'
         self.last_command: Command = (0.0, 0.0)
         # Observer law: the pose and stamp of the previous command's tick and that tick's
         # time (s, this controller's clock); the last command where the disturbance enters
@@ -373,9 +374,10 @@ class AgentController:
         self.others, self.others_received = given, at
         return True
 
-    def set_estop(self, engaged: bool) -> None:
-        """Engage (True) or release (False) the e-stop."""
+    def set_estop(self, engaged: bool, reason: str = 'e-stop engaged') -> None:
+        """Engage (True) or release (False) the e-stop; `reason`: why stopped, as reported."""
         self.estop = bool(engaged)
+        self.estop_reason = reason
 
     def state(self) -> State | None:
         """This agent's State for its out-neighbours, or None before it has pose and curve."""
@@ -442,7 +444,7 @@ class AgentController:
     def _tick(self, now: float) -> Tick:
         cfg = self.config
         if self.estop:
-            return self._stop('e-stop engaged')
+            return self._stop(self.estop_reason)
         if self.curve is None or self.target is None:
             return self._stop('no curve received yet')
         pose, stamp, received = self.pose, self.pose_stamp, self.pose_received

@@ -10,6 +10,8 @@ import math
 import numpy as np
 from scipy.spatial.distance import pdist
 
+from curve_formation.core.estop import stopped_time
+
 
 def strict_json(data):
     """JSON text of a metrics dict: every number that is not finite becomes null (JSON has no
@@ -139,6 +141,20 @@ def settle_time(t, norm, tolerance, start, end):
     if above[-1] == len(times) - 1:
         return None
     return float(times[above[-1] + 1] - start)
+
+
+def estop_hold(intervals, start, end):
+    """When a phase [start, end) (s) was last released from an e-stop: -inf if no e-stop
+    interval overlaps it, inf if one still holds at its end, else the last release time.
+    """
+    last = -math.inf
+    for a, b in intervals:
+        if a >= end or (b is not None and b <= start):
+            continue
+        if b is None or b >= end:
+            return math.inf
+        last = max(last, b)
+    return last
 
 
 def orientation_rates(t, poses, window=1.0):
@@ -299,11 +315,14 @@ def peak_speeds(commands, wheel_base):
 
 
 def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance=None,
-                gains=None, disturbance=None, limits=None, contacts=None, unseen=None):
+                gains=None, disturbance=None, limits=None, contacts=None, unseen=None,
+                estops=None):
     """All metrics of a run as a JSON-ready dict (one entry per curve phase).
 
     gains, disturbance and limits default to the experiment's; pass the ones the run used.
     contacts, unseen: see body_metrics (experiments with bodies or avoidance).
+    estops: [(start, stop or None)] (s) while the e-stop held robots (core.estop): a phase
+    they interrupt settles only after the release, and not at all if still held at its end.
     """
     tolerance = experiment.spec.metrics.tolerance if tolerance is None else tolerance
     gains = experiment.gains if gains is None else gains
@@ -322,7 +341,11 @@ def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance
         size = p.curve.size()
         last = np.flatnonzero(window)[-1]
         agent_err = np.linalg.norm(errors[last], axis=1)
-        settle = settle_time(t, norm, tolerance * size, p.start, end)
+        held = estop_hold(estops or (), p.start, min(end, float(t[-1])))
+        settle = None
+        if held != math.inf:
+            settle = settle_time(t, norm, tolerance * size, max(p.start, held), end)
+            settle = None if settle is None else settle + max(held - p.start, 0.0)
         finite = bool(np.isfinite(norm[window]).all())
         phases.append({
             'index': p.index, 'start': p.start, 'curve_size': size,
@@ -331,8 +354,10 @@ def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance
             'tolerance': tolerance * size, 'settled': settle is not None,
             'settle_time': settle,
             'not_settled_because': None if settle is not None else (
-                'the error is not finite (NaN or infinite)' if not finite
+                'the e-stop was engaged at the end of the phase' if held == math.inf
+                else 'the error is not finite (NaN or infinite)' if not finite
                 else 'the error does not stay below the tolerance'),
+            'interrupted_by_estop': held > -math.inf,
             'initial_error_norm': float(norm[window][0]),
             'final_error_norm': float(norm[last]),
             'final_max_agent_error': float(agent_err.max()),
@@ -354,6 +379,9 @@ def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance
         'all_settled': all(p['settled'] for p in phases),
         'closest_approach': closest_approach(poses)[0],
     }
+    if estops is not None:
+        out['estop'] = {'intervals': [[a, b] for a, b in estops],
+                        'stopped_for': stopped_time(estops, float(t[-1]))}
     if dhat is not None and gains.k2 > 0:
         target = np.asarray(disturbance) / gains.k2
         out['final_estimate_error_max'] = float(np.linalg.norm(dhat[-1] - target, axis=1).max())
@@ -373,17 +401,18 @@ def result_metrics(result, tolerance=None):
     return out
 
 
-def ground_truth_metrics(experiment, data, phase, law_pose_gaps=()):
+def ground_truth_metrics(experiment, data, phase, law_pose_gaps=(), estops=None):
     """With a camera: the formation measured on the fake robots' true poses, how far the
     tracked poses (as last received, up to a frame and its latency old) were from them, and
     how far the pose each law used at its tick (law_pose_gaps (m), every tick of every robot;
-    carried forward to the tick with predict_pose) was from the truth at that tick.
+    carried forward to the tick with predict_pose) was from the truth at that tick. estops: as
+    run_metrics.
     """
     truth = data['true_poses']
     seen = np.isfinite(truth).all(axis=2) & np.isfinite(data['poses']).all(axis=2)
     gap = np.linalg.norm(data['poses'][..., :2] - truth[..., :2], axis=2)[seen]
     turn = np.abs(np.angle(np.exp(1j * (data['poses'][..., 2] - truth[..., 2]))))[seen]
-    out = run_metrics(experiment, data['t'], truth, phase)
+    out = run_metrics(experiment, data['t'], truth, phase, estops=estops)
     return {'final_error_norm': out['final_error_norm'],
             'phases': [{k: p[k] for k in ('settled', 'settle_time', 'final_error_norm')}
                        for p in out['phases']],

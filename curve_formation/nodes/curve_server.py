@@ -28,6 +28,7 @@ from curve_formation.core.curve_sources import fit_points
 from curve_formation.core.curves import CurveError, make_basis
 from curve_formation.core.metrics import offset_points
 from curve_formation.nodes import messages, topics
+from curve_formation.nodes.estop import EstopHolder
 from curve_formation.nodes.params import (
     declare_parameters,
     experiment_parameter,
@@ -77,6 +78,10 @@ TOPICS = (
         'published as the next curve'),
     Use('sub', topics.ROBOT_POSES, "every robot's pose, to re-assign targets (with "
         'reassign_every)'),
+    Use('sub', topics.ESTOP, 'held (latched) for the nodes that start while it is engaged'),
+    Use('sub', topics.ESTOP_STATE, "other nodes' e-stop state (started while stopped: "
+        'engaged)'),
+    Use('pub', topics.ESTOP_STATE, 'its e-stop state on every change and every second'),
     Use('sub', topics.READY, 'names of the nodes that receive the curve, counted before the '
         'first curve (wait_for_ready)'),
 )
@@ -97,6 +102,8 @@ class CurveServer(Node):
         self.path_pub = topics.publisher(self, topics.CURVE_PATH)
         self.marker_pub = topics.publisher(self, topics.CURVE_MARKERS)
         topics.subscription(self, topics.OBSERVED_CURVE, self._on_observed)
+        # Holds the e-stop for controllers and bridges that (re)start while it is engaged.
+        self.estop = EstopHolder(self, robots=self.experiment.n)
         self.next_id = 0
         self.next_phase = 0
         # Where the agents are headed: the last published targets (m, arena frame), from

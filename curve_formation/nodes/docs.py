@@ -32,6 +32,7 @@ QOS_TEXT = {
     'EVENTS': f'reliable, keep last {qos.EVENTS.depth}',
     'ROLL_CALL': 'reliable, transient local, keep all',
     'IMAGE': f'best effort, keep last {qos.IMAGE.depth}',
+    'ANY_PUBLISHER': 'any publisher: read best effort and reliable, volatile',
 }
 
 
@@ -42,8 +43,10 @@ def topic_table(uses):
         topic = topics.REGISTRY[use.name]
         meaning = (use.meaning or topic.meaning).replace('|', '\\|')
         shown_type = topic.type_name.replace('/msg/', '/')
+        profile = topic.qos_name if use.direction == 'pub' else (topic.reader_qos_name
+                                                                 or topic.qos_name)
         rows.append(f'| {use.direction} | `{use.shown_name}` | {shown_type} | '
-                    f'{QOS_TEXT[topic.qos_name]} | {meaning} |')
+                    f'{QOS_TEXT[profile]} | {meaning} |')
     return '\n'.join(rows)
 
 

@@ -11,6 +11,8 @@ and the smallest gap between two bodies. With `links`, the robots are emulated M
 behind their last link: each reads wheel speeds in its wire format from a UDP port or a
 pseudo-terminal, as its firmware would (with the firmware's watchdog: `command_timeout`), and
 answers each line 'ok' or 'err'; no cmd_vel is read (robot_bridge writes those links).
+Reading cmd_vel, it obeys the e-stop as fake_robot does: every robot stands still until it is
+released.
 """
 
 import math
@@ -25,7 +27,8 @@ from curve_formation.core import metrics, wire
 from curve_formation.core.dynamics import DrivenUnicycle
 from curve_formation.links import robot_endpoint
 from curve_formation.nodes import messages, topics
-from curve_formation.nodes.fake_robot import ROBOT_PARAMETERS
+from curve_formation.nodes.estop import EstopHolder
+from curve_formation.nodes.fake_robot import ESTOP_TOPICS, ROBOT_PARAMETERS
 from curve_formation.nodes.params import (
     declare_parameters,
     experiment_parameter,
@@ -65,7 +68,7 @@ TOPICS = (
         'publish_robot_poses'),
     Use('pub', topics.DIAGNOSTICS, 'contacts: count, total time (s), smallest gap between '
         'two bodies (m); 1 Hz'),
-)
+) + ESTOP_TOPICS
 
 
 class FakeArena(Node):
@@ -100,9 +103,11 @@ class FakeArena(Node):
                         if p.publish_robot_poses else None)
         self.diag_pub = topics.publisher(self, topics.DIAGNOSTICS)
         self.endpoints = self._endpoints(p, experiment)
+        self.estop = None   # behind links, the robot bridges hold the e-stop
         if self.endpoints:
             self.create_timer(FIRMWARE_POLL, self._on_lines)
         else:
+            self.estop = EstopHolder(self, robots=self.n, on_change=self._on_estop)
             for i in range(1, self.n + 1):
                 topics.subscription(self, topics.CMD_VEL, lambda msg, i=i: self._on_cmd(i, msg),
                                     robot=i)
@@ -161,8 +166,16 @@ class FakeArena(Node):
             self.get_logger().warning(f'robot {i}: non-finite cmd_vel ignored',
                                       throttle_duration_sec=1.0)
             return
+        if self.estop is not None and self.estop.engaged:
+            v, w = 0.0, 0.0
         # Taken up, at its time, by the next step of the world (the pose timer's).
         self.robots[i - 1].drive(v, w, now_seconds(self), advance=False)
+
+    def _on_estop(self, engaged):
+        if engaged:
+            now = now_seconds(self)
+            for robot in self.robots:
+                robot.drive(0.0, 0.0, now, advance=False)
 
     def advance(self, until):
         """Move every robot up to `until` (s), resolving contacts every physics_dt; in one

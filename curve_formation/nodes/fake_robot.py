@@ -5,7 +5,8 @@ publishes pose (PoseStamped, arena frame) at `rate_hz`, like an overhead camera.
 piecewise constant, so the motion is integrated exactly up to each command change and each
 publication: no integration step. A zero command means motors off: the robot stands still
 (the disturbance acts on a driven input only), and so does a command older than
-`command_timeout` (a robot-side watchdog, as a driver should have). Options: Gaussian pose
+`command_timeout` (a robot-side watchdog, as a driver should have). While the e-stop is
+engaged it stands still whatever cmd_vel says (nodes/estop.py). Options: Gaussian pose
 noise, a fixed command latency, and dropped poses (fault injection).
 """
 
@@ -16,6 +17,7 @@ from rclpy.node import Node
 
 from curve_formation.core.dynamics import DrivenUnicycle
 from curve_formation.nodes import messages, topics
+from curve_formation.nodes.estop import EstopHolder
 from curve_formation.nodes.params import declare_parameters, Param, ParameterError
 from curve_formation.nodes.runtime import now_seconds, run_node
 from curve_formation.nodes.topics import Use
@@ -48,10 +50,18 @@ PARAMETERS = (
 ) + ROBOT_PARAMETERS
 
 
+# The e-stop as the fake robots and the fake arena obey it.
+ESTOP_TOPICS = (
+    Use('sub', topics.ESTOP, 'true: motors off and every cmd_vel taken as zero until released'),
+    Use('sub', topics.ESTOP_STATE, "other nodes' e-stop state (started while stopped: "
+        'stopped)'),
+    Use('pub', topics.ESTOP_STATE, 'its e-stop state on every change and every second'),
+)
+
 TOPICS = (
     Use('sub', topics.CMD_VEL, 'velocity command'),
     Use('pub', topics.POSE, f'pose at rate_hz (on {topics.TRUE_POSE} instead with pose_topic)'),
-)
+) + ESTOP_TOPICS
 
 class FakeRobot(Node):
     """Unicycle integrated from cmd_vel; pure maths in core.dynamics.DrivenUnicycle."""
@@ -68,6 +78,7 @@ class FakeRobot(Node):
         self.rng = np.random.default_rng(p.seed)
         self.pose_pub = topics.publisher(self, p.pose_topic)
         topics.subscription(self, topics.CMD_VEL, self._on_cmd)
+        self.estop = EstopHolder(self, f'robot_{p.index}', on_change=self._on_estop)
         self.create_timer(1.0 / p.rate_hz, self._on_timer)
 
     @property
@@ -79,7 +90,13 @@ class FakeRobot(Node):
         if not (math.isfinite(v) and math.isfinite(w)):
             self.get_logger().warning('non-finite cmd_vel ignored', throttle_duration_sec=1.0)
             return
+        if self.estop.engaged:
+            v, w = 0.0, 0.0
         self.robot.drive(v, w, now_seconds(self))
+
+    def _on_estop(self, engaged):
+        if engaged:
+            self.robot.drive(0.0, 0.0, now_seconds(self))
 
     def _on_timer(self):
         now = now_seconds(self)

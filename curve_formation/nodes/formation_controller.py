@@ -21,6 +21,7 @@ from curve_formation.core.assignment import AssignmentError
 from curve_formation.core.control import Gains, LAWS, timed_by, WheelLimits
 from curve_formation.core.safety import Avoidance, AVOIDANCE_OFF
 from curve_formation.nodes import messages, topics
+from curve_formation.nodes.estop import EstopHolder
 from curve_formation.nodes.params import (
     declare_parameters,
     limit_parameter,
@@ -236,7 +237,10 @@ TOPICS = (
     Use('sub', topics.POSE, 'own pose, arena frame'),
     Use('sub', topics.STATE, "each in-neighbour's state: e_x, e_y, curve_id, leader_age", '<j>'),
     Use('sub', topics.CURVE, 'the active curve'),
-    Use('sub', topics.ESTOP),
+    Use('sub', topics.ESTOP, 'true: a zero command at once and at every tick until '
+        'released (latched here, whoever sent it)'),
+    Use('sub', topics.ESTOP_STATE, "other nodes' e-stop state: one that starts while the "
+        'formation is stopped stays stopped'),
     Use('sub', topics.ROBOT_POSES, "every robot's pose (x, y, theta per robot), for the "
         'safety filter (with avoidance)'),
     Use('pub', topics.CMD_VEL, 'velocity command at rate_hz'),
@@ -246,6 +250,8 @@ TOPICS = (
         'the stamps of the inputs it came from (own pose, each in-neighbour state), to trace or '
         'replay a command'),
     Use('pub', topics.ESTIMATE),
+    Use('pub', topics.ESTOP_STATE, 'its e-stop state on every change and every second '
+        '(the confirmation `curve-formation estop` waits for)'),
     Use('pub', topics.DIAGNOSTICS, 'driving or why stopped; curve id, s_i, estimate, rejected '
         'inputs'),
     REPORTED,
@@ -277,7 +283,11 @@ class FormationController(Node):
         self.diag_pub = topics.publisher(self, topics.DIAGNOSTICS)
         topics.subscription(self, topics.POSE, self._on_pose)
         subscribe_to_curve(self, self._on_curve)
-        topics.subscription(self, topics.ESTOP, self._on_estop)
+        # Stopped until the e-stop state is heard: one that starts while the formation is
+        # stopped must not move first.
+        self.controller.set_estop(True, 'e-stop state not heard yet')
+        self.estop = EstopHolder(self, f'robot_{self.config.index}', self.config.agent_count,
+                                 self._on_estop)
         for j, _ in self.config.neighbours:
             topics.subscription(self, topics.STATE, lambda msg, j=j: self._on_neighbour(j, msg),
                                 robot=j)
@@ -344,9 +354,11 @@ class FormationController(Node):
             self.get_logger().warning(f'robot poses refused: expected {self.config.agent_count}'
                                       ' robots', throttle_duration_sec=1.0)
 
-    def _on_estop(self, msg):
-        self.controller.set_estop(msg.data)
-        self.get_logger().warning('e-stop engaged' if msg.data else 'e-stop released')
+    def _on_estop(self, engaged):
+        """The e-stop changed: engaged, a zero command goes out now, not at the next tick."""
+        self.controller.set_estop(engaged)
+        if engaged:
+            self.cmd_pub.publish(Twist())
 
     def _on_timer(self):
         now = now_seconds(self)

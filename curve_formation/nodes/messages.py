@@ -17,6 +17,7 @@ the error was computed from.
 import math
 
 from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import (
     Point32,
     PolygonStamped,
@@ -39,6 +40,7 @@ from curve_formation.core.curve_codec import (
     quaternion_from_yaw,
     yaw_from_quaternion,
 )
+from curve_formation.core.estop import estop_fields, parse_report
 
 
 MessageError = CodecError
@@ -264,3 +266,27 @@ def polygon_from_msg(msg):
     pts = np.array([[p.x, p.y] for p in msg.polygon.points], dtype=float).reshape(-1, 2)
     closed = len(pts) > 3 and bool(np.array_equal(pts[0], pts[-1]))
     return (pts[:-1] if closed else pts), closed
+
+
+
+def estop_state_to_msg(holder, role, robot, engaged, by, since, robots=0):
+    """DiagnosticStatus of a node's e-stop state (core.estop.EstopReport's fields): level
+    WARN engaged, OK released.
+    """
+    return DiagnosticStatus(
+        level=DiagnosticStatus.WARN if engaged else DiagnosticStatus.OK, name=holder,
+        hardware_id=robot,
+        message=(f'e-stop engaged by {by}' if engaged else
+                 f'e-stop released by {by}' if by else 'e-stop released'),
+        values=[KeyValue(key=key, value=value)
+                for key, value in estop_fields(engaged, role, by, since, robots).items()])
+
+
+def estop_state_from_msg(msg):
+    """core.estop.EstopReport of a DiagnosticStatus (an rclpy or a rosbags message);
+    MessageError if it is not one.
+    """
+    try:
+        return parse_report(msg.name, msg.hardware_id, {kv.key: kv.value for kv in msg.values})
+    except ValueError as exc:
+        raise MessageError(str(exc)) from None

@@ -13,6 +13,7 @@ import numpy as np
 from rclpy.node import Node
 
 from curve_formation.core import metrics
+from curve_formation.core.estop import stopped_intervals
 from curve_formation.nodes import messages, qos, topics
 from curve_formation.nodes.readiness import subscribe_to_curve
 from curve_formation.nodes.runtime import now_seconds, WithMessageInfo
@@ -65,6 +66,7 @@ class Monitor(Node):
         self.unseen = np.zeros(n, bool)   # robots missing from /formation/robot_poses now
         self.contacts = None       # fake_arena's contact summary, as last reported
         self.links = {}            # robot_bridge name -> [(t s, level, message, {key: value})]
+        self.estop_events = []     # (received s, holder, engaged) of each e-stop state heard
         # Per robot, one (published, received, handled) row per command (s, system clock):
         # the DDS source timestamp, the time DDS received it here, the time this callback ran.
         self.command_arrivals = [[] for _ in range(n)]
@@ -88,6 +90,7 @@ class Monitor(Node):
         if watch:
             self._subscribe(topics.ROBOT_POSES, self._on_robot_poses)
             self._subscribe(topics.DIAGNOSTICS, self._on_diagnostics)
+            self._subscribe(topics.ESTOP_STATE, self._on_estop_state)
             self.create_timer(1.0 / record_hz, self._sample)
         self.period = 1.0 / record_hz
         self.last_call = None      # time.monotonic() of the sampling timer's last call
@@ -150,6 +153,22 @@ class Monitor(Node):
         self.curve_times.setdefault(self.curve_id, info['source_timestamp'] * 1e-9)
         if self.t0 is None:
             self.t0 = now
+
+    def _on_estop_state(self, msg):
+        try:
+            report = messages.estop_state_from_msg(msg)
+        except messages.MessageError:
+            return
+        self.estop_events.append((now_seconds(self), report.holder, report.engaged))
+
+    def estop_intervals(self, end):
+        """[(start, stop or None)] (s since t = 0, up to `end`) while a node held the e-stop
+        (core.estop.stopped_intervals); [] before t = 0.
+        """
+        if self.t0 is None:
+            return []
+        return stopped_intervals([(t - self.t0, holder, engaged)
+                                  for t, holder, engaged in self.estop_events], end)
 
     def received_curves(self):
         """[(t, curve id, curve, s)] of every curve message received (t in s since t = 0)."""

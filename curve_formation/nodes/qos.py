@@ -31,6 +31,16 @@ ROLL_CALL = QoSProfile(history=HistoryPolicy.KEEP_ALL,
 # Diagnostics and the e-stop: reliable, a few deep.
 EVENTS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5,
                     reliability=ReliabilityPolicy.RELIABLE)
+# E-stop commands as read: best effort and volatile, which every writer matches (volatile or
+# transient-local, reliable or best-effort: `ros2 topic pub`, an RViz or Foxglove button, a
+# foot-pedal script). Nodes that act on the e-stop also read them with ESTOP_RELIABLE, so a
+# reliable sender's retransmissions reach them (nodes/estop.py).
+ANY_PUBLISHER = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                           reliability=ReliabilityPolicy.BEST_EFFORT,
+                           durability=DurabilityPolicy.VOLATILE)
+ESTOP_RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                            reliability=ReliabilityPolicy.RELIABLE,
+                            durability=DurabilityPolicy.VOLATILE)
 # Camera frames: only the newest is worth processing; an older one would only add latency.
 IMAGE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                    reliability=ReliabilityPolicy.BEST_EFFORT)

@@ -50,7 +50,8 @@ class Recorder(Node):
         self.received = {}
         self.streams = {}
         for recorded in topic_list:
-            topic, msg_class, profile = recorded.name, recorded.msg_class, recorded.profile
+            topic, msg_class, profile = (recorded.name, recorded.msg_class,
+                                         recorded.reader_profile)
             writer.add_topic(topic, recorded.type_name, bag_qos(profile))
             self.received[topic] = 0
             deep = QoSProfile(depth=RECORD_DEPTH, reliability=profile.reliability,

@@ -27,6 +27,7 @@ from curve_formation.core import wire
 from curve_formation.core.agent import is_stale
 from curve_formation.links import LinkError, robot_link
 from curve_formation.nodes import messages, topics
+from curve_formation.nodes.estop import EstopHolder
 from curve_formation.nodes.params import declare_parameters, Param, ParameterError
 from curve_formation.nodes.runtime import now_seconds, realtime_priority, run_node
 from curve_formation.nodes.topics import Use
@@ -77,7 +78,11 @@ PARAMETERS = (
 
 TOPICS = (
     Use('sub', topics.CMD_VEL, 'velocity command'),
-    Use('sub', topics.ESTOP, 'true sends the stop line until released'),
+    Use('sub', topics.ESTOP, 'true sends the stop line at once and holds it until released '
+        '(latched here, whoever sent it)'),
+    Use('sub', topics.ESTOP_STATE, "other nodes' e-stop state: a bridge that starts while the "
+        'formation is stopped holds the stop'),
+    Use('pub', topics.ESTOP_STATE, 'its e-stop state on every change and every second'),
     Use('pub', topics.DIAGNOSTICS, 'link: sent, failed, malformed, last error, reply age, '
         'latency (1 Hz)'),
 )
@@ -103,7 +108,6 @@ class RobotBridge(Node):
         # write times of the last lines (s, perf counter), as many as one window allows
         self.window = max(1, round(p.rate_hz))
         self.written = collections.deque(maxlen=self.window + SPARE_LINES)
-        self.estop = False
         self.seq = 0
         self.counts = {'sent': 0, 'failed': 0, 'stops': 0, 'replies': 0, 'malformed': 0}
         self.last_error = ''          # the latest send error, kept for the diagnostics
@@ -112,7 +116,7 @@ class RobotBridge(Node):
         self.latencies = collections.deque(maxlen=LATENCY_WINDOW)
         self.diag_pub = topics.publisher(self, topics.DIAGNOSTICS)
         topics.subscription(self, topics.CMD_VEL, self._on_cmd)
-        topics.subscription(self, topics.ESTOP, self._on_estop)
+        self.estop = EstopHolder(self, self._robot_name(), on_change=self._on_estop)
         self.create_timer(1.0 / p.rate_hz, self._on_timer)
         # A command that came too soon after the last line is written as soon as it may be
         # (this timer runs only while one waits), not at the next tick of the timer above:
@@ -132,7 +136,7 @@ class RobotBridge(Node):
                                         self.params.max_wheel_speed)
         self.command = (left, right, received)
         self.command_time = now_seconds(self)
-        if self.estop:
+        if self.estop.engaged:
             return
         if self._may_send():
             self._send_command()
@@ -140,15 +144,19 @@ class RobotBridge(Node):
             self.waiting.reset()
 
     def _on_waiting(self):
-        if self.command is None or self.estop:
+        if self.command is None or self.estop.engaged:
             self.waiting.cancel()
         elif self._may_send():
             self.waiting.cancel()
             self._send_command()
 
-    def _on_estop(self, msg):
-        self.estop = bool(msg.data)
-        if self.estop:
+    def _robot_name(self):
+        """'robot_3' in namespace /robot_3 (or /mona_3, ...: the namespace's last part)."""
+        return self.get_namespace().rstrip('/').split('/')[-1]
+
+    def _on_estop(self, engaged):
+        if engaged:
+            self.command = None
             self._send_stop()
 
     def _may_send(self):
@@ -172,7 +180,7 @@ class RobotBridge(Node):
     def _on_timer(self):
         self._read_replies()
         now = now_seconds(self)
-        if self.estop or is_stale(self.command_time, now, self.params.command_timeout):
+        if self.estop.engaged or is_stale(self.command_time, now, self.params.command_timeout):
             if self._may_send():
                 self._send_stop()
         elif self.command is not None and self._may_send():

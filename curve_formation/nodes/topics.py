@@ -9,7 +9,7 @@ placed by its namespace; `robot_topic` gives their absolute names.
 from dataclasses import dataclass
 from typing import NamedTuple
 
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PolygonStamped, PoseArray, PoseStamped, Twist, Vector3Stamped
 from nav_msgs.msg import Path
 from sensor_msgs.msg import Image, JointState
@@ -22,6 +22,7 @@ from curve_formation.nodes import qos
 CURVE = '/formation/curve'
 OBSERVED_CURVE = '/formation/observed_curve'
 ESTOP = '/formation/estop'
+ESTOP_STATE = '/formation/estop_state'
 READY = '/formation/ready'
 CURVE_PATH = '/formation/curve_path'
 CURVE_MARKERS = '/formation/markers'
@@ -45,7 +46,9 @@ WITH_IMAGES = 'with images'
 @dataclass(frozen=True)
 class Topic:
     """One topic: name (absolute, or relative for a per-robot topic), message class, QoS
-    (the name of a profile in nodes/qos.py), meaning, and which bags record it (or None).
+    (the name of a profile in nodes/qos.py: what our publishers offer and, unless
+    reader_qos_name says otherwise, what our subscriptions ask), meaning, and which bags
+    record it (or None).
     """
 
     name: str
@@ -53,10 +56,15 @@ class Topic:
     qos_name: str
     meaning: str
     recorded: str | None = None
+    reader_qos_name: str | None = None
 
     @property
     def profile(self):
         return getattr(qos, self.qos_name)
+
+    @property
+    def reader_profile(self):
+        return getattr(qos, self.reader_qos_name or self.qos_name)
 
     @property
     def per_robot(self):
@@ -72,8 +80,12 @@ REGISTRY = {t.name: t for t in (
     Topic(CURVE, Float64MultiArray, 'LATCHED',
           "the active curve: coefficients xi, then each agent's s_i; layout labels: basis "
           'kind and size, curve id, number of agents', EVERY_BAG),
-    Topic(ESTOP, Bool, 'LATCHED', 'true stops every robot at once, false releases',
-          EVERY_BAG),
+    Topic(ESTOP, Bool, 'LATCHED', 'true stops every robot at once, false releases; read '
+          'from any publisher (any reliability, any durability)', EVERY_BAG,
+          reader_qos_name='ANY_PUBLISHER'),
+    Topic(ESTOP_STATE, DiagnosticStatus, 'LATCHED',
+          "each node's e-stop state, latched for nodes that start while stopped: name = the "
+          "node, hardware_id = its robot, values engaged, by, robots", EVERY_BAG),
     Topic(CURVE_PATH, Path, 'LATCHED', 'the curve, sampled, for RViz', EVERY_BAG),
     Topic(DIAGNOSTICS, DiagnosticArray, 'EVENTS', "every node's status (1 Hz)", EVERY_BAG),
     Topic(POSE, PoseStamped, 'SENSOR', "a robot's pose, arena frame", EVERY_BAG),
@@ -128,7 +140,7 @@ def subscription(node, name, callback, robot=None, **kwargs):
     """
     topic = REGISTRY[name]
     return node.create_subscription(topic.msg_class, _placed(name, robot), callback,
-                                    topic.profile, **kwargs)
+                                    topic.reader_profile, **kwargs)
 
 
 def recorded(n, images=False):
@@ -137,8 +149,8 @@ def recorded(n, images=False):
     chosen = [t for t in REGISTRY.values() if t.recorded in kinds]
     out = [t for t in chosen if not t.per_robot]
     for i in range(1, n + 1):
-        out += [Topic(robot_topic(i, t.name), t.msg_class, t.qos_name, t.meaning, t.recorded)
-                for t in chosen if t.per_robot]
+        out += [Topic(robot_topic(i, t.name), t.msg_class, t.qos_name, t.meaning, t.recorded,
+                      t.reader_qos_name) for t in chosen if t.per_robot]
     return out
 
 

@@ -1,0 +1,137 @@
+"""`curve-formation estop on|off`: engage or release every robot's e-stop and say truly whom
+it reached.
+
+The command sends the e-stop on /formation/estop again every RESEND_PERIOD until every
+expected robot's controller has confirmed it in its own state on /formation/estop_state
+(nodes/estop.py), or `wait` seconds have passed. The robots expected are `expect` (from
+--expect or --experiment), else as many as the controllers and the curve server on the domain
+say the formation has. It reports how many confirmed and how fast, names the ones that did not,
+and returns 0 only when all did. Each node holds the state it was given (latched there), so
+the command need not stay up; `hold` keeps it sending every second until Ctrl-C all the same.
+"""
+
+from dataclasses import dataclass, field
+import os
+import sys
+import time
+
+from curve_formation.paths import discovery_text
+
+
+RESEND_PERIOD = 0.1   # s between two sends while robots have not confirmed
+HOLD_PERIOD = 1.0     # s between two sends with --hold, once confirmed
+CONTROLLER = 'formation_controller'
+
+
+@dataclass
+class Tally:
+    """The e-stop states heard, and when each robot's controller first confirmed the wanted
+    one (s since the first send).
+    """
+
+    engage: bool
+    expect: int | None = None
+    reports: dict = field(default_factory=dict)      # holder -> messages.EstopReport
+    confirmed: dict = field(default_factory=dict)    # robot -> s since the first send
+
+    def add(self, report, elapsed):
+        self.reports[report.holder] = report
+        if report.role == CONTROLLER and report.robot:
+            if report.engaged == self.engage:
+                self.confirmed.setdefault(report.robot, elapsed)
+            else:
+                self.confirmed.pop(report.robot, None)
+
+    def expected(self):
+        """The robots expected: robot_1 .. robot_n, n from `expect` or the reports (None
+        before any report tells it).
+        """
+        n = self.expect or max((r.robots for r in self.reports.values()), default=0)
+        return [f'robot_{i}' for i in range(1, n + 1)] if n else None
+
+    def missing(self):
+        expected = self.expected()
+        return None if expected is None else [r for r in expected if r not in self.confirmed]
+
+    def done(self):
+        return self.missing() == []
+
+
+def send_estop(engage, expect=None, wait=5.0, hold=False, log=None):
+    """Send the e-stop (engage True) or its release and wait for confirmations; the exit
+    status: 0 every expected robot confirmed, 1 otherwise. log(text, ok): where the outcome
+    goes (default: stdout when ok, else stderr).
+    """
+    log = log or _print
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+    from std_msgs.msg import Bool
+
+    from curve_formation.nodes import messages, topics
+
+    start = time.monotonic()
+    tally = Tally(engage, expect)
+    rclpy.init()
+    node = rclpy.create_node('formation_estop', start_parameter_services=False)
+    word = 'on' if engage else 'off'
+    status = 1
+    try:
+        def heard(msg):
+            try:
+                tally.add(messages.estop_state_from_msg(msg), time.monotonic() - first_send)
+            except messages.MessageError:
+                pass
+        pub = topics.publisher(node, topics.ESTOP)
+        topics.subscription(node, topics.ESTOP_STATE, heard)
+        message = Bool(data=engage)
+        first_send = time.monotonic()
+        pub.publish(message)
+        last_send = first_send
+        while not tally.done() and time.monotonic() - start < wait:
+            rclpy.spin_once(node, timeout_sec=0.01)
+            if time.monotonic() - last_send >= RESEND_PERIOD:
+                pub.publish(message)
+                last_send = time.monotonic()
+        status = _report(tally, word, wait, log)
+        if hold:
+            log(f'e-stop {word}: sending it every {HOLD_PERIOD:g} s; Ctrl-C to quit', True)
+            while True:
+                rclpy.spin_once(node, timeout_sec=HOLD_PERIOD)
+                pub.publish(message)
+        else:
+            pub.wait_for_all_acked(rclpy.duration.Duration(seconds=0.5))
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return status
+
+
+def _report(tally, word, wait, log):
+    """Print what the e-stop reached; the exit status."""
+    done = 'stopped' if tally.engage else 'released'
+    expected = tally.expected()
+    others = sum(1 for r in tally.reports.values() if r.role != CONTROLLER
+                 and r.engaged == tally.engage)
+    held = f'; {others} other nodes hold it too' if others else ''
+    if expected is None:
+        domain = os.environ.get('ROS_DOMAIN_ID', '0 (unset)')
+        log(f'error: e-stop {word}: no formation controller answered within {wait:g} s on '
+            f'ROS_DOMAIN_ID={domain}, discovery range {discovery_text()}: is the formation '
+            'running on this domain and discovery range?', False)
+        return 1
+    confirmed = [r for r in expected if r in tally.confirmed]
+    missing = [r for r in expected if r not in tally.confirmed]
+    slowest = max((tally.confirmed[r] for r in confirmed), default=0.0)
+    if not missing:
+        log(f'e-stop {word}: {len(confirmed)} of {len(expected)} robots {done} within '
+            f'{slowest:.2f} s{held}', True)
+        return 0
+    log(f'error: e-stop {word}: {len(confirmed)} of {len(expected)} robots confirmed '
+        f'{done} within {wait:g} s; no confirmation from {", ".join(missing)}{held}', False)
+    return 1
+
+
+def _print(text, ok):
+    print(text, file=sys.stdout if ok else sys.stderr, flush=True)

@@ -1,0 +1,128 @@
+"""The e-stop in a node that acts on it: commands from anyone, latched here, announced.
+
+Every node that can move a robot (formation_controller, robot_bridge, fake_robot, fake_arena)
+and the curve server holds the e-stop through an EstopHolder:
+- it reads /formation/estop (std_msgs/Bool: true stops, false releases) from any publisher,
+  with two subscriptions: best effort (which every writer matches, whatever its reliability
+  and durability) and reliable (a reliable sender's retransmissions);
+- it keeps the state latched (core.estop.EstopLatch) until a release, whoever sent it and
+  whether or not the sender is still there;
+- it announces its state on /formation/estop_state (latched, and again every
+  ANNOUNCE_PERIOD for a late joiner whose history Fast DDS failed to deliver): the
+  confirmation `curve-formation estop` waits for, and how the other nodes learn of a stop
+  that reached this one first (a sender that found only some nodes yet still stops them
+  all) or that was engaged before they started.
+"""
+
+from std_msgs.msg import Bool
+
+from curve_formation.core.estop import EstopLatch
+from curve_formation.nodes import messages, qos, topics
+from curve_formation.nodes.runtime import now_seconds, WithMessageInfo
+
+
+ANNOUNCE_PERIOD = 1.0   # s between two announcements of an unchanged state
+# s a node waits, at its start, to hear another node's e-stop state (or a command) before it
+# takes the formation as not stopped: alone on the domain, nobody can hold a stop.
+HEAR_WAIT = 2.0
+UNNAMED = 'a publisher not yet named by discovery'
+
+
+class EstopHolder:
+    """A node's e-stop. `stopped` until it has heard the e-stop state (a command, another
+    node's state, or HEAR_WAIT s of silence), then while engaged. on_change(stopped) runs
+    when that changes, before the state is announced.
+    """
+
+    def __init__(self, node, robot='', robots=0, on_change=None):
+        """robot: the robot this node acts for ('robot_3'; '' for none); robots: the
+        formation's size as this node knows it (0: unknown).
+        """
+        self.node = node
+        self.robot = robot
+        self.robots = robots
+        self.on_change = on_change
+        self.latch = EstopLatch()
+        self.heard = False
+        self.name = node.get_fully_qualified_name()
+        self.state_pub = topics.publisher(node, topics.ESTOP_STATE)
+        node.create_subscription(Bool, topics.ESTOP, WithMessageInfo(self._on_command),
+                                 qos.ANY_PUBLISHER)
+        # Without rclpy's incompatible-QoS warning: a best-effort sender, which this one does
+        # not match, is read by the one above.
+        node.create_subscription(Bool, topics.ESTOP, WithMessageInfo(self._on_command),
+                                 qos.ESTOP_RELIABLE, event_callbacks=qos.observer_events())
+        topics.subscription(node, topics.ESTOP_STATE, self._on_peer)
+        node.create_timer(ANNOUNCE_PERIOD, self.announce)
+        self._hear_timer = node.create_timer(HEAR_WAIT, self._on_silence)
+        self.announce()
+
+    @property
+    def engaged(self):
+        return self.latch.engaged
+
+    @property
+    def stopped(self):
+        """The robot must not move: the e-stop is engaged, or not heard of yet."""
+        return self.latch.engaged or not self.heard
+
+    def _hear(self):
+        """The e-stop state is known from now on; on_change if that releases the robot."""
+        if self.heard:
+            return
+        self.heard = True
+        self._hear_timer.cancel()
+        if not self.latch.engaged and self.on_change is not None:
+            self.on_change(False)
+
+    def _on_silence(self):
+        self._hear()
+
+    def announce(self):
+        latch = self.latch
+        if latch.by == UNNAMED:   # discovery may know the sender's name by now
+            latch.by = self._senders()
+        self.state_pub.publish(messages.estop_state_to_msg(
+            self.name, self.node.get_name(), self.robot, latch.engaged, latch.by, latch.since,
+            self.robots))
+
+    def _senders(self):
+        """Names of the nodes publishing e-stop commands now (who sent, as far as DDS tells:
+        a message does not carry its sender's name).
+        """
+        names = sorted({f'{i.node_namespace.rstrip("/")}/{i.node_name}'
+                        for i in self.node.get_publishers_info_by_topic(topics.ESTOP)
+                        if not i.node_name.startswith('_NODE_NAME_UNKNOWN')})
+        return ', '.join(names) or UNNAMED
+
+    def _on_command(self, msg, info):
+        sent_at = info['source_timestamp'] * 1e-9
+        engaged = bool(msg.data)
+        if self.latch.command(engaged, sent_at, '', now_seconds(self.node)):
+            self.latch.by = self._senders()   # asked of the graph only on a change
+            self._changed()
+        elif not engaged and self.latch.engaged:
+            self.node.get_logger().warning('e-stop release older than the stop ignored',
+                                           throttle_duration_sec=1.0)
+        self._hear()
+
+    def _on_peer(self, msg):
+        try:
+            report = messages.estop_state_from_msg(msg)
+        except messages.MessageError as exc:
+            self.node.get_logger().warning(f'{topics.ESTOP_STATE}: {exc}',
+                                           throttle_duration_sec=5.0)
+            return
+        if report.holder == self.name:
+            return
+        if self.latch.peer(report.engaged, report.since, report.by, now_seconds(self.node)):
+            self._changed(f' (passed on by {report.holder})')
+        self._hear()
+
+    def _changed(self, how=''):
+        latch = self.latch
+        if self.on_change is not None and (self.heard or latch.engaged):
+            self.on_change(latch.engaged)
+        self.node.get_logger().warning(
+            f'e-stop {"engaged" if latch.engaged else "released"} by {latch.by}{how}')
+        self.announce()
