@@ -57,8 +57,12 @@ def simulate_to_dir(config, out_dir, rate='config', law=None, heading=None):
 def _summary_line(name, data):
     settle = ', '.join('not settled' if p['settle_time'] is None else f'{p["settle_time"]:.1f} s'
                        for p in data['phases'])
+    stops = data.get('estop', {}).get('intervals', [])
+    held = '; e-stop held {} time{} for {:.1f} s in all{}'.format(
+        len(stops), 's' if len(stops) > 1 else '', data['estop']['stopped_for'],
+        ' (still held at the end)' if stops[-1][1] is None else '') if stops else ''
     return (f'{name:24s} final ||e|| = {data["final_error_norm"]:.3g}, '
-            f'settling per curve: {settle}')
+            f'settling per curve: {settle}{held}')
 
 
 def _warn(experiment):
@@ -437,8 +441,9 @@ def build_parser():
                           'domain say the formation has)')
     expected.add_argument('--experiment', metavar='FILE',
                           help='expect the robots of this experiment')
-    estop.add_argument('--wait', type=not_negative, default=5.0,
-                       help='seconds to wait for every robot to confirm (default 5)')
+    estop.add_argument('--wait', type=not_negative, default=10.0,
+                       help='seconds to wait for every robot to confirm (default 10: DDS '
+                       'discovers a formation of 9 robots and its other nodes in 2-5 s)')
     estop.add_argument('--hold', action='store_true',
                        help='once confirmed, keep sending it every second until Ctrl-C (each '
                        'node holds it anyway)')

@@ -57,7 +57,7 @@ class Tally:
         return self.missing() == []
 
 
-def send_estop(engage, expect=None, wait=5.0, hold=False, log=None):
+def send_estop(engage, expect=None, wait=10.0, hold=False, log=None):
     """Send the e-stop (engage True) or its release and wait for confirmations; the exit
     status: 0 every expected robot confirmed, 1 otherwise. log(text, ok): where the outcome
     goes (default: stdout when ok, else stderr).

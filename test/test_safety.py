@@ -363,3 +363,9 @@ def test_estop_cli_stops_all_nine_robots_at_once_holds_them_and_releases(ros_dom
     assert phase['settle_time'] >= released, (phase, released)
     (start, stop), = result['estop']['intervals']
     assert 4.5 < start < 9.0 and released - 1.0 < stop <= released + 1.0, result['estop']
+    # The bag says the same: the e-stop states are recorded.
+    from curve_formation.analysis import analyze_bag
+    bagged = analyze_bag(tmp_path / 'bag', tmp_path / 'analysis')
+    (bag_start, bag_stop), = bagged['estop']['intervals']
+    assert abs(bag_start - start) < 0.2 and abs(bag_stop - stop) < 0.2, bagged['estop']
+    assert bagged['phases'][0]['settled'] and bagged['phases'][0]['settle_time'] >= released
