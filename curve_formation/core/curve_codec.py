@@ -17,6 +17,31 @@ class CodecError(ValueError):
     """A curve message that cannot be decoded."""
 
 
+# Curve ids are whole numbers 0..MAX_CURVE_ID; they also travel in doubles (a neighbour's
+# state), which hold every such integer exactly.
+MAX_CURVE_ID = 2 ** 31 - 1
+# The largest basis a message may announce: what an experiment file allows (config_schema:
+# harmonics <= 5000, order <= 30).
+MAX_HARMONICS, MAX_ORDER = 5_000, 30
+
+
+def curve_id_from_text(text):
+    """A curve id from its label text ('curve_id=<k>'); CodecError unless a whole number in
+    0..MAX_CURVE_ID.
+    """
+    if not (text.isdigit() and len(text) <= 10 and int(text) <= MAX_CURVE_ID):
+        raise CodecError(f'curve id {text[:20]!r}{"..." if len(text) > 20 else ""} is not a '
+                         f'whole number in 0..{MAX_CURVE_ID}')
+    return int(text)
+
+
+def curve_id_from_float(value):
+    """A curve id carried in a double; CodecError unless a whole number in 0..MAX_CURVE_ID."""
+    if not (math.isfinite(value) and value == int(value) and 0 <= value <= MAX_CURVE_ID):
+        raise CodecError(f'curve id {value!r} is not a whole number in 0..{MAX_CURVE_ID}')
+    return int(value)
+
+
 def encode_curve(curve, curve_id, s=None, rate=None):
     """(dims, data): dims [(label, size, stride)], data the 2H coefficients, then the 2H of
     `rate` (a Curve of the coefficients' rate, 1/s) if the curve moves, then s (n,) if given
@@ -41,8 +66,15 @@ def decode_curve(dims, data):
     labels = {label.split('=')[0]: (label, size) for label, size in dims}
     try:
         kind = labels['basis'][0].split('=', 1)[1]
-        curve_id = int(labels['curve_id'][0].split('=', 1)[1])
-        basis = make_basis(kind, labels['basis'][1])
+        curve_id = curve_id_from_text(labels['curve_id'][0].split('=', 1)[1])
+        size = int(labels['basis'][1])
+        largest = {'fourier': MAX_HARMONICS, 'polynomial': MAX_ORDER}.get(kind, 0)
+        if not 1 <= size <= largest:
+            raise CodecError(f'basis {kind[:20]!r} of size {size}: expected fourier of 1..'
+                             f'{MAX_HARMONICS} harmonics or polynomial of order 1..{MAX_ORDER}')
+        basis = make_basis(kind, size)
+    except CodecError:
+        raise
     except (KeyError, IndexError, ValueError) as exc:
         raise CodecError(f'curve message layout not understood: {exc}') from None
     values = np.array(data, dtype=float)

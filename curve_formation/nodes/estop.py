@@ -18,6 +18,7 @@ from std_msgs.msg import Bool
 
 from curve_formation.core.estop import EstopLatch
 from curve_formation.nodes import messages, qos, topics
+from curve_formation.nodes.guard import Guarded
 from curve_formation.nodes.runtime import now_seconds, WithMessageInfo
 
 
@@ -46,12 +47,12 @@ class EstopHolder:
         self.heard = False
         self.name = node.get_fully_qualified_name()
         self.state_pub = topics.publisher(node, topics.ESTOP_STATE)
-        node.create_subscription(Bool, topics.ESTOP, WithMessageInfo(self._on_command),
-                                 qos.ANY_PUBLISHER)
+        on_command = Guarded(node, topics.ESTOP, WithMessageInfo(self._on_command))
+        node.create_subscription(Bool, topics.ESTOP, on_command, qos.ANY_PUBLISHER)
         # Without rclpy's incompatible-QoS warning: a best-effort sender, which this one does
         # not match, is read by the one above.
-        node.create_subscription(Bool, topics.ESTOP, WithMessageInfo(self._on_command),
-                                 qos.ESTOP_RELIABLE, event_callbacks=qos.observer_events())
+        node.create_subscription(Bool, topics.ESTOP, on_command, qos.ESTOP_RELIABLE,
+                                 event_callbacks=qos.observer_events())
         topics.subscription(node, topics.ESTOP_STATE, self._on_peer)
         node.create_timer(ANNOUNCE_PERIOD, self.announce)
         self._hear_timer = node.create_timer(HEAR_WAIT, self._on_silence)

@@ -33,6 +33,7 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from curve_formation.core.curve_codec import (
     CodecError,
+    curve_id_from_float,
     decode_agent_parameters,
     decode_curve,
     decode_curve_rate,
@@ -133,7 +134,10 @@ def state_from_msg(msg):
     if missing:
         raise MessageError(f'formation state lacks {missing}')
     leader = values['leader_age']
-    return (values['e_x'], values['e_y'], int(round(values['curve_id'])),
+    if not (math.isfinite(values['e_x']) and math.isfinite(values['e_y'])
+            and math.isfinite(leader)):
+        raise MessageError('formation state has NaN or infinite values')
+    return (values['e_x'], values['e_y'], curve_id_from_float(values['curve_id']),
             stamp_to_seconds(msg.header.stamp), None if leader < 0 else leader)
 
 

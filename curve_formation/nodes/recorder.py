@@ -13,6 +13,7 @@ from sensor_msgs.msg import Image
 
 from curve_formation import bag
 from curve_formation.nodes import qos, topics
+from curve_formation.nodes.guard import Guarded
 from curve_formation.nodes.params import declare_parameters, Param, ParameterError
 from curve_formation.nodes.readiness import ReadyReport, REPORTED
 from curve_formation.nodes.runtime import (
@@ -60,8 +61,9 @@ class Recorder(Node):
             keyed = msg_class if msg_class is DiagnosticArray else None
             subscription = self.create_subscription(
                 msg_class, topic,
-                WithMessageInfo(lambda data, info, topic=topic, keyed=keyed:
-                                self._on_message(topic, data, info, keyed)),
+                Guarded(self, topic, WithMessageInfo(
+                    lambda data, info, topic=topic, keyed=keyed:
+                    self._on_message(topic, data, info, keyed))),
                 deep, raw=True, event_callbacks=qos.observer_events())
             if topic == topics.CURVE:   # the bag's t = 0 is its first curve: not a later one
                 ReadyReport(self, subscription, log=False)

@@ -17,6 +17,7 @@ from std_msgs.msg import Bool, Float64MultiArray, String
 from visualization_msgs.msg import MarkerArray
 
 from curve_formation.nodes import qos
+from curve_formation.nodes.guard import Guarded
 
 
 CURVE = '/formation/curve'
@@ -135,11 +136,13 @@ def publisher(node, name, robot=None):
 
 
 def subscription(node, name, callback, robot=None, **kwargs):
-    """node's subscription to the registered topic `name` (of robot `robot`, if given);
+    """node's subscription to the registered topic `name` (of robot `robot`, if given), its
+    callback guarded (nodes/guard.py: a message it cannot take is rejected, never fatal);
     kwargs go to create_subscription (raw, event_callbacks).
     """
     topic = REGISTRY[name]
-    return node.create_subscription(topic.msg_class, _placed(name, robot), callback,
+    placed = _placed(name, robot)
+    return node.create_subscription(topic.msg_class, placed, Guarded(node, placed, callback),
                                     topic.reader_profile, **kwargs)
 
 
