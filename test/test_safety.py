@@ -266,6 +266,36 @@ def test_a_node_that_starts_while_stopped_stays_stopped_without_a_command(ros):
     assert late.latch.by == '/formation_estop'
 
 
+def test_fake_robots_stand_still_while_stopped_whatever_cmd_vel_says(ros):
+    """A controller that crashed while driving (or any other publisher) cannot move a fake
+    robot, nor a robot of the fake arena, while the e-stop is engaged.
+    """
+    from geometry_msgs.msg import Twist
+    from rclpy.parameter import Parameter
+
+    from curve_formation.nodes.fake_arena import FakeArena
+    from curve_formation.nodes.fake_robot import FakeRobot
+    context, add, spin_until = ros
+    robot = add(FakeRobot(context=context, namespace='/robot_1'))
+    arena = add(FakeArena(context=context, parameter_overrides=[
+        Parameter('experiment', value=str(CONFIG_DIR / 'arena_demo.yaml'))]))
+    driver = add(rclpy.create_node('crashed_controller', context=context))
+    cmd = driver.create_publisher(Twist, topics.robot_topic(1, topics.CMD_VEL), qos.COMMAND)
+    estop = driver.create_publisher(Bool, topics.ESTOP, no_history_qos())
+    spin_until(lambda: cmd.get_subscription_count() >= 2 and estop.get_subscription_count())
+    estop.publish(Bool(data=True))
+    spin_until(lambda: robot.estop.engaged and arena.estop.engaged, timeout=5.0)
+    before = robot.pose, arena.robots[0].pose
+    end = time.monotonic() + 1.0
+    moving = Twist()
+    moving.linear.x, moving.angular.z = 0.02, 0.3
+    while time.monotonic() < end:
+        cmd.publish(moving)
+        pause = time.monotonic() + 0.05
+        spin_until(lambda: time.monotonic() > pause)
+    assert (robot.pose, arena.robots[0].pose) == before
+
+
 def test_estop_with_nobody_on_the_domain_exits_1_naming_the_domain(ros_domain):
     started = time.monotonic()
     done = subprocess.run([sys.executable, '-m', 'curve_formation.cli', 'estop', 'on',
@@ -339,12 +369,12 @@ def test_estop_cli_stops_all_nine_robots_at_once_holds_them_and_releases(ros_dom
             [row for row in held if row[2] or row[3]][:5]
         np.testing.assert_allclose(run.monitor.poses, before, atol=1e-9)   # standing still
         run.kill('robot_7.formation_controller')
-        status, out, err = estop_cli(run, 'on', wait=3.0)
+        status, out, err = estop_cli(run, 'on', '--expect', '9', wait=3.0)
         assert status == 1 and 'robot_7' in err and '8 of 9' in err, (out, err)
         run.restart('robot_7.formation_controller')
         run.spin_for(3.0)
         assert all(row[2] == 0.0 and row[3] == 0.0 for row in log.since(exited))
-        status, out, err = estop_cli(run, 'off')
+        status, out, err = estop_cli(run, 'off', '--experiment', 'arena_demo')
         assert status == 0 and '9 of 9 robots released' in out, (out, err)
         released = run.monitor.recording.t[-1]
         run.spin_for(25.0)   # settled ~15 s after the release (measured)
