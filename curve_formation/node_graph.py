@@ -1,5 +1,6 @@
 """Starts and stops an experiment's nodes: a process each, or all in the runner's executor."""
 
+from dataclasses import dataclass
 import os
 import signal
 import subprocess
@@ -12,6 +13,27 @@ from curve_formation.nodes.runtime import PublicationCounter, PUBLICATIONS_ENV
 
 STOP_TIMEOUT = 10.0    # s for a group of nodes to exit after SIGINT before it is killed
 PROCESS_CHECK_PERIOD = 0.2   # s between checks that every node process still runs
+
+
+@dataclass(frozen=True)
+class NodeDeath:
+    """A node process that ended on its own: its key, when it was seen gone (s, time.time())
+    and how ('killed by SIGKILL', 'exit status 1'), with the end of its log.
+    """
+
+    key: str
+    when: float
+    how: str
+    log_tail: str
+
+
+def how_it_ended(returncode):
+    if returncode < 0:
+        try:
+            return f'killed by {signal.Signals(-returncode).name}'
+        except ValueError:
+            return f'killed by signal {-returncode}'
+    return f'exit status {returncode}'
 
 
 class NodeGraph:
@@ -33,6 +55,8 @@ class NodeGraph:
         self.publications_dir = publications_dir
         self.processes = {}
         self.in_process = []    # (node, PublicationCounter or None)
+        self.deaths = []        # NodeDeath of every process that ended on its own
+        self.on_death = None    # called with each NodeDeath as it is found
         self._last_check = -float('inf')
 
     def __enter__(self):
@@ -64,7 +88,8 @@ class NodeGraph:
                 start_new_session=True, preexec_fn=_stop_with_parent)
 
     def check_processes(self):
-        """Raise if a node process ended on its own; returns False otherwise.
+        """Note every node process that ended on its own (deaths, on_death) and forget it;
+        returns False (a predicate for Run.spin_until that never ends a wait).
 
         Looks at most every PROCESS_CHECK_PERIOD s (it is called between callbacks).
         """
@@ -72,10 +97,17 @@ class NodeGraph:
         if now - self._last_check < PROCESS_CHECK_PERIOD:
             return False
         self._last_check = now
-        for key, proc in self.processes.items():
+        for key, proc in list(self.processes.items()):
             if proc.poll() is not None:
-                tail = (self.logs_dir / f'{key}.log').read_text()[-2000:]
-                raise RuntimeError(f'node {key} exited with status {proc.returncode}:\n{tail}')
+                del self.processes[key]
+                try:
+                    tail = (self.logs_dir / f'{key}.log').read_text(errors='replace')[-2000:]
+                except OSError:
+                    tail = ''
+                death = NodeDeath(key, time.time(), how_it_ended(proc.returncode), tail)
+                self.deaths.append(death)
+                if self.on_death is not None:
+                    self.on_death(death)
         return False
 
     def kill(self, key, sig=signal.SIGKILL):

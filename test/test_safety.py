@@ -292,7 +292,7 @@ def test_fake_robots_stand_still_while_stopped_whatever_cmd_vel_says(ros):
     while time.monotonic() < end:
         cmd.publish(moving)
         pause = time.monotonic() + 0.05
-        spin_until(lambda: time.monotonic() > pause)
+        spin_until(lambda pause=pause: time.monotonic() > pause)
     assert (robot.pose, arena.robots[0].pose) == before
 
 

@@ -5,7 +5,7 @@ own it records a run whose nodes were started by hand. The bag is closed on Ctrl
 and at the end of the run; killed hard, it loses at most the last second.
 """
 
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
@@ -57,8 +57,8 @@ class Recorder(Node):
             self.received[topic] = 0
             deep = QoSProfile(depth=RECORD_DEPTH, reliability=profile.reliability,
                               durability=profile.durability)
-            # the one type whose writers runtime.writer_key tells apart by content
-            keyed = msg_class if msg_class is DiagnosticArray else None
+            # the types whose writers runtime.writer_key tells apart by content
+            keyed = msg_class if msg_class in (DiagnosticArray, DiagnosticStatus) else None
             subscription = self.create_subscription(
                 msg_class, topic,
                 Guarded(self, topic, WithMessageInfo(

@@ -11,7 +11,7 @@ import sys
 import threading
 import time
 
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
@@ -41,11 +41,14 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 def writer_key(topic, msg):
     """Names one writer's stream within a topic, the same way for publisher and recorder.
 
-    A formation topic has one writer, so its name suffices; /diagnostics has many, and each of
-    our nodes puts its own name first in its DiagnosticArray, so that name is added.
+    A formation topic has one writer, so its name suffices; /diagnostics and
+    /formation/estop_state have many: each of our nodes puts its own name first in its
+    DiagnosticArray, or as its DiagnosticStatus's name, so that name is added.
     """
     if isinstance(msg, DiagnosticArray) and msg.status:
         return stream_key(topic, msg.status[0].name)
+    if isinstance(msg, DiagnosticStatus):
+        return stream_key(topic, msg.name)
     return stream_key(topic)
 
 
