@@ -56,6 +56,7 @@ class BagRun:
     counts: dict           # {topic: messages read}
     contacts: dict = None  # fake_arena's last contact report, if the bag has one
     estops: list = None    # [(start, stop or None)] s while a node held the e-stop
+    deaths: list = None    # [(t s, node, how)] nodes of the run that died
 
 
 def load_bag_run(path, experiment_path=None, sample_hz=20.0):
@@ -80,7 +81,7 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0):
     n = experiment.n
     events = {'pose': [[] for _ in range(n)], 'cmd_vel': [[] for _ in range(n)],
               'disturbance_estimate': [[] for _ in range(n)]}
-    curves, counts, contacts, estop_events = [], {}, None, []
+    curves, counts, contacts, estop_events, death_events = [], {}, None, [], []
     for topic, _, stamp, msg in read_messages(path):
         counts[topic] = counts.get(topic, 0) + 1
         t = stamp * 1e-9
@@ -94,9 +95,11 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0):
             continue
         if topic == '/diagnostics':
             for status in msg.status:
+                values = {kv.key: kv.value for kv in status.values}
                 if status.hardware_id == metrics.CONTACT_REPORTER:
-                    contacts = metrics.contacts_from_report(
-                        {kv.key: kv.value for kv in status.values})
+                    contacts = metrics.contacts_from_report(values)
+                elif status.hardware_id == metrics.NODE_DEATH_REPORTER:
+                    death_events.append((t, values.get('node', '?'), values.get('how', '?')))
             continue
         if topic == '/formation/curve':
             dims = [(d.label, d.size) for d in msg.layout.dim]
@@ -135,7 +138,7 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0):
     return BagRun(replace(experiment, phases=phases), grid - t0,
                   _sample(events['pose'], grid, 3), _sample(events['cmd_vel'], grid, 2),
                   _sample(events['disturbance_estimate'], grid, 2), phase, counts, contacts,
-                  estops)
+                  estops, [(t - t0, node, how) for t, node, how in death_events])
 
 
 def _sample(per_robot, grid, width):
@@ -160,7 +163,8 @@ def analyze_bag(path, out_dir, experiment_path=None, compare=None, compare_sim=F
     t, poses, phase, dhat, commands = _known(run, path)
     result = metrics.run_metrics(run.experiment, t, poses, phase, np.nan_to_num(dhat),
                                  np.nan_to_num(commands), contacts=run.contacts,
-                                 estops=run.estops)
+                                 estops=run.estops, deaths=run.deaths)
+    result['node_deaths'] = [{'node': node, 't': t, 'how': how} for t, node, how in run.deaths]
     result['bag'] = {'path': str(path), 'messages': run.counts}
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -161,6 +161,11 @@ def _cmd_run(args):
         return
     print(_summary_line(result['experiment'], result))
     print(f'wrote {args.out}/metrics.json, figures, params/ and logs/')
+    if result['node_deaths']:
+        died = ', '.join(f'{d["node"]} ({d["how"]})' for d in result['node_deaths'])
+        print(f'error: nodes died during the run: {died}; metrics.json says when',
+              file=sys.stderr)
+        return EXIT_NODE_DIED
 
 
 def _agents(text):
@@ -490,6 +495,8 @@ def build_parser():
     return parser
 
 
+# `run`'s exit status when a node of the run died (the run went on and wrote its results).
+EXIT_NODE_DIED = 3
 # An error line is cut to this many characters: a bad input can be long, the line is not.
 MAX_ERROR_LINE = 480
 

@@ -96,6 +96,7 @@ class Run:
         self.graph = self._stack.enter_context(NodeGraph(
             self.launches, params_files, self.out / 'logs', self.observers,
             options.single_process, self.publications_dir if recording else None))
+        self.graph.on_death = self._on_death
         if recording:
             self.log(f'recording {self.bag_writer.path}')
         self.log(f'ROS_DOMAIN_ID={self.domain_id}, discovery {discovery_text()}; parameters in '
@@ -138,9 +139,22 @@ class Run:
     def restart(self, key):
         self.graph.restart(key)
 
+    def _on_death(self, death):
+        """A node process ended on its own: said now, reported on /diagnostics (so the bag
+        has it) and in metrics.json; the run goes on without it.
+        """
+        t = self.monitor.report_death(death.key, death.how)
+        when = 'before t = 0' if t is None else f'at t = {t:.1f} s'
+        self.log(f'node {death.key} died {when} ({death.how}); the run goes on without it '
+                 f'(its log: {self.out / "logs" / (death.key + ".log")})')
+
     def _wait_ready(self):
         def ready():
             self.graph.check_processes()
+            if self.graph.deaths:   # a node that cannot start: a set-up error, not a run's
+                death = self.graph.deaths[0]
+                raise RuntimeError(f'node {death.key} ended while starting ({death.how}):\n'
+                                   f'{death.log_tail}')
             return self.monitor.ready()
         try:
             self.spin_until(ready, READY_TIMEOUT, "every robot's pose and cmd_vel")
@@ -180,8 +194,10 @@ class Run:
         camera = len(data['true_poses']) == len(data['t'])
         truth = data['true_poses'] if camera else data['poses']
         estops = self.monitor.estop_intervals(float(data['t'][-1]))
+        deaths = self.monitor.node_deaths
         result = metrics.run_metrics(experiment, data['t'], data['poses'], phase,
-                                     data['dhat'], data['commands'], estops=estops)
+                                     data['dhat'], data['commands'], estops=estops,
+                                     deaths=deaths)
         if 'bodies' in result:   # measured on the bodies, i.e. the true poses
             result['bodies'] = metrics.body_metrics(experiment, data['t'], truth,
                                                     self.monitor.contacts,
@@ -195,7 +211,7 @@ class Run:
         if camera:
             gaps = [gap for robot in self.monitor.law_pose_gaps for gap in robot]
             result['ground_truth'] = metrics.ground_truth_metrics(experiment, data, phase, gaps,
-                                                                  estops)
+                                                                  estops, deaths)
         self.out.mkdir(parents=True, exist_ok=True)
         (self.out / 'metrics.json').write_text(metrics.strict_json(result))
         plots.run_figures(self.out, experiment, data['t'], data['poses'], phase,
@@ -229,7 +245,10 @@ def run_experiment(config, out_dir, duration=None, options=DEFAULTS, log=print):
     """Run an experiment's node graph for `duration` s (default: the file's) and measure it.
 
     Ctrl-C (SIGINT) and SIGTERM stop every node and close the bag; both only set
-    Run.stop_requested, acted on between callbacks (see Run.spin_until).
+    Run.stop_requested, acted on between callbacks (see Run.spin_until). A node that dies
+    does not end the run (Run._on_death; result['node_deaths']). An unexpected error of the
+    runner itself still stops the nodes, closes the bag and writes what was measured (with
+    result['runner_error']) before it is raised again.
     """
     run = Run(config, out_dir, options, log)
     duration = run.experiment.spec.simulation.duration if duration is None else duration
@@ -238,12 +257,21 @@ def run_experiment(config, out_dir, duration=None, options=DEFAULTS, log=print):
     previous = {sig: signal.signal(sig, lambda *_: run.stop_requested.set())
                 for sig in (signal.SIGINT, signal.SIGTERM)}
     interrupted = False
+    failure = None
+    started = False
     try:
         run.start()
+        started = True
         run.spin_for(duration)
     except KeyboardInterrupt:
         interrupted = True
         log('interrupted: stopping every node')
+    except Exception as exc:  # noqa: BLE001 - written down below, then raised again
+        if not started:
+            raise
+        failure = exc
+        log(f'error in the runner: {type(exc).__name__}: {exc}; stopping every node and '
+            'writing what was measured')
     finally:
         run.stop()
         for sig, handler in previous.items():
@@ -251,10 +279,21 @@ def run_experiment(config, out_dir, duration=None, options=DEFAULTS, log=print):
     if not options.runs('observer'):
         return {'experiment': run.experiment.name, 'interrupted': interrupted,
                 'parts': sorted(options.only or ())}
-    result = run.write_results()
+    try:
+        result = run.write_results()
+    except RuntimeError:
+        if failure is None:
+            raise
+        raise failure from None   # nothing recorded: the runner's error is what matters
     result['interrupted'] = interrupted
+    result['node_deaths'] = [{'node': key, 't': t, 'how': how}
+                             for t, key, how in run.monitor.node_deaths]
+    if failure is not None:
+        result['runner_error'] = f'{type(failure).__name__}: {failure}'
     if options.bag_path is not None:
         result['bag'] = {'path': str(options.bag_path), 'messages': run.bag_writer.count,
                          **run.bag_accounting()}
-        (run.out / 'metrics.json').write_text(metrics.strict_json(result))
+    (run.out / 'metrics.json').write_text(metrics.strict_json(result))
+    if failure is not None:
+        raise failure
     return result

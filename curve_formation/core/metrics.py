@@ -246,6 +246,9 @@ def markers_covered(poses, radius, marker_offset, marker_size):
 
 # The hardware id under which fake_arena reports its contact tally on /diagnostics.
 CONTACT_REPORTER = 'fake_arena'
+# The hardware id under which the runner reports a node of the run that died (values: node,
+# how), so that a bag carries it.
+NODE_DEATH_REPORTER = 'node_death'
 
 
 # The node name under which each robot_bridge reports its link on /diagnostics.
@@ -316,13 +319,15 @@ def peak_speeds(commands, wheel_base):
 
 def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance=None,
                 gains=None, disturbance=None, limits=None, contacts=None, unseen=None,
-                estops=None):
+                estops=None, deaths=()):
     """All metrics of a run as a JSON-ready dict (one entry per curve phase).
 
     gains, disturbance and limits default to the experiment's; pass the ones the run used.
     contacts, unseen: see body_metrics (experiments with bodies or avoidance).
     estops: [(start, stop or None)] (s) while the e-stop held robots (core.estop): a phase
     they interrupt settles only after the release, and not at all if still held at its end.
+    deaths: [(t s or None (before t = 0), node, how)] of the run's nodes that died: a phase
+    that ends after one is never settled (it lost a robot or a node that drives them).
     """
     tolerance = experiment.spec.metrics.tolerance if tolerance is None else tolerance
     gains = experiment.gains if gains is None else gains
@@ -343,7 +348,8 @@ def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance
         agent_err = np.linalg.norm(errors[last], axis=1)
         held = estop_hold(estops or (), p.start, min(end, float(t[-1])))
         settle = None
-        if held != math.inf:
+        lost = [(when, node) for when, node, _ in deaths if when is None or when < end]
+        if held != math.inf and not lost:
             settle = settle_time(t, norm, tolerance * size, max(p.start, held), end)
             settle = None if settle is None else settle + max(held - p.start, 0.0)
         finite = bool(np.isfinite(norm[window]).all())
@@ -354,7 +360,9 @@ def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance
             'tolerance': tolerance * size, 'settled': settle is not None,
             'settle_time': settle,
             'not_settled_because': None if settle is not None else (
-                'the e-stop was engaged at the end of the phase' if held == math.inf
+                'node {} died {}'.format(lost[0][1], 'before t = 0' if lost[0][0] is None
+                                         else f'at t = {lost[0][0]:.1f} s') if lost
+                else 'the e-stop was engaged at the end of the phase' if held == math.inf
                 else 'the error is not finite (NaN or infinite)' if not finite
                 else 'the error does not stay below the tolerance'),
             'interrupted_by_estop': held > -math.inf,
@@ -401,18 +409,18 @@ def result_metrics(result, tolerance=None):
     return out
 
 
-def ground_truth_metrics(experiment, data, phase, law_pose_gaps=(), estops=None):
+def ground_truth_metrics(experiment, data, phase, law_pose_gaps=(), estops=None, deaths=()):
     """With a camera: the formation measured on the fake robots' true poses, how far the
     tracked poses (as last received, up to a frame and its latency old) were from them, and
     how far the pose each law used at its tick (law_pose_gaps (m), every tick of every robot;
-    carried forward to the tick with predict_pose) was from the truth at that tick. estops: as
-    run_metrics.
+    carried forward to the tick with predict_pose) was from the truth at that tick. estops,
+    deaths: as run_metrics.
     """
     truth = data['true_poses']
     seen = np.isfinite(truth).all(axis=2) & np.isfinite(data['poses']).all(axis=2)
     gap = np.linalg.norm(data['poses'][..., :2] - truth[..., :2], axis=2)[seen]
     turn = np.abs(np.angle(np.exp(1j * (data['poses'][..., 2] - truth[..., 2]))))[seen]
-    out = run_metrics(experiment, data['t'], truth, phase, estops=estops)
+    out = run_metrics(experiment, data['t'], truth, phase, estops=estops, deaths=deaths)
     return {'final_error_norm': out['final_error_norm'],
             'phases': [{k: p[k] for k in ('settled', 'settle_time', 'final_error_norm')}
                        for p in out['phases']],

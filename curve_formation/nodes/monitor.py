@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 import math
 import time
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 from rclpy.node import Node
 
@@ -67,6 +68,8 @@ class Monitor(Node):
         self.contacts = None       # fake_arena's contact summary, as last reported
         self.links = {}            # robot_bridge name -> [(t s, level, message, {key: value})]
         self.estop_events = []     # (received s, holder, engaged) of each e-stop state heard
+        self.node_deaths = []      # (t s since t = 0 or None, node key, how) reported here
+        self.diag_pub = topics.publisher(self, topics.DIAGNOSTICS)
         # Per robot, one (published, received, handled) row per command (s, system clock):
         # the DDS source timestamp, the time DDS received it here, the time this callback ran.
         self.command_arrivals = [[] for _ in range(n)]
@@ -169,6 +172,22 @@ class Monitor(Node):
             return []
         return stopped_intervals([(t - self.t0, holder, engaged)
                                   for t, holder, engaged in self.estop_events], end)
+
+    def report_death(self, key, how):
+        """A node of the run died: kept (node_deaths) and told on /diagnostics, so that a bag
+        has it (metrics.NODE_DEATH_REPORTER). Returns its t (s since t = 0; None before).
+        """
+        now = now_seconds(self)
+        t = None if self.t0 is None else now - self.t0
+        self.node_deaths.append((t, key, how))
+        status = DiagnosticStatus(
+            level=DiagnosticStatus.ERROR, name=self.get_fully_qualified_name(),
+            hardware_id=metrics.NODE_DEATH_REPORTER, message=f'node {key} died: {how}',
+            values=[KeyValue(key='node', value=key), KeyValue(key='how', value=how)])
+        msg = DiagnosticArray(status=[status])
+        msg.header.stamp = messages.seconds_to_stamp(now)
+        self.diag_pub.publish(msg)
+        return t
 
     def received_curves(self):
         """[(t, curve id, curve, s)] of every curve message received (t in s since t = 0)."""
