@@ -17,6 +17,7 @@ import threading
 import time
 
 import numpy as np
+from rclpy.serialization import serialize_message
 
 from curve_formation.analysis import bag_accounting
 from curve_formation.bag import BagWriter
@@ -24,6 +25,7 @@ from curve_formation.core import metrics, plots
 from curve_formation.core.experiment import control_rate, load_experiment, received_phases
 from curve_formation.launches import node_launches, part_of, write_params_files
 from curve_formation.node_graph import NodeGraph
+from curve_formation.nodes.topics import DIAGNOSTICS
 from curve_formation.observers import Observers
 from curve_formation.paths import discovery_text, resolve_config, ros_environment
 from curve_formation.run_options import DEFAULTS
@@ -140,10 +142,14 @@ class Run:
         self.graph.restart(key)
 
     def _on_death(self, death):
-        """A node process ended on its own: said now, reported on /diagnostics (so the bag
-        has it) and in metrics.json; the run goes on without it.
+        """A node process ended on its own: said now, written into the bag (a /diagnostics
+        message, metrics.NODE_DEATH_REPORTER) and later into metrics.json; the run goes on
+        without it.
         """
-        t = self.monitor.report_death(death.key, death.how)
+        t, report = self.monitor.report_death(death.key, death.how)
+        if self.bag_writer is not None:
+            self.bag_writer.write(DIAGNOSTICS, self.monitor.get_clock().now().nanoseconds,
+                                  serialize_message(report))
         when = 'before t = 0' if t is None else f'at t = {t:.1f} s'
         self.log(f'node {death.key} died {when} ({death.how}); the run goes on without it '
                  f'(its log: {self.out / "logs" / (death.key + ".log")})')

@@ -49,6 +49,12 @@ from curve_formation.core.control import (
 from curve_formation.core.curves import Curve
 from curve_formation.core.driving import drive_direction, REVERSE_HYSTERESIS, steered_law
 from curve_formation.core.dynamics import arc_step
+from curve_formation.core.plausibility import (
+    error_problem,
+    jump_problem,
+    plausible_box,
+    position_problem,
+)
 from curve_formation.core.safety import Avoidance, AVOIDANCE_OFF, STOPPED
 from curve_formation.core.shapes import Command, FloatArray, Point, Pose
 
@@ -245,6 +251,8 @@ class AgentController:
         self.pose_received: float | None = None   # s, this controller's clock (as every
         self.neighbours = {j: _Neighbour() for j, _ in self.config.neighbours}   # *_received)
         self.rejected = 0
+        self.rejection = ''   # why the last input was rejected
+        self.box = plausible_box(self.config.geofence)   # where a measured pose may lie (m)
         self.others: FloatArray = NO_OTHERS   # every robot's pose (n, 3), for the safety filter
         self.others_received: float | None = None
         self.filtered = 0           # ticks whose command the safety filter changed
@@ -320,13 +328,18 @@ class AgentController:
     def on_pose(self, x: float, y: float, theta: float, stamp: float,
                 received: float | None = None) -> bool:
         """Own pose (arena frame) taken at `stamp` (s, its source's clock), received at
-        `received` (s, this controller's clock; default: stamp). Returns False (and ignores it)
-        if not finite.
+        `received` (s, this controller's clock; default: stamp). Returns False (and ignores it,
+        saying why in `rejection`) if not finite or not believable (core.plausibility: outside
+        the arena and more, or further from the last pose than the robot can drive).
         """
         at = _receipt(stamp, received)
-        if not all_finite(x, y, theta, stamp, at):
-            self.rejected += 1
-            return False
+        problem = ('not finite' if not all_finite(x, y, theta, stamp, at)
+                   else position_problem(x, y, self.box))
+        if problem is None and self.pose is not None and self.pose_stamp is not None:
+            problem = jump_problem((self.pose[0], self.pose[1], self.pose_stamp), x, y, stamp,
+                                   self.config.limits.max_wheel_speed)
+        if problem is not None:
+            return self._reject(f'own pose {problem}')
         self.pose, self.pose_stamp, self.pose_received = (x, y, theta), stamp, at
         if self.config.is_leader:
             self.leader_heard = at
@@ -343,14 +356,18 @@ class AgentController:
         clock), the age of its newest news of the leader (s), received at `received` (s, this
         controller's clock; default: stamp).
 
-        Returns False (and ignores the message) if j is not an in-neighbour or a value is not
-        finite.
+        Returns False (and ignores the message, saying why in `rejection`) if j is not an
+        in-neighbour, a value is not finite or the error is larger than the arena.
         """
         at = _receipt(stamp, received)
         values = (ex, ey, stamp, at) + (() if leader_age is None else (leader_age,))
-        if j not in self.neighbours or not all_finite(*values):
-            self.rejected += 1
-            return False
+        if j not in self.neighbours:
+            return self._reject(f'state of agent {j}, not an in-neighbour')
+        if not all_finite(*values):
+            return self._reject(f'state of neighbour {j} not finite')
+        problem = error_problem(ex, ey, self.box)
+        if problem is not None:
+            return self._reject(f'state of neighbour {j}: {problem}')
         self.neighbours[j] = _Neighbour((ex, ey), int(curve_id), stamp, at)
         if leader_age is not None:
             heard = at - max(0.0, leader_age)
@@ -373,6 +390,12 @@ class AgentController:
             given = np.where(np.isfinite(given), given, self.others)
         self.others, self.others_received = given, at
         return True
+
+    def _reject(self, why: str) -> bool:
+        """Count a rejected input and keep why; False (what the on_* methods return)."""
+        self.rejected += 1
+        self.rejection = why
+        return False
 
     def set_estop(self, engaged: bool, reason: str = 'e-stop engaged') -> None:
         """Engage (True) or release (False) the e-stop; `reason`: why stopped, as reported."""

@@ -538,12 +538,23 @@ def _check_bodies(spec: ExperimentSpec, source: str, poses: FloatArray,
             taus = np.linspace(0.0, max(end - phase.start, 0.0), 51)
             points = np.concatenate([phase.motion.points(points, tau) for tau in taus])
             moving = f' by t = {end:g} s, moving'
-        low, high = points.min(axis=0), points.max(axis=0)
-        if (low < radius).any() or high[0] > width - radius or high[1] > height - radius:
+        problem = points_outside_arena(points, width, height, radius)
+        if problem is not None:
             raise ConfigError(source, f'curves[{phase.index}]', f'the curve leaves the arena'
-                              f'{moving} [0, {width:g}] x [0, {height:g}] m (it spans x '
-                              f'{low[0]:.3f}..{high[0]:.3f}, y {low[1]:.3f}..{high[1]:.3f}'
-                              + (f', robots.radius {radius:g} m' if radius else '') + ')')
+                              f'{moving} {problem}')
+
+
+def points_outside_arena(points: FloatArray, width: float, height: float,
+                         radius: float = 0.0) -> str | None:
+    """Why points (m, 2; arena frame) do not all lie in the arena [0, width] x [0, height] m
+    with a body's radius to spare (e.g. a curve's samples), or None when they do.
+    """
+    low, high = points.min(axis=0), points.max(axis=0)
+    if (low < radius).any() or high[0] > width - radius or high[1] > height - radius:
+        return (f'[0, {width:g}] x [0, {height:g}] m (it spans x {low[0]:.4g}..{high[0]:.4g}, '
+                f'y {low[1]:.4g}..{high[1]:.4g}'
+                + (f', robots.radius {radius:g} m' if radius else '') + ')')
+    return None
 
 
 def _body_warnings(spec: ExperimentSpec, phases: Sequence[Phase], avoidance: Avoidance,

@@ -26,7 +26,9 @@ from visualization_msgs.msg import Marker, MarkerArray
 from curve_formation.core.assignment import AssignmentError, phase_parameters, reassigned
 from curve_formation.core.curve_sources import fit_points
 from curve_formation.core.curves import CurveError, make_basis
+from curve_formation.core.experiment import points_outside_arena
 from curve_formation.core.metrics import offset_points
+from curve_formation.core.plausibility import MAX_COORDINATE
 from curve_formation.nodes import messages, topics
 from curve_formation.nodes.estop import EstopHolder
 from curve_formation.nodes.params import (
@@ -282,6 +284,7 @@ class CurveServer(Node):
         try:
             basis = make_basis(kind, self.params.observed_size)
             fit = fit_points(basis, points)
+            self._check_in_arena(fit.curve)
             agents = self.experiment.spec.agents
             s = phase_parameters(fit.curve, self.experiment.n, agents.spacing,
                                  agents.assignment, self.targets)
@@ -292,6 +295,22 @@ class CurveServer(Node):
                                f'residual {fit.rms_residual:.3g}')
         self.moving = None   # an observed curve replaces a moving one
         self.publish_curve(fit.curve, s)
+
+    def _check_in_arena(self, curve):
+        """CurveError unless the curve lies in the arena as a curve of the experiment file must
+        (core.experiment.points_outside_arena); without an arena, within MAX_COORDINATE.
+        """
+        _, points = curve.sample(2000)
+        spec = self.experiment.spec
+        if spec.arena is not None:
+            width, height = spec.arena.size
+            problem = points_outside_arena(points, width, height, spec.robots.radius)
+        elif np.abs(points).max() > MAX_COORDINATE:
+            problem = f'beyond +-{MAX_COORDINATE:g} m (it reaches {np.abs(points).max():.4g} m)'
+        else:
+            problem = None
+        if problem is not None:
+            raise CurveError(f'the fitted curve leaves the arena {problem}')
 
 
 def main(args=None):

@@ -19,9 +19,11 @@ from sensor_msgs.msg import JointState
 from curve_formation.core.agent import AgentConfig, AgentController
 from curve_formation.core.assignment import AssignmentError
 from curve_formation.core.control import Gains, LAWS, timed_by, WheelLimits
+from curve_formation.core.plausibility import bounded_command
 from curve_formation.core.safety import Avoidance, AVOIDANCE_OFF
 from curve_formation.nodes import messages, topics
 from curve_formation.nodes.estop import EstopHolder
+from curve_formation.nodes.guard import rejections
 from curve_formation.nodes.params import (
     declare_parameters,
     limit_parameter,
@@ -273,6 +275,8 @@ class FormationController(Node):
         self.params = declare_parameters(self, PARAMETERS)
         self.config = agent_config(self.params)
         self.controller = AgentController(self.config)
+        self.rejections = rejections(self)
+        self.pose_topic = self.resolve_topic_name(topics.POSE)
         self._last_reason = None
         self.rng = np.random.default_rng()
         self.cmd_pub = topics.publisher(self, topics.CMD_VEL)
@@ -318,7 +322,7 @@ class FormationController(Node):
 
     def _on_pose(self, msg):
         if not self.controller.on_pose(*messages.pose_from_msg(msg), now_seconds(self)):
-            self.get_logger().warning('non-finite pose rejected', throttle_duration_sec=1.0)
+            self.rejections.reject(self.pose_topic, self.controller.rejection)
             return
         state = self.controller.state()
         if state is not None and self.rng.random() >= self.params.fault_state_drop:
@@ -330,12 +334,12 @@ class FormationController(Node):
             accepted = self.controller.on_neighbour(j, *messages.state_from_msg(msg),
                                                     now_seconds(self))
         except messages.MessageError as exc:
+            self.controller.rejected += 1
+            self.controller.rejection = f'state of neighbour {j}: {exc}'
             accepted = False
-            self.get_logger().warning(f'state from neighbour {j}: {exc}',
-                                      throttle_duration_sec=1.0)
         if not accepted:
-            self.get_logger().warning(f'non-finite state from neighbour {j} rejected',
-                                      throttle_duration_sec=1.0)
+            self.rejections.reject(topics.robot_topic(j, topics.STATE),
+                                   self.controller.rejection)
 
     def _on_others(self, msg):
         self.others_msg = (msg, now_seconds(self))
@@ -362,9 +366,17 @@ class FormationController(Node):
 
     def _on_timer(self):
         now = now_seconds(self)
-        self._take_others()
-        tick = self.controller.tick(now)
-        self.cmd_pub.publish(messages.twist_to_msg(tick.v, tick.w))
+        try:
+            self._take_others()
+            tick = self.controller.tick(now)
+        except Exception as exc:  # noqa: BLE001 - whatever it was, the robot is stopped
+            self.cmd_pub.publish(Twist())
+            self.get_logger().error(f'tick failed, robot stopped: {type(exc).__name__}: {exc}',
+                                    throttle_duration_sec=5.0)
+            return
+        # Within the wheel limits already where the experiment states them; bounded all the
+        # same where it does not (core.plausibility.DEFAULT_MAX_SPEED, _TURN_RATE).
+        self.cmd_pub.publish(messages.twist_to_msg(*bounded_command(tick.v, tick.w)))
         if self.tick_pub.get_subscription_count():   # built only when read (camera runs, bags)
             self.tick_pub.publish(messages.tick_to_msg(tick, now))
         # Stamped with the pose this tick used, so pose-to-command latency can be measured.
@@ -393,6 +405,8 @@ class FormationController(Node):
                     KeyValue(key='s', value=f'{c.s}'),
                     KeyValue(key='dhat', value=f'{c.dhat[0]:.6g} {c.dhat[1]:.6g}'),
                     KeyValue(key='rejected_inputs', value=str(c.rejected)),
+                    KeyValue(key='rejected_messages', value=self.rejections.summary()),
+                    KeyValue(key='last_rejection', value=self.rejections.last),
                     KeyValue(key='filtered_ticks', value=str(c.filtered))])
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = self.get_clock().now().to_msg()

@@ -42,6 +42,7 @@ from curve_formation.core.curve_codec import (
     yaw_from_quaternion,
 )
 from curve_formation.core.estop import estop_fields, parse_report
+from curve_formation.core.plausibility import quaternion_problem
 
 
 MessageError = CodecError
@@ -84,8 +85,13 @@ def agent_parameters_from_msg(msg):
 
 
 def pose_from_msg(msg):
-    """(x, y, theta, stamp_s) from a PoseStamped (planar: heading from the quaternion)."""
+    """(x, y, theta, stamp_s) from a PoseStamped (planar: heading from the quaternion);
+    MessageError if the quaternion is not unit (core.plausibility.QUATERNION_TOLERANCE).
+    """
     q = msg.pose.orientation
+    problem = quaternion_problem(q.x, q.y, q.z, q.w)
+    if problem is not None:
+        raise MessageError(f'pose with a {problem}')
     return (msg.pose.position.x, msg.pose.position.y, yaw_from_quaternion(q.x, q.y, q.z, q.w),
             stamp_to_seconds(msg.header.stamp))
 

@@ -69,7 +69,6 @@ class Monitor(Node):
         self.links = {}            # robot_bridge name -> [(t s, level, message, {key: value})]
         self.estop_events = []     # (received s, holder, engaged) of each e-stop state heard
         self.node_deaths = []      # (t s since t = 0 or None, node key, how) reported here
-        self.diag_pub = topics.publisher(self, topics.DIAGNOSTICS)
         # Per robot, one (published, received, handled) row per command (s, system clock):
         # the DDS source timestamp, the time DDS received it here, the time this callback ran.
         self.command_arrivals = [[] for _ in range(n)]
@@ -174,8 +173,11 @@ class Monitor(Node):
                                   for t, holder, engaged in self.estop_events], end)
 
     def report_death(self, key, how):
-        """A node of the run died: kept (node_deaths) and told on /diagnostics, so that a bag
-        has it (metrics.NODE_DEATH_REPORTER). Returns its t (s since t = 0; None before).
+        """A node of the run died: kept (node_deaths). Returns (its t, s since t = 0 or None;
+        the /diagnostics message that tells it, stamped now: metrics.NODE_DEATH_REPORTER).
+
+        The message is not published: the runner writes it into its bag. A publisher of its
+        own in this process was seen to hang in Fast DDS when destroyed at the run's end.
         """
         now = now_seconds(self)
         t = None if self.t0 is None else now - self.t0
@@ -186,8 +188,7 @@ class Monitor(Node):
             values=[KeyValue(key='node', value=key), KeyValue(key='how', value=how)])
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = messages.seconds_to_stamp(now)
-        self.diag_pub.publish(msg)
-        return t
+        return t, msg
 
     def received_curves(self):
         """[(t, curve id, curve, s)] of every curve message received (t in s since t = 0)."""
