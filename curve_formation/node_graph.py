@@ -56,6 +56,7 @@ class NodeGraph:
         self.processes = {}
         self.in_process = []    # (node, PublicationCounter or None)
         self.deaths = []        # NodeDeath of every process that ended on its own
+        self.ended_hard = False  # a process died or was killed (it left shared memory)
         self.on_death = None    # called with each NodeDeath as it is found
         self._last_check = -float('inf')
 
@@ -106,6 +107,7 @@ class NodeGraph:
                     tail = ''
                 death = NodeDeath(key, time.time(), how_it_ended(proc.returncode), tail)
                 self.deaths.append(death)
+                self.ended_hard = True
                 if self.on_death is not None:
                     self.on_death(death)
         return False
@@ -115,6 +117,7 @@ class NodeGraph:
         proc = self.processes.pop(key)
         proc.send_signal(sig)
         proc.wait(10)
+        self.ended_hard = True
         return proc.returncode
 
     def restart(self, key):

@@ -42,6 +42,21 @@ def private_domain_id():
     return int(given) if given else random.SystemRandom().randint(1, 101)
 
 
+def remove_dead_shared_memory():
+    """Remove the Fast DDS shared-memory files that no live process holds (dds_shm.clean):
+    what node processes that died or were killed left in /dev/shm. Under
+    ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST rmw_fastrtps gives every participant a
+    shared-memory transport, whatever the profile says (docs/arena-setup.md).
+    """
+    import subprocess
+
+    from curve_formation.dds_shm import clean
+    try:
+        clean(quiet=True)
+    except (OSError, subprocess.SubprocessError):
+        pass   # no fastdds tool here: `curve-formation clean-shm` says so when asked
+
+
 class Run:
     """A running node graph: start(), spin_until(...), stop(). Use as a context manager.
 
@@ -121,6 +136,9 @@ class Run:
         self._stack.close()
         if self.bag_writer is not None:
             self.bag_writer.close()   # also when start() never opened it
+        if self.graph is not None and self.graph.ended_hard:
+            remove_dead_shared_memory()
+
 
     @property
     def monitor(self):
@@ -211,6 +229,8 @@ class Run:
         if self.monitor.links:   # robot_bridge's link reports, per robot
             result['links'] = {name.strip('/').split('/')[0]: metrics.link_summary(reports)
                                for name, reports in sorted(self.monitor.links.items())}
+        # robot -> [[from, to or null (s), nodes]] while its cmd_vel had several publishers
+        result['command_sources'] = self.monitor.command_sources
         result['control'] = f'ROS nodes at {self.rate_hz:g} Hz'
         result['mode'] = ('single process' if self.options.single_process
                           else 'one process per node')

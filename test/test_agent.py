@@ -130,7 +130,7 @@ def test_is_stale():
     (lambda c: c.on_neighbour(1, 0.2, 0.0, 0, 9.0), 'neighbour 1 stale'),
     (lambda c: c.on_neighbour(1, 0.2, 0.0, 7, 10.0), 'neighbour 1 is on curve 7'),
     (lambda c: c.set_estop(True), 'e-stop'),
-    (lambda c: c.on_pose(5.0, 0.0, 0.0, 10.0), 'outside the geofence'),
+    (lambda c: c.on_pose(2.01, 0.0, 0.0, 10.0), 'outside the geofence'),
 ])
 def test_any_stale_or_inconsistent_input_stops_the_robot(mutate, reason):
     ctrl = ready(config(geofence=(-2.0, -2.0, 2.0, 2.0)))

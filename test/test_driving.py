@@ -110,17 +110,19 @@ def test_a_curves_first_pose_takes_the_sooner_way_outright():
         way = heading + bearing
         return tx - 0.3 * math.cos(way), ty - 0.3 * math.sin(way), heading
 
+    # Poses 10 s apart: a robot could drive from one to the next (a jump a robot cannot
+    # make is rejected as a measurement, core.plausibility).
     controller.set_curve(phase.curve, 0, phase.s)
-    controller.on_pose(*pose_with_target_at(right), 0.0)
+    assert controller.on_pose(*pose_with_target_at(right), 0.0)
     assert controller.front == -1.0
     ahead = math.radians(82.0)   # forwards now 0.5 s sooner
-    controller.on_pose(*pose_with_target_at(ahead), 0.1)
+    assert controller.on_pose(*pose_with_target_at(ahead), 10.0)
     assert controller.front == -1.0
     controller.set_curve(phase.curve, 0, phase.s)   # re-assigned: the same curve
-    controller.on_pose(*pose_with_target_at(ahead), 0.2)
+    assert controller.on_pose(*pose_with_target_at(ahead), 20.0)
     assert controller.front == -1.0
     controller.set_curve(phase.curve, 1, phase.s)   # a new curve
-    controller.on_pose(*pose_with_target_at(ahead), 0.3)
+    assert controller.on_pose(*pose_with_target_at(ahead), 30.0)
     assert controller.front == 1.0
 
 

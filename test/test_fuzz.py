@@ -8,6 +8,7 @@ import math
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point32, PolygonStamped, PoseStamped, Twist
+import numpy as np
 import pytest
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
@@ -80,8 +81,9 @@ FAMILIES = [
     (topics.ROBOT_POSES, JointState, qos.SENSOR, JointState(position=[1.0, 2.0])),
     (topics.ESTOP_STATE, DiagnosticStatus, qos.LATCHED, junk_estop_state()),
     (topics.DIAGNOSTICS, DiagnosticArray, qos.EVENTS, junk_contacts()),
-    (topics.OBSERVED_CURVE, PolygonStamped, qos.EVENTS,
-     polygon([(1e30 + i, 1e30) for i in range(50)])),
+    (topics.OBSERVED_CURVE, PolygonStamped, qos.EVENTS,   # a loop 1e30 m away
+     polygon([(1e30 + 1e28 * math.cos(a), 1e30 + 1e28 * math.sin(a))
+              for a in np.linspace(0.0, 2 * math.pi, 50, endpoint=False)])),
     (topics.OBSERVED_CURVE, PolygonStamped, qos.EVENTS, polygon([(0.0, 0.0), (1.0, 1.0)])),
     ('/robot_4/cmd_vel', Twist, qos.COMMAND, messages.twist_to_msg(math.nan, 0.0)),
 ]
@@ -97,7 +99,7 @@ class Fuzzer(Node):
             self.pubs.setdefault(topic, self.create_publisher(cls, topic, profile))
         self.cycle = itertools.cycle(FAMILIES)
         self.sent = 0
-        self.create_timer(period, self._send)
+        self.timer = self.create_timer(period, self._send)
 
     def _send(self):
         topic, _, _, msg = next(self.cycle)
@@ -107,6 +109,10 @@ class Fuzzer(Node):
         self.sent += 1
 
 
+def logs_of(folder):
+    return {path.stem: path.read_text() for path in (folder / 'logs').glob('*.log')}
+
+
 def test_bad_messages_of_every_family_kill_no_node_and_the_formation_settles(ros_domain,
                                                                            tmp_path):
     with Run(DATA_DIR / 'fast_closed.yaml', tmp_path, RunOptions(bag_path=tmp_path / 'bag'),
@@ -114,17 +120,24 @@ def test_bad_messages_of_every_family_kill_no_node_and_the_formation_settles(ros
         run.spin_for(1.0)
         fuzzer = Fuzzer(run.observers.context)
         run.observers.add_node(fuzzer)
-        run.spin_for(10.0)
-        fuzzer.destroy_timer(fuzzer.timers[0])
-        run.spin_for(14.0)
+        run.spin_for(6.0)
+        fuzzer.destroy_timer(fuzzer.timer)
+        # its cmd_vel publisher made robot 4's command two-sourced: held until it goes
+        fuzzer.destroy_publisher(fuzzer.pubs['/robot_4/cmd_vel'])
+        run.spin_for(24.0)   # fast_closed settles in ~20.5 s; robot 4 was held ~6 s
         result = run.write_results()
         deaths = run.graph.deaths
     assert fuzzer.sent > 5 * len(FAMILIES)
+    assert 'leaves the arena beyond +-10000 m' in logs_of(tmp_path)['curve_server']
     assert deaths == [], deaths
     assert result['all_settled'], result['phases']
     for name in ('metrics.json', 'paths.png', 'trajectory.npz'):
         assert (tmp_path / name).exists(), name
-    logs = {path.stem: path.read_text() for path in (tmp_path / 'logs').glob('*.log')}
-    assert 'rejected' in logs['robot_2.formation_controller']   # a family it read
-    assert 'rejected' in logs['robot_3.formation_controller']
+    logs = logs_of(tmp_path)
+    assert 'curve refused' in logs['robot_2.formation_controller']
+    assert 'rejected' in logs['robot_3.formation_controller']   # poses, states of 2
     assert 'observed curve refused' in logs['curve_server']
+    # a second publisher on robot 4's cmd_vel: reported, the robot held meanwhile
+    (episode,) = result['command_sources']['robot_4']
+    assert episode[2] == ['/fuzzer', '/robot_4/formation_controller'] and episode[1] is not None
+    assert 'nodes publish /robot_4/cmd_vel' in logs['robot_4.fake_robot']

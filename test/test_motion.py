@@ -99,5 +99,5 @@ def test_a_curve_that_would_move_out_of_the_arena_is_refused():
     assert 'velocity: [0.01, 0.0]' in text
     data = load(text.replace('velocity: [0.01, 0.0]', 'velocity: [0.02, 0.0]'))
     with pytest.raises(ConfigError, match=r'curves\[1\]: the curve leaves the arena by t = '
-                       r'100 s, moving .* x 0\.270\.\.1\.910'):
+                       r'100 s, moving .* x 0\.27\.\.1\.91,'):
         build_experiment(data, 'fast.yaml')

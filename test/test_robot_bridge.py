@@ -188,6 +188,31 @@ def test_e_stop_stops_the_robot_until_released(bench):
     spin(lambda: robot.said()[-1][0] == 'command', timeout=2.0)
 
 
+def test_a_second_command_publisher_holds_the_robot_stopped_until_it_is_gone(bench, ros):
+    """One command source per robot: while a second node publishes its cmd_vel, the robot
+    gets only stop lines, and the bridge says who publishes.
+    """
+    make, robot, operator, spin = bench
+    context, add, _ = ros
+    bridge = make()
+    connected(operator, spin)
+    operator.send(0.02, 0.0)
+    spin(lambda: robot.said() and robot.said()[-1][0] == 'command')
+    intruder = add(Node('teleop', context=context))
+    twin = intruder.create_publisher(Twist, topics.robot_topic(1, topics.CMD_VEL), qos.COMMAND)
+    spin(lambda: bridge.source.extra, timeout=5.0)
+    held = time.monotonic()
+    for _ in range(10):
+        operator.send(0.02, 0.0)
+        spin(duration=0.1)
+    assert all(said[0] == 'stop' for said in robot.said(held))
+    assert bridge.source.names == ['/operator', '/teleop']
+    intruder.destroy_publisher(twin)
+    spin(lambda: not bridge.source.extra, timeout=5.0)
+    operator.send(0.02, 0.0)
+    spin(lambda: robot.said()[-1][0] == 'command', timeout=2.0)
+
+
 def test_a_bridge_that_starts_while_stopped_sends_only_stop_lines(bench):
     """The stop was sent once, before this bridge existed, and its sender is gone: the bridge
     learns it from the nodes that hold it (here another bridge) and its robot gets only zero

@@ -12,6 +12,7 @@ import pytest
 
 from conftest import DATA_DIR
 from curve_formation.analysis import analyze_bag
+from curve_formation.dds_shm import files_in_use
 
 
 pytestmark = pytest.mark.ros
@@ -43,6 +44,7 @@ def test_a_controller_killed_hard_leaves_metrics_a_bag_and_an_exit_status_naming
         ros_domain, tmp_path):
     out = tmp_path / 'run'
     bag = tmp_path / 'bag'
+    before = set(os.listdir('/dev/shm'))
     proc = subprocess.Popen([sys.executable, '-m', 'curve_formation.cli', 'run',
                              str(DATA_DIR / 'fast_closed.yaml'), '--out', str(out),
                              '--duration', '8', '--bag', str(bag)],
@@ -66,6 +68,10 @@ def test_a_controller_killed_hard_leaves_metrics_a_bag_and_an_exit_status_naming
     assert result['phases'][0]['not_settled_because'].startswith(
         'node robot_3.formation_controller died at t = ')
     assert (out / 'paths.png').exists() and result['bag']['messages'] > 1000
+    # Under LOCALHOST discovery every participant has Fast DDS shared memory: the run removed
+    # what its dead node left there (a file no live process holds).
+    left = (set(os.listdir('/dev/shm')) - before) - files_in_use()
+    assert not [name for name in left if 'fastrtps' in name], left
     # The bag says the same.
     bagged = analyze_bag(bag, tmp_path / 'analysis')
     assert [d['node'] for d in bagged['node_deaths']] == ['robot_3.formation_controller']

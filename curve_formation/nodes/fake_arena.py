@@ -12,7 +12,8 @@ behind their last link: each reads wheel speeds in its wire format from a UDP po
 pseudo-terminal, as its firmware would (with the firmware's watchdog: `command_timeout`), and
 answers each line 'ok' or 'err'; no cmd_vel is read (robot_bridge writes those links).
 Reading cmd_vel, it obeys the e-stop as fake_robot does: every robot stands still until it is
-released.
+released; and a robot whose cmd_vel has more than one publishing node stands still until one
+is left.
 """
 
 import math
@@ -27,6 +28,7 @@ from curve_formation.core import metrics, wire
 from curve_formation.core.dynamics import DrivenUnicycle
 from curve_formation.links import robot_endpoint
 from curve_formation.nodes import messages, topics
+from curve_formation.nodes.command_source import CommandSourceWatch
 from curve_formation.nodes.estop import EstopHolder
 from curve_formation.nodes.fake_robot import ESTOP_TOPICS, ROBOT_PARAMETERS
 from curve_formation.nodes.params import (
@@ -61,7 +63,8 @@ PARAMETERS = (
 ) + ROBOT_PARAMETERS + WIRE_PARAMETERS
 
 TOPICS = (
-    Use('sub', topics.CMD_VEL, "each robot's velocity command", '<i>'),
+    Use('sub', topics.CMD_VEL, "each robot's velocity command; with more than one publishing "
+        'node, that robot stands still until one is left', '<i>'),
     Use('pub', topics.POSE, f'each pose at rate_hz (on {topics.TRUE_POSE} instead with '
         'pose_topic)', '<i>'),
     Use('pub', topics.ROBOT_POSES, 'every pose in one message (x, y, theta per robot), with '
@@ -104,10 +107,15 @@ class FakeArena(Node):
         self.diag_pub = topics.publisher(self, topics.DIAGNOSTICS)
         self.endpoints = self._endpoints(p, experiment)
         self.estop = None   # behind links, the robot bridges hold the e-stop
+        self.sources = []   # and watch the command sources
         if self.endpoints:
             self.create_timer(FIRMWARE_POLL, self._on_lines)
         else:
             self.estop = EstopHolder(self, robots=self.n, on_change=self._on_estop)
+            self.sources = [CommandSourceWatch(
+                self, topics.robot_topic(i, topics.CMD_VEL),
+                lambda extra, names, i=i: self._on_sources(i, extra))
+                for i in range(1, self.n + 1)]
             for i in range(1, self.n + 1):
                 topics.subscription(self, topics.CMD_VEL, lambda msg, i=i: self._on_cmd(i, msg),
                                     robot=i)
@@ -166,7 +174,7 @@ class FakeArena(Node):
             self.get_logger().warning(f'robot {i}: non-finite cmd_vel ignored',
                                       throttle_duration_sec=1.0)
             return
-        if self.estop is not None and self.estop.engaged:
+        if self.estop is not None and (self.estop.engaged or self.sources[i - 1].extra):
             v, w = 0.0, 0.0
         # Taken up, at its time, by the next step of the world (the pose timer's).
         self.robots[i - 1].drive(v, w, now_seconds(self), advance=False)
@@ -176,6 +184,10 @@ class FakeArena(Node):
             now = now_seconds(self)
             for robot in self.robots:
                 robot.drive(0.0, 0.0, now, advance=False)
+
+    def _on_sources(self, i, extra):
+        if extra:
+            self.robots[i - 1].drive(0.0, 0.0, now_seconds(self), advance=False)
 
     def advance(self, until):
         """Move every robot up to `until` (s), resolving contacts every physics_dt; in one

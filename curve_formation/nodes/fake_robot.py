@@ -6,7 +6,8 @@ piecewise constant, so the motion is integrated exactly up to each command chang
 publication: no integration step. A zero command means motors off: the robot stands still
 (the disturbance acts on a driven input only), and so does a command older than
 `command_timeout` (a robot-side watchdog, as a driver should have). While the e-stop is
-engaged it stands still whatever cmd_vel says (nodes/estop.py). Options: Gaussian pose
+engaged, and while its cmd_vel has more than one publishing node (nodes/command_source.py),
+it stands still whatever cmd_vel says (nodes/estop.py). Options: Gaussian pose
 noise, a fixed command latency, and dropped poses (fault injection).
 """
 
@@ -17,6 +18,7 @@ from rclpy.node import Node
 
 from curve_formation.core.dynamics import DrivenUnicycle
 from curve_formation.nodes import messages, topics
+from curve_formation.nodes.command_source import CommandSourceWatch
 from curve_formation.nodes.estop import EstopHolder
 from curve_formation.nodes.params import declare_parameters, Param, ParameterError
 from curve_formation.nodes.runtime import now_seconds, run_node
@@ -59,7 +61,8 @@ ESTOP_TOPICS = (
 )
 
 TOPICS = (
-    Use('sub', topics.CMD_VEL, 'velocity command'),
+    Use('sub', topics.CMD_VEL, 'velocity command; with more than one publishing node, the '
+        'robot stands still until one is left'),
     Use('pub', topics.POSE, f'pose at rate_hz (on {topics.TRUE_POSE} instead with pose_topic)'),
 ) + ESTOP_TOPICS
 
@@ -79,6 +82,7 @@ class FakeRobot(Node):
         self.pose_pub = topics.publisher(self, p.pose_topic)
         topics.subscription(self, topics.CMD_VEL, self._on_cmd)
         self.estop = EstopHolder(self, f'robot_{p.index}', on_change=self._on_estop)
+        self.source = CommandSourceWatch(self, topics.CMD_VEL, self._on_sources)
         self.create_timer(1.0 / p.rate_hz, self._on_timer)
 
     @property
@@ -90,12 +94,16 @@ class FakeRobot(Node):
         if not (math.isfinite(v) and math.isfinite(w)):
             self.get_logger().warning('non-finite cmd_vel ignored', throttle_duration_sec=1.0)
             return
-        if self.estop.engaged:
+        if self.estop.engaged or self.source.extra:
             v, w = 0.0, 0.0
         self.robot.drive(v, w, now_seconds(self))
 
     def _on_estop(self, engaged):
         if engaged:
+            self.robot.drive(0.0, 0.0, now_seconds(self))
+
+    def _on_sources(self, extra, names):
+        if extra:
             self.robot.drive(0.0, 0.0, now_seconds(self))
 
     def _on_timer(self):

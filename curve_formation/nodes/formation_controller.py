@@ -22,6 +22,7 @@ from curve_formation.core.control import Gains, LAWS, timed_by, WheelLimits
 from curve_formation.core.plausibility import bounded_command
 from curve_formation.core.safety import Avoidance, AVOIDANCE_OFF
 from curve_formation.nodes import messages, topics
+from curve_formation.nodes.command_source import CommandSourceWatch
 from curve_formation.nodes.estop import EstopHolder
 from curve_formation.nodes.guard import rejections
 from curve_formation.nodes.params import (
@@ -276,6 +277,8 @@ class FormationController(Node):
         self.config = agent_config(self.params)
         self.controller = AgentController(self.config)
         self.rejections = rejections(self)
+        self.source = CommandSourceWatch(self, topics.CMD_VEL,
+                                         lambda *_: self._publish_diagnostics())
         self.pose_topic = self.resolve_topic_name(topics.POSE)
         self._last_reason = None
         self.rng = np.random.default_rng()
@@ -397,7 +400,8 @@ class FormationController(Node):
     def _publish_diagnostics(self):
         c = self.controller
         status = DiagnosticStatus(
-            level=DiagnosticStatus.WARN if self._last_reason else DiagnosticStatus.OK,
+            level=(DiagnosticStatus.WARN if self._last_reason or self.source.extra
+                   else DiagnosticStatus.OK),
             name=f'{self.get_fully_qualified_name()}',
             message=f'stopped: {self._last_reason}' if self._last_reason else 'driving',
             hardware_id=f'robot_{self.config.index}',
@@ -407,6 +411,7 @@ class FormationController(Node):
                     KeyValue(key='rejected_inputs', value=str(c.rejected)),
                     KeyValue(key='rejected_messages', value=self.rejections.summary()),
                     KeyValue(key='last_rejection', value=self.rejections.last),
+                    KeyValue(key='command_publishers', value=', '.join(self.source.names)),
                     KeyValue(key='filtered_ticks', value=str(c.filtered))])
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = self.get_clock().now().to_msg()

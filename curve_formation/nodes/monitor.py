@@ -16,6 +16,7 @@ from rclpy.node import Node
 from curve_formation.core import metrics
 from curve_formation.core.estop import stopped_intervals
 from curve_formation.nodes import messages, qos, topics
+from curve_formation.nodes.command_source import command_publishers, WATCH_PERIOD
 from curve_formation.nodes.readiness import subscribe_to_curve
 from curve_formation.nodes.runtime import now_seconds, WithMessageInfo
 
@@ -69,6 +70,8 @@ class Monitor(Node):
         self.links = {}            # robot_bridge name -> [(t s, level, message, {key: value})]
         self.estop_events = []     # (received s, holder, engaged) of each e-stop state heard
         self.node_deaths = []      # (t s since t = 0 or None, node key, how) reported here
+        # robot -> [[from s, to s or None, publishing nodes]] while its cmd_vel had several
+        self.command_sources = {}
         # Per robot, one (published, received, handled) row per command (s, system clock):
         # the DDS source timestamp, the time DDS received it here, the time this callback ran.
         self.command_arrivals = [[] for _ in range(n)]
@@ -93,6 +96,7 @@ class Monitor(Node):
             self._subscribe(topics.ROBOT_POSES, self._on_robot_poses)
             self._subscribe(topics.DIAGNOSTICS, self._on_diagnostics)
             self._subscribe(topics.ESTOP_STATE, self._on_estop_state)
+            self.create_timer(WATCH_PERIOD, self._watch_command_sources)
             self.create_timer(1.0 / record_hz, self._sample)
         self.period = 1.0 / record_hz
         self.last_call = None      # time.monotonic() of the sampling timer's last call
@@ -155,6 +159,21 @@ class Monitor(Node):
         self.curve_times.setdefault(self.curve_id, info['source_timestamp'] * 1e-9)
         if self.t0 is None:
             self.t0 = now
+
+    def _watch_command_sources(self):
+        if self.t0 is None:
+            return
+        t = now_seconds(self) - self.t0
+        for i in range(1, self.n + 1):
+            names = command_publishers(self, topics.robot_topic(i, topics.CMD_VEL))
+            episodes = self.command_sources.setdefault(f'robot_{i}', [])
+            open_ = episodes and episodes[-1][1] is None
+            if len(names) > 1 and not open_:
+                episodes.append([t, None, names])
+            elif len(names) <= 1 and open_:
+                episodes[-1][1] = t
+        for robot in [r for r, e in self.command_sources.items() if not e]:
+            del self.command_sources[robot]
 
     def _on_estop_state(self, msg):
         try:

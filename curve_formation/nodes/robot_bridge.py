@@ -27,6 +27,7 @@ from curve_formation.core import wire
 from curve_formation.core.agent import is_stale
 from curve_formation.links import LinkError, robot_link
 from curve_formation.nodes import messages, topics
+from curve_formation.nodes.command_source import CommandSourceWatch
 from curve_formation.nodes.estop import EstopHolder
 from curve_formation.nodes.params import declare_parameters, Param, ParameterError
 from curve_formation.nodes.runtime import now_seconds, realtime_priority, run_node
@@ -77,7 +78,8 @@ PARAMETERS = (
 ) + WIRE_PARAMETERS
 
 TOPICS = (
-    Use('sub', topics.CMD_VEL, 'velocity command'),
+    Use('sub', topics.CMD_VEL, 'velocity command; with more than one publishing node, the stop '
+        'line until one is left'),
     Use('sub', topics.ESTOP, 'true sends the stop line at once and holds it until released '
         '(latched here, whoever sent it)'),
     Use('sub', topics.ESTOP_STATE, "other nodes' e-stop state: a bridge that starts while the "
@@ -117,6 +119,7 @@ class RobotBridge(Node):
         self.diag_pub = topics.publisher(self, topics.DIAGNOSTICS)
         topics.subscription(self, topics.CMD_VEL, self._on_cmd)
         self.estop = EstopHolder(self, self._robot_name(), on_change=self._on_estop)
+        self.source = CommandSourceWatch(self, topics.CMD_VEL, self._on_sources)
         self.create_timer(1.0 / p.rate_hz, self._on_timer)
         # A command that came too soon after the last line is written as soon as it may be
         # (this timer runs only while one waits), not at the next tick of the timer above:
@@ -136,7 +139,7 @@ class RobotBridge(Node):
                                         self.params.max_wheel_speed)
         self.command = (left, right, received)
         self.command_time = now_seconds(self)
-        if self.estop.engaged:
+        if self.held:
             return
         if self._may_send():
             self._send_command()
@@ -144,7 +147,7 @@ class RobotBridge(Node):
             self.waiting.reset()
 
     def _on_waiting(self):
-        if self.command is None or self.estop.engaged:
+        if self.command is None or self.held:
             self.waiting.cancel()
         elif self._may_send():
             self.waiting.cancel()
@@ -154,8 +157,18 @@ class RobotBridge(Node):
         """'robot_3' in namespace /robot_3 (or /mona_3, ...: the namespace's last part)."""
         return self.get_namespace().rstrip('/').split('/')[-1]
 
+    @property
+    def held(self):
+        """The robot is held stopped: e-stop, or more than one node publishing its cmd_vel."""
+        return self.estop.engaged or self.source.extra
+
     def _on_estop(self, engaged):
         if engaged:
+            self.command = None
+            self._send_stop()
+
+    def _on_sources(self, extra, names):
+        if extra:
             self.command = None
             self._send_stop()
 
@@ -180,7 +193,7 @@ class RobotBridge(Node):
     def _on_timer(self):
         self._read_replies()
         now = now_seconds(self)
-        if self.estop.engaged or is_stale(self.command_time, now, self.params.command_timeout):
+        if self.held or is_stale(self.command_time, now, self.params.command_timeout):
             if self._may_send():
                 self._send_stop()
         elif self.command is not None and self._may_send():
@@ -248,6 +261,7 @@ class RobotBridge(Node):
                      else 'ok'),
             values=[KeyValue(key=k, value=str(v)) for k, v in self.counts.items()]
             + [KeyValue(key='dropped_lines', value=str(self.link.dropped)),
+               KeyValue(key='command_publishers', value=', '.join(self.source.names)),
                KeyValue(key='last_error', value=self.last_error),
                KeyValue(key='reply_age_s', value=age),
                KeyValue(key='latency_ms_p50', value=f'{latency[0]:.3f}'),

@@ -1,0 +1,54 @@
+"""One command source per robot: who publishes a robot's cmd_vel, watched from the graph.
+
+A robot's cmd_vel has one publisher, its controller (or a teleop node the lab put there in
+its place). A second one (a script on the wrong namespace, a forgotten teleop) would make the
+robot obey two masters in turn. The fake robots, the fake arena and the robot bridges hold
+their robot stopped while a cmd_vel has more than one publishing node, until it has one again;
+the controllers and the runner's monitor report it. A guard against mistakes, not against an
+intruder: without DDS security anyone on the domain can still publish as the controller's
+own node name.
+"""
+
+WATCH_PERIOD = 0.5   # s between two looks at the graph
+
+
+def command_publishers(node, topic):
+    """Sorted names of the nodes publishing on `topic` (as far as discovery has named them;
+    a node restarted under the same name counts once).
+    """
+    return sorted({f'{i.node_namespace.rstrip("/")}/{i.node_name}'
+                   for i in node.get_publishers_info_by_topic(topic)
+                   if not i.node_name.startswith('_NODE_NAME_UNKNOWN')})
+
+
+class CommandSourceWatch:
+    """Watches a robot's cmd_vel for more than one publishing node; `extra` while it has.
+
+    on_change(extra, names) runs when that changes; the change is logged.
+    """
+
+    def __init__(self, node, topic, on_change=None):
+        self.node = node
+        self.topic = node.resolve_topic_name(topic)
+        self.on_change = on_change
+        self.names = []
+        self.extra = False
+        self.episodes = 0     # times a second publisher appeared
+        node.create_timer(WATCH_PERIOD, self.look)
+
+    def look(self):
+        names = command_publishers(self.node, self.topic)
+        extra = len(names) > 1
+        self.names = names
+        if extra == self.extra:
+            return
+        self.extra = extra
+        if extra:
+            self.episodes += 1
+            self.node.get_logger().error(
+                f'{len(names)} nodes publish {self.topic}: {", ".join(names)}; one command '
+                'source per robot')
+        else:
+            self.node.get_logger().warning(f'{self.topic} has one publisher again')
+        if self.on_change is not None:
+            self.on_change(extra, names)
