@@ -35,6 +35,9 @@ from curve_formation.paths import resolve_config
 # and every node's parameters file.
 EXPERIMENT_KEY = 'curve_formation.experiment'
 PARAMETERS_KEY = 'curve_formation.parameters'
+# When the run ended (ns, the recorder's clock), before its nodes were stopped: what they do
+# while stopping is not the run.
+RUN_END_KEY = 'curve_formation.run_end_ns'
 ESTOP_STATE = '/formation/estop_state'
 _ROBOT_TOPIC = re.compile(r'^/robot_(\d+)/(pose|cmd_vel|disturbance_estimate)$')
 # The message type each topic the analysis reads must have (a bag of another tool may differ).
@@ -57,6 +60,7 @@ class BagRun:
     contacts: dict = None  # fake_arena's last contact report, if the bag has one
     estops: list = None    # [(start, stop or None)] s while a node held the e-stop
     deaths: list = None    # [(t s, node, how)] nodes of the run that died
+    pose_stamps: np.ndarray = None   # (R, n) s since t = 0: when each sampled pose was taken
 
 
 def load_bag_run(path, experiment_path=None, sample_hz=20.0):
@@ -82,6 +86,7 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0):
     events = {'pose': [[] for _ in range(n)], 'cmd_vel': [[] for _ in range(n)],
               'disturbance_estimate': [[] for _ in range(n)]}
     curves, counts, contacts, estop_events, death_events = [], {}, None, [], []
+    stamps = [[] for _ in range(n)]   # per robot: (received s, (pose stamp s,))
     for topic, _, stamp, msg in read_messages(path):
         counts[topic] = counts.get(topic, 0) + 1
         t = stamp * 1e-9
@@ -118,6 +123,8 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0):
             q = msg.pose.orientation
             value = (msg.pose.position.x, msg.pose.position.y,
                      yaw_from_quaternion(q.x, q.y, q.z, q.w))
+            stamp_s = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+            stamps[i].append((t, (stamp_s,)))
         elif kind == 'cmd_vel':
             value = (msg.linear.x, msg.angular.z)
         else:
@@ -127,6 +134,8 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0):
         raise BagError(f'{path}: no /formation/curve message: nothing to measure against')
     t0 = curves[0][0]
     end = max((ev[-1][0] for ev in events['pose'] if ev), default=t0)
+    if RUN_END_KEY in custom:
+        end = min(end, int(custom[RUN_END_KEY]) * 1e-9)
     if end - t0 < 2.0 / sample_hz:
         raise BagError(f'{path}: less than two samples of poses after the first curve')
     grid = t0 + np.arange(0.0, end - t0, 1.0 / sample_hz)
@@ -138,7 +147,8 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0):
     return BagRun(replace(experiment, phases=phases), grid - t0,
                   _sample(events['pose'], grid, 3), _sample(events['cmd_vel'], grid, 2),
                   _sample(events['disturbance_estimate'], grid, 2), phase, counts, contacts,
-                  estops, [(t - t0, node, how) for t, node, how in death_events])
+                  estops, [(t - t0, node, how) for t, node, how in death_events],
+                  _sample(stamps, grid, 1)[..., 0] - t0)
 
 
 def _sample(per_robot, grid, width):
@@ -161,9 +171,10 @@ def analyze_bag(path, out_dir, experiment_path=None, compare=None, compare_sim=F
     """
     run = load_bag_run(path, experiment_path)
     t, poses, phase, dhat, commands = _known(run, path)
+    stamps = run.pose_stamps[len(run.t) - len(t):]
     result = metrics.run_metrics(run.experiment, t, poses, phase, np.nan_to_num(dhat),
                                  np.nan_to_num(commands), contacts=run.contacts,
-                                 estops=run.estops, deaths=run.deaths)
+                                 estops=run.estops, deaths=run.deaths, stamps=stamps)
     result['node_deaths'] = [{'node': node, 't': t, 'how': how} for t, node, how in run.deaths]
     result['bag'] = {'path': str(path), 'messages': run.counts}
     out = Path(out_dir)

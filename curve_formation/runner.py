@@ -19,7 +19,7 @@ import time
 import numpy as np
 from rclpy.serialization import serialize_message
 
-from curve_formation.analysis import bag_accounting
+from curve_formation.analysis import bag_accounting, RUN_END_KEY
 from curve_formation.bag import BagWriter
 from curve_formation.core import metrics, plots
 from curve_formation.core.experiment import control_rate, load_experiment, received_phases
@@ -133,6 +133,13 @@ class Run:
         """Stop every node, then the observers (the bag is closed after the nodes' last
         messages were recorded); give the environment back.
         """
+        if self.observers is not None and self.observers.monitor is not None:
+            # The run ends here, before its nodes are stopped: the record ends too, and the
+            # bag says when (analysis.RUN_END_KEY).
+            self.monitor.close()
+            if self.bag_writer is not None:
+                self.bag_writer.set_custom(RUN_END_KEY,
+                                           str(self.monitor.get_clock().now().nanoseconds))
         self._stack.close()
         if self.bag_writer is not None:
             self.bag_writer.close()   # also when start() never opened it
@@ -221,7 +228,7 @@ class Run:
         deaths = self.monitor.node_deaths
         result = metrics.run_metrics(experiment, data['t'], data['poses'], phase,
                                      data['dhat'], data['commands'], estops=estops,
-                                     deaths=deaths)
+                                     deaths=deaths, stamps=data['pose_stamps'])
         if 'bodies' in result:   # measured on the bodies, i.e. the true poses
             result['bodies'] = metrics.body_metrics(experiment, data['t'], truth,
                                                     self.monitor.contacts,

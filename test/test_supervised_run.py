@@ -13,6 +13,7 @@ import pytest
 from conftest import DATA_DIR
 from curve_formation.analysis import analyze_bag
 from curve_formation.dds_shm import files_in_use
+from curve_formation.run_options import RunOptions
 
 
 pytestmark = pytest.mark.ros
@@ -89,7 +90,8 @@ def test_an_unexpected_error_in_the_runner_still_writes_what_was_measured(ros_do
         raise RuntimeError('a fault of the runner')
     monkeypatch.setattr(Run, 'spin_for', fails_later)
     with pytest.raises(RuntimeError, match='a fault of the runner'):
-        run_experiment(DATA_DIR / 'fast_closed.yaml', tmp_path, 10.0, log=lambda *_: None)
+        run_experiment(DATA_DIR / 'fast_closed.yaml', tmp_path, 10.0,
+                       RunOptions(single_process=True), log=lambda *_: None)
     result = json.loads((tmp_path / 'metrics.json').read_text())
     assert result['runner_error'] == 'RuntimeError: a fault of the runner'
     assert 2.5 < result['duration'] < 8.0 and (tmp_path / 'paths.png').exists()

@@ -41,6 +41,17 @@ class CurveMotion:
         p = np.asarray(self.about, float)
         return (np.asarray(points, float) - p) @ a.T + p + np.asarray(self.velocity) * tau
 
+    def points_each(self, points: ArrayLike, taus: ArrayLike) -> FloatArray:
+        """Where each of points (k, 2) of the curve at tau = 0 is at its own taus[k] (s), m."""
+        taus = np.asarray(taus, float)
+        angle = self.rotation_rate * taus
+        grow = np.exp(self.scale_rate * taus)
+        rel = np.asarray(points, float) - np.asarray(self.about, float)
+        cos, sin = grow * np.cos(angle), grow * np.sin(angle)
+        moved = np.stack([cos * rel[:, 0] - sin * rel[:, 1], sin * rel[:, 0] + cos * rel[:, 1]],
+                         axis=-1)
+        return moved + np.asarray(self.about, float) + np.outer(taus, self.velocity)
+
     def velocities(self, points: ArrayLike, tau: float) -> FloatArray:
         """Velocities (k, 2) (m/s) at tau of the points (k, 2) given at tau = 0."""
         _, rate = self.matrices(tau)

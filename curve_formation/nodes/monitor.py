@@ -32,10 +32,12 @@ class Recording:
     curve_id: list = field(default_factory=list)
     true_poses: list = field(default_factory=list)   # fake robots' ground truth (camera runs)
     unseen: list = field(default_factory=list)       # (n,) robots missing from the poses
+    pose_stamps: list = field(default_factory=list)  # (n,) s since t = 0: when each was taken
 
     def arrays(self):
         return {name: np.array(getattr(self, name)) for name in
-                ('t', 'poses', 'commands', 'dhat', 'curve_id', 'true_poses', 'unseen')}
+                ('t', 'poses', 'commands', 'dhat', 'curve_id', 'true_poses', 'unseen',
+                 'pose_stamps')}
 
 
 class Monitor(Node):
@@ -101,6 +103,7 @@ class Monitor(Node):
         self.period = 1.0 / record_hz
         self.last_call = None      # time.monotonic() of the sampling timer's last call
         self.late_samples = 0      # samples skipped because the timer came late (see _sample)
+        self.closed = False        # the run is over (close): nothing more is sampled
         self._skipped_last = False
 
     def _subscribe(self, name, callback, robot=None):
@@ -191,6 +194,12 @@ class Monitor(Node):
         return stopped_intervals([(t - self.t0, holder, engaged)
                                   for t, holder, engaged in self.estop_events], end)
 
+    def close(self):
+        """The run is over: sample no more. Its nodes are stopped next, and what they do
+        while stopping (zero commands, robots left behind a moving curve) is not the run.
+        """
+        self.closed = True
+
     def report_death(self, key, how):
         """A node of the run died: kept (node_deaths). Returns (its t, s since t = 0 or None;
         the /diagnostics message that tells it, stamped now: metrics.NODE_DEATH_REPORTER).
@@ -254,10 +263,11 @@ class Monitor(Node):
             self.late_samples += 1
             return
         self._skipped_last = False
-        if self.t0 is None:
+        if self.t0 is None or self.closed:
             return
         rec = self.recording
         rec.t.append(now_seconds(self) - self.t0)
+        rec.pose_stamps.append(self.pose_stamps - self.t0)
         rec.poses.append(self.poses.copy())
         rec.commands.append(self.commands.copy())
         rec.dhat.append(self.dhat.copy())
