@@ -30,7 +30,7 @@ from curve_formation.core.experiment import points_outside_arena
 from curve_formation.core.metrics import offset_points
 from curve_formation.core.plausibility import MAX_COORDINATE
 from curve_formation.nodes import messages, topics
-from curve_formation.nodes.estop import EstopHolder
+from curve_formation.nodes.estop import estop_uses, EstopHolder
 from curve_formation.nodes.params import (
     declare_parameters,
     experiment_parameter,
@@ -80,13 +80,9 @@ TOPICS = (
         'published as the next curve'),
     Use('sub', topics.ROBOT_POSES, "every robot's pose, to re-assign targets (with "
         'reassign_every)'),
-    Use('sub', topics.ESTOP, 'held (latched) for the nodes that start while it is engaged'),
-    Use('sub', topics.ESTOP_STATE, "other nodes' e-stop state (started while stopped: "
-        'engaged)'),
-    Use('pub', topics.ESTOP_STATE, 'its e-stop state on every change and every second'),
     Use('sub', topics.READY, 'names of the nodes that receive the curve, counted before the '
         'first curve (wait_for_ready)'),
-)
+) + estop_uses('held (latched) for the nodes that start while it is engaged')
 
 WAIT_POLL = 0.05   # s, how often readiness is checked before the first curve
 # An observed curve of more points than this is refused (the fit costs points x basis size).

@@ -20,6 +20,7 @@ from curve_formation.core.estop import EstopLatch
 from curve_formation.nodes import messages, qos, topics
 from curve_formation.nodes.guard import Guarded
 from curve_formation.nodes.runtime import now_seconds, WithMessageInfo
+from curve_formation.nodes.topics import Use
 
 
 ANNOUNCE_PERIOD = 1.0   # s between two announcements of an unchanged state
@@ -27,6 +28,15 @@ ANNOUNCE_PERIOD = 1.0   # s between two announcements of an unchanged state
 # takes the formation as not stopped: alone on the domain, nobody can hold a stop.
 HEAR_WAIT = 2.0
 UNNAMED = 'a publisher not yet named by discovery'
+
+
+def estop_uses(on_stop):
+    """The TOPICS rows (nodes/docs.py) of a node holding the e-stop; on_stop: what it does."""
+    return (Use('sub', topics.ESTOP, on_stop),
+            Use('sub', topics.ESTOP_STATE, "other nodes' e-stop state: started while the "
+                'formation is stopped, it stays stopped'),
+            Use('pub', topics.ESTOP_STATE, 'its e-stop state on every change and every second '
+                '(what `curve-formation estop` waits for)'))
 
 
 class EstopHolder:

@@ -19,7 +19,7 @@ from rclpy.node import Node
 from curve_formation.core.dynamics import DrivenUnicycle
 from curve_formation.nodes import messages, topics
 from curve_formation.nodes.command_source import CommandSourceWatch
-from curve_formation.nodes.estop import EstopHolder
+from curve_formation.nodes.estop import estop_uses, EstopHolder
 from curve_formation.nodes.params import declare_parameters, Param, ParameterError
 from curve_formation.nodes.runtime import now_seconds, run_node
 from curve_formation.nodes.topics import Use
@@ -53,12 +53,7 @@ PARAMETERS = (
 
 
 # The e-stop as the fake robots and the fake arena obey it.
-ESTOP_TOPICS = (
-    Use('sub', topics.ESTOP, 'true: motors off and every cmd_vel taken as zero until released'),
-    Use('sub', topics.ESTOP_STATE, "other nodes' e-stop state (started while stopped: "
-        'stopped)'),
-    Use('pub', topics.ESTOP_STATE, 'its e-stop state on every change and every second'),
-)
+ESTOP_TOPICS = estop_uses('true: motors off and every cmd_vel taken as zero until released')
 
 TOPICS = (
     Use('sub', topics.CMD_VEL, 'velocity command; with more than one publishing node, the '

@@ -23,7 +23,7 @@ from curve_formation.core.plausibility import bounded_command
 from curve_formation.core.safety import Avoidance, AVOIDANCE_OFF
 from curve_formation.nodes import messages, topics
 from curve_formation.nodes.command_source import CommandSourceWatch
-from curve_formation.nodes.estop import EstopHolder
+from curve_formation.nodes.estop import estop_uses, EstopHolder
 from curve_formation.nodes.guard import rejections
 from curve_formation.nodes.params import (
     declare_parameters,
@@ -240,10 +240,6 @@ TOPICS = (
     Use('sub', topics.POSE, 'own pose, arena frame'),
     Use('sub', topics.STATE, "each in-neighbour's state: e_x, e_y, curve_id, leader_age", '<j>'),
     Use('sub', topics.CURVE, 'the active curve'),
-    Use('sub', topics.ESTOP, 'true: a zero command at once and at every tick until '
-        'released (latched here, whoever sent it)'),
-    Use('sub', topics.ESTOP_STATE, "other nodes' e-stop state: one that starts while the "
-        'formation is stopped stays stopped'),
     Use('sub', topics.ROBOT_POSES, "every robot's pose (x, y, theta per robot), for the "
         'safety filter (with avoidance)'),
     Use('pub', topics.CMD_VEL, 'velocity command at rate_hz'),
@@ -253,12 +249,11 @@ TOPICS = (
         'the stamps of the inputs it came from (own pose, each in-neighbour state), to trace or '
         'replay a command'),
     Use('pub', topics.ESTIMATE),
-    Use('pub', topics.ESTOP_STATE, 'its e-stop state on every change and every second '
-        '(the confirmation `curve-formation estop` waits for)'),
     Use('pub', topics.DIAGNOSTICS, 'driving or why stopped; curve id, s_i, estimate, rejected '
         'inputs'),
     REPORTED,
-)
+) + estop_uses('true: a zero command at once and at every tick until released (latched here, '
+               'whoever sent it)')
 
 
 def reason_kind(reason):

@@ -28,7 +28,7 @@ from curve_formation.core.agent import is_stale
 from curve_formation.links import LinkError, robot_link
 from curve_formation.nodes import messages, topics
 from curve_formation.nodes.command_source import CommandSourceWatch
-from curve_formation.nodes.estop import EstopHolder
+from curve_formation.nodes.estop import estop_uses, EstopHolder
 from curve_formation.nodes.params import declare_parameters, Param, ParameterError
 from curve_formation.nodes.runtime import now_seconds, realtime_priority, run_node
 from curve_formation.nodes.topics import Use
@@ -80,14 +80,10 @@ PARAMETERS = (
 TOPICS = (
     Use('sub', topics.CMD_VEL, 'velocity command; with more than one publishing node, the stop '
         'line until one is left'),
-    Use('sub', topics.ESTOP, 'true sends the stop line at once and holds it until released '
-        '(latched here, whoever sent it)'),
-    Use('sub', topics.ESTOP_STATE, "other nodes' e-stop state: a bridge that starts while the "
-        'formation is stopped holds the stop'),
-    Use('pub', topics.ESTOP_STATE, 'its e-stop state on every change and every second'),
     Use('pub', topics.DIAGNOSTICS, 'link: sent, failed, malformed, last error, reply age, '
         'latency (1 Hz)'),
-)
+) + estop_uses('true sends the stop line at once and holds it until released (latched here, '
+               'whoever sent it)')
 
 LATENCY_WINDOW = 1000   # latencies kept for the diagnostics' percentiles
 SPARE_LINES = 2         # lines beyond rate_hz allowed in any second (see _may_send)
