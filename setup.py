@@ -24,7 +24,7 @@ setup(
     package_data={PACKAGE: ['fastdds_large_data.xml', 'fastdds_udp.xml']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
-        ('share/' + PACKAGE, ['package.xml']),
+        ('share/' + PACKAGE, ['package.xml', 'LICENSE']),
         ('share/' + PACKAGE + '/config', glob('config/*.yaml')),
     ],
     # What `sim`, `run --bag`, `analyze` and the nodes need at run time (requirements.txt

@@ -353,7 +353,9 @@ def _at_least_one(text):
 
 
 def build_parser():
+    from curve_formation import version
     parser = _Parser(prog='curve-formation', description=__doc__.split('\n')[0])
+    parser.add_argument('--version', action='version', version=f'%(prog)s {version()}')
     sub = parser.add_subparsers(dest='command', required=True, parser_class=_Parser)
     check = sub.add_parser('check', help='validate an experiment and report what was checked')
     check.add_argument('config', help='experiment YAML path or shipped name')

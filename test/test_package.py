@@ -167,3 +167,35 @@ def test_installed_node_publishes_over_dds(colcon_install, ros_domain):
     assert poses, out
     assert poses[0][:3] == pytest.approx((1.0, 2.0, 0.5))
     assert proc.returncode == 0, out
+
+
+def test_version_and_license_are_the_packages():
+    root = ET.parse(ROOT / 'package.xml').getroot()
+    done = subprocess.run([sys.executable, '-m', 'curve_formation.cli', '--version'],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0 and done.stdout.split() == ['curve-formation',
+                                                            root.findtext('version')]
+    assert f"version='{root.findtext('version')}'" in (ROOT / 'setup.py').read_text()
+    assert root.findtext('license') == 'Apache-2.0'
+    assert 'Apache License' in (ROOT / 'LICENSE').read_text().splitlines()[0]
+
+
+def test_sourcing_bootstrap_leaves_the_callers_shell_options_as_they_were(tmp_path):
+    """`source scripts/bootstrap.sh` in an interactive shell must not leave `set -e` behind
+    (the first failing command would close the terminal), nor end the shell on failure.
+    """
+    script = (f'set +e +u; before=$(set +o); source {ROOT}/scripts/bootstrap.sh; '
+              'after=$(set +o); [ "$before" = "$after" ] && echo same; '
+              'command -v curve-formation; false; echo "still here"')
+    done = subprocess.run(['bash', '-c', script], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.split('\n')
+    assert lines[0] == 'same' and lines[1].endswith('.venv/bin/curve-formation'), done.stdout
+    assert 'still here' in done.stdout
+    # A checkout it cannot set up (no requirements.txt): status 1, the caller's shell goes on.
+    (tmp_path / 'scripts').mkdir()
+    shutil.copy(ROOT / 'scripts' / 'bootstrap.sh', tmp_path / 'scripts')
+    failing = subprocess.run(['bash', '-c', f'source {tmp_path}/scripts/bootstrap.sh; '
+                              'echo "status $?"'], capture_output=True, text=True, timeout=60)
+    assert failing.returncode == 0 and 'status 1' in failing.stdout, failing
+    assert 'could not set up' in failing.stderr
