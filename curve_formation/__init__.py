@@ -3,7 +3,8 @@
 
 def version():
     """The installed package's version (setup.py, package.xml), or 'unknown' if not installed."""
-    from importlib.metadata import PackageNotFoundError, version as installed
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as installed
     try:
         return installed('curve_formation')
     except PackageNotFoundError:

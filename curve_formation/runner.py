@@ -133,19 +133,25 @@ class Run:
         """Stop every node, then the observers (the bag is closed after the nodes' last
         messages were recorded); give the environment back.
         """
-        if self.observers is not None and self.observers.monitor is not None:
-            # The run ends here, before its nodes are stopped: the record ends too, and the
-            # bag says when (analysis.RUN_END_KEY).
-            self.monitor.close()
-            if self.bag_writer is not None:
-                self.bag_writer.set_custom(RUN_END_KEY,
-                                           str(self.monitor.get_clock().now().nanoseconds))
+        self.end()
         self._stack.close()
         if self.bag_writer is not None:
             self.bag_writer.close()   # also when start() never opened it
         if self.graph is not None and self.graph.ended_hard:
             remove_dead_shared_memory()
 
+
+    def end(self):
+        """The run ends here (once), before its nodes are stopped or its results written: the
+        monitor samples no more and the bag says when (analysis.RUN_END_KEY). What the nodes do
+        while they stop, or while nobody reads their messages, is not the run.
+        """
+        if self.observers is None or self.observers.monitor is None or self.monitor.closed:
+            return
+        self.monitor.close()
+        if self.bag_writer is not None:
+            now = self.monitor.get_clock().now().nanoseconds
+            self.bag_writer.set_custom(RUN_END_KEY, str(now))
 
     @property
     def monitor(self):
@@ -217,7 +223,10 @@ class Run:
         return self.monitor.recording.arrays()
 
     def write_results(self, label='ROS run'):
-        """metrics.json, figures and trajectory.npz from what the monitor recorded."""
+        """metrics.json, figures and trajectory.npz from what the monitor recorded; the run
+        ends first (end).
+        """
+        self.end()
         data = self.recording()
         if len(data['t']) < 2:
             raise RuntimeError('nothing was recorded')
