@@ -18,11 +18,11 @@ if ! (
   if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
     echo "bootstrap: installing dependencies into $VENV (about a minute)" >&2
     "$VENV/bin/python" -m pip install -q --disable-pip-version-check --upgrade pip 2>&1 \
-      | grep -v 'is ignored' || true
+      | grep -v 'is ignored' >&2 || true
     "$VENV/bin/python" -m pip install -q --disable-pip-version-check -r "$ROOT/requirements.txt" 2>&1 \
-      | grep -v 'is ignored' || true
+      | grep -v 'is ignored' >&2 || true
     "$VENV/bin/python" -m pip install -q --disable-pip-version-check --no-deps -e "$ROOT" 2>&1 \
-      | grep -v 'is ignored' || true
+      | grep -v 'is ignored' >&2 || true
     "$VENV/bin/python" -c 'import rclpy, numba, curve_formation' \
       || { echo 'bootstrap: installation failed' >&2; exit 1; }
     echo "$want" > "$stamp"
