@@ -1,6 +1,6 @@
 """One bad message never stops the formation: malformed and absurd messages of every input
 family, published into a running formation (one process per node), kill no node, and the
-formation still settles with a complete output folder.
+formation goes on, with a complete output folder.
 """
 
 import itertools
@@ -15,6 +15,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from conftest import DATA_DIR
+from curve_formation.core import metrics
 from curve_formation.core.curves import Curve, make_basis
 from curve_formation.nodes import messages, qos, topics
 from curve_formation.run_options import RunOptions
@@ -113,8 +114,12 @@ def logs_of(folder):
     return {path.stem: path.read_text() for path in (folder / 'logs').glob('*.log')}
 
 
-def test_bad_messages_of_every_family_kill_no_node_and_the_formation_settles(ros_domain,
+def test_bad_messages_of_every_family_kill_no_node_and_the_formation_goes_on(ros_domain,
                                                                            tmp_path):
+    """6 s of every family at 20 Hz: no node dies, every robot drives again once the second
+    cmd_vel publisher is gone, the formation's error keeps coming down, and the output folder
+    is complete.
+    """
     with Run(DATA_DIR / 'fast_closed.yaml', tmp_path, RunOptions(bag_path=tmp_path / 'bag'),
              log=lambda *_: None) as run:
         run.spin_for(1.0)
@@ -124,19 +129,25 @@ def test_bad_messages_of_every_family_kill_no_node_and_the_formation_settles(ros
         fuzzer.destroy_timer(fuzzer.timer)
         # its cmd_vel publisher made robot 4's command two-sourced: held until it goes
         fuzzer.destroy_publisher(fuzzer.pubs['/robot_4/cmd_vel'])
-        run.spin_for(24.0)   # fast_closed settles in ~20.5 s; robot 4 was held ~6 s
+        run.spin_for(3.0)
+        commands = run.monitor.commands.copy()
         result = run.write_results()
         deaths = run.graph.deaths
+        data = run.recording()
     assert fuzzer.sent > 5 * len(FAMILIES)
-    assert 'leaves the arena beyond +-10000 m' in logs_of(tmp_path)['curve_server']
     assert deaths == [], deaths
-    assert result['all_settled'], result['phases']
+    assert (abs(commands).sum(axis=1) > 0).all(), commands          # every robot driving
+    followed, phase = run.followed(data['t'])
+    norm = metrics.error_norm(metrics.target_errors(data['poses'], phase, followed,
+                                                    t=data['t']))
+    quiet = np.searchsorted(data['t'], data['t'][-1] - 3.0)   # the fuzzing's end
+    assert norm[-1] < 0.8 * norm[quiet] < 0.8 * norm[0], (norm[0], norm[quiet], norm[-1])
     for name in ('metrics.json', 'paths.png', 'trajectory.npz'):
         assert (tmp_path / name).exists(), name
     logs = logs_of(tmp_path)
     assert 'curve refused' in logs['robot_2.formation_controller']
     assert 'rejected' in logs['robot_3.formation_controller']   # poses, states of 2
-    assert 'observed curve refused' in logs['curve_server']
+    assert 'leaves the arena beyond +-10000 m' in logs['curve_server']
     # a second publisher on robot 4's cmd_vel: reported, the robot held meanwhile
     (episode,) = result['command_sources']['robot_4']
     assert episode[2] == ['/fuzzer', '/robot_4/formation_controller'] and episode[1] is not None

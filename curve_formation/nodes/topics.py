@@ -86,7 +86,10 @@ REGISTRY = {t.name: t for t in (
           reader_qos_name='ANY_PUBLISHER'),
     Topic(ESTOP_STATE, DiagnosticStatus, 'LATCHED',
           "each node's e-stop state, latched for nodes that start while stopped: name = the "
-          "node, hardware_id = its robot, values engaged, by, robots", EVERY_BAG),
+          "node, hardware_id = its robot, values engaged, by, robots", EVERY_BAG,
+          # read keeping all: a change reaches every holder at once, and a shallow reader's
+          # history, shared by all writers, would drop some of their announcements
+          reader_qos_name='ROLL_CALL'),
     Topic(CURVE_PATH, Path, 'LATCHED', 'the curve, sampled, for RViz', EVERY_BAG),
     Topic(DIAGNOSTICS, DiagnosticArray, 'EVENTS', "every node's status (1 Hz)", EVERY_BAG),
     Topic(POSE, PoseStamped, 'SENSOR', "a robot's pose, arena frame", EVERY_BAG),
