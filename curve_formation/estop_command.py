@@ -121,8 +121,8 @@ def _report(tally, word, wait, log):
             f'ROS_DOMAIN_ID={domain}, discovery range {discovery_text()}: is the formation '
             'running on this domain and discovery range?', False)
         return 1
-    confirmed = [r for r in expected if r in tally.confirmed]
-    missing = [r for r in expected if r not in tally.confirmed]
+    missing = tally.missing()
+    confirmed = [r for r in expected if r not in missing]
     slowest = max((tally.confirmed[r] for r in confirmed), default=0.0)
     if not missing:
         log(f'e-stop {word}: {len(confirmed)} of {len(expected)} robots {done} within '

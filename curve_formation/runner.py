@@ -140,7 +140,6 @@ class Run:
         if self.graph is not None and self.graph.ended_hard:
             remove_dead_shared_memory()
 
-
     def end(self):
         """The run ends here (once), before its nodes are stopped or its results written: the
         monitor samples no more and the bag says when (analysis.RUN_END_KEY). What the nodes do

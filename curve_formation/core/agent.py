@@ -339,7 +339,7 @@ class AgentController:
             problem = jump_problem((self.pose[0], self.pose[1], self.pose_stamp), x, y, stamp,
                                    self.config.limits.max_wheel_speed)
         if problem is not None:
-            return self._reject(f'own pose {problem}')
+            return self.reject(f'own pose {problem}')
         self.pose, self.pose_stamp, self.pose_received = (x, y, theta), stamp, at
         if self.config.is_leader:
             self.leader_heard = at
@@ -362,12 +362,12 @@ class AgentController:
         at = _receipt(stamp, received)
         values = (ex, ey, stamp, at) + (() if leader_age is None else (leader_age,))
         if j not in self.neighbours:
-            return self._reject(f'state of agent {j}, not an in-neighbour')
+            return self.reject(f'state of agent {j}, not an in-neighbour')
         if not all_finite(*values):
-            return self._reject(f'state of neighbour {j} not finite')
+            return self.reject(f'state of neighbour {j} not finite')
         problem = error_problem(ex, ey, self.box)
         if problem is not None:
-            return self._reject(f'state of neighbour {j}: {problem}')
+            return self.reject(f'state of neighbour {j}: {problem}')
         self.neighbours[j] = _Neighbour((ex, ey), int(curve_id), stamp, at)
         if leader_age is not None:
             heard = at - max(0.0, leader_age)
@@ -391,7 +391,7 @@ class AgentController:
         self.others, self.others_received = given, at
         return True
 
-    def _reject(self, why: str) -> bool:
+    def reject(self, why: str) -> bool:
         """Count a rejected input and keep why; False (what the on_* methods return)."""
         self.rejected += 1
         self.rejection = why

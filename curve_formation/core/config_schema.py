@@ -9,6 +9,8 @@ from typing import Literal, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from curve_formation.core.curves import MAX_HARMONICS, MAX_ORDER
+
 
 Pair = tuple[float, float]
 MAX_FIT_ENTRIES = 50_000_000   # samples x basis functions of one fit (400 MB of float64)
@@ -227,9 +229,9 @@ class CurveSpec(Strict):
 
     start: float = Field(0.0, ge=0, description='time this curve becomes active (s)')
     basis: Literal['fourier', 'polynomial']
-    harmonics: Optional[int] = Field(None, ge=1, le=5_000)
-    order: Optional[int] = Field(None, ge=1, le=30, description='beyond ~30 a monomial basis '
-                                 'is numerically singular')
+    harmonics: Optional[int] = Field(None, ge=1, le=MAX_HARMONICS)
+    order: Optional[int] = Field(None, ge=1, le=MAX_ORDER, description='beyond ~30 a monomial '
+                                 'basis is numerically singular')
     x: Optional[str] = None
     y: Optional[str] = None
     bezier: Optional[list[Pair]] = None

@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from curve_formation.core.curves import Curve, make_basis
+from curve_formation.core.curves import Curve, make_basis, MAX_HARMONICS, MAX_ORDER
 
 
 class CodecError(ValueError):
@@ -20,9 +20,6 @@ class CodecError(ValueError):
 # Curve ids are whole numbers 0..MAX_CURVE_ID; they also travel in doubles (a neighbour's
 # state), which hold every such integer exactly.
 MAX_CURVE_ID = 2 ** 31 - 1
-# The largest basis a message may announce: what an experiment file allows (config_schema:
-# harmonics <= 5000, order <= 30).
-MAX_HARMONICS, MAX_ORDER = 5_000, 30
 
 
 def curve_id_from_text(text):

@@ -21,6 +21,12 @@ from numpy.typing import ArrayLike
 from curve_formation.core.shapes import FloatArray, IntArray
 
 
+# The largest bases: an experiment's curves (config_schema) and a curve message
+# (curve_codec) are held to them. Beyond order ~30 a monomial basis is numerically singular.
+MAX_HARMONICS = 5_000
+MAX_ORDER = 30
+
+
 class CurveError(ValueError):
     """A basis or fit that cannot be built as asked."""
 

@@ -67,7 +67,6 @@ class EstopLatch:
     engaged: bool = False
     by: str = ''                  # who sent the command (or whose state was adopted)
     since: float = -math.inf      # send time of the command held (s, its sender's clock)
-    changed_at: float | None = None   # when the state last changed (s, this node's clock)
     newest: float = -math.inf         # send time of the newest command applied (s)
     newest_engage: float = -math.inf  # ... of the newest engage applied (s)
 
@@ -97,7 +96,7 @@ class EstopLatch:
         if engaged == self.engaged:
             self.since = max(self.since, since) if engaged else since
             return False
-        self.engaged, self.by, self.since, self.changed_at = engaged, by, since, now
+        self.engaged, self.by, self.since = engaged, by, since
         return True
 
 

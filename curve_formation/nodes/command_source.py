@@ -14,7 +14,7 @@ WATCH_PERIOD = 0.5   # s between two looks at the graph
 
 def command_publishers(node, topic):
     """Sorted names of the nodes publishing on `topic` (as far as discovery has named them;
-    a node restarted under the same name counts once).
+    a node restarted under the same name counts once): a cmd_vel's, or the e-stop's senders.
     """
     return sorted({f'{i.node_namespace.rstrip("/")}/{i.node_name}'
                    for i in node.get_publishers_info_by_topic(topic)

@@ -18,6 +18,7 @@ from std_msgs.msg import Bool
 
 from curve_formation.core.estop import EstopLatch
 from curve_formation.nodes import messages, qos, topics
+from curve_formation.nodes.command_source import command_publishers
 from curve_formation.nodes.guard import Guarded
 from curve_formation.nodes.runtime import now_seconds, WithMessageInfo
 from curve_formation.nodes.topics import Use
@@ -40,9 +41,10 @@ def estop_uses(on_stop):
 
 
 class EstopHolder:
-    """A node's e-stop. `stopped` until it has heard the e-stop state (a command, another
-    node's state, or HEAR_WAIT s of silence), then while engaged. on_change(stopped) runs
-    when that changes, before the state is announced.
+    """A node's e-stop. on_change(engaged) runs at every change, before it is announced, and
+    on_change(False) once the node has heard the e-stop state (a command, another node's state,
+    or HEAR_WAIT s of silence) and it is not engaged: a node that must not move before then
+    (a controller) starts stopped and waits for that call.
     """
 
     def __init__(self, node, robot='', robots=0, on_change=None):
@@ -65,17 +67,12 @@ class EstopHolder:
                                  event_callbacks=qos.observer_events())
         topics.subscription(node, topics.ESTOP_STATE, self._on_peer)
         node.create_timer(ANNOUNCE_PERIOD, self.announce)
-        self._hear_timer = node.create_timer(HEAR_WAIT, self._on_silence)
+        self._hear_timer = node.create_timer(HEAR_WAIT, self._hear)
         self.announce()
 
     @property
     def engaged(self):
         return self.latch.engaged
-
-    @property
-    def stopped(self):
-        """The robot must not move: the e-stop is engaged, or not heard of yet."""
-        return self.latch.engaged or not self.heard
 
     def _hear(self):
         """The e-stop state is known from now on; on_change if that releases the robot."""
@@ -85,9 +82,6 @@ class EstopHolder:
         self._hear_timer.cancel()
         if not self.latch.engaged and self.on_change is not None:
             self.on_change(False)
-
-    def _on_silence(self):
-        self._hear()
 
     def announce(self):
         latch = self.latch
@@ -101,10 +95,7 @@ class EstopHolder:
         """Names of the nodes publishing e-stop commands now (who sent, as far as DDS tells:
         a message does not carry its sender's name).
         """
-        names = sorted({f'{i.node_namespace.rstrip("/")}/{i.node_name}'
-                        for i in self.node.get_publishers_info_by_topic(topics.ESTOP)
-                        if not i.node_name.startswith('_NODE_NAME_UNKNOWN')})
-        return ', '.join(names) or UNNAMED
+        return ', '.join(command_publishers(self.node, topics.ESTOP)) or UNNAMED
 
     def _on_command(self, msg, info):
         sent_at = info['source_timestamp'] * 1e-9

@@ -111,11 +111,10 @@ class FakeArena(Node):
         if self.endpoints:
             self.create_timer(FIRMWARE_POLL, self._on_lines)
         else:
-            self.estop = EstopHolder(self, robots=self.n, on_change=self._on_estop)
-            self.sources = [CommandSourceWatch(
-                self, topics.robot_topic(i, topics.CMD_VEL),
-                lambda extra, names, i=i: self._on_sources(i, extra))
-                for i in range(1, self.n + 1)]
+            self.estop = EstopHolder(self, robots=self.n, on_change=self._stop_held)
+            self.sources = [CommandSourceWatch(self, topics.robot_topic(i, topics.CMD_VEL),
+                                               self._stop_held)
+                            for i in range(1, self.n + 1)]
             for i in range(1, self.n + 1):
                 topics.subscription(self, topics.CMD_VEL, lambda msg, i=i: self._on_cmd(i, msg),
                                     robot=i)
@@ -174,20 +173,22 @@ class FakeArena(Node):
             self.get_logger().warning(f'robot {i}: non-finite cmd_vel ignored',
                                       throttle_duration_sec=1.0)
             return
-        if self.estop is not None and (self.estop.engaged or self.sources[i - 1].extra):
+        if self.held(i):
             v, w = 0.0, 0.0
         # Taken up, at its time, by the next step of the world (the pose timer's).
         self.robots[i - 1].drive(v, w, now_seconds(self), advance=False)
 
-    def _on_estop(self, engaged):
-        if engaged:
-            now = now_seconds(self)
-            for robot in self.robots:
-                robot.drive(0.0, 0.0, now, advance=False)
+    def held(self, i):
+        """Robot i stands still: e-stop, or more than one node publishing its cmd_vel (with
+        links, the robot bridges hold it instead).
+        """
+        return self.estop is not None and (self.estop.engaged or self.sources[i - 1].extra)
 
-    def _on_sources(self, i, extra):
-        if extra:
-            self.robots[i - 1].drive(0.0, 0.0, now_seconds(self), advance=False)
+    def _stop_held(self, *_):
+        now = now_seconds(self)
+        for i, robot in enumerate(self.robots, 1):
+            if self.held(i):
+                robot.drive(0.0, 0.0, now, advance=False)
 
     def advance(self, until):
         """Move every robot up to `until` (s), resolving contacts every physics_dt; in one

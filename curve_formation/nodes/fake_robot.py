@@ -76,8 +76,8 @@ class FakeRobot(Node):
         self.rng = np.random.default_rng(p.seed)
         self.pose_pub = topics.publisher(self, p.pose_topic)
         topics.subscription(self, topics.CMD_VEL, self._on_cmd)
-        self.estop = EstopHolder(self, f'robot_{p.index}', on_change=self._on_estop)
-        self.source = CommandSourceWatch(self, topics.CMD_VEL, self._on_sources)
+        self.estop = EstopHolder(self, f'robot_{p.index}', on_change=self._stop_if_held)
+        self.source = CommandSourceWatch(self, topics.CMD_VEL, self._stop_if_held)
         self.create_timer(1.0 / p.rate_hz, self._on_timer)
 
     @property
@@ -89,16 +89,17 @@ class FakeRobot(Node):
         if not (math.isfinite(v) and math.isfinite(w)):
             self.get_logger().warning('non-finite cmd_vel ignored', throttle_duration_sec=1.0)
             return
-        if self.estop.engaged or self.source.extra:
+        if self.held:
             v, w = 0.0, 0.0
         self.robot.drive(v, w, now_seconds(self))
 
-    def _on_estop(self, engaged):
-        if engaged:
-            self.robot.drive(0.0, 0.0, now_seconds(self))
+    @property
+    def held(self):
+        """The robot stands still: e-stop, or more than one node publishing its cmd_vel."""
+        return self.estop.engaged or self.source.extra
 
-    def _on_sources(self, extra, names):
-        if extra:
+    def _stop_if_held(self, *_):
+        if self.held:
             self.robot.drive(0.0, 0.0, now_seconds(self))
 
     def _on_timer(self):

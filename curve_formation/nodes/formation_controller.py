@@ -332,9 +332,7 @@ class FormationController(Node):
             accepted = self.controller.on_neighbour(j, *messages.state_from_msg(msg),
                                                     now_seconds(self))
         except messages.MessageError as exc:
-            self.controller.rejected += 1
-            self.controller.rejection = f'state of neighbour {j}: {exc}'
-            accepted = False
+            accepted = self.controller.reject(f'state of neighbour {j}: {exc}')
         if not accepted:
             self.rejections.reject(topics.robot_topic(j, topics.STATE),
                                    self.controller.rejection)

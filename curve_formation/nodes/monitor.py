@@ -169,14 +169,12 @@ class Monitor(Node):
         t = now_seconds(self) - self.t0
         for i in range(1, self.n + 1):
             names = command_publishers(self, topics.robot_topic(i, topics.CMD_VEL))
-            episodes = self.command_sources.setdefault(f'robot_{i}', [])
-            open_ = episodes and episodes[-1][1] is None
+            episodes = self.command_sources.get(f'robot_{i}', [])
+            open_ = bool(episodes) and episodes[-1][1] is None
             if len(names) > 1 and not open_:
-                episodes.append([t, None, names])
+                self.command_sources.setdefault(f'robot_{i}', []).append([t, None, names])
             elif len(names) <= 1 and open_:
                 episodes[-1][1] = t
-        for robot in [r for r, e in self.command_sources.items() if not e]:
-            del self.command_sources[robot]
 
     def _on_estop_state(self, msg):
         try:

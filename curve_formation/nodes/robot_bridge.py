@@ -114,8 +114,8 @@ class RobotBridge(Node):
         self.latencies = collections.deque(maxlen=LATENCY_WINDOW)
         self.diag_pub = topics.publisher(self, topics.DIAGNOSTICS)
         topics.subscription(self, topics.CMD_VEL, self._on_cmd)
-        self.estop = EstopHolder(self, self._robot_name(), on_change=self._on_estop)
-        self.source = CommandSourceWatch(self, topics.CMD_VEL, self._on_sources)
+        self.estop = EstopHolder(self, self._robot_name(), on_change=self._stop_if_held)
+        self.source = CommandSourceWatch(self, topics.CMD_VEL, self._stop_if_held)
         self.create_timer(1.0 / p.rate_hz, self._on_timer)
         # A command that came too soon after the last line is written as soon as it may be
         # (this timer runs only while one waits), not at the next tick of the timer above:
@@ -158,13 +158,8 @@ class RobotBridge(Node):
         """The robot is held stopped: e-stop, or more than one node publishing its cmd_vel."""
         return self.estop.engaged or self.source.extra
 
-    def _on_estop(self, engaged):
-        if engaged:
-            self.command = None
-            self._send_stop()
-
-    def _on_sources(self, extra, names):
-        if extra:
+    def _stop_if_held(self, *_):
+        if self.held:
             self.command = None
             self._send_stop()
 
