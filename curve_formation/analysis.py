@@ -39,6 +39,7 @@ PARAMETERS_KEY = 'curve_formation.parameters'
 # while stopping is not the run.
 RUN_END_KEY = 'curve_formation.run_end_ns'
 ESTOP_STATE = '/formation/estop_state'
+CURVE_TOPIC = '/formation/curve'
 _ROBOT_TOPIC = re.compile(r'^/robot_(\d+)/(pose|cmd_vel|disturbance_estimate)$')
 # The message type each topic the analysis reads must have (a bag of another tool may differ).
 TYPES = {'curve': 'std_msgs/msg/Float64MultiArray', 'pose': 'geometry_msgs/msg/PoseStamped',
@@ -69,7 +70,7 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0):
     topics, custom = bag_info(path)
     for topic, (msgtype, _) in topics.items():
         match = _ROBOT_TOPIC.match(topic)
-        kind = 'curve' if topic == '/formation/curve' else match and match.group(2)
+        kind = 'curve' if topic == CURVE_TOPIC else match and match.group(2)
         if kind and msgtype != TYPES[kind]:
             raise BagError(f'{path}: {topic} holds {msgtype}, expected {TYPES[kind]}: not a '
                            "bag of this package's run (record one with `curve-formation run "
@@ -87,7 +88,9 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0):
               'disturbance_estimate': [[] for _ in range(n)]}
     curves, counts, contacts, estop_events, death_events = [], {}, None, [], []
     stamps = [[] for _ in range(n)]   # per robot: (received s, (pose stamp s,))
-    for topic, _, stamp, msg in read_messages(path):
+    read = [topic for topic in topics if topic in (ESTOP_STATE, '/diagnostics', CURVE_TOPIC)
+            or _ROBOT_TOPIC.match(topic)]   # a topic of another tool may be of any type
+    for topic, _, stamp, msg in read_messages(path, read):
         counts[topic] = counts.get(topic, 0) + 1
         t = stamp * 1e-9
         if topic == ESTOP_STATE:
@@ -106,7 +109,7 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0):
                 elif status.hardware_id == metrics.NODE_DEATH_REPORTER:
                     death_events.append((t, values.get('node', '?'), values.get('how', '?')))
             continue
-        if topic == '/formation/curve':
+        if topic == CURVE_TOPIC:
             dims = [(d.label, d.size) for d in msg.layout.dim]
             curve, curve_id = decode_curve(dims, msg.data)
             s = decode_agent_parameters(dims, msg.data)

@@ -11,7 +11,7 @@ DDS, with their receive time.
 
 from datetime import datetime, timezone
 import os
-from pathlib import Path
+from pathlib import Path, PurePath
 import sqlite3
 import time
 
@@ -26,6 +26,7 @@ from rosbags.interfaces import (
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.rosbag2.metadata import parse_qos
 from rosbags.typesys import get_typestore, Stores
+import yaml
 
 
 STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
@@ -116,6 +117,8 @@ class BagWriter:
 
 
 def _open_error(path, exc):
+    if (Path(path) / 'metadata.yaml').exists():
+        return BagError(f'{path}: not a readable ROS 2 bag ({type(exc).__name__}: {exc})')
     return BagError(f'{path}: not a readable ROS 2 bag ({type(exc).__name__}: {exc}); a bag '
                     'from a run killed hard needs `curve-formation bag repair` first')
 
@@ -133,14 +136,27 @@ def stream_topic(key):
 
 
 def read_raw(path, topics=None):
-    """Yield (connection, stamp_ns, cdr_bytes) in time order; BagError if unreadable."""
+    """Yield (connection, stamp_ns, cdr_bytes) in time order (file after file of a split
+    bag); BagError if unreadable.
+
+    Each storage file's own connections are read, each given as the metadata's connection of
+    the same topic and type: rosbags matches them by their QoS as well, and in bags written by
+    rosbag2 the metadata's QoS may differ from the file's, which read nothing.
+    """
     path = Path(path)
     if not path.exists():
         raise BagError(f'{path}: no such bag')
     try:
         with Reader(path) as reader:
-            conns = [c for c in reader.connections if topics is None or c.topic in topics]
-            yield from reader.messages(connections=conns)
+            described = {(c.topic, c.msgtype): c for c in reader.connections}
+            files = getattr(reader.storage, 'storages', None)
+            stored = ([c for storage in files for c in storage.connections] if files
+                      else list(reader.connections))
+            wanted = [c for c in stored if topics is None or c.topic in topics]
+            if not wanted:
+                return
+            for conn, stamp, raw in reader.messages(connections=wanted):
+                yield described.get((conn.topic, conn.msgtype), conn), stamp, raw
     except BagError:
         raise
     except Exception as exc:  # noqa: BLE001 - rosbags raises many kinds for a broken bag
@@ -176,31 +192,47 @@ def bag_summary(path):
     return bag_info(path)[0]
 
 
+METADATA_VERSIONS = range(1, 10)   # rosbag2's metadata.yaml versions read here (Jazzy: 9)
+
+
 def describe_bag(path):
-    """What `ros2 bag info` tells of a bag, as a dict: storage, files, size (bytes), start,
-    end and duration (ns since the epoch, ns), message count, custom metadata keys, and per
-    topic its type, count, serialization format and offered QoS profiles.
+    """What `ros2 bag info` tells of a bag, from its metadata.yaml alone (as rosbag2 does;
+    versions 4 to 9, i.e. Foxy's to Jazzy's), as a dict: metadata version, storage, files,
+    size (bytes), start, end and duration (ns since the epoch, ns), message count, custom
+    metadata keys, and per topic its type, count, serialization format and offered QoS.
     """
     path = Path(path)
     if not path.exists():
         raise BagError(f'{path}: no such bag')
+    meta_path = path / 'metadata.yaml'
+    if not meta_path.exists():
+        raise _open_error(path, FileNotFoundError(f'no {meta_path.name}'))
     try:
-        with Reader(path) as reader:
-            files = [f['path'] for f in reader.storage.files]
-            topics = [{'topic': c.topic, 'type': c.msgtype, 'count': c.msgcount,
-                       'serialization_format': c.ext.serialization_format,
-                       'qos': [qos_text(q) for q in c.ext.offered_qos_profiles]}
-                      for c in sorted(reader.connections, key=lambda c: c.topic)]
-            return {'path': str(path),
-                    'storage': 'mcap' if files and files[0].endswith('.mcap') else 'sqlite3',
-                    'files': files,
-                    'size': sum(f.stat().st_size for f in path.iterdir() if f.is_file()),
-                    'start': reader.start_time, 'end': reader.end_time,
-                    'duration': reader.duration, 'messages': reader.message_count,
-                    'custom': sorted(reader.storage.metadata.custom or {}),
-                    'topics': topics}
-    except Exception as exc:  # noqa: BLE001
-        raise _open_error(path, exc) from None
+        meta = yaml.safe_load(meta_path.read_text())['rosbag2_bagfile_information']
+        version = int(meta['version'])
+        if version not in METADATA_VERSIONS:
+            raise ValueError(f'metadata version {version}; this reader knows 1 to 9')
+        topics = []
+        for entry in meta['topics_with_message_count']:
+            topic = entry['topic_metadata']
+            profiles = parse_qos(topic.get('offered_qos_profiles') or [])
+            topics.append({'topic': topic['name'], 'type': topic['type'],
+                           'count': int(entry['message_count']),
+                           'serialization_format': topic['serialization_format'],
+                           'qos': [qos_text(q) for q in profiles]})
+        files = [PurePath(f).name for f in meta['relative_file_paths']]
+        start = int(meta['starting_time']['nanoseconds_since_epoch'])
+        duration = int(meta['duration']['nanoseconds'])
+        return {'path': str(path), 'version': version, 'storage': meta['storage_identifier'],
+                'files': files,
+                'size': sum(f.stat().st_size for f in path.iterdir() if f.is_file()),
+                'start': start, 'end': start + duration, 'duration': duration,
+                'messages': int(meta['message_count']),
+                'custom': sorted(meta.get('custom_data') or {}),
+                'topics': sorted(topics, key=lambda t: t['topic'])}
+    except (KeyError, TypeError, ValueError, AttributeError, yaml.YAMLError) as exc:
+        raise BagError(f'{meta_path}: not rosbag2 metadata ({type(exc).__name__}: {exc})') \
+            from None
 
 
 def qos_text(profile):

@@ -69,7 +69,8 @@ class Observers:
         self.executor = make_executor(self.context)
         self.monitor = Monitor(self.experiment.n, self.record_hz, context=self.context,
                                ground_truth=self.ground_truth, watch=self.watch,
-                               adoption=len(self.experiment.phases) > 1)
+                               adoption=len(self.experiment.phases) > 1,
+                               experiment=self.experiment)
         self._stack.callback(self.monitor.destroy_node)
         if recorded:
             self.recorder = Recorder(self.bag_writer, recorded, context=self.context)

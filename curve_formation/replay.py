@@ -8,7 +8,8 @@ so nodes started with `use_sim_time:=true` see recorded stamps as fresh and tick
 import importlib
 import time
 
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.duration import Duration
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosbags.interfaces import QosDurability, QosReliability
 from rosgraph_msgs.msg import Clock
 
@@ -16,30 +17,54 @@ from curve_formation.bag import BagError, read_raw
 
 
 CLOCK_PERIOD = 0.01   # s of bag time between /clock messages
+MATCH_GRACE = 0.5     # s from the subscribers' discovery to the first message
+ACK_WAIT = 5.0        # s at most, at the end, for reliable readers to acknowledge it all
 
 
 def message_class(msgtype):
-    """The rclpy message class for 'geometry_msgs/msg/Twist'."""
-    package, _, name = msgtype.split('/')
+    """The rclpy message class for 'geometry_msgs/msg/Twist' (or the older
+    'geometry_msgs/Twist'); BagError if that type is not installed here.
+    """
+    parts = msgtype.split('/')
+    if len(parts) not in (2, 3) or (len(parts) == 3 and parts[1] != 'msg'):
+        raise BagError(f'{msgtype} is not a message type (a service or action event?)')
     try:
-        return getattr(importlib.import_module(f'{package}.msg'), name)
+        return getattr(importlib.import_module(f'{parts[0]}.msg'), parts[-1])
     except (ImportError, AttributeError):
         raise BagError(f'message type {msgtype} is not available here') from None
 
 
+def playable(connections):
+    """({topic: message class}, {topic: why skipped}) of a bag's topics {topic: connection}:
+    a topic is replayed when its type is installed here.
+    """
+    classes, skipped = {}, {}
+    for topic, conn in sorted(connections.items()):
+        try:
+            classes[topic] = message_class(conn.msgtype)
+        except BagError as exc:
+            skipped[topic] = str(exc)
+    return classes, skipped
+
+
 def qos_profile(connection):
-    """The rclpy QoSProfile a recorded topic was offered with (reliable, depth 10 if unknown)."""
+    """The rclpy QoSProfile to replay a recorded topic with: the reliability and durability
+    it was offered with (reliable and volatile if unknown). A reliable volatile topic keeps
+    all until each reader has it, so that a burst (a bag recorded faster than it can be sent)
+    is delivered whole; a latched one keeps its offered depth, which is what a late reader
+    gets; a best-effort one, its offered depth (at least 10).
+    """
     offered = getattr(connection.ext, 'offered_qos_profiles', None) or []
-    if not offered:
-        return QoSProfile(depth=10)
-    q = offered[0]
-    return QoSProfile(
-        depth=max(1, q.depth),
-        reliability=(ReliabilityPolicy.BEST_EFFORT if q.reliability == QosReliability.BEST_EFFORT
-                     else ReliabilityPolicy.RELIABLE),
-        durability=(DurabilityPolicy.TRANSIENT_LOCAL
-                    if q.durability == QosDurability.TRANSIENT_LOCAL
-                    else DurabilityPolicy.VOLATILE))
+    q = offered[0] if offered else None
+    reliable = q is None or q.reliability != QosReliability.BEST_EFFORT
+    latched = q is not None and q.durability == QosDurability.TRANSIENT_LOCAL
+    reliability = ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT
+    durability = DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE
+    if reliable and not latched:
+        return QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=reliability,
+                          durability=durability)
+    depth = max(1, q.depth) if latched else max(10, q.depth if q is not None else 0)
+    return QoSProfile(depth=depth, reliability=reliability, durability=durability)
 
 
 def load(path, topics=None, start=0.0):
@@ -64,20 +89,34 @@ def replay(node, path, rate=1.0, topics=None, loop=False, start=0.0, clock=True,
     if rate <= 0:
         raise BagError(f'replay rate must be > 0, got {rate}')
     records, connections = load(path, topics, start)
-    publishers = {topic: node.create_publisher(message_class(conn.msgtype), topic,
-                                               qos_profile(conn))
-                  for topic, conn in connections.items()}
+    classes, skipped = playable(connections)
+    for topic, why in skipped.items():
+        log(f'skipping {topic}: {why}')
+    if not classes:
+        raise BagError(f'{path}: none of its topics has a message type installed here')
+    publishers = {topic: node.create_publisher(cls, topic, qos_profile(connections[topic]))
+                  for topic, cls in classes.items()}
+    records = [r for r in records if r[1] in publishers]
     clock_pub = node.create_publisher(Clock, '/clock', 10) if clock else None
     deadline = time.monotonic() + wait_for_subscribers
     while time.monotonic() < deadline and any(
             p.get_subscription_count() == 0 for p in publishers.values()):
         time.sleep(0.05)
-    log(f'replaying {len(records)} messages on {len(publishers)} topics at {rate:g}x')
+    if wait_for_subscribers > 0:
+        # A publisher sees its reader before the reader sees it; what is sent meanwhile is
+        # dropped by the reader (volatile), so the first messages of a bag were seen lost.
+        time.sleep(MATCH_GRACE)
+    log(f'replaying {len(records)} messages on {len(publishers)} topics at {rate:g}x'
+        + (f' ({len(skipped)} skipped)' if skipped else ''))
     sent = 0
     while True:
         sent += _play_once(records, publishers, clock_pub, rate, stop)
         if not loop or (stop is not None and stop.is_set()):
-            return sent
+            break
+    # What a reliable reader has not yet acknowledged is lost if this process ends now.
+    for publisher in publishers.values():
+        publisher.wait_for_all_acked(Duration(seconds=ACK_WAIT))
+    return sent
 
 
 def _play_once(records, publishers, clock_pub, rate, stop=None):

@@ -22,7 +22,7 @@ from rclpy.serialization import serialize_message
 from curve_formation.analysis import bag_accounting, RUN_END_KEY
 from curve_formation.bag import BagWriter
 from curve_formation.core import metrics, plots
-from curve_formation.core.experiment import control_rate, load_experiment, received_phases
+from curve_formation.core.experiment import control_rate, load_experiment
 from curve_formation.launches import node_launches, part_of, write_params_files
 from curve_formation.node_graph import NodeGraph
 from curve_formation.nodes.topics import DIAGNOSTICS
@@ -230,7 +230,7 @@ class Run:
         if len(data['t']) < 2:
             raise RuntimeError('nothing was recorded')
         experiment, phase = self.followed(data['t'])
-        camera = len(data['true_poses']) == len(data['t'])
+        camera = 'true_poses' in data
         truth = data['true_poses'] if camera else data['poses']
         estops = self.monitor.estop_intervals(float(data['t'][-1]))
         deaths = self.monitor.node_deaths
@@ -250,9 +250,8 @@ class Run:
         result['mode'] = ('single process' if self.options.single_process
                           else 'one process per node')
         if camera:
-            gaps = [gap for robot in self.monitor.law_pose_gaps for gap in robot]
-            result['ground_truth'] = metrics.ground_truth_metrics(experiment, data, phase, gaps,
-                                                                  estops, deaths)
+            result['ground_truth'] = metrics.ground_truth_metrics(
+                experiment, data, phase, self.monitor.law_pose_rms(), estops, deaths)
         self.out.mkdir(parents=True, exist_ok=True)
         (self.out / 'metrics.json').write_text(metrics.strict_json(result))
         plots.run_figures(self.out, experiment, data['t'], data['poses'], phase,
@@ -267,10 +266,10 @@ class Run:
 
     def followed(self, t):
         """(experiment, phase): the experiment with the phases the run followed, i.e. the
-        curves and agents' parameters the monitor received (core.experiment.received_phases,
+        curves and agents' parameters the monitor received (core.experiment.ReceivedPhases,
         re-assignments included), and the phase index of each sample time t (R,) s.
         """
-        phases = received_phases(self.experiment, self.monitor.received_curves())
+        phases = self.monitor.followed_phases()
         starts = np.array([p.start for p in phases])
         phase = np.clip(np.searchsorted(starts, t, side='right') - 1, 0, len(phases) - 1)
         return dataclasses.replace(self.experiment, phases=phases), phase

@@ -97,6 +97,33 @@ def test_compare_overlays_two_runs(recorded, tmp_path):
     assert (tmp_path / 'compare_error_norm.png').exists()
 
 
+def test_a_topic_of_a_type_unknown_here_does_not_stop_the_analysis(recorded, tmp_path):
+    """A lab records its own topics beside ours (`ros2 bag record -a`): the run's bag with a
+    topic of a type no reader here knows is analysed as the bag alone is.
+    """
+    from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+
+    from curve_formation.bag import TYPESTORE
+    folder, _ = recorded
+    mixed = tmp_path / 'mixed'
+    with Reader(folder / 'bag') as reader, \
+            Writer(mixed, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        for key, value in (reader.storage.metadata.custom or {}).items():
+            writer.set_custom_data(key, value)
+        out = {c.id: writer.add_connection(c.topic, c.msgtype, typestore=TYPESTORE)
+               for c in reader.connections}
+        mystery = writer.add_connection('/lab/mystery', 'lab_msgs/msg/Mystery',
+                                        msgdef='int32 x', rihs01='RIHS01_' + '0' * 64)
+        for conn, stamp, raw in reader.messages():
+            writer.write(out[conn.id], stamp, raw)
+            if conn.topic == '/formation/curve':
+                writer.write(mystery, stamp, b'\x00\x01\x00\x00\x2a\x00\x00\x00')
+    alone = analyze_bag(folder / 'bag', tmp_path / 'alone')
+    beside = analyze_bag(mixed, tmp_path / 'beside')
+    assert beside['final_error_norm'] == pytest.approx(alone['final_error_norm'])
+    assert beside['phases'][0]['settled'] == alone['phases'][0]['settled']
+
+
 def test_truncated_bag_is_a_clear_error(recorded, tmp_path):
     folder, _ = recorded
     broken = tmp_path / 'broken'

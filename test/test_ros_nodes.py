@@ -613,3 +613,43 @@ while True:
     pub.publish(messages.pose_to_msg(now - start, 0.0, 0.0, now))
     time.sleep(1 / 30)
 """
+
+
+def test_what_the_monitor_keeps_does_not_grow_with_the_run(ros):
+    """A run of hours: curve messages (refreshed every second, renewed faster when moving),
+    e-stop announcements (every second from every holder), link reports and samples do not
+    pile up in the monitor's memory. Messages are handed to its callbacks directly.
+    """
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+    from curve_formation.nodes.monitor import Monitor, TIMING_WINDOW
+    context, add, _ = ros
+    experiment = load_experiment(DATA_DIR / 'fast_closed.yaml')
+    n = experiment.n
+    monitor = add(Monitor(n, context=context, experiment=experiment))
+    phase = experiment.phases[0]
+    curve_msg = messages.curve_to_msg(phase.curve, 0, phase.s)
+    info = {'source_timestamp': 0, 'received_timestamp': 0}
+    states = [messages.estop_state_to_msg(f'/robot_{i}/formation_controller', 'controller',
+                                          i, False, '', 0.0) for i in range(1, n + 1)]
+
+    def link_report(level):
+        status = DiagnosticStatus(level=bytes([level]), name='/robot_3/robot_bridge',
+                                  message='ok' if level == 0 else 'no reply from the robot',
+                                  values=[KeyValue(key='sent', value='1')])
+        return DiagnosticArray(status=[status])
+    for second in range(4000):
+        monitor._on_curve(curve_msg, info)
+        for state in states:
+            monitor._on_estop_state(state)
+        monitor._on_diagnostics(link_report(2 if 500 <= second < 510 or second > 3990 else 0))
+        monitor._on_cmd(1, Twist(), info)
+        monitor.last_call = None
+        monitor._sample()
+    assert len(monitor.followed_phases()) == 1 and not monitor.followed_phases()[0].changes
+    assert len(monitor.estop_events) == n          # one per holder: nothing changed
+    levels = [level for _, level, _, _ in monitor.links['/robot_3/robot_bridge']]
+    assert levels == [2, 2, 2]                     # two onsets and the newest
+    assert len(monitor.command_arrivals[0]) == TIMING_WINDOW
+    assert len(monitor.recording) == 4000 and monitor.recording._held < 4000
+    assert monitor.recording.arrays()['poses'].shape == (4000, n, 3)

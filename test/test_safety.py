@@ -337,10 +337,10 @@ def settled_for(run, since, tolerance, seconds):
     """The run's error norm has stayed below tolerance for the last `seconds` s after `since`
     (checked once a second of run time).
     """
-    t = run.monitor.recording.t
-    if not t or t[-1] - since < seconds or int(t[-1]) == getattr(run, '_checked', -1):
+    last = run.monitor.recording.last('t')
+    if last is None or last - since < seconds or int(last) == getattr(run, '_checked', -1):
         return False
-    run._checked = int(t[-1])
+    run._checked = int(last)
     data = run.recording()
     followed, phase = run.followed(data['t'])
     norm = metrics.error_norm(metrics.target_errors(data['poses'], phase, followed,
@@ -372,7 +372,7 @@ def test_estop_cli_stops_all_nine_robots_at_once_holds_them_and_releases(ros_dom
              log=quiet) as run:
         log = CommandLog(run.observers.context, 9)
         run.observers.add_node(log.node)
-        run.spin_until(lambda: run.monitor.recording.t and run.monitor.recording.t[-1] >= 5.0,
+        run.spin_until(lambda: (run.monitor.recording.last('t') or 0.0) >= 5.0,
                        30.0, 't = 5 s')
         assert driving(run, range(1, 10))
         status, out, err = estop_cli(run, 'on')
@@ -392,7 +392,7 @@ def test_estop_cli_stops_all_nine_robots_at_once_holds_them_and_releases(ros_dom
         np.testing.assert_allclose(run.monitor.poses, before, atol=1e-9)   # standing still
         status, out, err = estop_cli(run, 'off', '--experiment', 'arena_demo')   # by name
         assert status == 0 and '9 of 9 robots released' in out, (out, err)
-        released = run.monitor.recording.t[-1]
+        released = run.monitor.recording.last('t')
         # settled ~15 s after the release (measured): spin until 1 s below the tolerance
         tolerance = 1e-3 * run.experiment.phases[0].curve.size()
         run.spin_until(lambda: settled_for(run, released, tolerance, 1.0), 40.0, 'settling')

@@ -313,28 +313,49 @@ def received_phases(experiment: Experiment,
                     curves: Sequence[tuple[float, int, Curve, ArrayLike]]
                     ) -> tuple[Phase, ...]:
     """The phases a run followed, from the curve messages it received, in order: curves is a
-    list of (t, curve id, curve, s) with t in s since the first curve and s (n,) the agents'
-    parameters the message carried. The first message of an id starts a phase; a later one
-    with the same id re-assigns its targets (Phase.changes) or, for a moving curve, only
-    renews it. A curve equal to the schedule's curve of the same index keeps that phase's fit
-    (residuals) and motion, from the phase's first message on or from earlier, where its
-    renewals show the first came late (_moving_since); any other (an observed curve) has no
-    fit residual (NaN).
+    list of (t, curve id, curve, s) (see ReceivedPhases.add).
     """
-    phases: list[Phase] = []
-    ids: list[int] = []
+    followed = ReceivedPhases(experiment)
     for when, curve_id, curve, given in curves:
+        followed.add(when, curve_id, curve, given)
+    return followed.phases
+
+
+class ReceivedPhases:
+    """The phases a run followed, folded from its curve messages one at a time (a run of hours
+    receives a curve every second or faster: only the phases are kept, not the messages).
+    """
+
+    def __init__(self, experiment: Experiment):
+        self.experiment = experiment
+        self._phases: list[Phase] = []
+        self._ids: list[int] = []
+
+    @property
+    def phases(self) -> tuple[Phase, ...]:
+        return tuple(self._phases)
+
+    def add(self, when: float, curve_id: int, curve: Curve, given: ArrayLike) -> None:
+        """One curve message received at `when` (s since the first curve) with its id and the
+        agents' parameters s (n,) it carried. The first message of an id starts a phase; a
+        later one with the same id re-assigns its targets (Phase.changes) or, for a moving
+        curve, only renews it. A curve equal to the schedule's curve of the same index keeps
+        that phase's fit (residuals) and motion, from the phase's first message on or from
+        earlier, where its renewals show the first came late (_moving_since); any other (an
+        observed curve) has no fit residual (NaN).
+        """
+        phases = self._phases
         s = np.asarray(given, dtype=float)
-        if ids and curve_id == ids[-1]:
+        if self._ids and curve_id == self._ids[-1]:
             last = phases[-1]
             if last.motion is not None:
                 last = phases[-1] = _moving_since(last, last.motion, when, curve)
             if not np.array_equal(s, last.changes[-1][1] if last.changes else last.s):
                 phases[-1] = dataclasses.replace(   # targets on the curve as it started
                     last, changes=last.changes + ((float(when), s, last.curve.points(s)),))
-            continue
+            return
         k = len(phases)
-        scheduled = experiment.phases[k] if k < len(experiment.phases) else None
+        scheduled = self.experiment.phases[k] if k < len(self.experiment.phases) else None
         same = (scheduled is not None and scheduled.curve.basis.describe()
                 == curve.basis.describe() and np.allclose(scheduled.curve.xi, curve.xi,
                                                           rtol=0, atol=1e-12))
@@ -343,8 +364,7 @@ def received_phases(experiment: Experiment,
         motion = scheduled.motion if same and scheduled is not None else None
         phases.append(Phase(k, float(when), fit, s, curve.points(s), curve.basis.stacked(s),
                             motion=motion))
-        ids.append(curve_id)
-    return tuple(phases)
+        self._ids.append(curve_id)
 
 
 def _moving_since(phase: Phase, motion: CurveMotion, when: float, renewal: Curve) -> Phase:

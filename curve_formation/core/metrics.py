@@ -275,9 +275,10 @@ LINK_COUNTS = ('sent', 'failed', 'stops', 'replies', 'malformed', 'dropped_lines
 
 
 def link_summary(reports):
-    """One robot link from its robot_bridge's reports [(t s, level, message, {key: text})]:
-    the counts and latency percentiles (ms) of the last report, and the times (s) of reports
-    of a lost link or an error (level 2).
+    """One robot link from its robot_bridge's reports [(t s, level, message, {key: text})]
+    (every report, or the newest and those that began a loss): the counts and latency
+    percentiles (ms) of the last report, and the times (s) at which the link was lost or an
+    error began (level 2 after a lower level).
     """
     last = reports[-1][3]
     summary: dict[str, object] = {key: int(last[key]) for key in LINK_COUNTS if key in last}
@@ -285,7 +286,9 @@ def link_summary(reports):
         if key in last:
             summary[key] = float(last[key])
     summary['last_error'] = last.get('last_error', '')
-    summary['lost_at'] = [round(t, 3) for t, level, _, _ in reports if level >= 2]
+    levels = [0] + [level for _, level, _, _ in reports]
+    summary['lost_at'] = [round(t, 3) for k, (t, level, _, _) in enumerate(reports)
+                          if level >= 2 > levels[k]]
     return summary
 
 
@@ -428,11 +431,11 @@ def result_metrics(result, tolerance=None):
     return out
 
 
-def ground_truth_metrics(experiment, data, phase, law_pose_gaps=(), estops=None, deaths=()):
+def ground_truth_metrics(experiment, data, phase, law_pose_rms=None, estops=None, deaths=()):
     """With a camera: the formation measured on the fake robots' true poses, how far the
     tracked poses (as last received, up to a frame and its latency old) were from them, and
-    how far the pose each law used at its tick (law_pose_gaps (m), every tick of every robot;
-    carried forward to the tick with predict_pose) was from the truth at that tick. estops,
+    law_pose_rms (m): the RMS over every tick of every robot of how far the pose its law used
+    (carried forward to the tick with predict_pose) was from the truth at that tick. estops,
     deaths: as run_metrics.
     """
     truth = data['true_poses']
@@ -445,5 +448,4 @@ def ground_truth_metrics(experiment, data, phase, law_pose_gaps=(), estops=None,
                        for p in out['phases']],
             'tracked_vs_true_position_rms': float(np.sqrt(np.mean(gap ** 2))),
             'tracked_vs_true_heading_rms_deg': float(np.degrees(np.sqrt(np.mean(turn ** 2)))),
-            'law_pose_vs_true_position_rms': (float(np.sqrt(np.mean(np.square(law_pose_gaps))))
-                                              if len(law_pose_gaps) else None)}
+            'law_pose_vs_true_position_rms': law_pose_rms}

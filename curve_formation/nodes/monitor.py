@@ -5,7 +5,7 @@ t = 0 is when the first curve arrives. Rows are sampled at `record_hz` from the 
 Not a console script: the runner and tests create it in-process.
 """
 
-from dataclasses import dataclass, field
+from collections import deque
 import math
 import time
 
@@ -15,37 +15,44 @@ from rclpy.node import Node
 
 from curve_formation.core import metrics
 from curve_formation.core.estop import stopped_intervals
+from curve_formation.core.experiment import ReceivedPhases
+from curve_formation.core.sample_log import SampleLog
 from curve_formation.nodes import messages, qos, topics
 from curve_formation.nodes.command_source import command_publishers, WATCH_PERIOD
 from curve_formation.nodes.readiness import subscribe_to_curve
 from curve_formation.nodes.runtime import now_seconds, WithMessageInfo
 
 
-@dataclass
-class Recording:
-    """What the monitor sampled: t (s since the first curve), poses (R, n, 3), ..."""
+TIMING_WINDOW = 3000   # newest command arrivals / tick latencies kept per robot
 
-    t: list = field(default_factory=list)
-    poses: list = field(default_factory=list)
-    commands: list = field(default_factory=list)
-    dhat: list = field(default_factory=list)
-    curve_id: list = field(default_factory=list)
-    true_poses: list = field(default_factory=list)   # fake robots' ground truth (camera runs)
-    unseen: list = field(default_factory=list)       # (n,) robots missing from the poses
-    pose_stamps: list = field(default_factory=list)  # (n,) s since t = 0: when each was taken
 
-    def arrays(self):
-        return {name: np.array(getattr(self, name)) for name in
-                ('t', 'poses', 'commands', 'dhat', 'curve_id', 'true_poses', 'unseen',
-                 'pose_stamps')}
+def recording_fields(n, ground_truth):
+    """The monitor's SampleLog fields for n robots: t (s since the first curve), poses (n, 3)
+    (m, m, rad; world frame), commands (n, 2) (m/s, rad/s), dhat (n, 2), curve_id, unseen (n,)
+    (robots missing from the poses), pose_stamps (n,) (s since t = 0: when each pose was
+    taken) and, with ground_truth, true_poses (n, 3): the fake robots' own poses.
+    """
+    fields = {'t': ((), float), 'poses': ((n, 3), float), 'commands': ((n, 2), float),
+              'dhat': ((n, 2), float), 'curve_id': ((), np.int64), 'unseen': ((n,), bool),
+              'pose_stamps': ((n,), float)}
+    if ground_truth:
+        fields['true_poses'] = ((n, 3), float)
+    return fields
 
 
 class Monitor(Node):
-    """Subscribes to all robots' topics and keeps a Recording."""
+    """Subscribes to all robots' topics and samples them into a SampleLog (`recording`).
+
+    What it keeps does not grow with the run's length: samples go to disk (SampleLog), curve
+    messages are folded into the phases they start (ReceivedPhases), e-stop states are kept
+    where a holder's state changed, timing rows in windows of TIMING_WINDOW.
+    """
 
     def __init__(self, n, record_hz=20.0, ground_truth=False, watch=True, adoption=True,
-                 **kwargs):
+                 experiment=None, **kwargs):
         """ground_truth: also record the fake robots' true poses (when a camera tracks them).
+        experiment: the run's (core.experiment.Experiment): the phases followed are told from
+        its schedule (`followed`); without it, none are kept.
         watch False: only the curve (for t0), on a host of a split run that neither measures
         nor starts the curve server. adoption: also read every controller's state, to time
         when each robot takes up a new curve (`adopted`); states come at the pose rate (1500
@@ -58,7 +65,8 @@ class Monitor(Node):
         # per robot, its last two true poses [(stamp s, x, y, theta)] and, for every tick
         # that drove, how far (m) the pose its law used was from the truth at the tick
         self.true_history = [[] for _ in range(n)]
-        self.law_pose_gaps = [[] for _ in range(n)]
+        self.law_pose_gaps = [deque(maxlen=TIMING_WINDOW) for _ in range(n)]
+        self.law_pose_tally = [0, 0.0]   # every tick's gap: how many, the sum of squares (m^2)
         self.pose_stamps = np.full(n, np.nan)
         self.commands = np.full((n, 2), np.nan)
         self.command_times = np.full(n, np.nan)
@@ -66,21 +74,26 @@ class Monitor(Node):
         self.curve_id = None
         self.t0 = None
         self.curve_times = {}      # curve id -> DDS source timestamp of its first message (s)
-        self.curves = []           # every curve message: (time s, curve id, Curve, s or None)
+        self.followed = None if experiment is None else ReceivedPhases(experiment)
         self.unseen = np.zeros(n, bool)   # robots missing from /formation/robot_poses now
         self.contacts = None       # fake_arena's contact summary, as last reported
-        self.links = {}            # robot_bridge name -> [(t s, level, message, {key: value})]
-        self.estop_events = []     # (received s, holder, engaged) of each e-stop state heard
+        # robot_bridge name -> its reports [(t s, level, message, {key: value})]: the newest
+        # and each that began a loss or an error (level 2 after a lower one)
+        self.links = {}
+        self._link_onset_last = set()   # links whose newest kept report began a loss
+        self.estop_events = []     # (received s, holder, engaged) where a holder's state changed
+        self._estop_held = {}      # holder -> its state last heard
         self.node_deaths = []      # (t s since t = 0 or None, node key, how) reported here
         # robot -> [[from s, to s or None, publishing nodes]] while its cmd_vel had several
         self.command_sources = {}
         # Per robot, one (published, received, handled) row per command (s, system clock):
         # the DDS source timestamp, the time DDS received it here, the time this callback ran.
-        self.command_arrivals = [[] for _ in range(n)]
-        self.tick_latencies = [[] for _ in range(n)]     # estimate arrival - pose stamp (s)
+        self.command_arrivals = [deque(maxlen=TIMING_WINDOW) for _ in range(n)]
+        # estimate arrival - pose stamp (s)
+        self.tick_latencies = [deque(maxlen=TIMING_WINDOW) for _ in range(n)]
         # (robot, curve id) -> DDS source timestamp of its first state on that curve (s)
         self.adopted = {}
-        self.recording = Recording()
+        self.recording = SampleLog(recording_fields(n, ground_truth))
         for i in range(1, n + 1 if watch else 1):
             self._subscribe(topics.POSE, lambda m, i=i: self._on_pose(i, m), i)
             self._subscribe(topics.CMD_VEL,
@@ -134,7 +147,17 @@ class Monitor(Node):
         at = messages.stamp_to_seconds(msg.header.stamp)
         share = (at - t1) / (t1 - t0) if t1 > t0 else 0.0
         truth_x, truth_y = x1 + share * (x1 - x0), y1 + share * (y1 - y0)
-        self.law_pose_gaps[i - 1].append(math.hypot(tick['x'] - truth_x, tick['y'] - truth_y))
+        gap = math.hypot(tick['x'] - truth_x, tick['y'] - truth_y)
+        self.law_pose_gaps[i - 1].append(gap)
+        self.law_pose_tally[0] += 1
+        self.law_pose_tally[1] += gap * gap
+
+    def law_pose_rms(self):
+        """RMS (m) over every tick of every robot of how far the pose its law used was from
+        the truth (None before any tick).
+        """
+        count, squares = self.law_pose_tally
+        return math.sqrt(squares / count) if count else None
 
     def _on_cmd(self, i, msg, info):
         self.commands[i - 1] = messages.twist_from_msg(msg)
@@ -158,10 +181,12 @@ class Monitor(Node):
         # from there): both run in the runner's process.
         curve, self.curve_id = messages.curve_from_msg(msg)
         now = now_seconds(self)
-        self.curves.append((now, self.curve_id, curve, messages.agent_parameters_from_msg(msg)))
         self.curve_times.setdefault(self.curve_id, info['source_timestamp'] * 1e-9)
         if self.t0 is None:
             self.t0 = now
+        if self.followed is not None:
+            self.followed.add(now - self.t0, self.curve_id, curve,
+                              messages.agent_parameters_from_msg(msg))
 
     def _watch_command_sources(self):
         if self.t0 is None:
@@ -181,7 +206,9 @@ class Monitor(Node):
             report = messages.estop_state_from_msg(msg)
         except messages.MessageError:
             return
-        self.estop_events.append((now_seconds(self), report.holder, report.engaged))
+        if self._estop_held.get(report.holder) != report.engaged:
+            self._estop_held[report.holder] = report.engaged
+            self.estop_events.append((now_seconds(self), report.holder, report.engaged))
 
     def estop_intervals(self, end):
         """[(start, stop or None)] (s since t = 0, up to `end`) while a node held the e-stop
@@ -216,9 +243,9 @@ class Monitor(Node):
         msg.header.stamp = messages.seconds_to_stamp(now)
         return t, msg
 
-    def received_curves(self):
-        """[(t, curve id, curve, s)] of every curve message received (t in s since t = 0)."""
-        return [(when - self.t0, k, curve, s) for when, k, curve, s in self.curves]
+    def followed_phases(self):
+        """The phases the run followed (core.experiment.ReceivedPhases); () without one."""
+        return () if self.followed is None else self.followed.phases
 
     def _on_robot_poses(self, msg):
         try:
@@ -235,9 +262,23 @@ class Monitor(Node):
                     {kv.key: kv.value for kv in status.values})
             elif status.name.endswith(metrics.LINK_REPORTER) and self.t0 is not None:
                 level = status.level[0] if isinstance(status.level, bytes) else status.level
-                self.links.setdefault(status.name, []).append(
-                    (messages.stamp_to_seconds(msg.header.stamp) - self.t0, int(level),
-                     status.message, {kv.key: kv.value for kv in status.values}))
+                report = (messages.stamp_to_seconds(msg.header.stamp) - self.t0, int(level),
+                          status.message, {kv.key: kv.value for kv in status.values})
+                self._keep_link_report(status.name, report)
+
+    def _keep_link_report(self, name, report):
+        """Keep a link's newest report and each that began a loss or an error (level 2
+        after a lower level): link reports come every second for the whole run.
+        """
+        kept = self.links.setdefault(name, [])
+        began = report[1] >= 2 and (not kept or kept[-1][1] < 2)
+        if kept and name not in self._link_onset_last:
+            kept.pop()
+        kept.append(report)
+        if began:
+            self._link_onset_last.add(name)
+        else:
+            self._link_onset_last.discard(name)
 
     def ready(self):
         """Every robot's pose and every controller's command has been seen."""
@@ -263,13 +304,9 @@ class Monitor(Node):
         self._skipped_last = False
         if self.t0 is None or self.closed:
             return
-        rec = self.recording
-        rec.t.append(now_seconds(self) - self.t0)
-        rec.pose_stamps.append(self.pose_stamps - self.t0)
-        rec.poses.append(self.poses.copy())
-        rec.commands.append(self.commands.copy())
-        rec.dhat.append(self.dhat.copy())
-        rec.curve_id.append(self.curve_id)
-        rec.unseen.append(self.unseen.copy())
+        row = {'t': now_seconds(self) - self.t0, 'pose_stamps': self.pose_stamps - self.t0,
+               'poses': self.poses, 'commands': self.commands, 'dhat': self.dhat,
+               'curve_id': self.curve_id, 'unseen': self.unseen}
         if self.true_poses is not None:
-            rec.true_poses.append(self.true_poses.copy())
+            row['true_poses'] = self.true_poses
+        self.recording.append(**row)
