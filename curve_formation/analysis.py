@@ -10,6 +10,7 @@ from dataclasses import dataclass, replace
 import json
 from pathlib import Path
 import re
+import time
 
 import numpy as np
 
@@ -29,6 +30,7 @@ from curve_formation.core.experiment import (
     received_phases,
 )
 from curve_formation.paths import resolve_config
+from curve_formation.provenance import described
 
 
 # Keys of the bag metadata (custom_data) that make a bag self-describing: the experiment file
@@ -38,6 +40,7 @@ PARAMETERS_KEY = 'curve_formation.parameters'
 # When the run ended (ns, the recorder's clock), before its nodes were stopped: what they do
 # while stopping is not the run.
 RUN_END_KEY = 'curve_formation.run_end_ns'
+PROVENANCE_KEY = 'curve_formation.provenance'   # JSON: provenance.provenance() of the run
 ESTOP_STATE = '/formation/estop_state'
 CURVE_TOPIC = '/formation/curve'
 _ROBOT_TOPIC = re.compile(r'^/robot_(\d+)/(pose|cmd_vel|disturbance_estimate)$')
@@ -62,10 +65,18 @@ class BagRun:
     estops: list = None    # [(start, stop or None)] s while a node held the e-stop
     deaths: list = None    # [(t s, node, how)] nodes of the run that died
     pose_stamps: np.ndarray = None   # (R, n) s since t = 0: when each sampled pose was taken
+    provenance: dict = None          # of the run that wrote the bag (provenance.py), if told
 
 
-def load_bag_run(path, experiment_path=None, sample_hz=20.0):
-    """Read a bag into a BagRun; BagError with a clear message if it cannot be used."""
+PROGRESS_PERIOD = 2.0   # s between progress lines while a bag is read
+
+
+def load_bag_run(path, experiment_path=None, sample_hz=20.0, progress=None):
+    """Read a bag into a BagRun; BagError with a clear message if it cannot be used.
+
+    progress: called with a line ('read 120000 of 500000 messages (24 %)') every
+    PROGRESS_PERIOD s while the bag is read.
+    """
     path = Path(path)
     topics, custom = bag_info(path)
     for topic, (msgtype, _) in topics.items():
@@ -90,8 +101,13 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0):
     stamps = [[] for _ in range(n)]   # per robot: (received s, (pose stamp s,))
     read = [topic for topic in topics if topic in (ESTOP_STATE, '/diagnostics', CURVE_TOPIC)
             or _ROBOT_TOPIC.match(topic)]   # a topic of another tool may be of any type
+    total, done, said = sum(topics[topic][1] for topic in read), 0, time.monotonic()
     for topic, _, stamp, msg in read_messages(path, read):
         counts[topic] = counts.get(topic, 0) + 1
+        done += 1
+        if progress is not None and time.monotonic() - said >= PROGRESS_PERIOD:
+            said = time.monotonic()
+            progress(f'read {done} of {total} messages ({100 * done / max(total, 1):.0f} %)')
         t = stamp * 1e-9
         if topic == ESTOP_STATE:
             try:
@@ -151,7 +167,14 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0):
                   _sample(events['pose'], grid, 3), _sample(events['cmd_vel'], grid, 2),
                   _sample(events['disturbance_estimate'], grid, 2), phase, counts, contacts,
                   estops, [(t - t0, node, how) for t, node, how in death_events],
-                  _sample(stamps, grid, 1)[..., 0] - t0)
+                  _sample(stamps, grid, 1)[..., 0] - t0, _run_provenance(custom))
+
+
+def _run_provenance(custom):
+    try:
+        return json.loads(custom[PROVENANCE_KEY])
+    except (KeyError, ValueError):
+        return None   # a bag of an older version, or of another tool
 
 
 def _sample(per_robot, grid, width):
@@ -168,11 +191,13 @@ def _sample(per_robot, grid, width):
     return out
 
 
-def analyze_bag(path, out_dir, experiment_path=None, compare=None, compare_sim=False):
+def analyze_bag(path, out_dir, experiment_path=None, compare=None, compare_sim=False,
+                progress=None):
     """metrics.json and the paper's figures from a bag; `compare` overlays a second bag,
     `compare_sim` the batch simulator run from the bag's own start (simulate_recorded).
+    progress: called with a line on what is being done (load_bag_run).
     """
-    run = load_bag_run(path, experiment_path)
+    run = load_bag_run(path, experiment_path, progress=progress)
     t, poses, phase, dhat, commands = _known(run, path)
     stamps = run.pose_stamps[len(run.t) - len(t):]
     result = metrics.run_metrics(run.experiment, t, poses, phase, np.nan_to_num(dhat),
@@ -191,6 +216,8 @@ def analyze_bag(path, out_dir, experiment_path=None, compare=None, compare_sim=F
         result['compare'] = metrics.run_metrics(run.experiment, o_t, o_poses, o_phase)
         others.append((Path(compare).name, o_t, o_poses, o_phase))
     if compare_sim:
+        if progress is not None:
+            progress("simulating the bag's start and curves (--compare-sim)")
         sim = simulate_recorded(run.experiment, t, poses)
         result['compare_sim'] = metrics.result_metrics(sim)
         result['compare_sim_table'] = settling_table(result, result['compare_sim'])
@@ -204,7 +231,8 @@ def analyze_bag(path, out_dir, experiment_path=None, compare=None, compare_sim=F
                               [(Path(path).name, t, errors[0]), (label, o_t, errors[1])])
         plots.plot_paths(out / f'{stem}_paths.png', run.experiment, poses, phase,
                          overlay=(label, o_poses))
-    (out / 'metrics.json').write_text(metrics.strict_json(result))
+    result['run_provenance'] = run.provenance
+    (out / 'metrics.json').write_text(metrics.strict_json(described(result, experiment_path)))
     return result
 
 

@@ -1,7 +1,8 @@
 """`curve-formation`: simulate, run, record and analyse formation experiments.
 
 Subcommands: check, sim (batch simulator), demo (the headless main job), run (ROS 2 node
-graph), analyze, replay and bag (info, repair) for recorded bags, estop, calibrate-camera
+graph), params (its parameters files and `ros2 run` start scripts), analyze, replay and bag
+(info, repair) for recorded bags, estop, calibrate-camera
 (the lens, from ChArUco board views), discovery-server, clean-shm, nodes-doc.
 Bad input ends with one line `error: FILE: KEY: ...` and exit status 2, never a traceback.
 """
@@ -20,6 +21,7 @@ from curve_formation.bag import BagError, DEFAULT_STORAGE, STORAGES
 from curve_formation.core.aruco import MARKER_IDS
 from curve_formation.core.experiment import ConfigError, load_experiment
 from curve_formation.paths import resolve_config, use_dds_profile
+from curve_formation.provenance import command_line
 
 
 def _write_json(path, data):
@@ -35,8 +37,10 @@ def simulate_to_dir(config, out_dir, rate='config', law=None, heading=None):
     """
     from curve_formation.core import metrics, plots
     from curve_formation.core.simulator import simulate
+    from curve_formation.provenance import described
 
-    experiment = load_experiment(resolve_config(config))
+    path = resolve_config(config)
+    experiment = load_experiment(path)
     _warn(experiment)
     gains = experiment.gains
     if law is not None:
@@ -46,7 +50,7 @@ def simulate_to_dir(config, out_dir, rate='config', law=None, heading=None):
     result = simulate(experiment, rate_hz=rate, gains=gains)
     out = Path(out_dir)
     data = metrics.result_metrics(result)
-    _write_json(out / 'metrics.json', data)
+    _write_json(out / 'metrics.json', described(data, path))
     plots.run_figures(out, experiment, result.t, result.poses, result.phase, result.dhat,
                       label=data['control'])
     np.savez_compressed(out / 'trajectory.npz', t=result.t, poses=result.poses,
@@ -101,7 +105,7 @@ def _cmd_sim(args):
         rate = None
     elif args.rate is not None:
         rate = args.rate
-    _output_folder(args.out)
+    _output_folder(args.out, args.force)
     data = simulate_to_dir(args.config, args.out, rate, args.law, args.heading)
     print(_summary_line(data['experiment'], data))
     print(f'wrote {args.out}/metrics.json and figures')
@@ -116,8 +120,6 @@ def _cmd_demo(args):
     from curve_formation.run_options import RunOptions
     from curve_formation.runner import run_experiment
     out = Path(args.out)
-    if out.exists() and any(out.iterdir()):
-        raise FileExistsError(f'{out}: output folder is not empty; give a new one')
     _output_folder(out)
     summary = {'paper_cases_batch_simulation': {}}
     print("1/2 batch simulation of the paper's cases, with the paper's law and with ours")
@@ -130,7 +132,7 @@ def _cmd_demo(args):
     print(f'2/2 ROS 2 run of {DEMO_RUN}: 9 robots in one fake arena, 9 controllers, curve server, '
           f'one process each ({args.duration:g} s)')
     result = run_experiment(DEMO_RUN, out / DEMO_RUN, args.duration,
-                            RunOptions(bag_path=out / DEMO_RUN / 'bag'),
+                            RunOptions(bag_path=out / DEMO_RUN / 'bag', isolated=True),
                             log=lambda m: print('    ' + m))
     summary[DEMO_RUN] = result
     print('    ' + _summary_line(DEMO_RUN, result))
@@ -147,13 +149,13 @@ def _cmd_run(args):
                          'robots start one robot_bridge per robot (docs/connecting-robots.md)')
     _warn(load_experiment(resolve_config(args.config)))
     only = _parts(args.only)
-    _output_folder(args.out)
+    _output_folder(args.out, args.force)
     options = RunOptions(single_process=args.single_process, with_robots=not args.no_sim,
                          rate_hz=args.rate, bag_path=args.bag,
                          camera={} if args.camera else None, bag_images=args.bag_images,
                          bag_storage=args.bag_storage, bridge=args.bridge,
                          discovery_server=args.discovery_server, only=only,
-                         agents=_agents(args.agents))
+                         agents=_agents(args.agents), isolated=args.isolated)
     result = run_experiment(args.config, args.out, args.duration, options)
     if not options.runs('observer'):
         print(f'ran {", ".join(sorted(only or ()))} of {result["experiment"]}; logs/ in '
@@ -166,6 +168,34 @@ def _cmd_run(args):
         print(f'error: nodes died during the run: {died}; metrics.json says when',
               file=sys.stderr)
         return EXIT_NODE_DIED
+
+
+def _cmd_params(args):
+    from curve_formation.core.experiment import load_experiment
+    from curve_formation.launches import node_launches
+    from curve_formation.paths import resolve_config
+    from curve_formation.run_options import RunOptions
+    from curve_formation.start_scripts import write_node_files
+    path = resolve_config(args.config)
+    experiment = load_experiment(path)
+    out = _output_folder(args.out, args.force)
+    observed = args.observer or args.bag is not None
+    options = RunOptions(with_robots=not args.no_sim, rate_hz=args.rate,
+                         camera={} if args.camera else None, bridge=args.bridge,
+                         bag_path=args.bag)
+    launches = node_launches(experiment, path, options, out / 'links', observed=observed)
+    run_args = None
+    if observed:
+        run_args = [str(path)] + (['--rate', f'{args.rate:g}'] if args.rate else []) \
+            + (['--no-sim'] if args.no_sim else []) + (['--camera'] if args.camera else []) \
+            + (['--bridge', args.bridge] if args.bridge else []) \
+            + (['--bag', str(Path(args.bag).resolve())] if args.bag else [])
+    params, scripts = write_node_files(launches, out, experiment.name, run_args)
+    print(f'wrote {len(params)} parameters files in {out / "params"} and start scripts:')
+    for script in scripts:
+        print(f'  {script}')
+    print('start each part on the host that runs it, every host on the same ROS_DOMAIN_ID '
+          f'(e.g. `ROS_DOMAIN_ID=42 {out / "start_all.sh"}`)')
 
 
 def _agents(text):
@@ -202,8 +232,9 @@ def _parts(text):
 
 def _cmd_analyze(args):
     from curve_formation.analysis import analyze_bag
-    _output_folder(args.out)
-    result = analyze_bag(args.bag, args.out, args.experiment, args.compare, args.compare_sim)
+    _output_folder(args.out, args.force)
+    result = analyze_bag(args.bag, args.out, args.experiment, args.compare, args.compare_sim,
+                         progress=lambda line: print(line, file=sys.stderr, flush=True))
     print(_summary_line(result['experiment'], result))
     if args.compare_sim:
         print(_summary_line('simulated', result['compare_sim']))
@@ -371,6 +402,8 @@ def build_parser():
     mode = sim.add_mutually_exclusive_group()
     mode.add_argument('--rate', type=positive, help='zero-order-hold control rate (Hz)')
     mode.add_argument('--continuous', action='store_true', help='continuous control')
+    sim.add_argument('--force', action='store_true',
+                     help='write into a non-empty --out (its files are replaced)')
     sim.set_defaults(func=_cmd_sim)
     run = sub.add_parser('run', help='run the experiment as a ROS 2 node graph')
     run.add_argument('config', help='experiment YAML path or shipped name')
@@ -399,6 +432,10 @@ def build_parser():
                      help='discover through this Fast DDS discovery server (sets '
                      'ROS_DISCOVERY_SERVER; for networks where multicast fails, '
                      'docs/arena-setup.md)')
+    run.add_argument('--isolated', action='store_true',
+                     help='a private random ROS_DOMAIN_ID and LOCALHOST discovery (tests, '
+                     "demos); default: the caller's ROS_DOMAIN_ID (0 when unset) and discovery "
+                     'range, where RViz and the robot drivers are')
     run.add_argument('--only', metavar='PARTS',
                      help='run only these parts of the graph on this host, comma-separated: '
                      'curve_server, controllers, robots, camera, observer (one command per '
@@ -406,7 +443,26 @@ def build_parser():
     run.add_argument('--agents', metavar='LIST',
                      help="with --only: run only these agents' controllers and robots here, "
                      'e.g. 1-5,9 (a team spread over several hosts)')
+    run.add_argument('--force', action='store_true',
+                     help='write into a non-empty --out (its files are replaced)')
     run.set_defaults(func=_cmd_run)
+    params = sub.add_parser('params', help="write each node's ROS 2 parameters file and "
+                            'the `ros2 run` start scripts of the graph, starting nothing')
+    params.add_argument('config', help='experiment YAML path or shipped name')
+    params.add_argument('--out', required=True, help='folder for params/ and start_*.sh')
+    params.add_argument('--rate', type=positive, help="control rate (Hz; default: the file's)")
+    params.add_argument('--no-sim', action='store_true',
+                        help='no fake robots (real robots publish /robot_<i>/pose)')
+    params.add_argument('--camera', action='store_true', help='poses from camera_tracker')
+    params.add_argument('--bridge', choices=('udp', 'pty'),
+                        help='each cmd_vel through a robot_bridge (see run --bridge)')
+    params.add_argument('--observer', action='store_true',
+                        help='also start_observer.sh: `curve-formation run --only observer` '
+                        'measures the run (metrics, figures); the curve server waits for it')
+    params.add_argument('--bag', help='with the observer, record a bag at this new path')
+    params.add_argument('--force', action='store_true',
+                     help='write into a non-empty --out (its files are replaced)')
+    params.set_defaults(func=_cmd_params)
     analyze = sub.add_parser('analyze', help='metrics and figures from a recorded bag')
     analyze.add_argument('bag', help='bag folder')
     analyze.add_argument('--out', required=True, help='output folder')
@@ -415,6 +471,8 @@ def build_parser():
     analyze.add_argument('--compare-sim', action='store_true',
                          help="overlay the batch simulator run from the bag's own start and "
                          'curves: paths, error norms, settling per phase')
+    analyze.add_argument('--force', action='store_true',
+                     help='write into a non-empty --out (its files are replaced)')
     analyze.set_defaults(func=_cmd_analyze)
     bag = sub.add_parser('bag', help='inspect or repair a bag (no ROS CLI needed)')
     bag_sub = bag.add_subparsers(dest='bag_command', required=True, parser_class=_Parser)
@@ -510,6 +568,7 @@ def main(argv=None):
     CURVE_FORMATION_DEBUG is set (then the traceback).
     """
     args = build_parser().parse_args(argv)
+    command_line(['curve-formation', *(sys.argv[1:] if argv is None else argv)])
     # before any ROS context exists in this process; a run recording frames receives them
     use_dds_profile(large_data=getattr(args, 'bag_images', False))
     try:
@@ -537,11 +596,16 @@ def _error(message, status):
     return status
 
 
-def _output_folder(path):
-    """Create the output folder now (not after a long run); OSError or FileExistsError."""
+def _output_folder(path, force=False):
+    """Create the output folder now (not after a long run); OSError or FileExistsError, also
+    for a folder that holds something already, unless force (its files are written over).
+    """
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise FileExistsError(f'{path}: exists and is not a folder; give a folder for --out')
+    if not force and path.is_dir() and any(path.iterdir()):
+        raise FileExistsError(f'{path}: output folder is not empty; give a new one, or '
+                              '--force to write over what it holds')
     path.mkdir(parents=True, exist_ok=True)
     probe = path / '.curve_formation_write_test'
     probe.write_text('')

@@ -1,7 +1,8 @@
 """The node graph of an experiment: which nodes to start, with which parameters.
 
 Writes one parameters file per node (usable by hand with `ros2 run ... --ros-args -r
-__ns:=/robot_3 --params-file OUT/params/robot_3.formation_controller.yaml`).
+__ns:=/robot_3 --params-file OUT/params/robot_3.formation_controller.yaml`; start_scripts.py
+writes those lines).
 """
 
 from dataclasses import dataclass
@@ -41,10 +42,12 @@ class NodeLaunch:
         return f'{self.namespace.strip("/") + "." if self.namespace != "/" else ""}{self.name}'
 
 
-def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None):
+def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None,
+                  observed=True):
     """The node graph of an experiment: curve server, controllers and, as the RunOptions say,
     fake robots or one fake arena, robot bridges (their pseudo-terminals in links_dir) and
-    the camera nodes.
+    the camera nodes. observed: a runner's monitor (and with a bag, its recorder) reads the
+    run, and the curve server waits for it too; False for a graph started by hand.
     """
     with_robots, camera, bridge = options.with_robots, options.camera, options.bridge
     pose_noise, command_latency = options.pose_noise, options.command_latency
@@ -60,10 +63,10 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None)
     links = robot_links(experiment.n, bridge, links_dir) if bridge and with_robots else []
     # The curve server waits until the n controllers, the runner's monitor, its bag recorder
     # and the camera nodes (they draw the curve) can receive from it (nodes/readiness.py).
+    observers = (1 + (options.bag_path is not None)) if observed else 0
     launches = [NodeLaunch('curve_formation.nodes.curve_server', '/', 'curve_server',
                            {'experiment': str(Path(experiment_path).resolve()),
-                            'wait_for_ready': (experiment.n + 1 + len(cameras)
-                                               + (options.bag_path is not None)),
+                            'wait_for_ready': experiment.n + len(cameras) + observers,
                             # a drawn curve comes from the camera, not from the schedule
                             'schedule': not (cameras and spec.camera.drawn_curve is not None)})]
     for i, config in enumerate(agent_configs(experiment, rate), 1):
@@ -180,21 +183,24 @@ def camera_launches(experiment, experiment_path, with_fake_camera, overrides):
 
 
 def write_params_files(launches, folder):
-    """One ROS 2 parameters file per node; returns {key: path}."""
+    """One ROS 2 parameters file per node, `<key>.yaml`; returns {key: path}. Each is keyed
+    `/**/<node name>`: it applies to that node under whatever namespace it is started in
+    (`-r __ns:=/mona_3`), and to no other node.
+    """
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     paths = {}
     for launch in launches:
-        fqn = (launch.namespace.rstrip('/') + '/' + launch.name)
         path = folder / f'{launch.key}.yaml'
-        path.write_text(yaml.safe_dump({fqn: {'ros__parameters': launch.parameters}},
-                                       sort_keys=False))
+        path.write_text(yaml.safe_dump({f'/**/{launch.name}': {
+            'ros__parameters': launch.parameters}}, sort_keys=False))
         paths[launch.key] = path
     return paths
 
 
 # Each node module: the class its console script runs (to start it in the runner's own
-# process) and the part of the graph (run_options.PARTS) it belongs to.
+# process) and the part of the graph (run_options.PARTS) it belongs to. Its console script
+# is named as its node (the module's NODE_NAME).
 NODES = {'curve_formation.nodes.curve_server': ('CurveServer', 'curve_server'),
          'curve_formation.nodes.formation_controller': ('FormationController', 'controllers'),
          'curve_formation.nodes.robot_bridge': ('RobotBridge', 'controllers'),
@@ -207,6 +213,11 @@ NODES = {'curve_formation.nodes.curve_server': ('CurveServer', 'curve_server'),
 def part_of(module):
     """The part of the graph (run_options.PARTS) a node module belongs to."""
     return NODES[module][1]
+
+
+def executable(module):
+    """The console script (`ros2 run curve_formation <it>`) of a node module."""
+    return importlib.import_module(module).NODE_NAME
 
 
 def node_class(module):

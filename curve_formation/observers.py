@@ -4,7 +4,7 @@ the recorder, spun by one executor (which also hosts a single-process run's node
 
 from contextlib import ExitStack
 
-from curve_formation.analysis import EXPERIMENT_KEY, PARAMETERS_KEY
+from curve_formation.analysis import EXPERIMENT_KEY, PARAMETERS_KEY, PROVENANCE_KEY
 from curve_formation.nodes.runtime import make_executor, spin_until_quiet
 
 
@@ -13,19 +13,20 @@ class Observers:
     given an unopened bag.BagWriter, the Recorder writing into it; on exit what is still
     queued is taken, the nodes and context are shut down and the bag is closed.
 
-    experiment_text and parameters_text go into the bag's metadata, so that it describes
-    itself (analysis.py). watch False: the monitor takes only the curve (a host of a split run
-    that neither measures nor starts the curve server).
+    experiment_text, parameters_text and provenance_text go into the bag's metadata, so that
+    it describes itself (analysis.py). watch False: the monitor takes only the curve (a host
+    of a split run that neither measures nor starts the curve server).
     """
 
     def __init__(self, experiment, record_hz, ground_truth, bag_writer=None, images=False,
-                 experiment_text='', parameters_text='', watch=True):
+                 experiment_text='', parameters_text='', watch=True, provenance_text='{}'):
         self.experiment = experiment
         self.record_hz = record_hz
         self.ground_truth = ground_truth
         self.bag_writer = bag_writer
         self.images = images
-        self.metadata = {EXPERIMENT_KEY: experiment_text, PARAMETERS_KEY: parameters_text}
+        self.metadata = {EXPERIMENT_KEY: experiment_text, PARAMETERS_KEY: parameters_text,
+                         PROVENANCE_KEY: provenance_text}
         self.watch = watch   # False: the monitor only takes the curve (Monitor's watch)
         self.context = self.executor = self.monitor = self.recorder = None
         self.best_effort_topics = set()

@@ -36,12 +36,13 @@ DISCOVERY_SERVER_ENV = 'ROS_DISCOVERY_SERVER'
 RANGE_ENV = 'ROS_AUTOMATIC_DISCOVERY_RANGE'
 
 
-def use_discovery(env):
-    """Sets a run's discovery in `env`: limited to this machine (LOCALHOST) unless
-    ROS_AUTOMATIC_DISCOVERY_RANGE says otherwise; with ROS_DISCOVERY_SERVER (a Fast DDS
-    discovery server, for networks where multicast fails), SUBNET: with LOCALHOST or OFF the
-    server's clients discovered nothing (measured: a run's start timed out). A server with
-    one of those ranges is a ValueError naming both variables.
+def use_discovery(env, isolated=True):
+    """Sets a run's discovery in `env`. isolated: limited to this machine (LOCALHOST);
+    otherwise ROS_AUTOMATIC_DISCOVERY_RANGE as the caller set it (ROS's SUBNET when unset).
+    With ROS_DISCOVERY_SERVER (a Fast DDS discovery server, for networks where multicast
+    fails), SUBNET: with LOCALHOST or OFF the server's clients discovered nothing (measured: a
+    run's start timed out). A server with one of those ranges is a ValueError naming both
+    variables.
     """
     if env.get(DISCOVERY_SERVER_ENV):
         chosen = env.setdefault(RANGE_ENV, 'SUBNET')
@@ -49,12 +50,12 @@ def use_discovery(env):
             raise ValueError(f'{DISCOVERY_SERVER_ENV}={env[DISCOVERY_SERVER_ENV]} with '
                              f'{RANGE_ENV}={chosen}: Fast DDS discovery-server clients '
                              'discover nothing in that range; unset it or set SUBNET')
-    else:
-        env.setdefault(RANGE_ENV, 'LOCALHOST')
+    elif isolated:
+        env[RANGE_ENV] = 'LOCALHOST'
 
 
 @contextmanager
-def ros_environment(domain_id, discovery_server=None):
+def ros_environment(domain_id, discovery_server=None, isolated=True):
     """Within the block, this process (and the processes it starts) use ROS_DOMAIN_ID =
     domain_id and the discovery of use_discovery (through `discovery_server`, HOST:PORT, if
     given); the variables' old values are given back after it.
@@ -64,7 +65,7 @@ def ros_environment(domain_id, discovery_server=None):
     try:
         if discovery_server:
             os.environ[DISCOVERY_SERVER_ENV] = discovery_server
-        use_discovery(os.environ)
+        use_discovery(os.environ, isolated)
         os.environ[DOMAIN_ENV] = str(domain_id)
         yield
     finally:

@@ -30,6 +30,9 @@ class RunOptions:
         'observer' measures the run.
     agents: None (every agent), or the agents (1-based) whose own nodes (controller, robot
         bridge, simulated robot) this host runs: a team's controllers spread over hosts.
+    isolated: a private random ROS_DOMAIN_ID and LOCALHOST discovery (tests, the demo);
+        otherwise the caller's ROS_DOMAIN_ID (0 when unset) and discovery range, where the
+        lab's RViz, `ros2 topic echo` and robot drivers are.
     """
 
     single_process: bool = False
@@ -47,6 +50,7 @@ class RunOptions:
     discovery_server: str | None = None
     only: frozenset[str] | None = None
     agents: frozenset[int] | None = None
+    isolated: bool = False
 
     def runs(self, part: str) -> bool:
         """Whether this host runs `part` (one of PARTS)."""

@@ -9,6 +9,7 @@ is stopped with SIGINT and metrics and figures are written.
 
 from contextlib import ExitStack
 import dataclasses
+import math
 import os
 from pathlib import Path
 import random
@@ -23,23 +24,41 @@ from curve_formation.analysis import bag_accounting, RUN_END_KEY
 from curve_formation.bag import BagWriter
 from curve_formation.core import metrics, plots
 from curve_formation.core.experiment import control_rate, load_experiment
-from curve_formation.launches import node_launches, part_of, write_params_files
+from curve_formation.launches import node_launches, part_of
 from curve_formation.node_graph import NodeGraph
-from curve_formation.nodes.topics import DIAGNOSTICS
+from curve_formation.nodes.runtime import now_seconds
+from curve_formation.nodes.topics import CURVE, DIAGNOSTICS
 from curve_formation.observers import Observers
 from curve_formation.paths import discovery_text, resolve_config, ros_environment
+from curve_formation.provenance import described, provenance_text
 from curve_formation.run_options import DEFAULTS
+from curve_formation.start_scripts import write_node_files
 
 
 READY_TIMEOUT = 90.0   # s; nine Python processes start in ~10 s on two cores
+STATUS_PERIOD = 5.0    # s between the status lines of a run, and of its waiting
+# s of discovery in which a curve server already on the domain is looked for before real
+# robots' controllers start (seen found after 0 to 2.3 s under LOCALHOST); meanwhile the nodes
+# that cannot move a robot start
+FORMATION_CHECK = 3.0
 # s a host without the observer keeps its nodes up after the run's duration (split runs)
 SPLIT_GRACE = 10.0
 
 
-def private_domain_id():
-    """ROS_DOMAIN_ID from the environment, else a random one in 1..101 for this run."""
-    given = os.environ.get('ROS_DOMAIN_ID')
-    return int(given) if given else random.SystemRandom().randint(1, 101)
+def run_domain_id(isolated):
+    """The ROS_DOMAIN_ID of a run: isolated, a random one in 1..101 of its own; otherwise the
+    caller's, ROS's default 0 when unset (ValueError for one that is not a domain id).
+    """
+    if isolated:
+        return random.SystemRandom().randint(1, 101)
+    given = os.environ.get('ROS_DOMAIN_ID', '').strip() or '0'
+    if not given.isdigit() or not 0 <= int(given) <= 232:
+        raise ValueError(f'ROS_DOMAIN_ID={given!r}: expected a domain id 0..232 (or unset: 0)')
+    return int(given)
+
+
+class FormationRunningError(ValueError):
+    """A curve server already serves a formation on the run's domain."""
 
 
 def remove_dead_shared_memory():
@@ -76,7 +95,7 @@ class Run:
         self.rate_hz = control_rate(self.experiment, options.rate_hz)
         self.launches = node_launches(self.experiment, self.experiment_path, options,
                                       self.out / 'links')
-        self.domain_id = private_domain_id()
+        self.domain_id = run_domain_id(options.isolated)
         self.publications_dir = self.out / 'publications'
         self.bag_writer = (None if options.bag_path is None
                            else BagWriter(options.bag_path, options.bag_storage))
@@ -98,16 +117,18 @@ class Run:
 
     def start(self):
         options = self.options
-        params_files = write_params_files(self.launches, self.out / 'params')
+        params_files, _ = write_node_files(self.launches, self.out, self.experiment.name)
         recording = self.bag_writer is not None
         if recording:
             self.publications_dir.mkdir(parents=True, exist_ok=True)
-        self._stack.enter_context(ros_environment(self.domain_id, options.discovery_server))
+        self._stack.enter_context(ros_environment(self.domain_id, options.discovery_server,
+                                                  options.isolated))
         self.observers = self._stack.enter_context(Observers(
             self.experiment, options.record_hz,
             ground_truth=options.camera is not None and options.with_robots,
             bag_writer=self.bag_writer, images=options.bag_images,
             experiment_text=self.experiment_path.read_text(),
+            provenance_text=provenance_text(self.experiment_path),
             parameters_text='\n'.join(path.read_text() for path in params_files.values()),
             watch=options.runs('observer') or options.runs('curve_server')))
         self.graph = self._stack.enter_context(NodeGraph(
@@ -116,12 +137,25 @@ class Run:
         self.graph.on_death = self._on_death
         if recording:
             self.log(f'recording {self.bag_writer.path}')
-        self.log(f'ROS_DOMAIN_ID={self.domain_id}, discovery {discovery_text()}; parameters in '
-                 f'{self.out / "params"}')
+        self.log(f'{self.where()}{" (isolated)" if options.isolated else ""}; parameters in '
+                 f'{self.out / "params"}, start scripts in {self.out}')
         server, *others = self.launches
-        for launch in others:   # every node of this host but the curve server
-            if options.runs(part_of(launch.module)) and options.runs_agent(launch.agent):
+        ours = [launch for launch in others   # every node of this host but the curve server
+                if options.runs(part_of(launch.module)) and options.runs_agent(launch.agent)]
+        moving = [launch for launch in ours if part_of(launch.module) == 'controllers']
+        for launch in ours:   # what cannot move a robot starts while the domain is looked at
+            if launch not in moving:
                 self.graph.start(launch)
+        if options.runs('curve_server') and not options.with_robots:
+            # Real robots: none is driven before the domain was looked at for FORMATION_CHECK
+            # s. Simulated ones: looked for until the curve server starts (_wait_ready).
+            try:
+                self.spin_until(self._another_formation, FORMATION_CHECK, 'a curve server')
+            except TimeoutError:
+                pass
+            self._refuse_another_formation()
+        for launch in moving:
+            self.graph.start(launch)
         if options.runs('curve_server'):
             self._wait_ready()
             self.graph.start(server)
@@ -184,18 +218,81 @@ class Run:
         self.log(f'node {death.key} died {when} ({death.how}); the run goes on without it '
                  f'(its log: {self.out / "logs" / (death.key + ".log")})')
 
+    def _another_formation(self):
+        """Whether a curve server other than ours (not started yet) serves this domain."""
+        monitor = self.monitor
+        return monitor.t0 is not None or monitor.count_publishers(CURVE) > 0
+
+    def _refuse_another_formation(self):
+        """FormationRunningError if a curve server already serves this domain: its curve
+        would drive our robots, and our server would drive its robots.
+        """
+        if not self._another_formation():
+            return
+        raise FormationRunningError(
+            f'a formation is already running on ROS_DOMAIN_ID={self.domain_id} (discovery '
+            f'{discovery_text()}): a curve server serves it; stop it first, or run on another '
+            'domain (ROS_DOMAIN_ID=N, or --isolated for a private one)')
+
+    def where(self):
+        """Where this run's nodes meet, for every waiting line: domain and discovery."""
+        return f'ROS_DOMAIN_ID={self.domain_id}, discovery {discovery_text()}'
+
+    def waiting_hint(self):
+        hint = f'({self.where()}'
+        if not self.options.with_robots:
+            hint += ("; are the robots' drivers (or robot_bridge and its robot) up on this "
+                     'domain, and is the camera tracker running?')
+        return hint + ')'
+
     def _wait_ready(self):
+        said = [time.monotonic()]
+
         def ready():
             self.graph.check_processes()
             if self.graph.deaths:   # a node that cannot start: a set-up error, not a run's
                 death = self.graph.deaths[0]
                 raise RuntimeError(f'node {death.key} ended while starting ({death.how}):\n'
                                    f'{death.log_tail}')
+            if self.options.runs('curve_server'):
+                self._refuse_another_formation()
+            if time.monotonic() - said[0] >= STATUS_PERIOD:
+                said[0] = time.monotonic()
+                self.log(f'waiting for {", ".join(self.monitor.missing())} '
+                         f'{self.waiting_hint()}')
             return self.monitor.ready()
         try:
             self.spin_until(ready, READY_TIMEOUT, "every robot's pose and cmd_vel")
         except TimeoutError as exc:
-            raise TimeoutError(f'{exc}; missing: {self.monitor.missing()}') from None
+            raise TimeoutError(f'{exc}; missing: {", ".join(self.monitor.missing())} '
+                               f'{self.waiting_hint()}') from None
+
+    def status(self):
+        """One line on the run now (None before t = 0): t, phase, error norm against the
+        tolerance, the worst robot's error (mm) and how many robots drive, stand or are held.
+        """
+        monitor = self.monitor
+        phases = monitor.followed_phases()
+        if monitor.t0 is None or not phases:
+            return None
+        t = now_seconds(monitor) - monitor.t0
+        k = max(p.index for p in phases if p.start <= t) if phases[0].start <= t else 0
+        followed = dataclasses.replace(self.experiment, phases=phases)
+        errors = metrics.target_errors(monitor.poses[None], np.array([k]), followed,
+                                       t=np.array([t]),
+                                       stamps=(monitor.pose_stamps - monitor.t0)[None])[0]
+        norm = float(metrics.error_norm(errors[None])[0])
+        tolerance = self.experiment.spec.metrics.tolerance * phases[k].curve.size()
+        worst = np.nanmax(np.linalg.norm(errors, axis=1)) if np.isfinite(errors).any() \
+            else math.nan
+        speeds = np.abs(monitor.commands).max(axis=1)
+        driving = int(np.sum(speeds > 0))
+        held = self.monitor.estop_intervals(t)
+        stopped = 'e-stop ENGAGED' if held and held[-1][1] is None else \
+            f'{driving} driving, {self.experiment.n - driving} standing'
+        settled = 'within' if norm < tolerance else 'above'
+        return (f't {t:6.1f} s  phase {k}  error {norm:.3g} ({settled} tolerance '
+                f'{tolerance:.3g})  worst robot {1e3 * worst:.1f} mm  robots: {stopped}')
 
     def spin_until(self, predicate, timeout, what='a condition'):
         """Spin the monitor (and in-process nodes) until predicate() or timeout (s).
@@ -212,10 +309,19 @@ class Run:
                 raise TimeoutError(f'timed out after {timeout:g} s waiting for {what}')
             self.observers.spin_once()
 
-    def spin_for(self, seconds):
+    def spin_for(self, seconds, status_every=None):
+        """Spin `seconds`; with status_every (s), log status() that often."""
         end = time.monotonic() + seconds
-        self.spin_until(lambda: time.monotonic() >= end or self.graph.check_processes(),
-                        seconds + 5)
+        said = [time.monotonic()]
+
+        def done():
+            if status_every and time.monotonic() - said[0] >= status_every:
+                said[0] = time.monotonic()
+                line = self.status()
+                if line:
+                    self.log(line)
+            return time.monotonic() >= end or self.graph.check_processes()
+        self.spin_until(done, seconds + 5)
 
     # -- results ---------------------------------------------------------------------------
     def recording(self):
@@ -253,7 +359,8 @@ class Run:
             result['ground_truth'] = metrics.ground_truth_metrics(
                 experiment, data, phase, self.monitor.law_pose_rms(), estops, deaths)
         self.out.mkdir(parents=True, exist_ok=True)
-        (self.out / 'metrics.json').write_text(metrics.strict_json(result))
+        (self.out / 'metrics.json').write_text(
+            metrics.strict_json(described(result, self.experiment_path)))
         plots.run_figures(self.out, experiment, data['t'], data['poses'], phase,
                           data['dhat'], label=label)
         np.savez_compressed(self.out / 'trajectory.npz', phase=phase, **data)
@@ -302,7 +409,7 @@ def run_experiment(config, out_dir, duration=None, options=DEFAULTS, log=print):
     try:
         run.start()
         started = True
-        run.spin_for(duration)
+        run.spin_for(duration, STATUS_PERIOD)
     except KeyboardInterrupt:
         interrupted = True
         log('interrupted: stopping every node')
@@ -333,7 +440,8 @@ def run_experiment(config, out_dir, duration=None, options=DEFAULTS, log=print):
     if options.bag_path is not None:
         result['bag'] = {'path': str(options.bag_path), 'messages': run.bag_writer.count,
                          **run.bag_accounting()}
-    (run.out / 'metrics.json').write_text(metrics.strict_json(result))
+    (run.out / 'metrics.json').write_text(
+        metrics.strict_json(described(result, run.experiment_path)))
     if failure is not None:
         raise failure
     return result

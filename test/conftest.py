@@ -1,6 +1,8 @@
 """Shared fixtures: experiment dictionaries to break on purpose, a private ROS context."""
 
+import os
 from pathlib import Path
+import random
 import sys
 
 import pytest
@@ -13,6 +15,10 @@ from curve_formation.paths import use_dds_profile  # noqa: E402
 
 
 use_dds_profile()   # as the CLI and every node do, before any ROS context in this process
+# Nothing a test starts leaves this machine, nor meets another test run's nodes, even where it
+# uses no ros_domain fixture: `run` takes the caller's domain and discovery range.
+os.environ['ROS_DOMAIN_ID'] = str(random.SystemRandom().randint(102, 200))
+os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / 'config'
 

@@ -27,15 +27,15 @@ RECORD_PERIOD = 1 / 20.0   # s, the monitor's and the analysis's sampling
 def switched(tmp_path_factory):
     """A 12 s run with nearest assignment and a curve switch at 6 s, recorded to MCAP."""
     folder = tmp_path_factory.mktemp('switched')
+    saved = os.environ['ROS_DOMAIN_ID']   # conftest's, for this test session
     os.environ['ROS_DOMAIN_ID'] = str(random.SystemRandom().randint(1, 101))
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     try:
         with Run(DATA_DIR / 'nearest_switch.yaml', folder / 'run',
                  RunOptions(bag_path=folder / 'bag'), log=lambda *_: None) as run:
             run.spin_for(12.0)
             live = run.write_results()
     finally:
-        del os.environ['ROS_DOMAIN_ID']
+        os.environ['ROS_DOMAIN_ID'] = saved
     return folder, live
 
 

@@ -15,6 +15,40 @@ def test_sim_writes_metrics_and_figures(tmp_path):
         assert png[:8] == b'\x89PNG\r\n\x1a\n' and len(png) > 10_000
 
 
+def test_metrics_say_where_they_came_from_and_in_which_units(tmp_path):
+    import hashlib
+
+    from curve_formation import version
+    from curve_formation.paths import resolve_config
+    out = tmp_path / 'open'
+    assert main(['sim', 'open_curve', '--out', str(out)]) == 0
+    data = json.loads((out / 'metrics.json').read_text())
+    made = data['provenance']
+    assert made['version'] == version() and made['package'] == 'curve_formation'
+    assert made['experiment_sha256'] == hashlib.sha256(
+        resolve_config('open_curve').read_bytes()).hexdigest()
+    assert made['date'].endswith('+00:00') and 'sim' in made['command']
+    assert made['commit'] is None or len(made['commit'].split('-')[0]) == 40
+    units = data['units']
+    assert units['settle_time'] == 's' and units['final_error_norm'] == 'm'
+    assert units['curve_size'] == 'm' and units['duration'] == 's'
+
+
+def test_an_output_folder_that_holds_something_is_refused_unless_forced(tmp_path, capsys):
+    out = tmp_path / 'open'
+    assert main(['sim', 'open_curve', '--out', str(out)]) == 0
+    before = (out / 'metrics.json').stat().st_mtime_ns
+    assert main(['sim', 'open_curve', '--out', str(out)]) == 2
+    assert 'output folder is not empty; give a new one, or --force' in capsys.readouterr().err
+    assert (out / 'metrics.json').stat().st_mtime_ns == before
+    for command in (['run', 'arena_demo'], ['analyze', str(tmp_path / 'bag')],
+                    ['params', 'arena_demo']):   # refused before anything starts
+        assert main([*command, '--out', str(out)]) == 2, command
+        assert 'output folder is not empty' in capsys.readouterr().err
+    assert main(['sim', 'open_curve', '--out', str(out), '--force']) == 0
+    assert (out / 'metrics.json').stat().st_mtime_ns > before
+
+
 def test_sim_rate_option_switches_to_zero_order_hold(tmp_path):
     assert main(['sim', 'open_curve', '--rate', '20', '--out', str(tmp_path)]) == 0
     assert json.loads((tmp_path / 'metrics.json').read_text())['control'] == (

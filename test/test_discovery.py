@@ -137,6 +137,12 @@ def test_a_discovery_server_with_a_local_range_is_refused():
     env = {}
     paths.use_discovery(env)
     assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
+    env = {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET'}   # an isolated run stays on this machine
+    paths.use_discovery(env)
+    assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
+    env = {}   # a lab's run: the caller's range, ROS's default when unset
+    paths.use_discovery(env, isolated=False)
+    assert 'ROS_AUTOMATIC_DISCOVERY_RANGE' not in env
 
 
 
@@ -157,3 +163,40 @@ def test_a_runs_environment_is_given_back_after_it(monkeypatch):
         with paths.ros_environment(42, '127.0.0.1:11811'):
             pass
     assert os.environ['ROS_DOMAIN_ID'] == '7' and 'ROS_DISCOVERY_SERVER' not in os.environ
+
+
+def test_a_run_takes_the_callers_domain_and_an_isolated_one_a_private_domain(monkeypatch):
+    from curve_formation.runner import run_domain_id
+    monkeypatch.delenv('ROS_DOMAIN_ID')
+    assert run_domain_id(False) == 0          # ROS's default, where the lab's tools are
+    monkeypatch.setenv('ROS_DOMAIN_ID', '42')
+    assert run_domain_id(False) == 42
+    assert {run_domain_id(True) for _ in range(50)} - {42} <= set(range(1, 102))
+    monkeypatch.setenv('ROS_DOMAIN_ID', 'lab')
+    with pytest.raises(ValueError, match="ROS_DOMAIN_ID='lab': expected a domain id"):
+        run_domain_id(False)
+
+
+@pytest.mark.ros
+def test_a_second_formation_on_a_domain_is_refused(ros, tmp_path):
+    """A curve server already serves the domain (here a stand-in publishing the curve):
+    `run` says so before its own curve server starts, and with real robots before any of their
+    controllers starts.
+    """
+    from curve_formation.nodes import topics
+    context, add, _ = ros
+    stand_in = add(rclpy.create_node('curve_server', context=context))
+    topics.publisher(stand_in, topics.CURVE)
+    domain = os.environ['ROS_DOMAIN_ID']
+    for real in (True, False):
+        out = tmp_path / ('real' if real else 'simulated')
+        proc = subprocess.run([sys.executable, '-m', 'curve_formation.cli', 'run',
+                               str(DATA_DIR / 'fast_closed.yaml'), '--out', str(out),
+                               '--duration', '3'] + (['--no-sim'] if real else []),
+                              capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 2, proc.stdout + proc.stderr
+        assert (f'error: a formation is already running on ROS_DOMAIN_ID={domain} (discovery '
+                'LOCALHOST)') in proc.stderr
+        assert '--isolated' in proc.stderr
+        if real:   # no controller of real robots started before the domain was looked at
+            assert not list((out / 'logs').glob('*formation_controller*'))

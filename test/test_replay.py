@@ -29,13 +29,13 @@ def recorded(tmp_path_factory):
     """
     import random
     folder = tmp_path_factory.mktemp('recorded')
+    saved = os.environ['ROS_DOMAIN_ID']   # conftest's, for this test session
     os.environ['ROS_DOMAIN_ID'] = str(random.SystemRandom().randint(1, 101))
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     options = RunOptions(bag_path=folder / 'bag', bag_storage='sqlite3')
     with Run(DATA_DIR / 'fast_closed.yaml', folder / 'run', options, log=lambda *_: None) as run:
         run.spin_for(6.0)
         live = run.write_results()
-    del os.environ['ROS_DOMAIN_ID']
+    os.environ['ROS_DOMAIN_ID'] = saved
     return folder, live
 
 

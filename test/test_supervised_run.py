@@ -69,6 +69,8 @@ def test_a_controller_killed_hard_leaves_metrics_a_bag_and_an_exit_status_naming
     assert result['phases'][0]['not_settled_because'].startswith(
         'node robot_3.formation_controller died at t = ')
     assert (out / 'paths.png').exists() and result['bag']['messages'] > 1000
+    assert 'phase 0  error ' in stdout and 'robots: ' in stdout   # status every 5 s
+    assert result['provenance']['experiment_file'] == str(DATA_DIR / 'fast_closed.yaml')
     # Under LOCALHOST discovery every participant has Fast DDS shared memory: the run removed
     # what its dead node left there (a file no live process holds).
     left = (set(os.listdir('/dev/shm')) - before) - files_in_use()
@@ -76,6 +78,8 @@ def test_a_controller_killed_hard_leaves_metrics_a_bag_and_an_exit_status_naming
     # The bag says the same.
     bagged = analyze_bag(bag, tmp_path / 'analysis')
     assert [d['node'] for d in bagged['node_deaths']] == ['robot_3.formation_controller']
+    assert {k: bagged['run_provenance'][k] for k in ('command', 'experiment_sha256')} == {
+        k: result['provenance'][k] for k in ('command', 'experiment_sha256')}
     assert abs(bagged['node_deaths'][0]['t'] - death['t']) < 0.2
     assert not bagged['all_settled']
 

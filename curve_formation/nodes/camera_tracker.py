@@ -44,6 +44,7 @@ from curve_formation.vision.tracker import Calibration, CalibrationError, Marker
 SAVE_INTERVAL = 5.0   # s between saves of a continuously re-estimated calibration
 
 
+NODE_NAME = 'camera_tracker'   # also its console script's name
 PARAMETERS = (
     Param('experiment', 'string', None, 'experiment YAML with a `camera` section (markers, '
           'corners, calibration)'),
@@ -85,7 +86,7 @@ class CameraTracker(Node):
     """ArUco detection and arena calibration over a camera stream."""
 
     def __init__(self, **kwargs):
-        super().__init__('camera_tracker', **kwargs)
+        super().__init__(NODE_NAME, **kwargs)
         p = self.params = declare_parameters(self, PARAMETERS)
         self.experiment = experiment_parameter(p.experiment, needs=('camera',))
         camera = self.experiment.spec.camera

@@ -41,6 +41,7 @@ from curve_formation.nodes.runtime import now_seconds, run_node
 from curve_formation.nodes.topics import Use
 
 
+NODE_NAME = 'curve_server'   # also its console script's name
 PARAMETERS = (
     Param('experiment', 'string', None, 'experiment YAML (path or shipped name) whose curve '
           'schedule is served'),
@@ -64,6 +65,9 @@ PARAMETERS = (
           'have said on /formation/ready that they receive /formation/curve from this server, '
           'and its publisher has matched as many subscriptions, so all robots start together '
           '(readiness.py)', low=0),
+    Param('wait_for_poses', 'bool', True, "start the schedule only once every robot's pose "
+          '(/robot_<i>/pose) has been received, so that t = 0 is not spent waiting for a '
+          'robot (a graph started by hand; the runner waits for them itself)'),
     Param('refresh_period', 'double', 1.0, 'the current curve is published again (same id, '
           'same agent parameters) once nothing was published on /formation/curve for this '
           'long (s), so a reader that missed the latched message (a restarted controller: '
@@ -82,6 +86,8 @@ TOPICS = (
         'reassign_every)'),
     Use('sub', topics.READY, 'names of the nodes that receive the curve, counted before the '
         'first curve (wait_for_ready)'),
+    Use('sub', topics.POSE, 'before the first curve only (wait_for_poses): has every robot a '
+        'pose yet', robot='<i>'),
 ) + estop_uses('held (latched) for the nodes that start while it is engaged')
 
 WAIT_POLL = 0.05   # s, how often readiness is checked before the first curve
@@ -93,7 +99,7 @@ class CurveServer(Node):
     """Publishes the experiment's curves on schedule and fits observed ones."""
 
     def __init__(self, **kwargs):
-        super().__init__('curve_server', **kwargs)
+        super().__init__(NODE_NAME, **kwargs)
         self.params = declare_parameters(self, PARAMETERS)
         self.experiment = experiment_parameter(self.params.experiment)
         self.curve_pub = topics.publisher(self, topics.CURVE)
@@ -123,6 +129,11 @@ class CurveServer(Node):
             topics.subscription(self, topics.ROBOT_POSES, self._on_poses)
         # Polls for subscribers every WAIT_POLL s until the start, then wakes at each switch.
         self.ready = ReadyCount(self)
+        self.unposed = set(range(1, self.experiment.n + 1)) if self.params.wait_for_poses \
+            else set()   # robots whose pose has not come yet (before the start)
+        self.pose_waits = [topics.subscription(self, topics.POSE,
+                                               lambda _, i=i: self.unposed.discard(i), i)
+                           for i in sorted(self.unposed)]
         self.timer = self.create_timer(WAIT_POLL, self._on_timer)
         self._on_timer()
 
@@ -139,6 +150,15 @@ class CurveServer(Node):
                     f'{len(self.ready)} so far: {sorted(self.ready.names)}; this server '
                     f'reaches {matched}', skip_first=True, throttle_duration_sec=5.0)
                 return
+            if self.unposed:
+                self.get_logger().warn(
+                    'waiting for the poses of robots '
+                    f'{", ".join(map(str, sorted(self.unposed)))} (/robot_<i>/pose)',
+                    skip_first=True, throttle_duration_sec=5.0)
+                return
+            for subscription in self.pose_waits:
+                self.destroy_subscription(subscription)
+            self.pose_waits = []
             self.start = now_seconds(self)
             if self.reassign_every > 0:
                 self.create_timer(self.reassign_every, self._reassign)

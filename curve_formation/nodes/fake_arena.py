@@ -46,6 +46,7 @@ from curve_formation.nodes.topics import Use
 FIRMWARE_POLL = 0.005
 
 
+NODE_NAME = 'fake_arena'   # also its console script's name
 PARAMETERS = (
     Param('experiment', 'string', None, 'experiment YAML (path or shipped name): robots, '
           'start poses, body radius, arena and disturbance'),
@@ -78,7 +79,7 @@ class FakeArena(Node):
     """All robots of an experiment as bodies that cannot overlap."""
 
     def __init__(self, **kwargs):
-        super().__init__('fake_arena', **kwargs)
+        super().__init__(NODE_NAME, **kwargs)
         p = self.params = declare_parameters(self, PARAMETERS)
         experiment = experiment_parameter(p.experiment)
         spec = experiment.spec

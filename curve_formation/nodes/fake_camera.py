@@ -34,6 +34,7 @@ DRAWN_SAMPLES = 1000   # points along a drawn curve (a few mm apart on an arena'
 MOVED_BY = 2e-4        # m: a moving drawn curve is redrawn once it has moved this far
 
 
+NODE_NAME = 'fake_camera'   # also its console script's name
 PARAMETERS = (
     Param('experiment', 'string', None, 'experiment YAML with `arena` and `camera` sections'),
     Param('rate_hz', 'double', 30.0, 'frame rate (Hz)', positive=True),
@@ -71,7 +72,7 @@ class FakeCamera(Node):
     """Arena renderer over the fake robots' true poses."""
 
     def __init__(self, **kwargs):
-        super().__init__('fake_camera', **kwargs)
+        super().__init__(NODE_NAME, **kwargs)
         p = self.params = declare_parameters(self, PARAMETERS)
         experiment = experiment_parameter(p.experiment, needs=('camera', 'arena'))
         if len(p.resolution) != 2 or min(p.resolution) < 16:

@@ -42,6 +42,7 @@ ROBOT_PARAMETERS = (
           choices=(topics.POSE, topics.TRUE_POSE)),
 )
 
+NODE_NAME = 'fake_robot'   # also its console script's name
 PARAMETERS = (
     Param('index', 'int', 1, 'robot number i (for logs)', low=1),
     Param('initial_pose', 'double[]', [0.0, 0.0, 0.0], 'start pose [x, y, theta] (m, rad)'),
@@ -65,7 +66,7 @@ class FakeRobot(Node):
     """Unicycle integrated from cmd_vel; pure maths in core.dynamics.DrivenUnicycle."""
 
     def __init__(self, **kwargs):
-        super().__init__('fake_robot', **kwargs)
+        super().__init__(NODE_NAME, **kwargs)
         p = self.params = declare_parameters(self, PARAMETERS)
         for name, size in (('initial_pose', 3), ('disturbance', 2), ('pose_noise', 2)):
             if len(getattr(p, name)) != size:

@@ -36,6 +36,7 @@ from curve_formation.nodes.runtime import now_seconds, run_node
 from curve_formation.nodes.topics import Use
 
 
+NODE_NAME = 'formation_controller'   # also its console script's name
 PARAMETERS = (
     Param('index', 'int', None, "this robot's agent number i (1 = leader)", low=1),
     Param('agent_count', 'int', None, 'number of agents n in the formation', low=1),
@@ -267,7 +268,7 @@ class FormationController(Node):
     """Thin ROS layer over core.agent.AgentController."""
 
     def __init__(self, **kwargs):
-        super().__init__('formation_controller', **kwargs)
+        super().__init__(NODE_NAME, **kwargs)
         self.params = declare_parameters(self, PARAMETERS)
         self.config = agent_config(self.params)
         self.controller = AgentController(self.config)

@@ -93,7 +93,9 @@ def declare_parameters(node, table):
         except ParameterUninitializedException:
             if p.default is None:
                 raise ParameterError(
-                    f'parameter {p.name!r} is required: {p.description}') from None
+                    f'parameter {p.name!r} is required ({p.description}): give it with '
+                    f'`-p {p.name}:=VALUE` or a --params-file (`curve-formation params '
+                    'EXPERIMENT --out DIR` writes them)') from None
             value = list(p.default)
         except InvalidParameterTypeException as exc:
             raise ParameterError(f'parameter {p.name!r} has the wrong type, expected {p.kind} '
@@ -157,6 +159,17 @@ def markdown_table(table):
         text = f'{p.description}{bounds}.{choices}'.replace('|', '\\|')
         rows.append(f'| `{p.name}` | {p.kind} | `{p.doc_default()}` | {text} |')
     return '\n'.join(rows)
+
+
+def text_table(table):
+    """The table as plain text for a terminal: one parameter per line, then its meaning."""
+    lines = []
+    for p in table:
+        default = 'required' if p.default is None else f'default {p.default!r}'
+        lines.append(f'  {p.name} ({p.kind}, {default})')
+        choices = f' One of: {", ".join(p.choices)}.' if p.choices else ''
+        lines.append(f'      {p.description}.{choices}')
+    return '\n'.join(lines)
 
 
 def experiment_parameter(value, needs=()):

@@ -83,6 +83,7 @@ class Recorder(Node):
         stream['last'] = seq
 
 
+NODE_NAME = RECORDER_NODE   # also its console script's name
 PARAMETERS = (
     Param('bag', 'string', None, 'path of the new bag (refused if it exists)'),
     Param('agent_count', 'int', None, 'number of robots n whose topics are recorded', low=1),

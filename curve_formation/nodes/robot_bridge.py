@@ -55,6 +55,7 @@ def wire_format_parameter(p):
         raise ParameterError(f"parameter 'wire_format': {exc}") from None
 
 
+NODE_NAME = 'robot_bridge'   # also its console script's name
 PARAMETERS = (
     Param('link', 'string', None, "where the robot is: 'udp:HOST:PORT' or 'serial:DEVICE'"),
     Param('baud', 'int', 115200, 'serial line speed (bits/s)', low=1),
@@ -94,7 +95,7 @@ class RobotBridge(Node):
     """cmd_vel -> wheel speeds -> the robot's wire format over its link."""
 
     def __init__(self, **kwargs):
-        super().__init__('robot_bridge', **kwargs)
+        super().__init__(NODE_NAME, **kwargs)
         p = self.params = declare_parameters(self, PARAMETERS)
         try:
             self.link = robot_link(p.link, p.baud)

@@ -17,6 +17,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 
 from curve_formation.bag import stream_key
+from curve_formation.nodes.command_line import check_params_files, help_text, parse
 from curve_formation.nodes.params import ParameterError
 from curve_formation.paths import use_dds_profile
 
@@ -101,13 +102,26 @@ CLOCK_OFFSET = _clock_offset()
 def run_node(node_factory, args=None, large_data=False):
     """Create the node, spin it until Ctrl-C, SIGTERM or shutdown, then shut it down cleanly.
 
-    A ParameterError at start ends the process with one line on stderr and exit status 2.
+    `--help` prints the node's parameters (nodes.command_line) and returns 0. A parameters
+    file that is not one, or sets nothing for this node, and a ParameterError at start end the
+    process with one line on stderr and exit status 2.
     A node may define on_shutdown() (e.g. to send a last zero command); it runs before the
     node is destroyed, which is why rclpy's own SIGINT handler (it would shut the context
     down first) is replaced. Once the node runs, SIGINT and SIGTERM only set a flag that ends
     the spin loop: an exception raised inside an rclpy call (e.g. while a message is being
     converted) would come out as a RuntimeError, not as an interrupt.
     """
+    module = inspect.getmodule(node_factory)
+    argv = sys.argv if args is None else args
+    command_line = parse(argv, module.NODE_NAME)
+    if command_line.help:
+        print(help_text(module.NODE_NAME, module))
+        return 0
+    try:
+        check_params_files(command_line)
+    except ParameterError as exc:
+        print(f'error: {exc}', file=sys.stderr)
+        return 2
     use_dds_profile(large_data=large_data)   # before the first ROS context; see paths
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop = threading.Event()

@@ -1,0 +1,97 @@
+"""Start scripts of an experiment's node graph: the `ros2 run` lines a lab types, one script
+per part of the graph (a part per host, or all on one), written beside the parameters files.
+
+`curve-formation params EXPERIMENT --out DIR` writes them without starting anything, and
+`run` writes the same into its output folder (params/ and start_*.sh), so a run can be
+started again by hand. Each script:
+- exports ROS_DOMAIN_ID (ROS's default 0 when unset) and says which domain and discovery
+  range its nodes use;
+- starts each node as `ros2 run curve_formation <node> --ros-args -r __ns:=... --params-file
+  "$HERE/params/<key>.yaml" &`, the curve server last (it waits for the others anyway);
+- stops them all on Ctrl-C (SIGINT: each sends a last zero command) and exits when they do;
+  start_all.sh with an observer also stops them when the observer has measured the run.
+"""
+
+from pathlib import Path
+import shlex
+
+from curve_formation.launches import executable, part_of, write_params_files
+
+
+PACKAGE = 'curve_formation'
+OBSERVER = 'observer'
+
+
+def node_line(launch):
+    """The `ros2 run` line of one node (its parameters file under $HERE/params)."""
+    return (f'ros2 run {PACKAGE} {executable(launch.module)} --ros-args -r '
+            f'__ns:={launch.namespace} --params-file "$HERE/params/{launch.key}.yaml"')
+
+
+def observer_line(run_args):
+    """The line of the part that measures: `curve-formation run ... --only observer` with the
+    graph's own options (run_args, a list), its outputs in $HERE/run.
+    """
+    words = ' '.join(shlex.quote(a) for a in run_args)
+    return (f'ros2 run {PACKAGE} curve-formation run {words} --only {OBSERVER} '
+            '--out "$HERE/run"')
+
+
+def script_text(title, lines, measured=False):
+    """A script that starts each line in the background. measured: the first line is the
+    observer, whose end (the run's duration is over) stops the others.
+    """
+    body = '\n'.join(f'{line} &\npids+=($!)' for line in lines)
+    if measured:
+        body += ('\nwait "${pids[0]}"; status=$?   # the observer ends the run\n'
+                 'kill -INT "${pids[@]:1}" 2>/dev/null\nwait\nexit $status')
+    else:
+        body += '\nwait'
+
+    return f"""#!/usr/bin/env bash
+# {title}
+# Written by `curve-formation params` (or `run`); start it on the host that runs these nodes.
+# Ctrl-C stops every node it started.
+set -u
+HERE="$(cd "$(dirname "${{BASH_SOURCE[0]}}")" && pwd)"
+export ROS_DOMAIN_ID="${{ROS_DOMAIN_ID:-0}}"
+echo "ROS_DOMAIN_ID=$ROS_DOMAIN_ID, discovery range ${{ROS_AUTOMATIC_DISCOVERY_RANGE:-SUBNET}}"
+pids=()
+stop() {{ kill -INT "${{pids[@]}}" 2>/dev/null; wait; exit 130; }}
+trap stop INT TERM
+{body}
+"""
+
+
+def start_scripts(launches, experiment_name, run_args=None):
+    """{file name: text}: start_<part>.sh for each part of the graph that has nodes (and
+    start_observer.sh with run_args), and start_all.sh with every line, for one host.
+    """
+    server = [launch for launch in launches if part_of(launch.module) == 'curve_server']
+    ordered = [launch for launch in launches if launch not in server] + server
+    parts = {}
+    if run_args is not None:
+        parts[OBSERVER] = [observer_line(run_args)]
+    for launch in ordered:
+        parts.setdefault(part_of(launch.module), []).append(node_line(launch))
+    scripts = {f'start_{part}.sh': script_text(f'{experiment_name}: {part}', lines)
+               for part, lines in parts.items()}
+    scripts['start_all.sh'] = script_text(f'{experiment_name}: the whole graph on one host',
+                                          [line for lines in parts.values() for line in lines],
+                                          measured=run_args is not None)
+    return scripts
+
+
+def write_node_files(launches, folder, experiment_name, run_args=None):
+    """Each node's parameters file in folder/params and the start scripts in folder;
+    returns ({launch key: parameters file}, [script paths]).
+    """
+    folder = Path(folder)
+    params = write_params_files(launches, folder / 'params')
+    written = []
+    for name, text in start_scripts(launches, experiment_name, run_args).items():
+        path = folder / name
+        path.write_text(text)
+        path.chmod(0o755)
+        written.append(path)
+    return params, written

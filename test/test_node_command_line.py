@@ -1,0 +1,161 @@
+"""Nodes explain themselves and refuse a wrong start in one line: `--help`, an experiment
+given as a parameters file, a file keyed for another node, a missing parameter. And the
+parameters files and start scripts `curve-formation params` writes without starting anything.
+"""
+
+import os
+import subprocess
+import sys
+
+import pytest
+import yaml
+
+from curve_formation.nodes.command_line import key_pattern, node_keys, parse
+from curve_formation.nodes.docs import NODES
+from curve_formation.paths import resolve_config
+
+
+ARENA_DEMO = resolve_config('arena_demo')
+
+
+def module_of(name):
+    return dict(NODES)[name]
+
+
+@pytest.mark.parametrize('name', [name for name, _ in NODES])
+def test_every_node_prints_its_parameters_for_help(name, capsys):
+    module = module_of(name)
+    assert module.main([name, '--help']) == 0
+    out = capsys.readouterr().out
+    assert out.startswith(f'usage: ros2 run curve_formation {name} --ros-args')
+    for param in module.PARAMETERS:
+        assert f'  {param.name} ({param.kind}, ' in out, param.name
+
+
+def test_help_from_the_console_script_exits_0():
+    proc = subprocess.run([sys.executable, '-m', 'curve_formation.nodes.formation_controller',
+                           '--help'], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0 and 'index (int, required)' in proc.stdout, proc.stderr
+
+
+def one_line_error(main, args, capsys):
+    status = main(args)
+    err = capsys.readouterr().err
+    assert status == 2
+    assert err.count('\n') == 1 and err.startswith('error: '), err
+    return err
+
+
+def test_an_experiment_given_as_a_parameters_file_names_the_fix(capsys):
+    main = module_of('formation_controller').main
+    err = one_line_error(main, ['formation_controller', '--ros-args', '--params-file',
+                                str(ARENA_DEMO)], capsys)
+    assert 'is an experiment file, not a ROS 2 parameters file' in err
+    assert f'curve-formation params {ARENA_DEMO} --out DIR' in err
+
+
+def test_a_parameters_file_for_another_namespace_names_the_fix(tmp_path, capsys):
+    path = tmp_path / 'robot_3.yaml'
+    path.write_text('/robot_3/formation_controller:\n  ros__parameters:\n    index: 3\n')
+    main = module_of('formation_controller').main
+    err = one_line_error(main, ['formation_controller', '--ros-args', '-r', '__ns:=/mona_3',
+                                '--params-file', str(path)], capsys)
+    assert 'not for this node (/mona_3/formation_controller)' in err
+    assert 'key it `/**/formation_controller`' in err
+
+
+def test_a_file_that_is_no_parameters_file_or_missing_names_it(tmp_path, capsys):
+    main = module_of('curve_server').main
+    bad = tmp_path / 'list.yaml'
+    bad.write_text('- 1\n- 2\n')
+    assert 'not a ROS 2 parameters file' in one_line_error(
+        main, ['curve_server', '--ros-args', '--params-file', str(bad)], capsys)
+    assert 'no such parameters file' in one_line_error(
+        main, ['curve_server', '--ros-args', '--params-file', str(tmp_path / 'none.yaml')],
+        capsys)
+
+
+def test_a_missing_required_parameter_is_one_line_naming_the_fix(ros_domain):
+    proc = subprocess.run([sys.executable, '-m', 'curve_formation.nodes.formation_controller'],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().count('\n') == 0, proc.stderr
+    assert "parameter 'index' is required" in proc.stderr
+    assert '`-p index:=VALUE`' in proc.stderr and 'curve-formation params' in proc.stderr
+
+
+@pytest.mark.parametrize('key, name, matches', [
+    ('/**/formation_controller', '/mona_3/formation_controller', True),
+    ('/**/formation_controller', '/formation_controller', True),
+    ('/**/formation_controller', '/a/b/formation_controller', True),
+    ('/**/formation_controller', '/robot_3/fake_robot', False),
+    ('/**', '/robot_3/fake_robot', True),
+    ('/robot_*/formation_controller', '/robot_3/formation_controller', True),
+    ('/robot_*/formation_controller', '/mona_3/formation_controller', False),
+    ('/robot_3/formation_controller', '/robot_3/formation_controller', True),
+    ('curve_server', '/curve_server', True),
+])
+def test_parameters_file_keys_match_node_names_as_rcl_does(key, name, matches):
+    assert bool(key_pattern(key).match(name)) == matches
+
+
+def test_nested_namespace_keys_and_renames_are_understood():
+    assert node_keys({'robot_3': {'formation_controller': {'ros__parameters': {'a': 1}}}}) == \
+        ['robot_3/formation_controller']
+    line = parse(['x', '--ros-args', '-r', '__ns:=mona_3', '-r', '__node:=ctl',
+                  '--params-file', 'a.yaml'], 'formation_controller')
+    assert line.fully_qualified_name == '/mona_3/ctl' and line.params_files == ('a.yaml',)
+
+
+@pytest.fixture(scope='module')
+def params_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp('params')
+    proc = subprocess.run([sys.executable, '-m', 'curve_formation.cli', 'params', 'arena_demo',
+                           '--out', str(out)], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    return out
+
+
+def test_params_writes_every_nodes_file_and_a_start_script_per_part(params_dir):
+    files = sorted(p.name for p in (params_dir / 'params').iterdir())
+    assert files == ['curve_server.yaml', 'fake_arena.yaml'] + [
+        f'robot_{i}.formation_controller.yaml' for i in range(1, 10)]
+    scripts = sorted(p.name for p in params_dir.glob('start_*.sh'))
+    assert scripts == ['start_all.sh', 'start_controllers.sh', 'start_curve_server.sh',
+                       'start_robots.sh']
+    assert all(os.access(params_dir / s, os.X_OK) for s in scripts)
+    text = (params_dir / 'start_controllers.sh').read_text()
+    for i in range(1, 10):
+        assert (f'ros2 run curve_formation formation_controller --ros-args -r __ns:=/robot_{i}'
+                f' --params-file "$HERE/params/robot_{i}.formation_controller.yaml" &') in text
+    assert 'export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-0}"' in text
+    every = (params_dir / 'start_all.sh').read_text()
+    assert every.index('formation_controller') < every.index('curve_server --ros-args')
+    assert subprocess.run(['bash', '-n', str(params_dir / 'start_all.sh')]).returncode == 0
+    server = yaml.safe_load((params_dir / 'params' / 'curve_server.yaml').read_text())
+    # nobody measures a graph started by hand: the server waits for the 9 controllers only
+    assert server['/**/curve_server']['ros__parameters']['wait_for_ready'] == 9
+
+
+def test_a_generated_file_applies_under_the_namespace_the_user_chooses(params_dir, ros):
+    from curve_formation.nodes.formation_controller import FormationController
+    context, add, _ = ros
+    path = params_dir / 'params' / 'robot_3.formation_controller.yaml'
+    node = add(FormationController(context=context, cli_args=[
+        '--ros-args', '-r', '__ns:=/mona_3', '--params-file', str(path)]))
+    assert node.get_fully_qualified_name() == '/mona_3/formation_controller'
+    assert node.params.index == 3 and node.params.agent_count == 9
+
+
+def test_params_with_an_observer_waits_for_it_and_measures(tmp_path):
+    proc = subprocess.run([sys.executable, '-m', 'curve_formation.cli', 'params', 'arena_demo',
+                           '--out', str(tmp_path), '--observer'],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    server = yaml.safe_load((tmp_path / 'params' / 'curve_server.yaml').read_text())
+    assert server['/**/curve_server']['ros__parameters']['wait_for_ready'] == 10
+    observer = (tmp_path / 'start_observer.sh').read_text()
+    assert (f'ros2 run curve_formation curve-formation run {ARENA_DEMO} --only observer '
+            '--out "$HERE/run" &') in observer
+    assert 'the observer ends the run' in (tmp_path / 'start_all.sh').read_text()
+
