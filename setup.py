@@ -26,6 +26,7 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml', 'LICENSE']),
         ('share/' + PACKAGE + '/config', glob('config/*.yaml')),
+        ('share/' + PACKAGE + '/launch', glob('launch/*.launch.py')),
     ],
     # What `sim`, `run --bag`, `analyze` and the nodes need at run time (requirements.txt
     # pins the ROS 2 wheels and the test tools; package.xml names the same with rosdep keys).

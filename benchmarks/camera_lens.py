@@ -49,7 +49,7 @@ def experiment_text(intrinsics, predict):
 
 
 def run(config, out, camera):
-    args = ['run', str(config), '--out', str(out), '--duration', '70']
+    args = ['run', str(config), '--out', str(out), '--duration', '70', '--isolated']
     assert cli(args + (['--camera'] if camera else [])) == 0
     return json.loads((Path(out) / 'metrics.json').read_text())
 

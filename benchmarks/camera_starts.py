@@ -41,7 +41,7 @@ def reseeded(name, seed):
 
 def camera_run(config, out):
     """metrics.json of `curve-formation run config --camera`."""
-    assert cli(['run', str(config), '--out', str(out), '--camera']) == 0
+    assert cli(['run', str(config), '--out', str(out), '--camera', '--isolated']) == 0
     return json.loads((Path(out) / 'metrics.json').read_text())
 
 

@@ -50,7 +50,7 @@ def cli(run, state):
 
 def measure(single, tries, folder):
     zero_times = {i: [] for i in range(1, ROBOTS + 1)}   # DDS source times of zero commands
-    options = RunOptions(single_process=single)
+    options = RunOptions(single_process=single, isolated=True)
     rows = []
     with Run(resolve_config('arena_demo'), folder, options, log=lambda *_: None) as run:
         node = Node('estop_bench', context=run.observers.context)

@@ -80,7 +80,8 @@ def measure(n, single_process, seconds, folder, avoidance=False):
     path = experiment_file(n, folder, avoidance)
     out = Path(folder) / f'run_{n}_{"single" if single_process else "multi"}'
     with quiet_stderr(Path(folder) / f'nodes_{n}.log'), \
-            Run(path, out, RunOptions(single_process=single_process), log=lambda *_: None) as run:
+            Run(path, out, RunOptions(single_process=single_process, isolated=True),
+                log=lambda *_: None) as run:
         run.spin_for(2.0)   # let every controller start driving
         monitor = run.monitor
         for lst in monitor.command_arrivals + monitor.tick_latencies:

@@ -26,7 +26,7 @@ def quiet(*_):
 
 def measure(experiment, duration, link, folder):
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    options = RunOptions(bridge=None if link == 'fake' else link)
+    options = RunOptions(bridge=None if link == 'fake' else link, isolated=True)
     return run_experiment(experiment, Path(folder) / link, duration, options, log=quiet)
 
 

@@ -321,8 +321,8 @@ def _mcap_records(mcap_files):
         from mcap.records import Channel, Message, Schema
         from mcap.stream_reader import StreamReader
     except ImportError:
-        raise BagError('repairing an MCAP bag needs the `mcap` package (pip install mcap)'
-                       ) from None
+        raise BagError('repairing an MCAP bag needs the `mcap` package (pip install mcap; '
+                       'rosdep has no key for it)') from None
     topics, records = {}, []
     for path in mcap_files:
         schemas, channels = {}, {}

@@ -171,19 +171,13 @@ def _cmd_run(args):
 
 
 def _cmd_params(args):
-    from curve_formation.core.experiment import load_experiment
-    from curve_formation.launches import node_launches
     from curve_formation.paths import resolve_config
-    from curve_formation.run_options import RunOptions
-    from curve_formation.start_scripts import write_node_files
+    from curve_formation.start_scripts import graph_launches, write_node_files
     path = resolve_config(args.config)
-    experiment = load_experiment(path)
     out = _output_folder(args.out, args.force)
     observed = args.observer or args.bag is not None
-    options = RunOptions(with_robots=not args.no_sim, rate_hz=args.rate,
-                         camera={} if args.camera else None, bridge=args.bridge,
-                         bag_path=args.bag)
-    launches = node_launches(experiment, path, options, out / 'links', observed=observed)
+    experiment, launches = graph_launches(path, out, not args.no_sim, args.camera, args.bridge,
+                                          args.rate, args.bag, observed)
     run_args = None
     if observed:
         run_args = [str(path)] + (['--rate', f'{args.rate:g}'] if args.rate else []) \

@@ -12,6 +12,7 @@ started again by hand. Each script:
   start_all.sh with an observer also stops them when the observer has measured the run.
 """
 
+from dataclasses import dataclass
 from pathlib import Path
 import shlex
 
@@ -95,3 +96,46 @@ def write_node_files(launches, folder, experiment_name, run_args=None):
         path.chmod(0o755)
         written.append(path)
     return params, written
+
+
+@dataclass(frozen=True)
+class NodeStart:
+    """One node as a launch file starts it: `ros2 run curve_formation <executable>` in
+    `namespace` with its parameters file.
+    """
+
+    executable: str
+    namespace: str
+    name: str
+    params_file: Path
+
+
+def graph_launches(experiment_path, folder, with_robots=True, camera=False, bridge=None,
+                   rate_hz=None, bag_path=None, observed=False):
+    """(Experiment, [NodeLaunch]) of an experiment file's graph for `params` and the launch
+    file, as `run` builds it (launches.node_launches; a bridge's links in folder/links).
+    observed: a `curve-formation run --only observer` (with bag_path, its recorder too) will
+    measure the run, and the curve server waits for it.
+    """
+    from curve_formation.core.experiment import load_experiment
+    from curve_formation.launches import node_launches
+    from curve_formation.run_options import RunOptions
+    experiment = load_experiment(experiment_path)
+    options = RunOptions(with_robots=with_robots, camera={} if camera else None,
+                         bridge=bridge, rate_hz=rate_hz, bag_path=bag_path)
+    return experiment, node_launches(experiment, experiment_path, options,
+                                      Path(folder) / 'links', observed=observed)
+
+
+def graph_starts(experiment, folder, **graph):
+    """The nodes of an experiment's graph (a path or shipped name) as
+    launch/formation.launch.py starts them, curve server last, their parameters files written
+    into folder/params; graph: graph_launches's options.
+    """
+    from curve_formation.paths import resolve_config
+    _, launches = graph_launches(resolve_config(experiment), folder, **graph)
+    params = write_params_files(launches, Path(folder) / 'params')
+    server = [launch for launch in launches if part_of(launch.module) == 'curve_server']
+    return [NodeStart(executable(launch.module), launch.namespace, launch.name,
+                      params[launch.key])
+            for launch in [launch for launch in launches if launch not in server] + server]

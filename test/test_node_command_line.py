@@ -159,3 +159,68 @@ def test_params_with_an_observer_waits_for_it_and_measures(tmp_path):
             '--out "$HERE/run" &') in observer
     assert 'the observer ends the run' in (tmp_path / 'start_all.sh').read_text()
 
+
+
+class Recorded:
+    """Stands in for a launch action or substitution: keeps what it was built with."""
+
+    def __init__(self, *args, **kwargs):
+        self.args, self.kwargs = args, kwargs
+
+
+class LaunchConfiguration(Recorded):
+    def perform(self, context):
+        return context[self.args[0]]
+
+
+@pytest.fixture
+def launch_file(monkeypatch):
+    """launch/formation.launch.py loaded over stand-ins for `launch` and `launch_ros` (not
+    installable here): what it builds, not `ros2 launch` itself, is tested.
+    """
+    import runpy
+    import types
+    names = {'launch': ['LaunchDescription'],
+             'launch.actions': ['DeclareLaunchArgument', 'ExecuteProcess', 'OpaqueFunction'],
+             'launch.substitutions': [], 'launch_ros.actions': ['Node'],
+             'launch_ros.substitutions': ['ExecutableInPackage']}
+    for module, classes in names.items():
+        fake = types.ModuleType(module)
+        for name in classes:
+            setattr(fake, name, type(name, (Recorded,), {}))
+        monkeypatch.setitem(sys.modules, module, fake)
+    sys.modules['launch.substitutions'].LaunchConfiguration = LaunchConfiguration
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    return runpy.run_path(os.path.join(root, 'launch', 'formation.launch.py'))
+
+
+def launched(launch_file, **arguments):
+    description = launch_file['generate_launch_description']()
+    (actions,) = description.args
+    declared = {a.kwargs['name'] if 'name' in a.kwargs else a.args[0]: a.kwargs['default_value']
+                for a in actions if type(a).__name__ == 'DeclareLaunchArgument'}
+    (opaque,) = [a for a in actions if type(a).__name__ == 'OpaqueFunction']
+    return opaque.kwargs['function']({**declared, **arguments})
+
+
+def test_the_launch_file_starts_the_graph_params_writes(launch_file, params_dir, tmp_path):
+    actions = launched(launch_file, experiment='arena_demo', out=str(tmp_path))
+    nodes = [(a.kwargs['executable'], a.kwargs['namespace']) for a in actions]
+    script = (params_dir / 'start_all.sh').read_text()
+    lines = [line for line in script.splitlines() if line.startswith('ros2 run')]
+    assert [(line.split()[3], line.split()[6].removeprefix('__ns:=')) for line in lines] == nodes
+    for action in actions:
+        (params_file,) = action.kwargs['parameters']
+        assert (tmp_path / 'params').samefile(os.path.dirname(params_file))
+        key = os.path.basename(params_file)
+        assert (tmp_path / 'params' / key).read_text() == (params_dir / 'params' / key).read_text()
+
+
+def test_the_launch_file_with_an_observer_measures_the_run(launch_file, tmp_path):
+    actions = launched(launch_file, experiment='arena_demo', out=str(tmp_path), observer='true',
+                       sim='false')
+    command = actions[0].kwargs['cmd']
+    assert command[1:] == ['run', 'arena_demo', '--only', 'observer', '--out',
+                           str(tmp_path / 'run'), '--force', '--no-sim']
+    assert command[0].args == ('curve-formation', 'curve_formation')
+    assert not any(a.kwargs.get('executable') == 'fake_arena' for a in actions[1:])

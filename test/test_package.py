@@ -62,6 +62,17 @@ def install_requires():
     raise AssertionError('setup.py has no install_requires')
 
 
+def test_package_xml_states_the_versions_the_code_needs_and_every_test_dependency():
+    root = ET.parse(ROOT / 'package.xml').getroot()
+    versions = {e.text: e.get('version_gte') for e in root.findall('exec_depend')}
+    assert versions['python3-pydantic'] == '2.0' and versions['python3-opencv'] == '4.7'
+    assert all(versions[key] for _, key in RUNTIME.values() if key is not None)
+    tests = {e.text for e in root.findall('test_depend')}
+    assert tests == {'python3-pytest', 'python3-pytest-timeout', 'python3-hypothesis'}
+    config = (ROOT / 'pyproject.toml').read_text()
+    assert '--timeout=' in config   # what pytest-timeout is there for
+
+
 def test_every_runtime_dependency_is_declared_for_pip_and_rosdep():
     imported = imported_modules()
     assert imported <= set(RUNTIME) | ROS, imported - set(RUNTIME) - ROS
