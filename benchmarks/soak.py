@@ -45,16 +45,18 @@ def process_tree(root):
 
 def label(pid, root):
     if pid == root:
-        return 'runner'
+        return 'runner'   # the monitor and the recorder, and the results at the end
     try:
         argv = (Path('/proc') / str(pid) / 'cmdline').read_bytes().split(b'\0')
     except OSError:
         return str(pid)
     words = [a.decode(errors='replace') for a in argv if a]
-    name = next((Path(w).name for w in words if 'curve_formation' in w or '/bin/' in w),
-                words[0] if words else str(pid))
+    if '-m' in words[:-1]:   # python -m curve_formation.nodes.<node>
+        name = words[words.index('-m') + 1].rsplit('.', 1)[-1]
+    else:
+        name = Path(words[0]).name if words else str(pid)
     namespace = next((w.split(':=', 1)[1] for w in words if w.startswith('__ns:=')), '')
-    return f'{namespace}/{name}'.lstrip('/')
+    return f'{namespace}/{name}'.strip('/') + f' ({pid})'
 
 
 def rss_mb(pid):

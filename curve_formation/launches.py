@@ -67,6 +67,8 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None,
     launches = [NodeLaunch('curve_formation.nodes.curve_server', '/', 'curve_server',
                            {'experiment': str(Path(experiment_path).resolve()),
                             'wait_for_ready': experiment.n + len(cameras) + observers,
+                            # every robot's pose first, as the runner waits (by hand, nobody does)
+                            'wait_for_poses': True,
                             # a drawn curve comes from the camera, not from the schedule
                             'schedule': not (cameras and spec.camera.drawn_curve is not None)})]
     for i, config in enumerate(agent_configs(experiment, rate), 1):

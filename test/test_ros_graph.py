@@ -181,8 +181,10 @@ def test_a_start_that_times_out_stops_the_nodes_it_started(tmp_path, ros_domain,
     popen = subprocess.Popen
 
     def recording_popen(*args, **kwargs):
-        started.append(popen(*args, **kwargs))
-        return started[-1]
+        proc = popen(*args, **kwargs)
+        if 'curve_formation.nodes' in ' '.join(map(str, args[0])):   # a node, not git
+            started.append(proc)
+        return proc
     monkeypatch.setattr(node_graph.subprocess, 'Popen', recording_popen)
     with pytest.raises(TimeoutError, match='pose'):
         with Run(DATA_DIR / 'fast_closed.yaml', tmp_path, RunOptions(with_robots=False),

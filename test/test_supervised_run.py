@@ -89,7 +89,7 @@ def test_an_unexpected_error_in_the_runner_still_writes_what_was_measured(ros_do
     from curve_formation.runner import Run, run_experiment
     spin_for = Run.spin_for
 
-    def fails_later(run, seconds):
+    def fails_later(run, seconds, status_every=None):
         spin_for(run, 3.0)
         raise RuntimeError('a fault of the runner')
     monkeypatch.setattr(Run, 'spin_for', fails_later)

@@ -65,7 +65,7 @@ PARAMETERS = (
           'have said on /formation/ready that they receive /formation/curve from this server, '
           'and its publisher has matched as many subscriptions, so all robots start together '
           '(readiness.py)', low=0),
-    Param('wait_for_poses', 'bool', True, "start the schedule only once every robot's pose "
+    Param('wait_for_poses', 'bool', False, "start the schedule only once every robot's pose "
           '(/robot_<i>/pose) has been received, so that t = 0 is not spent waiting for a '
           'robot (a graph started by hand; the runner waits for them itself)'),
     Param('refresh_period', 'double', 1.0, 'the current curve is published again (same id, '

@@ -112,16 +112,17 @@ def run_node(node_factory, args=None, large_data=False):
     converted) would come out as a RuntimeError, not as an interrupt.
     """
     module = inspect.getmodule(node_factory)
-    argv = sys.argv if args is None else args
-    command_line = parse(argv, module.NODE_NAME)
-    if command_line.help:
-        print(help_text(module.NODE_NAME, module))
-        return 0
-    try:
-        check_params_files(command_line)
-    except ParameterError as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        return 2
+    name = getattr(module, 'NODE_NAME', None)   # a node module's (its console script's)
+    if name is not None:
+        command_line = parse(sys.argv if args is None else args, name)
+        if command_line.help:
+            print(help_text(name, module))
+            return 0
+        try:
+            check_params_files(command_line)
+        except ParameterError as exc:
+            print(f'error: {exc}', file=sys.stderr)
+            return 2
     use_dds_profile(large_data=large_data)   # before the first ROS context; see paths
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop = threading.Event()
