@@ -25,11 +25,11 @@ class SampleLog:
     """
 
     def __init__(self, fields, directory=None, block_rows=BLOCK_ROWS):
+        self._remove: weakref.finalize | None = None
         if directory is None:
             directory = tempfile.mkdtemp(prefix='curve_formation-samples-')
             self._remove = weakref.finalize(self, shutil.rmtree, directory, ignore_errors=True)
         else:
-            self._remove = None
             Path(directory).mkdir(parents=True, exist_ok=True)
         self.directory = Path(directory)
         self.fields = {name: (tuple(shape), np.dtype(dtype))
