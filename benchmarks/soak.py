@@ -2,18 +2,17 @@
 
 Run: scripts/bench soak [--minutes 30] [--experiment arena_demo] [--every 60] [--bag]
 
-Starts `curve-formation run EXPERIMENT --duration MINUTES*60` as a user would (a new process,
-one process per node, a private domain) and reads /proc every `every` s: the RSS (MB) of the
+Starts `curve-formation run EXPERIMENT --isolated --duration MINUTES*60` as a user would (a
+new process, one process per node, a private domain) and reads /proc every `every` s: the RSS (MB) of the
 runner and of each node process it started. Printed: one row per reading, then per process
 its RSS after the first `--warm-up` s and at the end and the difference. Goal (issue #38): the
 runner flat within 20 MB over 30 minutes; the nodes flat too. With --bag the run records its
-bag (about 440 MB an hour), as `scripts/demo` does; without, only the monitor's samples grow.
+bag (about 440 MB an hour), as `scripts/demo` does. test/test_soak.py runs it behind -m slow.
 """
 
 import argparse
 import os
 from pathlib import Path
-import random
 import subprocess
 import sys
 import tempfile
@@ -67,6 +66,52 @@ def rss_mb(pid):
     return pages * PAGE / 2 ** 20
 
 
+def measure(minutes, experiment='arena_demo', every=60.0, warm_up=60.0, bag=False,
+            log=print):
+    """Run the experiment `minutes` long as `curve-formation run --isolated` and read every
+    process's RSS every `every` s. Returns (exit status, {process: growth MB from the first
+    reading after warm_up s to the last}, output folder).
+    """
+    out = Path(tempfile.mkdtemp(prefix='soak-'))
+    command = [sys.executable, '-m', 'curve_formation.cli', 'run', experiment, '--isolated',
+               '--duration', f'{minutes * 60:g}', '--out', str(out / 'run')]
+    if bag:
+        command += ['--bag', str(out / 'bag')]
+    log(f'{" ".join(command[2:])}  (outputs in {out})')
+    with open(out / 'run.log', 'w') as run_log:
+        runner = subprocess.Popen(command, stdout=run_log, stderr=subprocess.STDOUT)
+        start = time.monotonic()
+        readings = {}    # label -> [(t s, RSS MB)]
+        try:
+            while runner.poll() is None:
+                t = time.monotonic() - start
+                row = {}
+                for pid, name in process_tree(runner.pid).items():
+                    mb = rss_mb(pid)
+                    if mb is not None:
+                        readings.setdefault(name, []).append((t, mb))
+                        row[name] = mb
+                nodes = sum(mb for name, mb in row.items() if name != 'runner')
+                log(f't {t / 60:6.1f} min  runner {row.get("runner", float("nan")):7.1f} MB  '
+                    f'{len(row) - 1} node processes {nodes:8.1f} MB')
+                deadline = time.monotonic() + every
+                while runner.poll() is None and time.monotonic() < deadline:
+                    time.sleep(0.5)
+        finally:
+            if runner.poll() is None:
+                runner.terminate()
+            runner.wait()
+    log(f'run exited {runner.returncode}; log {out / "run.log"}')
+    log(f'\n{"process":40s} {"after warm-up":>14s} {"end":>8s} {"growth":>8s}  MB')
+    growth = {}
+    for name, series in sorted(readings.items()):
+        warm = [mb for t, mb in series if t >= warm_up]
+        if len(warm) >= 2:
+            growth[name] = warm[-1] - warm[0]
+            log(f'{name:40s} {warm[0]:14.1f} {warm[-1]:8.1f} {growth[name]:+8.1f}')
+    return runner.returncode, growth, out
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--minutes', type=float, default=30.0)
@@ -76,57 +121,15 @@ def main():
                         help='seconds after the start from which growth is measured')
     parser.add_argument('--bag', action='store_true', help="record the run's bag as well")
     args = parser.parse_args()
-    out = Path(tempfile.mkdtemp(prefix='soak-'))
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(120, 200)),
-               ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
-    command = [sys.executable, '-m', 'curve_formation.cli', 'run', args.experiment,
-               '--duration', f'{args.minutes * 60:g}', '--out', str(out / 'run')]
-    if args.bag:
-        command += ['--bag', str(out / 'bag')]
-    print(f'{" ".join(command[2:])}  (ROS_DOMAIN_ID={env["ROS_DOMAIN_ID"]}, outputs in {out})')
-    log = open(out / 'run.log', 'w')
-    runner = subprocess.Popen(command, env=env, stdout=log, stderr=subprocess.STDOUT)
-    start = time.monotonic()
-    readings = {}    # label -> [(t s, RSS MB)]
-    try:
-        while runner.poll() is None:
-            t = time.monotonic() - start
-            row = {}
-            for pid, name in process_tree(runner.pid).items():
-                mb = rss_mb(pid)
-                if mb is not None:
-                    readings.setdefault(name, []).append((t, mb))
-                    row[name] = mb
-            nodes = sum(mb for name, mb in row.items() if name != 'runner')
-            print(f't {t / 60:6.1f} min  runner {row.get("runner", float("nan")):7.1f} MB  '
-                  f'{len(row) - 1} node processes {nodes:8.1f} MB', flush=True)
-            deadline = time.monotonic() + args.every
-            while runner.poll() is None and time.monotonic() < deadline:
-                time.sleep(0.5)
-    finally:
-        if runner.poll() is None:
-            runner.terminate()
-        runner.wait()
-        log.close()
-    print(f'run exited {runner.returncode}; log {out / "run.log"}')
-    print(f'\n{"process":40s} {"after warm-up":>14s} {"end":>8s} {"growth":>8s}  MB')
-    worst_node = 0.0
-    for name, series in sorted(readings.items()):
-        warm = [mb for t, mb in series if t >= args.warm_up]
-        if len(warm) < 2:
-            continue
-        growth = warm[-1] - warm[0]
-        if name != 'runner':
-            worst_node = max(worst_node, growth)
-        print(f'{name:40s} {warm[0]:14.1f} {warm[-1]:8.1f} {growth:+8.1f}')
-    runner_series = [mb for t, mb in readings.get('runner', []) if t >= args.warm_up]
-    if len(runner_series) >= 2:
-        growth = runner_series[-1] - runner_series[0]
-        print(f'\nrunner growth {growth:+.1f} MB over {args.minutes:g} min '
-              f'(goal: within {GOAL_MB:g} MB over 30 min: '
-              f'{"met" if abs(growth) <= GOAL_MB else "NOT met"}); '
-              f'largest node growth {worst_node:+.1f} MB')
-    return runner.returncode
+    status, growth, _ = measure(args.minutes, args.experiment, args.every, args.warm_up,
+                                args.bag, log=lambda line: print(line, flush=True))
+    runner = growth.get('runner')
+    nodes = max((g for name, g in growth.items() if name != 'runner'), default=0.0)
+    if runner is not None:
+        print(f'\nrunner growth {runner:+.1f} MB over {args.minutes:g} min (goal: within '
+              f'{GOAL_MB:g} MB over 30 min: {"met" if abs(runner) <= GOAL_MB else "NOT met"}); '
+              f'largest node growth {nodes:+.1f} MB')
+    return status
 
 
 if __name__ == '__main__':

@@ -28,6 +28,10 @@ def error_norms(run, data, key):
     return metrics.error_norm(metrics.target_errors(data[key], phase, run.experiment))
 
 
+# About a minute: slow, so that the default run stays under 10 minutes (the camera nodes are
+# tested one by one in test_camera_nodes.py, a robot whose pose goes stale stops in
+# test_agent.py; the closed loop through the camera runs in `-m slow` with this test).
+@pytest.mark.slow
 def test_closed_loop_through_the_camera_converges_and_a_covered_marker_stops_its_robot(
         ros_domain, tmp_path):
     """The loop converges as the simulator predicts, although robot 9's marker is covered

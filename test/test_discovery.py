@@ -201,26 +201,3 @@ def test_a_second_formation_on_a_domain_is_refused(ros, tmp_path):
         if real:   # no controller of real robots started before the domain was looked at
             assert not list((out / 'logs').glob('*formation_controller*'))
 
-
-@pytest.mark.ros
-def test_a_run_waiting_for_real_robots_says_what_is_missing_and_where(ros_domain, tmp_path,
-                                                                        monkeypatch):
-    """`run --no-sim` with no robot on the domain: a line every few seconds naming the
-    missing poses, the domain and discovery range and what to check; then the same on timeout.
-    """
-    from curve_formation import runner
-    from curve_formation.run_options import RunOptions
-    monkeypatch.setattr(runner, 'READY_TIMEOUT', 5.0)
-    monkeypatch.setattr(runner, 'STATUS_PERIOD', 2.0)
-    monkeypatch.setattr(runner, 'FORMATION_CHECK', 0.5)
-    lines = []
-    # no controllers either (they would only add more missing topics)
-    options = RunOptions(with_robots=False, only=frozenset({'curve_server', 'observer'}))
-    with pytest.raises(TimeoutError) as failed:
-        with runner.Run(DATA_DIR / 'fast_closed.yaml', tmp_path, options, log=lines.append):
-            pass
-    where = f'ROS_DOMAIN_ID={ros_domain}, discovery LOCALHOST'
-    waiting = [line for line in lines if line.startswith('waiting for /robot_1/pose')]
-    assert len(waiting) >= 2, lines
-    assert all(where in line and "robots' drivers" in line for line in waiting)
-    assert '/robot_6/pose' in str(failed.value) and where in str(failed.value)

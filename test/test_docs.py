@@ -40,7 +40,8 @@ def test_nodes_create_the_documented_topics(ros_domain, name, module):
     rclpy.init(context=context)
     params = {'formation_controller': dict(index=2, agent_count=3, in_neighbours=[1],
                                            avoidance=True),
-              'curve_server': dict(experiment='arena_demo'),   # re-assigns: robot poses
+              # re-assigns: robot poses; waits for each robot's pose
+              'curve_server': dict(experiment='arena_demo', wait_for_poses=True),
               'fake_robot': {},
               'fake_arena': dict(experiment='arena_demo'),
               'camera_tracker': dict(experiment='arena_demo'),

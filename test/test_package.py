@@ -130,13 +130,19 @@ def test_colcon_installs_every_node_and_the_index_entry(colcon_install):
         assert os.access(find_executable(colcon_install, node), os.X_OK), node
 
 
-def test_installed_command_runs_a_shipped_experiment(colcon_install, tmp_path):
+def test_installed_command_checks_a_shipped_experiment(colcon_install, tmp_path):
+    """The installed command finds a shipped experiment (share/curve_formation/config) and
+    builds it: fit, graph, Theorem 1 (a `sim` would add only the compiled simulator's first
+    compilation in the new install, ~20 s; `sim` of the sources is tested in test_cli.py).
+    """
     exe = find_executable(colcon_install, 'curve-formation')
-    proc = subprocess.run([str(exe), 'sim', 'open_curve', '--out', str(tmp_path)],
+    proc = subprocess.run([str(exe), 'check', 'open_curve', '--json'],
                           env=installed_env(colcon_install), capture_output=True, text=True,
                           timeout=300, cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
-    assert json.loads((tmp_path / 'metrics.json').read_text())['experiment'] == 'open_curve'
+    report = json.loads(proc.stdout)
+    assert report['experiment'] == 'open_curve', report
+    assert str(colcon_install) in report['source'], report   # the installed copy
 
 
 @pytest.mark.ros

@@ -172,11 +172,16 @@ def test_runner_writes_params_metrics_and_figures_single_process(ros_domain, tmp
 
 
 def test_a_start_that_times_out_stops_the_nodes_it_started(tmp_path, ros_domain, monkeypatch):
-    """--no-sim without robots: no pose ever comes, the start times out, nothing lingers."""
+    """--no-sim without robots: no pose ever comes; while it waits, a line every few seconds
+    names the missing poses, the domain and discovery range and what to check; the start
+    times out saying the same, and nothing lingers.
+    """
     import subprocess
 
     from curve_formation import node_graph, runner
     monkeypatch.setattr(runner, 'READY_TIMEOUT', 8.0)
+    monkeypatch.setattr(runner, 'STATUS_PERIOD', 3.0)
+    monkeypatch.setattr(runner, 'FORMATION_CHECK', 0.5)
     started = []
     popen = subprocess.Popen
 
@@ -186,12 +191,18 @@ def test_a_start_that_times_out_stops_the_nodes_it_started(tmp_path, ros_domain,
             started.append(proc)
         return proc
     monkeypatch.setattr(node_graph.subprocess, 'Popen', recording_popen)
-    with pytest.raises(TimeoutError, match='pose'):
+    lines = []
+    with pytest.raises(TimeoutError, match='pose') as failed:
         with Run(DATA_DIR / 'fast_closed.yaml', tmp_path, RunOptions(with_robots=False),
-                 log=quiet):
+                 log=lines.append):
             pass
     assert len(started) == 6   # the controllers; the curve server was never reached
     assert all(proc.poll() is not None for proc in started)
+    where = f'ROS_DOMAIN_ID={ros_domain}, discovery LOCALHOST'
+    waiting = [line for line in lines if line.startswith('waiting for /robot_1/pose')]
+    assert len(waiting) >= 2, lines
+    assert all(where in line and "robots' drivers" in line for line in waiting)
+    assert '/robot_6/pose' in str(failed.value) and where in str(failed.value)
 
 
 # Over UDP bridges: 40 s, slow so that the default run stays under 10 min; the default run
