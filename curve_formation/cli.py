@@ -19,7 +19,7 @@ import numpy as np
 
 from curve_formation.bag import BagError, DEFAULT_STORAGE, STORAGES
 from curve_formation.core.aruco import MARKER_IDS
-from curve_formation.core.experiment import ConfigError, load_experiment
+from curve_formation.core.experiment import check_rate_override, ConfigError, load_experiment
 from curve_formation.paths import resolve_config, use_dds_profile
 from curve_formation.provenance import command_line
 
@@ -41,6 +41,8 @@ def simulate_to_dir(config, out_dir, rate='config', law=None, heading=None):
 
     path = resolve_config(config)
     experiment = load_experiment(path)
+    if rate not in ('config', None):
+        check_rate_override(experiment, rate)
     _warn(experiment)
     gains = experiment.gains
     if law is not None:

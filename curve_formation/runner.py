@@ -23,7 +23,11 @@ from rclpy.serialization import serialize_message
 from curve_formation.analysis import bag_accounting, RUN_END_KEY
 from curve_formation.bag import BagWriter
 from curve_formation.core import metrics, plots
-from curve_formation.core.experiment import control_rate, load_experiment
+from curve_formation.core.experiment import (
+    check_rate_override,
+    control_rate,
+    load_experiment,
+)
 from curve_formation.launches import node_launches, part_of
 from curve_formation.node_graph import NodeGraph
 from curve_formation.nodes.runtime import now_seconds
@@ -92,6 +96,8 @@ class Run:
         if options.agents and max(options.agents) > self.experiment.n:
             raise ValueError(f'--agents: agent {max(options.agents)} is not in 1..'
                              f'{self.experiment.n} ({self.experiment.name})')
+        if options.rate_hz:
+            check_rate_override(self.experiment, options.rate_hz)
         self.rate_hz = control_rate(self.experiment, options.rate_hz)
         self.launches = node_launches(self.experiment, self.experiment_path, options,
                                       self.out / 'links')

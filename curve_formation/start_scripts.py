@@ -117,10 +117,12 @@ def graph_launches(experiment_path, folder, with_robots=True, camera=False, brid
     observed: a `curve-formation run --only observer` (with bag_path, its recorder too) will
     measure the run, and the curve server waits for it.
     """
-    from curve_formation.core.experiment import load_experiment
+    from curve_formation.core.experiment import check_rate_override, load_experiment
     from curve_formation.launches import node_launches
     from curve_formation.run_options import RunOptions
     experiment = load_experiment(experiment_path)
+    if rate_hz:
+        check_rate_override(experiment, rate_hz)
     options = RunOptions(with_robots=with_robots, camera={} if camera else None,
                          bridge=bridge, rate_hz=rate_hz, bag_path=bag_path)
     return experiment, node_launches(experiment, experiment_path, options,

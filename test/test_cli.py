@@ -49,6 +49,17 @@ def test_an_output_folder_that_holds_something_is_refused_unless_forced(tmp_path
     assert (out / 'metrics.json').stat().st_mtime_ns > before
 
 
+def test_a_rate_given_on_the_command_line_passes_the_files_checks(tmp_path, capsys):
+    """arena_demo's finite-time tail refuses 5 Hz in the file; so it does from --rate."""
+    for command in (['sim', 'arena_demo', '--rate', '5'], ['run', 'arena_demo', '--rate', '5'],
+                    ['params', 'arena_demo', '--rate', '5']):
+        assert main([*command, '--out', str(tmp_path / command[0])]) == 2
+        err = capsys.readouterr().err
+        assert 'arena_demo.yaml: controller: with --rate 5: ' in err, err
+        assert 'must stay below rate_hz 5' in err
+    assert main(['sim', 'arena_demo', '--rate', '20', '--out', str(tmp_path / 'ok')]) == 0
+
+
 def test_sim_rate_option_switches_to_zero_order_hold(tmp_path):
     assert main(['sim', 'open_curve', '--rate', '20', '--out', str(tmp_path)]) == 0
     assert json.loads((tmp_path / 'metrics.json').read_text())['control'] == (

@@ -167,6 +167,23 @@ def control_rate(experiment: Experiment, rate_hz: float | None = None) -> float:
     return float(rate_hz or experiment.spec.controller.rate_hz or DEFAULT_RATE_HZ)
 
 
+def check_rate_override(experiment: Experiment, rate_hz: float, option: str = '--rate'
+                        ) -> None:
+    """ConfigError unless the file's controller section passes its checks at rate_hz (Hz), as
+    it would with that rate in the file (e.g. the finite-time tail's gain below the rate): a
+    command-line override is held to the file's rules.
+    """
+    controller = experiment.spec.controller
+    try:
+        ControllerSpec.model_validate({**controller.model_dump(exclude_unset=True),
+                                       'rate_hz': rate_hz})
+    except ValidationError as exc:
+        key, problem = validation_problem(exc)
+        where = 'controller' if key == '(top level)' else f'controller.{key}'
+        raise ConfigError(experiment.source, where,
+                          f'with {option} {rate_hz:g}: {problem}') from None
+
+
 def _format_location(loc: Sequence[int | str]) -> str:
     parts = []
     for item in loc:
