@@ -275,7 +275,9 @@ class Run:
 
     def status(self):
         """One line on the run now (None before t = 0): t, phase, error norm against the
-        tolerance, the worst robot's error (mm) and how many robots drive, stand or are held.
+        tolerance, the worst robot's error (mm), how many robots drive (a non-zero command) or
+        stand (or that the e-stop holds them all), and how many are at their targets: within
+        tolerance / sqrt(n) (all of them so is the formation within its tolerance).
         """
         monitor = self.monitor
         phases = monitor.followed_phases()
@@ -291,14 +293,16 @@ class Run:
         tolerance = self.experiment.spec.metrics.tolerance * phases[k].curve.size()
         worst = np.nanmax(np.linalg.norm(errors, axis=1)) if np.isfinite(errors).any() \
             else math.nan
-        speeds = np.abs(monitor.commands).max(axis=1)
-        driving = int(np.sum(speeds > 0))
+        n = self.experiment.n
+        driving = int(np.sum(np.abs(monitor.commands).max(axis=1) > 0))
         held = self.monitor.estop_intervals(t)
-        stopped = 'e-stop ENGAGED' if held and held[-1][1] is None else \
-            f'{driving} driving, {self.experiment.n - driving} standing'
+        moving = ('all held by the e-stop' if held and held[-1][1] is None
+                  else f'{driving} driving, {n - driving} standing')
+        at_target = int(np.sum(np.linalg.norm(errors, axis=1) < tolerance / math.sqrt(n)))
         settled = 'within' if norm < tolerance else 'above'
         return (f't {t:6.1f} s  phase {k}  error {norm:.3g} ({settled} tolerance '
-                f'{tolerance:.3g})  worst robot {1e3 * worst:.1f} mm  robots: {stopped}')
+                f'{tolerance:.3g})  worst robot {1e3 * worst:.1f} mm  robots: {moving}, '
+                f'{at_target} at their targets')
 
     def spin_until(self, predicate, timeout, what='a condition'):
         """Spin the monitor (and in-process nodes) until predicate() or timeout (s).

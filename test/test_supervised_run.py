@@ -69,7 +69,7 @@ def test_a_controller_killed_hard_leaves_metrics_a_bag_and_an_exit_status_naming
     assert result['phases'][0]['not_settled_because'].startswith(
         'node robot_3.formation_controller died at t = ')
     assert (out / 'paths.png').exists() and result['bag']['messages'] > 1000
-    assert 'phase 0  error ' in stdout and 'robots: ' in stdout   # status every 5 s
+    assert 'phase 0  error ' in stdout and ' at their targets' in stdout   # status every 5 s
     assert result['provenance']['experiment_file'] == str(DATA_DIR / 'fast_closed.yaml')
     # Under LOCALHOST discovery every participant has Fast DDS shared memory: the run removed
     # what its dead node left there (a file no live process holds).
