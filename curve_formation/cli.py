@@ -146,9 +146,7 @@ def _cmd_demo(args):
 def _cmd_run(args):
     from curve_formation.run_options import RunOptions
     from curve_formation.runner import run_experiment
-    if args.bridge and args.no_sim:
-        raise ValueError('--bridge drives emulated robots and --no-sim has none; for real '
-                         'robots start one robot_bridge per robot (docs/connecting-robots.md)')
+    _bridge_needs_simulated_robots(args)
     _warn(load_experiment(resolve_config(args.config)))
     only = _parts(args.only)
     _output_folder(args.out, args.force)
@@ -172,9 +170,16 @@ def _cmd_run(args):
         return EXIT_NODE_DIED
 
 
+def _bridge_needs_simulated_robots(args):
+    if args.bridge and args.no_sim:
+        raise ValueError('--bridge drives emulated robots and --no-sim has none; for real '
+                         'robots start one robot_bridge per robot (docs/connecting-robots.md)')
+
+
 def _cmd_params(args):
     from curve_formation.paths import resolve_config
     from curve_formation.start_scripts import graph_launches, write_node_files
+    _bridge_needs_simulated_robots(args)
     path = resolve_config(args.config)
     out = _output_folder(args.out, args.force)
     observed = args.observer or args.bag is not None

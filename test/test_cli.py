@@ -81,9 +81,10 @@ def test_check_reports_certificate_assumptions_and_fit(capsys):
 
 def test_a_bridge_without_simulated_robots_is_refused_with_the_way_to_real_ones(tmp_path,
                                                                                 capsys):
-    assert main(['run', 'arena_demo', '--no-sim', '--bridge', 'udp',
-                 '--out', str(tmp_path)]) == 2
-    assert 'one robot_bridge per robot' in capsys.readouterr().err
+    for command in ('run', 'params'):
+        assert main([command, 'arena_demo', '--no-sim', '--bridge', 'udp',
+                     '--out', str(tmp_path / command)]) == 2
+        assert 'one robot_bridge per robot' in capsys.readouterr().err
 
 
 def test_a_split_run_names_its_parts_and_needs_a_shared_domain(capsys, monkeypatch, tmp_path):
