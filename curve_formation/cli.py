@@ -177,7 +177,6 @@ def _bridge_needs_simulated_robots(args):
 
 
 def _cmd_params(args):
-    from curve_formation.paths import resolve_config
     from curve_formation.start_scripts import graph_launches, write_node_files
     _bridge_needs_simulated_robots(args)
     path = resolve_config(args.config)
@@ -384,6 +383,11 @@ def _at_least_one(text):
     return value
 
 
+def _force_option(parser):
+    parser.add_argument('--force', action='store_true',
+                        help='write into a non-empty --out (its files are replaced)')
+
+
 def build_parser():
     from curve_formation import version
     parser = _Parser(prog='curve-formation', description=__doc__.split('\n')[0])
@@ -403,8 +407,7 @@ def build_parser():
     mode = sim.add_mutually_exclusive_group()
     mode.add_argument('--rate', type=positive, help='zero-order-hold control rate (Hz)')
     mode.add_argument('--continuous', action='store_true', help='continuous control')
-    sim.add_argument('--force', action='store_true',
-                     help='write into a non-empty --out (its files are replaced)')
+    _force_option(sim)
     sim.set_defaults(func=_cmd_sim)
     run = sub.add_parser('run', help='run the experiment as a ROS 2 node graph')
     run.add_argument('config', help='experiment YAML path or shipped name')
@@ -444,8 +447,7 @@ def build_parser():
     run.add_argument('--agents', metavar='LIST',
                      help="with --only: run only these agents' controllers and robots here, "
                      'e.g. 1-5,9 (a team spread over several hosts)')
-    run.add_argument('--force', action='store_true',
-                     help='write into a non-empty --out (its files are replaced)')
+    _force_option(run)
     run.set_defaults(func=_cmd_run)
     params = sub.add_parser('params', help="write each node's ROS 2 parameters file and "
                             'the `ros2 run` start scripts of the graph, starting nothing')
@@ -461,8 +463,7 @@ def build_parser():
                         help='also start_observer.sh: `curve-formation run --only observer` '
                         'measures the run (metrics, figures); the curve server waits for it')
     params.add_argument('--bag', help='with the observer, record a bag at this new path')
-    params.add_argument('--force', action='store_true',
-                     help='write into a non-empty --out (its files are replaced)')
+    _force_option(params)
     params.set_defaults(func=_cmd_params)
     analyze = sub.add_parser('analyze', help='metrics and figures from a recorded bag')
     analyze.add_argument('bag', help='bag folder')
@@ -472,8 +473,7 @@ def build_parser():
     analyze.add_argument('--compare-sim', action='store_true',
                          help="overlay the batch simulator run from the bag's own start and "
                          'curves: paths, error norms, settling per phase')
-    analyze.add_argument('--force', action='store_true',
-                     help='write into a non-empty --out (its files are replaced)')
+    _force_option(analyze)
     analyze.set_defaults(func=_cmd_analyze)
     bag = sub.add_parser('bag', help='inspect or repair a bag (no ROS CLI needed)')
     bag_sub = bag.add_subparsers(dest='bag_command', required=True, parser_class=_Parser)

@@ -23,11 +23,7 @@ from rclpy.serialization import serialize_message
 from curve_formation.analysis import bag_accounting, RUN_END_KEY
 from curve_formation.bag import BagWriter
 from curve_formation.core import metrics, plots
-from curve_formation.core.experiment import (
-    check_rate_override,
-    control_rate,
-    load_experiment,
-)
+from curve_formation.core.experiment import control_rate, load_experiment
 from curve_formation.launches import node_launches, part_of
 from curve_formation.node_graph import NodeGraph
 from curve_formation.nodes.runtime import now_seconds
@@ -45,6 +41,9 @@ STATUS_PERIOD = 5.0    # s between the status lines of a run, and of its waiting
 # robots' controllers start (seen found after 0 to 2.3 s under LOCALHOST); meanwhile the nodes
 # that cannot move a robot start
 FORMATION_CHECK = 3.0
+# s between those looks while the run waits for its robots (a graph query: not after every
+# message)
+FORMATION_LOOK_PERIOD = 0.2
 # s a host without the observer keeps its nodes up after the run's duration (split runs)
 SPLIT_GRACE = 10.0
 
@@ -96,8 +95,6 @@ class Run:
         if options.agents and max(options.agents) > self.experiment.n:
             raise ValueError(f'--agents: agent {max(options.agents)} is not in 1..'
                              f'{self.experiment.n} ({self.experiment.name})')
-        if options.rate_hz:
-            check_rate_override(self.experiment, options.rate_hz)
         self.rate_hz = control_rate(self.experiment, options.rate_hz)
         self.launches = node_launches(self.experiment, self.experiment_path, options,
                                       self.out / 'links')
@@ -252,7 +249,13 @@ class Run:
         return hint + ')'
 
     def _wait_ready(self):
+        """Spin until every robot's pose and cmd_vel is seen, saying what is missing every
+        STATUS_PERIOD s; with the curve server here, another formation on the domain is looked
+        for every FORMATION_LOOK_PERIOD s meanwhile and once more at the end.
+        """
         said = [time.monotonic()]
+        looked = [time.monotonic()]
+        ours = self.options.runs('curve_server')
 
         def ready():
             self.graph.check_processes()
@@ -260,10 +263,12 @@ class Run:
                 death = self.graph.deaths[0]
                 raise RuntimeError(f'node {death.key} ended while starting ({death.how}):\n'
                                    f'{death.log_tail}')
-            if self.options.runs('curve_server'):
+            now = time.monotonic()
+            if ours and now - looked[0] >= FORMATION_LOOK_PERIOD:
+                looked[0] = now
                 self._refuse_another_formation()
-            if time.monotonic() - said[0] >= STATUS_PERIOD:
-                said[0] = time.monotonic()
+            if now - said[0] >= STATUS_PERIOD:
+                said[0] = now
                 self.log(f'waiting for {", ".join(self.monitor.missing())} '
                          f'{self.waiting_hint()}')
             return self.monitor.ready()
@@ -272,6 +277,8 @@ class Run:
         except TimeoutError as exc:
             raise TimeoutError(f'{exc}; missing: {", ".join(self.monitor.missing())} '
                                f'{self.waiting_hint()}') from None
+        if ours:
+            self._refuse_another_formation()
 
     def status(self):
         """One line on the run now (None before t = 0): t, phase, error norm against the

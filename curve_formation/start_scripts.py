@@ -23,6 +23,12 @@ PACKAGE = 'curve_formation'
 OBSERVER = 'observer'
 
 
+def server_last(launches):
+    """The launches with the curve server moved last (it waits for the others anyway)."""
+    server = [launch for launch in launches if part_of(launch.module) == 'curve_server']
+    return [launch for launch in launches if launch not in server] + server
+
+
 def node_line(launch):
     """The `ros2 run` line of one node (its parameters file under $HERE/params)."""
     return (f'ros2 run {PACKAGE} {executable(launch.module)} --ros-args -r '
@@ -68,12 +74,10 @@ def start_scripts(launches, experiment_name, run_args=None):
     """{file name: text}: start_<part>.sh for each part of the graph that has nodes (and
     start_observer.sh with run_args), and start_all.sh with every line, for one host.
     """
-    server = [launch for launch in launches if part_of(launch.module) == 'curve_server']
-    ordered = [launch for launch in launches if launch not in server] + server
     parts = {}
     if run_args is not None:
         parts[OBSERVER] = [observer_line(run_args)]
-    for launch in ordered:
+    for launch in server_last(launches):
         parts.setdefault(part_of(launch.module), []).append(node_line(launch))
     scripts = {f'start_{part}.sh': script_text(f'{experiment_name}: {part}', lines)
                for part, lines in parts.items()}
@@ -117,12 +121,10 @@ def graph_launches(experiment_path, folder, with_robots=True, camera=False, brid
     observed: a `curve-formation run --only observer` (with bag_path, its recorder too) will
     measure the run, and the curve server waits for it.
     """
-    from curve_formation.core.experiment import check_rate_override, load_experiment
+    from curve_formation.core.experiment import load_experiment
     from curve_formation.launches import node_launches
     from curve_formation.run_options import RunOptions
     experiment = load_experiment(experiment_path)
-    if rate_hz:
-        check_rate_override(experiment, rate_hz)
     options = RunOptions(with_robots=with_robots, camera={} if camera else None,
                          bridge=bridge, rate_hz=rate_hz, bag_path=bag_path)
     return experiment, node_launches(experiment, experiment_path, options,
@@ -137,7 +139,5 @@ def graph_starts(experiment, folder, **graph):
     from curve_formation.paths import resolve_config
     _, launches = graph_launches(resolve_config(experiment), folder, **graph)
     params = write_params_files(launches, Path(folder) / 'params')
-    server = [launch for launch in launches if part_of(launch.module) == 'curve_server']
     return [NodeStart(executable(launch.module), launch.namespace, launch.name,
-                      params[launch.key])
-            for launch in [launch for launch in launches if launch not in server] + server]
+                      params[launch.key]) for launch in server_last(launches)]

@@ -163,7 +163,11 @@ DEFAULT_RATE_HZ = 10.0
 
 
 def control_rate(experiment: Experiment, rate_hz: float | None = None) -> float:
-    """The ROS controllers' rate (Hz): the override, else the file's, else DEFAULT_RATE_HZ."""
+    """The ROS controllers' rate (Hz): the override (ConfigError where the file's controller
+    section refuses it: check_rate_override), else the file's, else DEFAULT_RATE_HZ.
+    """
+    if rate_hz:
+        check_rate_override(experiment, rate_hz)
     return float(rate_hz or experiment.spec.controller.rate_hz or DEFAULT_RATE_HZ)
 
 

@@ -62,11 +62,11 @@ class Monitor(Node):
         self.n = n
         self.poses = np.full((n, 3), np.nan)
         self.true_poses = np.full((n, 3), np.nan) if ground_truth else None
-        # per robot, its last two true poses [(stamp s, x, y, theta)] and, for every tick
-        # that drove, how far (m) the pose its law used was from the truth at the tick
+        # per robot, its last two true poses [(stamp s, x, y, theta)]; over every tick that
+        # drove, how far (m) the pose its law used was from the truth then: how many ticks,
+        # the sum of squares (m^2)
         self.true_history = [[] for _ in range(n)]
-        self.law_pose_gaps = [deque(maxlen=TIMING_WINDOW) for _ in range(n)]
-        self.law_pose_tally = [0, 0.0]   # every tick's gap: how many, the sum of squares (m^2)
+        self.law_pose_tally = [0, 0.0]
         self.pose_stamps = np.full(n, np.nan)
         self.commands = np.full((n, 2), np.nan)
         self.command_times = np.full(n, np.nan)
@@ -148,7 +148,6 @@ class Monitor(Node):
         share = (at - t1) / (t1 - t0) if t1 > t0 else 0.0
         truth_x, truth_y = x1 + share * (x1 - x0), y1 + share * (y1 - y0)
         gap = math.hypot(tick['x'] - truth_x, tick['y'] - truth_y)
-        self.law_pose_gaps[i - 1].append(gap)
         self.law_pose_tally[0] += 1
         self.law_pose_tally[1] += gap * gap
 
