@@ -32,7 +32,7 @@ setup(
     # pins the ROS 2 wheels and the test tools; package.xml names the same with rosdep keys).
     install_requires=['setuptools', 'numpy', 'scipy', 'numba', 'matplotlib', 'PyYAML',
                       'pydantic>=2', 'opencv-python-headless', 'rosbags>=0.11', 'mcap>=1.2',
-                      'pyserial'],
+                      'pyserial', 'mujoco'],
     zip_safe=True,
     maintainer='curve_formation maintainers',
     maintainer_email='curve-formation@example.org',

@@ -30,10 +30,12 @@ def _write_json(path, data):
     path.write_text(strict_json(data))
 
 
-def simulate_to_dir(config, out_dir, rate='config', law=None, heading=None):
+def simulate_to_dir(config, out_dir, rate='config', law=None, heading=None, physics=None):
     """Batch-simulate one experiment; write metrics.json and figures into out_dir.
 
-    law ('paper', 'adaptive', 'observer') and heading ('paper', 'sampled') override the file's.
+    law ('paper', 'adaptive', 'observer') and heading ('paper', 'sampled') override the file's;
+    physics ('kinematic', 'mujoco'; None: the file's physics.engine): the kinematic batch
+    simulator, or the nodes' tick pipeline in the MuJoCo world (core.pipeline).
     """
     from curve_formation.core import metrics, plots
     from curve_formation.core.simulator import simulate
@@ -49,7 +51,15 @@ def simulate_to_dir(config, out_dir, rate='config', law=None, heading=None):
         gains = dataclasses.replace(gains, law=law)
     if heading is not None:
         gains = dataclasses.replace(gains, sampled_heading=heading == 'sampled')
-    result = simulate(experiment, rate_hz=rate, gains=gains)
+    if (physics or experiment.spec.physics.engine) == 'mujoco':
+        from curve_formation.core.pipeline import simulate_pipeline
+        if rate is None:
+            raise ValueError("--continuous: the MuJoCo world runs the nodes' tick pipeline, "
+                             'at a control rate (--rate, or controller.rate_hz)')
+        result = simulate_pipeline(dataclasses.replace(experiment, gains=gains), 'mujoco',
+                                   rate_hz=None if rate == 'config' else rate)
+    else:
+        result = simulate(experiment, rate_hz=rate, gains=gains)
     out = Path(out_dir)
     data = metrics.result_metrics(result)
     _write_json(out / 'metrics.json', described(data, path))
@@ -108,7 +118,7 @@ def _cmd_sim(args):
     elif args.rate is not None:
         rate = args.rate
     _output_folder(args.out, args.force)
-    data = simulate_to_dir(args.config, args.out, rate, args.law, args.heading)
+    data = simulate_to_dir(args.config, args.out, rate, args.law, args.heading, args.physics)
     print(_summary_line(data['experiment'], data))
     print(f'wrote {args.out}/metrics.json and figures')
 
@@ -155,7 +165,8 @@ def _cmd_run(args):
                          camera={} if args.camera else None, bag_images=args.bag_images,
                          bag_storage=args.bag_storage, bridge=args.bridge,
                          discovery_server=args.discovery_server, only=only,
-                         agents=_agents(args.agents), isolated=args.isolated)
+                         agents=_agents(args.agents), isolated=args.isolated,
+                         physics=args.physics)
     result = run_experiment(args.config, args.out, args.duration, options)
     if not options.runs('observer'):
         print(f'ran {", ".join(sorted(only or ()))} of {result["experiment"]}; logs/ in '
@@ -183,12 +194,13 @@ def _cmd_params(args):
     out = _output_folder(args.out, args.force)
     observed = args.observer or args.bag is not None
     experiment, launches = graph_launches(path, out, not args.no_sim, args.camera, args.bridge,
-                                          args.rate, args.bag, observed)
+                                          args.rate, args.bag, observed, args.physics)
     run_args = None
     if observed:
         run_args = [str(path)] + (['--rate', f'{args.rate:g}'] if args.rate else []) \
             + (['--no-sim'] if args.no_sim else []) + (['--camera'] if args.camera else []) \
             + (['--bridge', args.bridge] if args.bridge else []) \
+            + (['--physics', args.physics] if args.physics else []) \
             + (['--bag', str(Path(args.bag).resolve())] if args.bag else [])
     params, scripts = write_node_files(launches, out, experiment.name, run_args)
     print(f'wrote {len(params)} parameters files in {out / "params"} and start scripts:')
@@ -383,6 +395,13 @@ def _at_least_one(text):
     return value
 
 
+def _physics_option(parser, what):
+    """--physics: the world the simulated robots live in (default: physics.engine)."""
+    from curve_formation.core.worlds import ENGINES
+    parser.add_argument('--physics', choices=ENGINES,
+                        help=f"{what}; default: the experiment's physics.engine (kinematic)")
+
+
 def _force_option(parser):
     parser.add_argument('--force', action='store_true',
                         help='write into a non-empty --out (its files are replaced)')
@@ -407,6 +426,8 @@ def build_parser():
     mode = sim.add_mutually_exclusive_group()
     mode.add_argument('--rate', type=positive, help='zero-order-hold control rate (Hz)')
     mode.add_argument('--continuous', action='store_true', help='continuous control')
+    _physics_option(sim, "kinematic: the batch simulator (exact, fast); mujoco: the nodes' "
+                    'tick pipeline with the robots as MuJoCo bodies')
     _force_option(sim)
     sim.set_defaults(func=_cmd_sim)
     run = sub.add_parser('run', help='run the experiment as a ROS 2 node graph')
@@ -447,6 +468,7 @@ def build_parser():
     run.add_argument('--agents', metavar='LIST',
                      help="with --only: run only these agents' controllers and robots here, "
                      'e.g. 1-5,9 (a team spread over several hosts)')
+    _physics_option(run, "the fake robots' world (fake_arena)")
     _force_option(run)
     run.set_defaults(func=_cmd_run)
     params = sub.add_parser('params', help="write each node's ROS 2 parameters file and "
@@ -463,6 +485,7 @@ def build_parser():
                         help='also start_observer.sh: `curve-formation run --only observer` '
                         'measures the run (metrics, figures); the curve server waits for it')
     params.add_argument('--bag', help='with the observer, record a bag at this new path')
+    _physics_option(params, "the fake robots' world (fake_arena)")
     _force_option(params)
     params.set_defaults(func=_cmd_params)
     analyze = sub.add_parser('analyze', help='metrics and figures from a recorded bag')

@@ -15,8 +15,7 @@ import yaml
 
 from curve_formation.core import wire
 from curve_formation.core.agent import agent_configs
-from curve_formation.core.config_schema import LimitsSpec
-from curve_formation.core.experiment import control_rate
+from curve_formation.core.experiment import control_rate, wheel_radius
 from curve_formation.nodes.formation_controller import node_parameters
 from curve_formation.nodes.params import limit_parameter
 from curve_formation.run_options import DEFAULTS
@@ -59,7 +58,8 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None,
                else camera_launches(experiment, experiment_path, with_robots, camera))
     rate = control_rate(experiment, options.rate_hz)
     on_pc = spec.disturbance.injected == 'on_pc'
-    one_world = uses_fake_arena(experiment) or bridge is not None
+    engine = options.physics or spec.physics.engine
+    one_world = uses_fake_arena(experiment, engine) or bridge is not None
     links = robot_links(experiment.n, bridge, links_dir) if bridge and with_robots else []
     # The curve server waits until the n controllers, the runner's monitor, its bag recorder
     # and the camera nodes (they draw the curve) can receive from it (nodes/readiness.py).
@@ -98,7 +98,7 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None,
                  'command_latency': float(command_latency),
                  'fault_pose_drop': float(faults.get('pose_drop', 0.0)),
                  'pose_topic': 'pose' if camera is None else 'true_pose',
-                 'publish_robot_poses': camera is None}
+                 'publish_robot_poses': camera is None, 'physics': engine}
         if links:   # emulated robots behind their links, reading what the bridges write
             arena['links'] = links
             arena['wheel_radius'] = wheel_radius(experiment)
@@ -140,13 +140,6 @@ def robot_links(n, bridge, folder, rng=None):
     raise RuntimeError(f'no {n} free UDP ports in {LINK_PORTS}')
 
 
-def wheel_radius(experiment):
-    """The experiment's wheel radius (m; the schema's default without a limits section)."""
-    limits = experiment.spec.limits
-    return float(limits.wheel_radius if limits
-                 else LimitsSpec.model_fields['wheel_radius'].default)
-
-
 def bridge_parameters(experiment, rate, link):
     """robot_bridge parameters for a robot behind `link` (the emulated robot's end of it)."""
     limits = experiment.limits
@@ -158,11 +151,12 @@ def bridge_parameters(experiment, rate, link):
             'rate_hz': float(rate)}
 
 
-def uses_fake_arena(experiment):
+def uses_fake_arena(experiment, engine='kinematic'):
     """Simulated robots share one world (fake_arena) when they have bodies or avoid each
-    other; otherwise each is a fake_robot of its own, passing through the others.
+    other, or live in MuJoCo (engine); otherwise each is a fake_robot of its own, passing
+    through the others.
     """
-    return experiment.radius > 0 or experiment.avoidance.on
+    return experiment.radius > 0 or experiment.avoidance.on or engine == 'mujoco'
 
 
 def camera_launches(experiment, experiment_path, with_fake_camera, overrides):

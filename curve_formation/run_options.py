@@ -30,6 +30,8 @@ class RunOptions:
         'observer' measures the run.
     agents: None (every agent), or the agents (1-based) whose own nodes (controller, robot
         bridge, simulated robot) this host runs: a team's controllers spread over hosts.
+    physics: the simulated robots' world, 'kinematic' or 'mujoco' (None: the experiment's
+        physics.engine).
     isolated: a private random ROS_DOMAIN_ID and LOCALHOST discovery (tests, the demo);
         otherwise the caller's ROS_DOMAIN_ID (0 when unset) and discovery range, where the
         lab's RViz, `ros2 topic echo` and robot drivers are.
@@ -51,6 +53,7 @@ class RunOptions:
     only: frozenset[str] | None = None
     agents: frozenset[int] | None = None
     isolated: bool = False
+    physics: str | None = None
 
     def runs(self, part: str) -> bool:
         """Whether this host runs `part` (one of PARTS)."""

@@ -115,18 +115,19 @@ class NodeStart:
 
 
 def graph_launches(experiment_path, folder, with_robots=True, camera=False, bridge=None,
-                   rate_hz=None, bag_path=None, observed=False):
+                   rate_hz=None, bag_path=None, observed=False, physics=None):
     """(Experiment, [NodeLaunch]) of an experiment file's graph for `params` and the launch
     file, as `run` builds it (launches.node_launches; a bridge's links in folder/links).
     observed: a `curve-formation run --only observer` (with bag_path, its recorder too) will
-    measure the run, and the curve server waits for it.
+    measure the run, and the curve server waits for it. physics: the simulated robots' world
+    (None: the experiment's).
     """
     from curve_formation.core.experiment import load_experiment
     from curve_formation.launches import node_launches
     from curve_formation.run_options import RunOptions
     experiment = load_experiment(experiment_path)
     options = RunOptions(with_robots=with_robots, camera={} if camera else None,
-                         bridge=bridge, rate_hz=rate_hz, bag_path=bag_path)
+                         bridge=bridge, rate_hz=rate_hz, bag_path=bag_path, physics=physics)
     return experiment, node_launches(experiment, experiment_path, options,
                                       Path(folder) / 'links', observed=observed)
 

@@ -443,6 +443,50 @@ class AvoidanceSpec(Strict):
                          'drift before the observer has learnt it (0 = none)')
 
 
+class ImperfectionsSpec(Strict):
+    """What a real robot does that the paper's unicycle does not (physics: mujoco only).
+
+    Each robot draws its own mismatch and gains from `seed`; all off by default.
+    """
+
+    wheel_radius_mismatch: float = Field(0.0, ge=0, lt=0.5, description='largest relative '
+                                         "difference between a robot's two wheel radii; each "
+                                         'robot draws its own in [-x, x]')
+    motor_gain_spread: float = Field(0.0, ge=0, lt=0.5, description="each motor's gain "
+                                     '(wheel speed per command) drawn in [1 - x, 1 + x]')
+    dead_band: float = Field(0.0, ge=0, lt=1, description='wheel commands below this fraction '
+                             'of limits.max_wheel_speed leave the motor off')
+    command_bits: Optional[int] = Field(None, ge=2, le=32, description='wheel commands '
+                                        'quantised to signed integers of this many bits over '
+                                        "+-limits.max_wheel_speed (the firmware's resolution)")
+    battery_sag: float = Field(0.0, ge=0, lt=1, description="fraction of every motor's gain "
+                               'lost per 10 minutes (linear, from the start)')
+    seed: int = Field(0, description='draws of the per-robot mismatch and gains')
+
+
+class PhysicsSpec(Strict):
+    """The world the fake robots live in: the paper's unicycle (kinematic, exact and fast) or
+    MuJoCo bodies with wheels, motors, casters and friction. Defaults are a Mona robot's
+    (docs/physics.md says where each number comes from and which are assumptions).
+    """
+
+    engine: Literal['kinematic', 'mujoco'] = Field(
+        'kinematic', description='kinematic: unicycles (and discs pushed apart); mujoco: '
+        'rigid bodies on driven wheels in the MuJoCo engine')
+    timestep: float = Field(0.002, gt=0, le=0.01, description='MuJoCo integration step (s)')
+    mass: float = Field(0.1, gt=0, description='robot mass with wheels (kg)')
+    height: float = Field(0.03, gt=0, description='body height (m)')
+    casters: Literal[1, 2] = Field(2, description='ball casters, front (and back)')
+    caster_friction: float = Field(0.05, ge=0, description='sliding friction of a caster '
+                                   'on the floor (its drag)')
+    floor_friction: float = Field(0.8, gt=0, description='wheel-floor friction coefficient: '
+                                  'lower, wheels slip sooner when robots push')
+    motor_time_constant: float = Field(0.05, gt=0, description='first-order time constant '
+                                       'of a wheel following its speed command (s)')
+    motor_torque: float = Field(0.03, gt=0, description='torque limit of a wheel motor (N m)')
+    imperfections: ImperfectionsSpec = ImperfectionsSpec()
+
+
 class MetricsSpec(Strict):
     tolerance: float = Field(1e-3, gt=0, description='settling tolerance, relative to the '
                              'size (bounding-box diagonal) of the active curve')
@@ -464,6 +508,7 @@ class ExperimentSpec(Strict):
     camera: Optional[CameraSpec] = None
     robots: RobotsSpec = RobotsSpec()
     avoidance: Optional[AvoidanceSpec] = None
+    physics: PhysicsSpec = PhysicsSpec()
 
     @field_validator('avoidance', mode='before')
     @classmethod

@@ -25,69 +25,99 @@ def arc_step(x, y, theta, v, w, dt):
     return x + chord * math.cos(mid), y + chord * math.sin(mid), theta + w * dt
 
 
-class DrivenUnicycle:
-    """A robot driven by velocity commands, as its motor driver would move it (plain Python,
-    for the fake robot nodes; the batch simulator has its own compiled loop).
-
-    Commands are piecewise constant: advance(t) integrates exactly (arc_step) up to t,
-    switching to each command at its due time (received + latency). The disturbance (m/s,
-    rad/s) acts on a driven input only: a zero command means motors off, and so does a
+class CommandQueue:
+    """Velocity commands on their way to a robot's motors: each acts `latency` s after it was
+    received and holds until the next; a zero command means motors off, and so does a
     command older than `timeout` s (a robot-side watchdog; 0 = none). Times in s.
     """
 
-    def __init__(self, pose, disturbance=(0.0, 0.0), latency=0.0, timeout=0.0):
+    def __init__(self, latency=0.0, timeout=0.0):
         from collections import deque
-        self.pose = (float(pose[0]), float(pose[1]), float(pose[2]))
-        self.disturbance = tuple(disturbance)
         self.latency = latency
         self.timeout = timeout
-        self.command = (0.0, 0.0)
+        self.command = (0.0, 0.0)   # in force at self.time
         self.pending: deque[tuple[float, float, float]] = deque()   # (due s, v, w)
         self.time = None
         self.last_command_time = None
 
+    def push(self, v, w, now):
+        """A command (m/s, rad/s) received at `now`."""
+        self.pending.append((now + self.latency, v, w))
+        self.last_command_time = now
+
+    def upcoming(self, until):
+        """The commands in force from now up to `until`: the current one and those due."""
+        return [self.command] + [(v, w) for due, v, w in self.pending if due <= until]
+
+    def segments(self, until):
+        """Consume the queue up to `until`: [(from s, to s, (v, w)), ...] covering
+        [self.time, until] with the command in force over each, and whether the watchdog
+        turned the motors off on the way (at its own time, not at the caller's next step).
+        """
+        if self.time is None:
+            self.time = until
+        out: list[tuple[float, float, tuple[float, float]]] = []
+        while self.pending and self.pending[0][0] <= until:
+            due, v, w = self.pending.popleft()
+            self._hold(max(due, self.time), out)
+            self.command = (v, w)
+        if (self.timeout > 0 and self.command != (0.0, 0.0) and self.last_command_time
+                is not None and until > self.last_command_time + self.timeout + self.latency):
+            self._hold(self.last_command_time + self.timeout + self.latency, out)
+            self.command = (0.0, 0.0)
+            self._hold(until, out)
+            return out, True
+        self._hold(until, out)
+        return out, False
+
+    def _hold(self, until, out):
+        if until > self.time:
+            out.append((self.time, until, self.command))
+        self.time = max(self.time, until)
+
+
+class DrivenUnicycle:
+    """A robot driven by velocity commands, as its motor driver would move it (plain Python,
+    for the fake robot nodes; the batch simulator has its own compiled loop).
+
+    Commands pass through a CommandQueue (latency, watchdog); advance(t) integrates exactly
+    (arc_step) up to t, switching to each command at its due time. The disturbance (m/s,
+    rad/s) acts on a driven input only: motors off, it does not. Times in s.
+    """
+
+    def __init__(self, pose, disturbance=(0.0, 0.0), latency=0.0, timeout=0.0):
+        self.pose = (float(pose[0]), float(pose[1]), float(pose[2]))
+        self.disturbance = tuple(disturbance)
+        self.queue = CommandQueue(latency, timeout)
+
     def drive(self, v, w, now, advance=True):
-        """A command received at `now`; it takes effect `latency` s later. advance=False
-        leaves moving up to `now` to the caller's next advance() (a world that steps every
-        robot together).
+        """A command received at `now`; it takes effect the queue's latency later.
+        advance=False leaves moving up to `now` to the caller's next advance() (a world that
+        steps every robot together).
         """
         if advance:
             self.advance(now)
-        self.pending.append((now + self.latency, v, w))
-        self.last_command_time = now
+        self.queue.push(v, w, now)
+
+    @property
+    def command(self):
+        """The command (m/s, rad/s) in force up to where the robot was advanced."""
+        return self.queue.command
 
     def top_speed(self, until):
         """The fastest (m/s) the centre moves up to `until` under the command in force and
         those due by then.
         """
-        commands = [self.command] + [(v, w) for due, v, w in self.pending if due <= until]
         return max(0.0 if (v, w) == (0.0, 0.0) else abs(v + self.disturbance[0])
-                   for v, w in commands)
+                   for v, w in self.queue.upcoming(until))
 
     def advance(self, until):
         """Move exactly up to `until`, switching commands at their due times. Returns
         True when the watchdog turned the motors off on the way.
         """
-        if self.time is None:
-            self.time = until
-        while self.pending and self.pending[0][0] <= until:
-            due, v, w = self.pending.popleft()
-            self._move(max(due, self.time))
-            self.command = (v, w)
-        if (self.timeout > 0 and self.command != (0.0, 0.0) and self.last_command_time
-                is not None and until > self.last_command_time + self.timeout + self.latency):
-            # The motors stop at the watchdog's time, not at the caller's next step.
-            self._move(self.last_command_time + self.timeout + self.latency)
-            self.command = (0.0, 0.0)
-            self.time = max(self.time, until)
-            return True
-        self._move(until)
-        return False
-
-    def _move(self, until):
-        dt = until - self.time
-        v, w = self.command
-        if dt > 0 and (v != 0.0 or w != 0.0):
-            d = self.disturbance
-            self.pose = arc_step(*self.pose, v + d[0], w + d[1], dt)
-        self.time = max(self.time, until)
+        segments, stopped = self.queue.segments(until)
+        d = self.disturbance
+        for start, end, (v, w) in segments:
+            if v != 0.0 or w != 0.0:
+                self.pose = arc_step(*self.pose, v + d[0], w + d[1], end - start)
+        return stopped

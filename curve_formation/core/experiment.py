@@ -23,6 +23,7 @@ from curve_formation.core.config_schema import (
     ControllerSpec,
     CurveSpec,
     ExperimentSpec,
+    LimitsSpec,
     MotionSpec,
     RobotsSpec,
 )
@@ -169,6 +170,13 @@ def control_rate(experiment: Experiment, rate_hz: float | None = None) -> float:
     if rate_hz:
         check_rate_override(experiment, rate_hz)
     return float(rate_hz or experiment.spec.controller.rate_hz or DEFAULT_RATE_HZ)
+
+
+def wheel_radius(experiment: Experiment) -> float:
+    """The wheel radius (m): limits.wheel_radius, or the schema's default without limits."""
+    limits = experiment.spec.limits
+    return float(limits.wheel_radius if limits is not None
+                 else LimitsSpec.model_fields['wheel_radius'].default)
 
 
 def check_rate_override(experiment: Experiment, rate_hz: float, option: str = '--rate'

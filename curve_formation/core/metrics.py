@@ -293,11 +293,17 @@ def link_summary(reports):
 
 
 def contacts_from_report(values):
-    """The contact tally {'count', 'time', 'smallest_gap'} of a fake_arena diagnostic status
-    given as {key: text} (None for a value it reports as None).
+    """The contact tally {'count', 'time', 'smallest_gap'} (and from MuJoCo 'walls',
+    'largest_push') of a fake_arena diagnostic status given as {key: text} (None for a value
+    it reports as None).
     """
     return {key: None if values[key] == 'None' else float(values[key])
-            for key in ('count', 'time', 'smallest_gap') if key in values}
+            for key in CONTACT_KEYS if key in values}
+
+
+# A world's contact tally: new robot-robot contacts, time with any (s), smallest gap between
+# two bodies (m); from MuJoCo also new robot-wall contacts and the largest contact force (N).
+CONTACT_KEYS = ('count', 'time', 'smallest_gap', 'walls', 'largest_push')
 
 
 def body_metrics(experiment, t, poses, contacts=None, unseen=None):
@@ -310,8 +316,9 @@ def body_metrics(experiment, t, poses, contacts=None, unseen=None):
     gaps = surface_gaps(poses, radius)
     sampled = float(np.nanmin(gaps)) if len(gaps) else None
     out = {'radius': radius, 'smallest_gap_sampled': sampled,
-           'contacts': None if contacts is None else {'count': contacts.get('count'),
-                                                      'time': contacts.get('time')},
+           'contacts': None if contacts is None else {
+               key: contacts[key] for key in ('count', 'time', 'walls', 'largest_push')
+               if key in contacts},
            'smallest_gap': (contacts.get('smallest_gap') if contacts is not None
                             and contacts.get('smallest_gap') is not None else sampled)}
     if unseen is not None and len(unseen) == len(t):

@@ -1,19 +1,21 @@
 """fake_arena: every robot of an experiment as a body in one arena, standing in for Mona robots.
 
-Each robot moves as fake_robot's does (core.dynamics.DrivenUnicycle under its cmd_vel, with
-its disturbance, latency and watchdog), but all of them in one world: the world advances in
-steps of at most `physics_dt` and after each step bodies that overlap are pushed apart and
-bodies through a wall put back (core.bodies.separate, the batch simulator's code), so robots
-block and push each other as real ones do. Publishes every robot's pose on /robot_<i>/pose
-(or true_pose when a camera tracks them) and all of them on /formation/robot_poses (unless a
-camera tracker does), at `rate_hz`; /diagnostics reports the contacts: how many, for how long,
-and the smallest gap between two bodies. With `links`, the robots are emulated Mona robots
-behind their last link: each reads wheel speeds in its wire format from a UDP port or a
-pseudo-terminal, as its firmware would (with the firmware's watchdog: `command_timeout`), and
-answers each line 'ok' or 'err'; no cmd_vel is read (robot_bridge writes those links).
-Reading cmd_vel, it obeys the e-stop as fake_robot does: every robot stands still until it is
-released; and a robot whose cmd_vel has more than one publishing node stands still until one
-is left.
+The world is the experiment's physics.engine, or the `physics` parameter (core.worlds). In the
+kinematic world each robot moves as fake_robot's does (core.dynamics.DrivenUnicycle under its
+cmd_vel, with its disturbance, latency and watchdog), all of them in one world that advances in
+steps of at most `physics_dt`, pushing overlapping bodies apart and bodies through a wall back
+(core.kinematic_world), so robots block and push each other. In the MuJoCo world each robot is
+a body with mass on two motor-driven wheels and casters, its cmd_vel turned into wheel speed
+commands as its firmware would, with the experiment's imperfections; contacts come from the
+engine (core.mujoco_world). Publishes every robot's pose on /robot_<i>/pose (or true_pose when
+a camera tracks them) and all of them on /formation/robot_poses (unless a camera tracker does),
+at `rate_hz`; /diagnostics reports the contacts: how many, for how long, and the smallest gap
+between two bodies. With `links`, the robots are emulated Mona robots behind their last link:
+each reads wheel speeds in its wire format from a UDP port or a pseudo-terminal, as its
+firmware would (with the firmware's watchdog: `command_timeout`), and answers each line 'ok' or
+'err'; no cmd_vel is read (robot_bridge writes those links). Reading cmd_vel, it obeys the
+e-stop as fake_robot does: every robot stands still until it is released; and a robot whose
+cmd_vel has more than one publishing node stands still until one is left.
 """
 
 import math
@@ -25,7 +27,7 @@ from rclpy.duration import Duration
 from rclpy.node import Node
 
 from curve_formation.core import metrics, wire
-from curve_formation.core.dynamics import DrivenUnicycle
+from curve_formation.core.worlds import ENGINES, make_world
 from curve_formation.links import robot_endpoint
 from curve_formation.nodes import messages, topics
 from curve_formation.nodes.command_source import CommandSourceWatch
@@ -52,8 +54,10 @@ PARAMETERS = (
           'start poses, body radius, arena and disturbance'),
     Param('rate_hz', 'double', 30.0, 'pose publishing rate (Hz), as an overhead camera',
           positive=True),
-    Param('physics_dt', 'double', 0.005, 'longest step between two contact resolutions (s)',
-          positive=True),
+    Param('physics', 'string', '', f"the world: {' or '.join(ENGINES)}; empty = the "
+          "experiment's physics.engine"),
+    Param('physics_dt', 'double', 0.005, 'kinematic world: longest step between two contact '
+          'resolutions (s)', positive=True),
     Param('publish_robot_poses', 'bool', True, 'publish all poses on /formation/robot_poses '
           '(off when a camera tracker publishes them)'),
     Param('links', 'string[]', [], "emulated robots: each robot's link ('udp:HOST:PORT' or "
@@ -71,7 +75,7 @@ TOPICS = (
     Use('pub', topics.ROBOT_POSES, 'every pose in one message (x, y, theta per robot), with '
         'publish_robot_poses'),
     Use('pub', topics.DIAGNOSTICS, 'contacts: count, total time (s), smallest gap between '
-        'two bodies (m); 1 Hz'),
+        'two bodies (m); with MuJoCo also robot-wall contacts and the largest push (N); 1 Hz'),
 ) + ESTOP_TOPICS
 
 
@@ -83,22 +87,17 @@ class FakeArena(Node):
         p = self.params = declare_parameters(self, PARAMETERS)
         experiment = experiment_parameter(p.experiment)
         spec = experiment.spec
-        on_robot = spec.disturbance.injected == 'on_robot'
-        self.robots = [DrivenUnicycle(pose, d if on_robot else (0.0, 0.0), p.command_latency,
-                                      p.command_timeout)
-                       for pose, d in zip(experiment.initial_poses, experiment.disturbance,
-                                          strict=True)]
+        if p.physics not in ('', *ENGINES):
+            raise ParameterError(f"parameter 'physics' is {p.physics!r}: expected "
+                                 f"{' or '.join(ENGINES)}, or empty")
+        try:
+            self.world = make_world(experiment, p.physics or None, p.command_latency,
+                                    p.command_timeout, p.physics_dt)
+        except ValueError as exc:   # the MuJoCo engine missing, or its model refused
+            raise ParameterError(str(exc)) from None
         self.n = experiment.n
         self.radius = experiment.radius
         self.size = tuple(spec.arena.size) if spec.arena is not None else (0.0, 0.0)
-        self.touching = np.zeros((self.n, self.n), bool)
-        if self.radius > 0:
-            separate(np.zeros((0, 3)), 0.0, 0.0, 0.0, self.touching[:0, :0])   # compile now
-        self.contacts = 0
-        self.contact_time = 0.0
-        self.smallest_gap = math.inf
-        self.clearance = -math.inf   # the smallest gap, or twice a body's room to a wall (m)
-        self.time = None
         self.rng = np.random.default_rng(p.seed)
         self.pose_pubs = [topics.publisher(self, p.pose_topic, robot=i)
                           for i in range(1, self.n + 1)]
@@ -122,7 +121,8 @@ class FakeArena(Node):
         self.create_timer(1.0 / p.rate_hz, self._on_timer)
         self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(f'{self.n} robots, bodies of radius {self.radius:g} m, arena '
-                               f'{self.size[0]:g} x {self.size[1]:g} m')
+                               f'{self.size[0]:g} x {self.size[1]:g} m, '
+                               f'{type(self.world).__name__}')
 
     def _endpoints(self, p, experiment):
         """The emulated robots' links, with their wire format; [] to read cmd_vel."""
@@ -165,7 +165,7 @@ class FakeArena(Node):
                     v, w = wire.body_velocity(said[1], said[2], self.wheel_base)
                 else:
                     v, w = 0.0, 0.0
-                self.robots[i - 1].drive(v, w, now, advance=False)
+                self.world.command(i - 1, v, w, now)
                 endpoint.send(b'ok\n')
 
     def _on_cmd(self, i, msg):
@@ -177,7 +177,7 @@ class FakeArena(Node):
         if self.held(i):
             v, w = 0.0, 0.0
         # Taken up, at its time, by the next step of the world (the pose timer's).
-        self.robots[i - 1].drive(v, w, now_seconds(self), advance=False)
+        self.world.command(i - 1, v, w, now_seconds(self))
 
     def held(self, i):
         """Robot i stands still: e-stop, or more than one node publishing its cmd_vel (with
@@ -187,59 +187,21 @@ class FakeArena(Node):
 
     def _stop_held(self, *_):
         now = now_seconds(self)
-        for i, robot in enumerate(self.robots, 1):
+        for i in range(1, self.n + 1):
             if self.held(i):
-                robot.drive(0.0, 0.0, now, advance=False)
+                self.world.command(i - 1, 0.0, 0.0, now)
 
     def advance(self, until):
-        """Move every robot up to `until` (s), resolving contacts every physics_dt; in one
-        step while no two bodies, nor a body and a wall, can meet before then at the fastest
-        speed commanded (nothing to resolve on the way).
-        """
-        if self.time is None:
-            self.time = until
-        while self.time < until:
-            step = min(self.params.physics_dt, until - self.time)
-            if self._apart_over(until - self.time):
-                step = until - self.time
-            self.time += step
-            for i, robot in enumerate(self.robots):
-                if robot.advance(self.time):
-                    self.get_logger().warning(f'robot {i + 1}: no command for '
-                                              f'{self.params.command_timeout:g} s: motors off')
-            self._touch(step)
-
-    def _apart_over(self, span):
-        """Whether no contact can happen in the next `span` s: the bodies' smallest gap and
-        twice their room to the walls exceed twice the fastest robot's travel.
-        """
-        if self.radius <= 0:
-            return True
-        speed = max(robot.top_speed(self.time + span) for robot in self.robots)
-        return self.clearance > 2.0 * speed * span
-
-    def _touch(self, step):
-        if self.radius <= 0:
-            return
-        poses = np.array([r.pose for r in self.robots])
-        new, now, gap = separate(poses, self.radius, self.size[0], self.size[1],
-                                 self.touching)
-        self.contacts += new
-        self.contact_time += step if now else 0.0
-        self.smallest_gap = min(self.smallest_gap, gap)
-        self.clearance = -math.inf if now else gap
-        for axis, size in enumerate(self.size):   # walls: 0 <= x <= width, 0 <= y <= height
-            if size > 0:
-                room = np.minimum(poses[:, axis], size - poses[:, axis]) - self.radius
-                self.clearance = min(self.clearance, 2.0 * float(room.min()))
-        for robot, pose in zip(self.robots, poses, strict=True):
-            robot.pose = tuple(pose)
+        """Move the world up to `until` (s), saying which robots' watchdogs stopped them."""
+        for i in self.world.advance(until):
+            self.get_logger().warning(f'robot {i + 1}: no command for '
+                                      f'{self.params.command_timeout:g} s: motors off')
 
     def _on_timer(self):
         now = now_seconds(self)
         self.advance(now)
         noise = self.params.pose_noise
-        poses = np.array([r.pose for r in self.robots])
+        poses = self.world.poses()
         if noise[0] > 0 or noise[1] > 0:
             poses = poses + self.rng.normal(0.0, [noise[0], noise[0], noise[1]], poses.shape)
         for pub, msg, (x, y, th) in zip(self.pose_pubs, self.pose_msgs, poses, strict=True):
@@ -249,10 +211,10 @@ class FakeArena(Node):
             self.all_pub.publish(messages.robot_poses_to_msg(poses, now, self.params.frame_id))
 
     def contact_summary(self):
-        """{'count', 'time' (s), 'smallest_gap' (m, None without bodies)} so far."""
-        return {'count': self.contacts, 'time': self.contact_time,
-                'smallest_gap': self.smallest_gap if math.isfinite(self.smallest_gap)
-                else None}
+        """The world's contact tally so far: {'count', 'time' (s), 'smallest_gap' (m, None
+        without bodies)}, and from MuJoCo also 'walls' and 'largest_push' (N).
+        """
+        return self.world.contact_summary()
 
     def _publish_diagnostics(self):
         summary = self.contact_summary()
@@ -271,12 +233,6 @@ class FakeArena(Node):
         self.diag_pub.wait_for_all_acked(Duration(seconds=1.0))
         for endpoint in self.endpoints:
             endpoint.close()
-
-
-def separate(poses, radius, width, height, touching):
-    """core.bodies.separate as the batch simulator compiles it (imported on first use)."""
-    from curve_formation.core.simulator import separate as compiled
-    return compiled(poses, radius, width, height, touching)
 
 
 def main(args=None):

@@ -1,0 +1,370 @@
+"""The robots as MuJoCo bodies: mass, driven wheels, motors, casters, friction and contacts.
+
+The world is generated from an experiment (`physics:` for the bodies and motors, `limits:`
+for the wheels, `robots.radius` and `arena.size` for bodies and walls) as an MJCF model
+(`arena_mjcf`). Each robot is a free body: a disc of the configured radius carried by two
+wheels on hinges (limits.wheel_base apart, limits.wheel_radius) and one or two ball casters.
+Each wheel is driven by a motor that follows its speed command as a first-order lag
+(MuJoCo's filter actuator dynamics, physics.motor_time_constant) through a stiff velocity
+servo with a torque limit (physics.motor_torque).
+
+A velocity command (v, w) (m/s, rad/s) reaches the wheels as the firmware would turn it into
+wheel speeds: with its latency and watchdog (dynamics.CommandQueue), the robot-side
+disturbance of the experiment (added while driven), quantised and dead-banded as
+physics.imperfections says, through each motor's gain (spread, battery sag) and over each
+wheel's own radius (mismatch). Contacts, the smallest gap between two bodies and the
+pushes are read from MuJoCo's contact list.
+
+Frames and units: arena frame, origin at a corner, z up; m, s, rad, kg, N.
+"""
+
+from dataclasses import dataclass
+import math
+from typing import TYPE_CHECKING
+from xml.sax.saxutils import quoteattr
+
+import mujoco
+import numpy as np
+
+from curve_formation.core.dynamics import CommandQueue
+from curve_formation.core.experiment import wheel_radius
+from curve_formation.core.shapes import FloatArray
+
+
+if TYPE_CHECKING:
+    from curve_formation.core.experiment import Experiment
+
+
+# Geometry the experiment does not set (m): the wheels' width (the bodies' clearance of
+# them without robots.radius), ground clearance under the body,
+# caster radius and its height above the floor (the wheels carry the robot, a caster
+# catches it when it tips), wall thickness and height, the mass of a wheel (kg) and of a caster.
+WHEEL_WIDTH = 0.006
+CLEARANCE = 0.004
+CASTER_RADIUS = 0.005
+CASTER_LIFT = 0.0005
+WALL = (0.02, 0.05)
+WHEEL_MASS = 0.005
+CASTER_MASS = 0.002
+# The velocity servo behind each motor's lag: its own lag (s), small beside any motor time
+# constant, sets its gain from the inertia a wheel drives.
+SERVO_LAG = 0.002
+# The smallest gap between two bodies is MuJoCo's distance between their geoms
+# (mj_geomDistance), looked up every GAP_EVERY steps up to GAP_RANGE (m; further is reported
+# as None).
+GAP_EVERY = 10
+GAP_RANGE = 0.1
+# A wheel's contact with the floor: stiff (N/m per kg of contact mass, MuJoCo's direct
+# solref), damped and with its impedance near 1, so that a wheel sinks in by microns: MuJoCo's
+# default soft contact sinks it 0.14 mm and it rolls on a radius 1 % short.
+CONTACT_STIFFNESS = 1e5
+CONTACT_DAMPING = 300.0
+# Contact types: the floor touches wheels and casters; bodies touch bodies and walls.
+FLOOR_BIT, BODY_BIT = 1, 2
+
+
+@dataclass(frozen=True)
+class Robots:
+    """Each robot's drawn imperfections: wheel radii (n, 2) (m, left and right) and motor
+    gains (n, 2); the nominal wheel radius (m) the firmware converts speeds with.
+    """
+
+    wheel_radii: FloatArray
+    gains: FloatArray
+    nominal_radius: float
+
+
+def draw_robots(experiment: 'Experiment') -> Robots:
+    """The per-robot wheel radius mismatch and motor gains of physics.imperfections."""
+    spec = experiment.spec
+    imperfect = spec.physics.imperfections
+    rng = np.random.default_rng(imperfect.seed)
+    n = experiment.n
+    radius = wheel_radius(experiment)
+    mismatch = rng.uniform(-1.0, 1.0, n) * imperfect.wheel_radius_mismatch
+    radii = radius * np.column_stack([1.0 + 0.5 * mismatch, 1.0 - 0.5 * mismatch])
+    gains = 1.0 + rng.uniform(-1.0, 1.0, (n, 2)) * imperfect.motor_gain_spread
+    return Robots(radii, gains, radius)
+
+
+def wheel_base(experiment: 'Experiment') -> float:
+    """Distance between the wheels (m): limits.wheel_base, or a Mona's without limits."""
+    from curve_formation.core.wire import MONA_WHEEL_BASE
+    return float(experiment.limits.wheel_base or MONA_WHEEL_BASE)
+
+
+def body_radius(experiment: 'Experiment') -> float:
+    """The disc of a robot's body (m): robots.radius, or just round its wheels for points."""
+    return experiment.radius or 0.5 * wheel_base(experiment) + WHEEL_WIDTH
+
+
+def servo_gain(experiment: 'Experiment') -> float:
+    """Velocity servo gain (N m s/rad): the inertia one wheel drives over SERVO_LAG."""
+    physics = experiment.spec.physics
+    r = wheel_radius(experiment)
+    inertia = 0.5 * physics.mass * r * r + 0.5 * WHEEL_MASS * r * r
+    return inertia / SERVO_LAG
+
+
+def arena_mjcf(experiment: 'Experiment', robots: Robots | None = None) -> str:
+    """The MJCF model of the experiment's arena with its robots at their start poses."""
+    robots = draw_robots(experiment) if robots is None else robots
+    physics = experiment.spec.physics
+    base = wheel_base(experiment)
+    radius = body_radius(experiment)
+    r0 = robots.nominal_radius
+    body_mass = physics.mass - 2 * WHEEL_MASS - physics.casters * CASTER_MASS
+    if body_mass <= 0:
+        raise ValueError(f'physics.mass {physics.mass:g} kg is less than the wheels and '
+                         'casters alone')
+    kv = servo_gain(experiment)
+    caster_x = radius - CASTER_RADIUS - 0.003
+    width, height = (experiment.spec.arena.size if experiment.spec.arena is not None
+                     else (0.0, 0.0))
+    extent = max(width, height, 2.0) + 2.0
+    out = ['<mujoco model="curve_formation arena">',
+           _element('compiler', angle='radian', autolimits='true'),
+           _element('option', timestep=physics.timestep, integrator='implicitfast'),
+           '<worldbody>',
+           # the floor's own friction is the least: MuJoCo takes the larger of two geoms'
+           _element('geom', name='floor', type='plane', size=(extent, extent, 0.1),
+                    pos=(0.5 * width, 0.5 * height, 0), contype=FLOOR_BIT, conaffinity=0,
+                    friction=(1e-4, 0, 0))]
+    if width > 0 and height > 0:
+        t, h = WALL
+        for name, (x, y, sx, sy) in {
+                'wall_west': (-t / 2, height / 2, t / 2, height / 2 + t),
+                'wall_east': (width + t / 2, height / 2, t / 2, height / 2 + t),
+                'wall_south': (width / 2, -t / 2, width / 2 + t, t / 2),
+                'wall_north': (width / 2, height + t / 2, width / 2 + t, t / 2)}.items():
+            out.append(_element('geom', name=name, type='box', pos=(x, y, h / 2),
+                                size=(sx, sy, h / 2), contype=BODY_BIT, conaffinity=0))
+    for i, (x, y, theta) in enumerate(experiment.initial_poses, 1):
+        out += [_element('body', name=f'robot{i}', pos=(x, y, r0), euler=(0, 0, theta),
+                         close=False),
+                '<freejoint/>',
+                # a sphere at axle height: its horizontal section is the body's disc
+                _element('geom', name=f'body{i}', type='sphere', size=radius, mass=body_mass,
+                         contype=BODY_BIT, conaffinity=BODY_BIT)]
+        for k, cx in enumerate([caster_x, -caster_x][:physics.casters]):
+            out.append(_element('geom', name=f'caster{i}_{k}', type='sphere',
+                                size=CASTER_RADIUS, mass=CASTER_MASS,
+                                pos=(cx, 0, -r0 + CASTER_RADIUS + CASTER_LIFT), contype=0,
+                                conaffinity=FLOOR_BIT, friction=(physics.caster_friction, 0, 0)))
+        for side, sign, r in (('left', 1.0, robots.wheel_radii[i - 1, 0]),
+                              ('right', -1.0, robots.wheel_radii[i - 1, 1])):
+            out += [_element('body', name=f'{side}{i}', pos=(0, sign * 0.5 * base, r - r0),
+                             close=False),
+                    _element('joint', name=f'{side}{i}', type='hinge', axis=(0, 1, 0)),
+                    # a sphere: a thin wheel meets the floor at one point, as a sphere does
+                    # (and MuJoCo collides it with the plane at half a cylinder's cost)
+                    _element('geom', type='sphere', size=r, mass=WHEEL_MASS, contype=0,
+                             conaffinity=FLOOR_BIT, condim=3,
+                             solref=(-CONTACT_STIFFNESS, -CONTACT_DAMPING),
+                             solimp=(0.99, 0.999, 1e-4), friction=(physics.floor_friction, 0, 0)),
+                    '</body>']
+        out.append('</body>')
+    out += ['</worldbody>', '<actuator>']
+    for i in range(1, experiment.n + 1):
+        for side in ('left', 'right'):
+            # force = kv (act - wheel speed), act' = (command - act) / time constant
+            out.append(_element('general', name=f'{side}{i}', joint=f'{side}{i}',
+                                dyntype='filter', dynprm=physics.motor_time_constant,
+                                gaintype='fixed', gainprm=kv, biastype='affine',
+                                biasprm=(0, 0, -kv),
+                                forcerange=(-physics.motor_torque, physics.motor_torque)))
+    out += ['</actuator>', '</mujoco>']
+    return '\n'.join(out) + '\n'
+
+
+def _element(tag: str, close: bool = True, **attributes: object) -> str:
+    """An MJCF element: numbers plain (12 significant digits), tuples space-separated."""
+    def text(value: object) -> str:
+        if isinstance(value, str):
+            return value
+        if isinstance(value, tuple):
+            return ' '.join(text(v) for v in value)
+        return f'{float(value):.12g}'   # type: ignore[arg-type]
+    attrs = ''.join(f' {key}={quoteattr(text(value))}' for key, value in attributes.items())
+    return f'<{tag}{attrs}{"/" if close else ""}>'
+
+
+class MujocoWorld:
+    """Every robot of an experiment as a MuJoCo body on driven wheels (see the module).
+
+    command(i, v, w, now) hands robot i (0-based) a velocity command received at `now` (s);
+    advance(until) steps the engine to `until`; poses() are the axle centres and headings
+    (n, 3; headings unwrapped). latency (s) and timeout (s, 0 = none) are the link's delay
+    and the robot's watchdog, as for the kinematic robots.
+    """
+
+    def __init__(self, experiment: 'Experiment', latency: float = 0.0,
+                 timeout: float = 0.0) -> None:
+        spec = experiment.spec
+        self.n = experiment.n
+        self.robots = draw_robots(experiment)
+        self.model = mujoco.MjModel.from_xml_string(arena_mjcf(experiment, self.robots))
+        self.data = mujoco.MjData(self.model)
+        self.dt = self.model.opt.timestep
+        self.time: float | None = None
+        self.steps = 0
+        self.base = wheel_base(experiment)
+        limits = experiment.limits
+        self.max_wheel_speed = limits.max_wheel_speed
+        imperfect = spec.physics.imperfections
+        self.dead_band = imperfect.dead_band * limits.max_wheel_speed
+        bits = imperfect.command_bits
+        self.quantum = (limits.max_wheel_speed / (2 ** (bits - 1) - 1)
+                        if bits is not None and math.isfinite(limits.max_wheel_speed) else 0.0)
+        self.sag = imperfect.battery_sag / 600.0   # gain lost per s
+        on_robot = spec.disturbance.injected == 'on_robot'
+        self.disturbance = (np.asarray(experiment.disturbance, float) if on_robot
+                            else np.zeros((self.n, 2)))
+        self.queues = [CommandQueue(latency, timeout) for _ in range(self.n)]
+        self.wheels = np.zeros((self.n, 2))   # wheel speed commands in force (m/s)
+        self.next_change = -math.inf   # s: when a command falls due or a watchdog fires
+        self.qpos = np.array([self.model.jnt_qposadr[self.model.body(f'robot{i}').jntadr[0]]
+                              for i in range(1, self.n + 1)])
+        self.wheel_dofs = np.array([[self.model.jnt_dofadr[self.model.joint(f'{s}{i}').id]
+                                     for s in ('left', 'right')] for i in range(1, self.n + 1)])
+        self.headings = np.asarray(experiment.initial_poses, float)[:, 2].copy()
+        # geom id -> robot index (bodies), -2 for walls, -1 otherwise
+        self.geom_owner = np.full(self.model.ngeom, -1)
+        for i in range(self.n):
+            self.geom_owner[self.model.geom(f'body{i + 1}').id] = i
+        for g in range(self.model.ngeom):
+            if self.model.geom(g).name.startswith('wall_'):
+                self.geom_owner[g] = -2
+        bodies = [self.model.geom(f'body{i + 1}').id for i in range(self.n)]
+        self.body_pairs = [(bodies[i], bodies[j]) for i in range(self.n)
+                           for j in range(i + 1, self.n)]
+        self.touching: set[tuple[int, int]] = set()
+        self.contacts = 0
+        self.wall_contacts = 0
+        self.contact_steps = 0
+        self.smallest_gap = math.inf
+        self.largest_push = 0.0
+        self._force = np.zeros(6)
+        mujoco.mj_forward(self.model, self.data)
+
+    def command(self, i: int, v: float, w: float, now: float) -> None:
+        """Robot i's (0-based) velocity command (m/s, rad/s) received at `now` (s)."""
+        self.queues[i].push(v, w, now)
+        self.next_change = min(self.next_change, now + self.queues[i].latency)
+
+    def top_speed(self, until: float) -> float:
+        """The fastest (m/s) any robot may be commanded up to `until`."""
+        return max(abs(v) + 0.5 * self.base * abs(w)
+                   for q in self.queues for v, w in q.upcoming(until))
+
+    def advance(self, until: float) -> list[int]:
+        """Step the engine up to `until` (s, to within half a step); the robots (0-based)
+        whose watchdog turned their motors off on the way.
+        """
+        if self.time is None:
+            self.time = until
+        stopped: list[int] = []
+        while self.time + 0.5 * self.dt <= until:
+            end = self.time + self.dt
+            if end >= self.next_change:
+                stopped += self._take_commands(end)
+            self.data.ctrl[:] = self.motor_commands(self.wheels, self.time).ravel()
+            mujoco.mj_step(self.model, self.data)
+            self.time = end
+            self.steps += 1
+            self._tally()
+        return stopped
+
+    def _take_commands(self, end: float) -> list[int]:
+        """Wheel speed commands in force at `end` (s): the robots whose watchdog fired."""
+        stopped = []
+        self.next_change = math.inf
+        for i, queue in enumerate(self.queues):
+            segments, off = queue.segments(end)
+            if off:
+                stopped.append(i)
+            v, w = queue.command
+            self.wheels[i] = 0.0
+            if v != 0.0 or w != 0.0:
+                v += self.disturbance[i, 0]
+                w += self.disturbance[i, 1]
+                self.wheels[i] = v - 0.5 * self.base * w, v + 0.5 * self.base * w
+            if queue.pending:
+                self.next_change = min(self.next_change, queue.pending[0][0])
+            if (queue.timeout > 0 and queue.command != (0.0, 0.0)
+                    and queue.last_command_time is not None):
+                self.next_change = min(self.next_change, queue.last_command_time
+                                       + queue.timeout + queue.latency)
+        return stopped
+
+    def motor_commands(self, wheels: FloatArray, now: float) -> FloatArray:
+        """(n, 2) motor speed commands (rad/s) for wheel speed commands (n, 2; m/s, left and
+        right) as the firmware and motors turn them: quantised, dead-banded, over the
+        nominal radius, times each motor's gain and the battery's.
+        """
+        if self.quantum > 0:
+            wheels = np.round(wheels / self.quantum) * self.quantum
+        if self.dead_band > 0:
+            wheels = np.where(np.abs(wheels) < self.dead_band, 0.0, wheels)
+        battery = max(0.0, 1.0 - self.sag * now)
+        return wheels / self.robots.nominal_radius * self.robots.gains * battery
+
+    def wheel_speeds(self) -> FloatArray:
+        """(n, 2) wheel angular speeds (rad/s), left and right."""
+        return self.data.qvel[self.wheel_dofs]
+
+    def poses(self) -> FloatArray:
+        """(n, 3) x, y (m) of each axle centre and its heading (rad, unwrapped)."""
+        self._unwrap()
+        return np.column_stack([self.data.qpos[self.qpos], self.data.qpos[self.qpos + 1],
+                                self.headings])
+
+    def _unwrap(self) -> None:
+        """Carry the unwrapped headings to the bodies' yaw now (called at least every
+        GAP_EVERY steps: no body turns half a revolution in between).
+        """
+        q = self.data.qpos[self.qpos[:, None] + np.arange(3, 7)]   # (n, 4) w, x, y, z
+        yaw = np.arctan2(2.0 * (q[:, 0] * q[:, 3] + q[:, 1] * q[:, 2]),
+                         1.0 - 2.0 * (q[:, 2] ** 2 + q[:, 3] ** 2))
+        self.headings += (yaw - self.headings + np.pi) % (2.0 * np.pi) - np.pi
+
+    def _tally(self) -> None:
+        """Contacts of the step just taken, from MuJoCo's contact list; every GAP_EVERY
+        steps, the smallest gap between two bodies from MuJoCo's geom distance.
+        """
+        if self.steps % GAP_EVERY == 0:
+            self._unwrap()
+            for g1, g2 in self.body_pairs:
+                gap = mujoco.mj_geomDistance(self.model, self.data, g1, g2, GAP_RANGE, None)
+                if gap < GAP_RANGE:
+                    self.smallest_gap = min(self.smallest_gap, gap)
+        contact = self.data.contact
+        owners = self.geom_owner[contact.geom]   # (ncon, 2)
+        touching = set()
+        for k in np.flatnonzero(owners.max(axis=1) > -1):
+            i, j = int(owners[k, 0]), int(owners[k, 1])
+            if i >= 0 and j >= 0:
+                touching.add((min(i, j), max(i, j)))
+                self.smallest_gap = min(self.smallest_gap, float(contact.dist[k]))
+            else:
+                touching.add((max(i, j), -1))
+            mujoco.mj_contactForce(self.model, self.data, int(k), self._force)
+            self.largest_push = max(self.largest_push, abs(float(self._force[0])))
+        if not touching and not self.touching:
+            return
+        new = touching - self.touching
+        self.contacts += sum(1 for _, j in new if j >= 0)
+        self.wall_contacts += sum(1 for _, j in new if j < 0)
+        self.contact_steps += bool(touching)
+        self.touching = touching
+
+    def contact_summary(self) -> dict[str, float | int | None]:
+        """{'count' (new robot-robot contacts), 'walls' (new robot-wall contacts), 'time' (s
+        with any), 'smallest_gap' (m between two bodies; None when none came within
+        GAP_RANGE), 'largest_push' (N, the largest contact force)} so far.
+        """
+        return {'count': self.contacts, 'walls': self.wall_contacts,
+                'time': self.contact_steps * self.dt,
+                'smallest_gap': self.smallest_gap if math.isfinite(self.smallest_gap)
+                else None,
+                'largest_push': self.largest_push}

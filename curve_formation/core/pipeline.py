@@ -1,0 +1,217 @@
+"""The ROS graph's tick pipeline without ROS: what the nodes do, in one process, in time order.
+
+One agent.AgentController per robot, as each formation_controller node runs it; the curve
+schedule as the curve server publishes it (each phase at its start, a moving curve renewed
+at MOVING_RATE, targets re-assigned every agents.reassign_every from the robots' poses);
+poses sampled from the world at the camera's rate and handed to every controller, each
+controller's state passed on to its out-neighbours when its pose comes (as the node
+publishes it); every controller ticking at the control rate at its own phase of the period
+(unsynchronised nodes), its command handed to the world. The world is a worlds.World: the
+paper's unicycles or MuJoCo bodies.
+
+Everything happens at exact event times on one clock (s), in this order at equal times:
+curves, poses, ticks, records. Inputs arrive the instant they are sent (no link delay).
+"""
+
+import dataclasses
+import heapq
+import math
+from typing import Literal
+
+import numpy as np
+
+from curve_formation.core import metrics
+from curve_formation.core.agent import agent_configs, AgentController
+from curve_formation.core.assignment import reassigned
+from curve_formation.core.experiment import control_rate, Experiment, Phase
+from curve_formation.core.shapes import FloatArray
+from curve_formation.core.simulator import SimResult
+from curve_formation.core.worlds import make_world, World
+
+
+# How often (Hz) the curve server renews a moving curve (its moving_rate_hz default).
+MOVING_RATE = 10.0
+# Poses per second (Hz) when the experiment has no camera (the fake arena's default).
+POSE_RATE = 30.0
+# Event kinds, in their order at equal times.
+CURVE, REASSIGN, POSE, TICK, RECORD = range(5)
+
+
+def _times(period: float, offset: float, end: float) -> list[float]:
+    """offset, offset + period, ... below end (s)."""
+    count = int(math.floor((end - offset) / period - 1e-9)) + 1
+    return [offset + k * period for k in range(max(count, 0))]
+
+
+class Pipeline:
+    """The controllers, the curve schedule and the world of one run (see the module)."""
+
+    def __init__(self, experiment: Experiment, world: World, rate_hz: float,
+                 tick_phases: FloatArray, pose_rate: float) -> None:
+        self.experiment = experiment
+        self.world = world
+        n = experiment.n
+        self.controllers = [AgentController(dataclasses.replace(config, compiled=True))
+                            for config in agent_configs(experiment, rate_hz)]
+        self.out_neighbours: list[list[int]] = [[] for _ in range(n)]
+        for i, controller in enumerate(self.controllers):
+            for j, _ in controller.config.neighbours:
+                self.out_neighbours[j - 1].append(i)
+        self.avoidance = experiment.avoidance.on
+        self.rate_hz = rate_hz
+        self.tick_phases = tick_phases
+        self.pose_rate = pose_rate
+        self.commands = np.zeros((n, 2))
+        self.followed: list[Phase] = []
+        self.phase: Phase | None = None
+        self.curve_id = -1
+        self.s: FloatArray | None = None
+        self.changes: list[tuple[float, FloatArray, FloatArray]] = []
+        self.sent = experiment.phases[0].targets   # the targets last sent (m)
+        self.reassigned = False
+
+    def _publish(self, now: float, curve, s: FloatArray, rate=None) -> None:
+        for controller in self.controllers:
+            controller.set_curve(curve, self.curve_id, s, rate, received=now)
+
+    def start_phase(self, index: int, now: float) -> None:
+        """The curve server's switch to phase `index` at `now` (s)."""
+        self._close_phase()
+        phase = self.experiment.switched_to(self.experiment.phases[index], self.reassigned,
+                                            self.sent)
+        self.reassigned = False
+        self.phase, self.s, self.changes = phase, phase.s, []
+        self.curve_id += 1
+        rate = None if phase.motion is None else phase.motion.rate(phase.curve, 0.0)
+        self.sent = phase.targets
+        self._publish(now, phase.curve, phase.s, rate)
+
+    def renew(self, now: float) -> None:
+        """A moving curve published where it is now, with its rate (same id)."""
+        phase = self.phase
+        if phase is None or phase.motion is None or self.s is None:
+            return
+        tau = now - phase.start
+        curve = phase.motion.curve(phase.curve, tau)
+        self.sent = curve.points(self.s)
+        self._publish(now, curve, self.s, phase.motion.rate(phase.curve, tau))
+
+    def reassign(self, now: float) -> None:
+        """The curve server's re-assignment from the robots' poses (same id)."""
+        phase = self.phase
+        if phase is None or self.s is None:
+            return
+        curve = phase.curve_at(now)
+        points = metrics.offset_points(self.world.poses(), self.experiment.gains.offset)
+        new = reassigned(curve, self.s, points)
+        if new is self.s:
+            return
+        self.s, self.reassigned = new, True
+        self.changes.append((now, new, phase.curve.points(new)))
+        self.sent = curve.points(new)
+        rate = None if phase.motion is None else phase.motion.rate(phase.curve,
+                                                                     now - phase.start)
+        self._publish(now, curve, new, rate)
+
+    def _close_phase(self) -> None:
+        if self.phase is not None:
+            self.followed.append(dataclasses.replace(self.phase, changes=tuple(self.changes)))
+
+    def poses_taken(self, now: float) -> None:
+        """Every robot's pose at `now` handed to its controller; states to out-neighbours."""
+        poses = self.world.poses()
+        for i, controller in enumerate(self.controllers):
+            x, y, theta = poses[i]
+            if self.avoidance:
+                controller.on_others(poses, now, now)
+            if not controller.on_pose(float(x), float(y), float(theta), now, now):
+                continue
+            state = controller.state()
+            if state is None:
+                continue
+            for k in self.out_neighbours[i]:
+                self.controllers[k].on_neighbour(i + 1, *state.error, state.curve_id,
+                                                 state.stamp, state.leader_age, now)
+
+    def tick(self, i: int, now: float) -> None:
+        tick = self.controllers[i].tick(now)
+        self.commands[i] = tick.v, tick.w
+        self.world.command(i, tick.v, tick.w, now)
+
+    def run(self, duration: float, record_dt: float, reassign_every: float | None
+            ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """Run to `duration` (s); (t, poses, dhat, commands) recorded every record_dt."""
+        events: list[tuple[float, int, int]] = []
+        for index, phase in enumerate(self.experiment.phases):
+            if phase.start < duration:
+                events.append((phase.start, CURVE, index))
+            if phase.motion is not None:
+                end = (self.experiment.phases[index + 1].start
+                       if index + 1 < len(self.experiment.phases) else duration)
+                events += [(t, CURVE, -1) for t in
+                           _times(1.0 / MOVING_RATE, phase.start + 1.0 / MOVING_RATE,
+                                  min(end, duration))]
+        if reassign_every:
+            events += [(t, REASSIGN, 0) for t in _times(reassign_every, reassign_every,
+                                                           duration)]
+        events += [(t, POSE, 0) for t in _times(1.0 / self.pose_rate, 0.0, duration)]
+        period = 1.0 / self.rate_hz
+        for i, phase in enumerate(self.tick_phases):
+            events += [(t, TICK, i) for t in _times(period, float(phase) * period, duration)]
+        records = _times(record_dt, 0.0, duration)
+        events += [(t, RECORD, k) for k, t in enumerate(records)]
+        heapq.heapify(events)
+        n = self.experiment.n
+        rec_poses = np.zeros((len(records), n, 3))
+        rec_dhat = np.zeros((len(records), n, 2))
+        rec_cmd = np.zeros((len(records), n, 2))
+        while events:
+            now, kind, index = heapq.heappop(events)
+            self.world.advance(now)
+            if kind == CURVE:
+                self.start_phase(index, now) if index >= 0 else self.renew(now)
+            elif kind == REASSIGN:
+                self.reassign(now)
+            elif kind == POSE:
+                self.poses_taken(now)
+            elif kind == TICK:
+                self.tick(index, now)
+            else:
+                rec_poses[index] = self.world.poses()
+                rec_dhat[index] = [c.dhat for c in self.controllers]
+                rec_cmd[index] = self.commands
+        self._close_phase()
+        return np.asarray(records), rec_poses, rec_dhat, rec_cmd
+
+
+def simulate_pipeline(experiment: Experiment, engine: Literal['kinematic', 'mujoco'] | None
+                      = None, rate_hz: float | None = None, duration: float | None = None,
+                      record_dt: float | None = None, seed: int = 0,
+                      pose_rate: float | None = None) -> SimResult:
+    """Run an experiment through the nodes' tick pipeline (module doc) in a world of
+    `engine` (None: the experiment's physics.engine); a SimResult as simulator.simulate
+    gives.
+
+    rate_hz: control rate (Hz; default the experiment's, checked as the file's); seed:
+    each controller's phase of the control period (uniform in [0, 1)); pose_rate: poses per
+    second (Hz; default the camera's rate, else POSE_RATE).
+    """
+    spec = experiment.spec
+    rate = control_rate(experiment, rate_hz)
+    duration = spec.simulation.duration if duration is None else duration
+    record_dt = spec.simulation.record_dt if record_dt is None else record_dt
+    if pose_rate is None:
+        pose_rate = spec.camera.rate_hz if spec.camera is not None else POSE_RATE
+    world = make_world(experiment, engine)
+    phases = np.random.default_rng(seed).random(experiment.n)
+    pipeline = Pipeline(experiment, world, rate, phases, pose_rate)
+    t, poses, dhat, commands = pipeline.run(duration, record_dt,
+                                            spec.agents.reassign_every)
+    starts = np.array([p.start for p in experiment.phases[1:]])
+    phase_index = np.searchsorted(starts, t, side='right')
+    followed = tuple(pipeline.followed)
+    return SimResult(dataclasses.replace(experiment, phases=followed
+                                         + experiment.phases[len(followed):]),
+                     rate, experiment.gains, experiment.limits,
+                     np.asarray(experiment.disturbance, float), t, poses, dhat, commands,
+                     phase_index, experiment.radius, world.contact_summary())

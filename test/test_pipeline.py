@@ -1,0 +1,65 @@
+"""The nodes' tick pipeline without ROS (core.pipeline): in the kinematic world it agrees with
+the batch simulator; in the MuJoCo world (robots with mass, motors and casters) the shipped
+arena demo settles as in the kinematic one, without a contact.
+"""
+
+import json
+
+import numpy as np
+import pytest
+
+from curve_formation import cli
+from curve_formation.core.experiment import load_experiment
+from curve_formation.core.metrics import result_metrics
+from curve_formation.core.pipeline import simulate_pipeline
+from curve_formation.core.simulator import simulate
+
+
+@pytest.fixture(scope='module')
+def arena_demo():
+    return load_experiment('config/arena_demo.yaml')
+
+
+@pytest.fixture(scope='module')
+def kinematic(arena_demo):
+    return result_metrics(simulate_pipeline(arena_demo, 'kinematic', duration=40.0))
+
+
+def settle_times(data):
+    return [p['settle_time'] for p in data['phases']]
+
+
+def test_the_pipeline_in_the_kinematic_world_settles_as_the_batch_simulator(arena_demo,
+                                                                          kinematic):
+    """Same law, same starts: the controllers, unsynchronised, fed 30 Hz poses settle within
+    2 % of the batch simulator's synchronous ticks, and no robot touches another.
+    """
+    batch = result_metrics(simulate(arena_demo, duration=40.0))
+    assert kinematic['all_settled'] and batch['all_settled']
+    np.testing.assert_allclose(settle_times(kinematic), settle_times(batch), rtol=0.02)
+    assert kinematic['bodies']['contacts']['count'] == 0
+
+
+def test_sim_physics_mujoco_runs_the_pipeline_and_settles_as_the_kinematic_world(
+        tmp_path, kinematic):
+    """`sim --physics mujoco`: arena_demo's robots as MuJoCo bodies settle within 1.15x of
+    the kinematic pipeline's time, with no robot-robot or robot-wall contact, and learn the
+    disturbance (added to their wheel commands) as they do there.
+    """
+    out = tmp_path / 'sim'
+    assert cli.main(['sim', 'arena_demo', '--physics', 'mujoco', '--out', str(out)]) in (0, None)
+    data = json.loads((out / 'metrics.json').read_text())
+    assert data['all_settled'], data['phases']
+    for mujoco, kinematic_time in zip(settle_times(data), settle_times(kinematic), strict=True):
+        assert mujoco <= 1.15 * kinematic_time
+    contacts = data['bodies']['contacts']
+    assert contacts['count'] == 0 and contacts['walls'] == 0
+    assert data['final_estimate_error_max'] < 0.1 * 0.3   # d / k2 = (0.015, 0.3)
+    assert (out / 'trajectory.npz').exists()
+
+
+def test_sim_refuses_continuous_control_in_the_mujoco_world(tmp_path, capsys):
+    code = cli.main(['sim', 'arena_demo', '--physics', 'mujoco', '--continuous',
+                     '--out', str(tmp_path / 'x')])
+    assert code == 2
+    assert '--continuous' in capsys.readouterr().err
