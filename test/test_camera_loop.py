@@ -200,3 +200,26 @@ def test_the_robots_follow_a_line_drawn_on_the_floor_and_moved(ros_domain, tmp_p
     for phase, expected in zip(result['phases'], sim_settle, strict=True):
         assert phase['settled'] and phase['settle_time'] < 1.3 * expected, (phase, expected)
     assert result['bodies']['contacts'] == {'count': 0, 'time': 0.0}
+
+
+@pytest.mark.slow   # about a minute and a half
+def test_the_arena_demo_settles_with_mujoco_robots_seen_through_the_camera(ros_domain,
+                                                                          tmp_path):
+    """`curve-formation run arena_demo --camera --physics mujoco`: robots with mass, motors
+    and casters in MuJoCo (fake_arena), seen by the fake overhead camera, driven by the
+    controllers over DDS. The formation settles on the robots' true poses with no contact
+    between robots nor with a wall, within 1.2x of the same pipeline without ROS
+    (core.pipeline) in the MuJoCo world.
+    """
+    from curve_formation.core.pipeline import simulate_pipeline
+    options = RunOptions(camera={}, physics='mujoco')
+    with Run('arena_demo', tmp_path, options, log=quiet) as run:
+        run.spin_for(45.0)
+        result = run.write_results()
+    contacts = result['bodies']['contacts']
+    assert contacts['count'] == 0 and contacts['walls'] == 0, result['bodies']
+    truth = result['ground_truth']['phases']
+    assert all(p['settled'] for p in truth), truth
+    alone = metrics.result_metrics(simulate_pipeline(run.experiment, 'mujoco', duration=45.0))
+    for true, batch in zip(truth, alone['phases'], strict=True):
+        assert true['settle_time'] <= 1.2 * batch['settle_time'], (true, batch)

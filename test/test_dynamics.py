@@ -30,3 +30,36 @@ def test_a_command_in_time_keeps_the_robot_driving():
         robot.drive(0.05, 0.0, now=t)
     assert not robot.advance(3.4)
     np.testing.assert_allclose(robot.pose, (0.05 * 3.4, 0.0, 0.0), atol=1e-12)
+
+
+def test_the_kinematic_world_steps_at_once_only_where_no_contact_can_happen():
+    """The kinematic world moves the robots over a pose period in one step while no two
+    bodies nor a body and a wall can meet in it, and in physics_dt steps near a contact: two
+    robots driven head-on meet and push each other exactly as with physics_dt steps
+    throughout, in under half the steps.
+    """
+    from conftest import DATA_DIR
+    from curve_formation.core.experiment import load_experiment
+    from curve_formation.core.kinematic_world import KinematicWorld
+    experiment = load_experiment(DATA_DIR / 'arena_bodies.yaml')
+    worlds = [KinematicWorld(experiment) for _ in range(2)]
+    worlds[1]._apart_over = lambda span: False   # physics_dt steps throughout
+    steps = []
+    for world in worlds:
+        count = []
+        touch = world._touch
+        world._touch = lambda step, touch=touch, count=count: (count.append(step), touch(step))
+        t = 0.0
+        world.advance(t)
+        for _ in range(120):   # 4 s of 30 Hz pose periods, robots 1 and 4 head-on
+            for i in (0, 3):
+                world.command(i, 0.08, 0.0, t)
+            t += 1 / 30
+            world.advance(t)
+        steps.append(len(count))
+    at_once, fine = worlds
+    np.testing.assert_allclose(at_once.poses(), fine.poses(), rtol=0, atol=1e-9)
+    assert at_once.contacts == fine.contacts == 1
+    assert at_once.contact_time == pytest.approx(fine.contact_time)
+    assert at_once.smallest_gap == pytest.approx(fine.smallest_gap, abs=1e-9)
+    assert steps[0] < steps[1] / 2

@@ -44,6 +44,7 @@ from curve_formation.core.control import (
     observe,
     OBSERVER,
     offset_point,
+    wheel_speeds,
     WheelLimits,
 )
 from curve_formation.core.curves import Curve
@@ -57,6 +58,7 @@ from curve_formation.core.plausibility import (
 )
 from curve_formation.core.safety import Avoidance, AVOIDANCE_OFF, STOPPED
 from curve_formation.core.shapes import Command, FloatArray, Point, Pose
+from curve_formation.core.wire import body_velocity as rim_velocity
 
 
 if TYPE_CHECKING:
@@ -90,7 +92,9 @@ def agent_configs(experiment: 'Experiment', rate_hz: float) -> list['AgentConfig
                          float(experiment.disturbance[i - 1][1])) if on_pc else (0.0, 0.0)),
         avoidance=experiment.avoidance, predict_pose=spec.controller.predict_pose,
         command_latency=spec.controller.command_latency,
-        feed_forward=spec.controller.feed_forward)
+        feed_forward=spec.controller.feed_forward,
+        min_wheel_speed=(spec.limits.min_wheel_speed or 0.0) if spec.limits else 0.0,
+        motor_time_constant=(spec.limits.motor_time_constant or 0.0) if spec.limits else 0.0)
         for i in range(1, experiment.n + 1)]
 
 
@@ -146,6 +150,14 @@ class AgentConfig:
     # compares the motion with the command acting on it then
     command_latency: float = 0.0
     feed_forward: bool = True       # add a moving curve's target velocity to the command
+    # m/s: a wheel commanded slower than this stays still (the motors' dead band, told): the
+    # observer expects that motion, not the command (0: no dead band)
+    min_wheel_speed: float = 0.0
+    # s: the wheels follow their commands with this first-order lag (the motors', told): the
+    # observer compares each measured motion with the commands' realised average over it
+    # (each from its sending plus command_latency, through the lag); 0: the command acting
+    # from the previous tick on
+    motor_time_constant: float = 0.0
     # The law and filter (control.agent_command) compiled by numba as in the batch simulator:
     # the same source, about 15x faster a tick; loading it costs ~0.7 s and ~65 MB.
     compiled: bool = False
@@ -268,6 +280,7 @@ class AgentController:
         self.reference: Command = (0.0, 0.0)
         self.shift: Command = (0.0, 0.0)
         self.limited = False
+        self.idle = False   # the last command's wheels all within the dead band
         # control.ray_growth's state: (factor, last right, last left wheel speed m/s)
         self.ray: tuple[float, float, float] = (1.0, 0.0, 0.0)
         # +1: the law steers the point ahead of the axle, -1: the one behind it (reversing,
@@ -430,7 +443,7 @@ class AgentController:
         """One control step at time `now` (s, this controller's clock)."""
         tick = self._tick(now)
         self.sent.append(Sent(now, tick.v, tick.w, self.reference, self.shift, self.limited,
-                              tick.stopped is None))
+                              tick.stopped is None and not self.idle))
         return tick
 
     def predicted(self, pose: Pose, stamp: float, received: float, now: float) -> Pose:
@@ -522,7 +535,7 @@ class AgentController:
             return self._stop('safety filter: no motion keeps the robots apart', base)
         self.filtered += code != 0
         self.anchor = (measured, stamp, now)
-        self.reference = (ref_v, ref_w)
+        self.reference = self._dead_band_reference(v, w, ref_v, ref_w)
         self.shift = (shift_v, shift_w)
         self.limited = limited
         self.last_command = (v, w)
@@ -530,6 +543,27 @@ class AgentController:
         base.pose = pose
         base.filtered = code != 0
         return base
+
+    def _dead_band_reference(self, v: float, w: float, ref_v: float, ref_w: float
+                             ) -> Command:
+        """The observer's reference for the command (v, w) sent: with a dead band
+        (min_wheel_speed), less what the wheels commanded below it will not do, so that a
+        robot standing still under a command too small to move it is not taken for a
+        disturbance holding it back. Both wheels in the band: the motors are idle (nothing is
+        learnt from that period, as when stopped).
+        """
+        cfg = self.config
+        self.idle = False
+        if cfg.min_wheel_speed <= 0.0 or cfg.limits.wheel_base <= 0.0:
+            return ref_v, ref_w
+        right, left = wheel_speeds(v, w, cfg.limits.wheel_base)
+        still_right = abs(right) < cfg.min_wheel_speed
+        still_left = abs(left) < cfg.min_wheel_speed
+        self.idle = still_right and still_left
+        moved_v, moved_w = rim_velocity(0.0 if still_left else left,
+                                                   0.0 if still_right else right,
+                                                   cfg.limits.wheel_base)
+        return ref_v + moved_v - v, ref_w + moved_w - w
 
     def _acting(self, at: float) -> Sent | None:
         """The command acting on the robot at `at` (s, this controller's clock): the last
@@ -547,8 +581,9 @@ class AgentController:
 
         The motion is the constant (v, w) that carries the previous tick's pose to the current
         one over the difference of their stamps; the command is the one acting on the robot
-        from the previous tick on (sent then, or a command latency before; nothing is learnt
-        while the motors were off). The motion's part before the safety filter (the motion
+        from the previous tick on (sent then, or a command latency before), or with a motor
+        time constant what the commands realised over that motion (_realised); nothing is
+        learnt while the motors were off. The motion's part before the safety filter (the motion
         minus what the filter changed) is scaled along its ray when saturated
         (control.ray_growth); without a newer pose nothing is updated.
         """
@@ -556,8 +591,13 @@ class AgentController:
             return
         (x0, y0, th0), stamp0, ticked = self.anchor
         elapsed = self.pose_stamp - stamp0
-        acting = self._acting(ticked)
-        if elapsed <= 0.0 or acting is None or not acting.driven:
+        if elapsed <= 0.0:
+            return
+        if self.config.motor_time_constant > 0.0:
+            acting = self._realised(elapsed)
+        else:
+            acting = self._acting(ticked)
+        if acting is None or not acting.driven:
             return
         measured_v, measured_w = body_velocity(x0, y0, th0, *self.pose, elapsed)
         blend = 1.0 - math.exp(-self.config.gains.observer_rate * elapsed)
@@ -566,6 +606,49 @@ class AgentController:
                                        acting.limited, self.config.law, self.config.limits, blend)
         self.dhat[:] = (dhat_v, dhat_w)
         self.ray = (ray[0], ray[1], ray[2])
+
+    def _realised(self, elapsed: float) -> Sent | None:
+        """What the wheels did on average over the `elapsed` s up to the current pose: the
+        commands sent, each acting from its sending plus command_latency, through the motors'
+        first-order lag (motor_time_constant), as a Sent (reference and shift averaged;
+        limited if any was; driven only if all were); None if the commands sent do not reach
+        back that far.
+
+        The interval ends when the pose was taken, on this controller's clock: its stamp
+        where the pose source shares the clock (an age within MAX_PREDICTION), else when it
+        was received.
+        """
+        assert self.pose_stamp is not None and self.pose_received is not None
+        cfg = self.config
+        tau, delay = cfg.motor_time_constant, cfg.command_latency
+        age = self.pose_received - self.pose_stamp
+        end = self.pose_stamp if 0.0 <= age <= MAX_PREDICTION else self.pose_received
+        begin = end - elapsed
+        sent = list(self.sent)
+        if not sent or sent[0].at + delay > begin:
+            return None
+        lag = np.array([*sent[0].reference, *sent[0].shift])   # the wheels' state
+        total = np.zeros(4)
+        limited, driven = False, True
+        for k, command in enumerate(sent):
+            start = command.at + delay
+            if start >= end:
+                break
+            stop = min(sent[k + 1].at + delay, end) if k + 1 < len(sent) else end
+            target = np.array([*command.reference, *command.shift])
+            before = min(max(begin, start), stop)   # the part before the interval
+            lag = target + (lag - target) * math.exp(-(before - start) / tau)
+            span = stop - before
+            if span <= 0.0:
+                continue
+            decay = math.exp(-span / tau)
+            total += target * span + (lag - target) * tau * (1.0 - decay)
+            lag = target + (lag - target) * decay
+            limited = limited or command.limited
+            driven = driven and command.driven
+        mean = total / elapsed
+        return Sent(end, 0.0, 0.0, (float(mean[0]), float(mean[1])),
+                    (float(mean[2]), float(mean[3])), limited, driven)
 
     def _stop(self, reason: str, base: Tick | None = None) -> Tick:
         tick = base or Tick()

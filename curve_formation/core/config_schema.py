@@ -193,6 +193,14 @@ class LimitsSpec(Strict):
     wheel_radius: float = Field(0.015, gt=0, description='wheel radius (m): the wheel speeds in '
                                 'rad/s a robot bridge sends (Mona: 15 mm)')
     max_angular_rate: Optional[float] = Field(None, gt=0, description='max |w| (rad/s)')
+    min_wheel_speed: Optional[float] = Field(
+        None, gt=0, description="the slowest wheel speed (m/s) the robots' motors turn at: "
+        'a smaller command leaves the wheel still (a dead band); the observer then expects '
+        'no motion from it instead of learning a disturbance. Measure it on your robots')
+    motor_time_constant: Optional[float] = Field(
+        None, gt=0, le=1.0, description="the first-order lag (s) with which the robots' wheels "
+        'follow their commands: the observer compares each measured motion with what the '
+        'commands realised through it. Measure it on your robots (a step response)')
     max_linear_accel: Optional[float] = Field(None, gt=0, description='max dv/dt (m/s^2)')
     max_angular_accel: Optional[float] = Field(None, gt=0, description='max dw/dt (rad/s^2)')
 
@@ -477,13 +485,15 @@ class PhysicsSpec(Strict):
     mass: float = Field(0.1, gt=0, description='robot mass with wheels (kg)')
     height: float = Field(0.03, gt=0, description='body height (m)')
     casters: Literal[1, 2] = Field(2, description='ball casters, front (and back)')
-    caster_friction: float = Field(0.05, ge=0, description='sliding friction of a caster '
-                                   'on the floor (its drag)')
+    caster_drag: float = Field(0.02, ge=0, description="the casters' drag against the "
+                               "robot's motion, as a fraction of its weight")
     floor_friction: float = Field(0.8, gt=0, description='wheel-floor friction coefficient: '
                                   'lower, wheels slip sooner when robots push')
     motor_time_constant: float = Field(0.05, gt=0, description='first-order time constant '
                                        'of a wheel following its speed command (s)')
     motor_torque: float = Field(0.03, gt=0, description='torque limit of a wheel motor (N m)')
+    motor_inertia: float = Field(3e-5, gt=0, description="the motor rotor's inertia seen at "
+                                 'the wheel through its gearbox (kg m^2)')
     imperfections: ImperfectionsSpec = ImperfectionsSpec()
 
 

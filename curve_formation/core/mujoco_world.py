@@ -36,19 +36,30 @@ if TYPE_CHECKING:
 
 
 # Geometry the experiment does not set (m): the wheels' width (the bodies' clearance of
-# them without robots.radius), ground clearance under the body,
-# caster radius and its height above the floor (the wheels carry the robot, a caster
-# catches it when it tips), wall thickness and height, the mass of a wheel (kg) and of a caster.
+# them without robots.radius), ground clearance under the body, the body's centre of mass
+# below the axle, the casters' distance in from the body's rim, wall thickness and height,
+# the mass of a wheel (kg).
 WHEEL_WIDTH = 0.006
 CLEARANCE = 0.004
-CASTER_RADIUS = 0.005
-CASTER_LIFT = 0.0005
+COM_DROP = 0.003
+CASTER_INSET = 0.008
+# MuJoCo's friction is soft: a wheel pushing against drag creeps (about 0.1 mm/s here);
+# this many no-slip iterations remove that creep.
+NOSLIP = 3
 WALL = (0.02, 0.05)
 WHEEL_MASS = 0.005
-CASTER_MASS = 0.002
-# The velocity servo behind each motor's lag: its own lag (s), small beside any motor time
-# constant, sets its gain from the inertia a wheel drives.
-SERVO_LAG = 0.002
+# The wheel-speed servo behind each motor's lag: its own lag (s), small beside a motor time
+# constant, sets its gains from the inertia a wheel drives; the lag filter before it takes
+# the rest of the motor's time constant (2 SERVO_LAG less).
+SERVO_LAG = 0.005
+# Two bodies in contact again within this many seconds of parting are one contact: MuJoCo's
+# soft contacts flicker in and out while robots push on each other.
+REJOIN = 0.1
+# The speed (m/s) caster_drag is given at when the wheels have no limit.
+DRAG_SPEED = 0.05
+# Anti-windup (rad): a wheel held back (blocked, torque-limited) lags its integrated command
+# by at most this, as firmware clamps its integral.
+WINDUP = 0.2
 # The smallest gap between two bodies is MuJoCo's distance between their geoms
 # (mj_geomDistance), looked up every GAP_EVERY steps up to GAP_RANGE (m; further is reported
 # as None).
@@ -57,9 +68,9 @@ GAP_RANGE = 0.1
 # A wheel's contact with the floor: stiff (N/m per kg of contact mass, MuJoCo's direct
 # solref), damped and with its impedance near 1, so that a wheel sinks in by microns: MuJoCo's
 # default soft contact sinks it 0.14 mm and it rolls on a radius 1 % short.
-CONTACT_STIFFNESS = 1e5
-CONTACT_DAMPING = 300.0
-# Contact types: the floor touches wheels and casters; bodies touch bodies and walls.
+WHEEL_SOLREF = (-1e5, -632.0)
+WHEEL_SOLIMP = (0.99, 0.999, 1e-4)
+# Contact types: the floor touches the wheels; bodies touch bodies and walls.
 FLOOR_BIT, BODY_BIT = 1, 2
 
 
@@ -98,12 +109,14 @@ def body_radius(experiment: 'Experiment') -> float:
     return experiment.radius or 0.5 * wheel_base(experiment) + WHEEL_WIDTH
 
 
-def servo_gain(experiment: 'Experiment') -> float:
-    """Velocity servo gain (N m s/rad): the inertia one wheel drives over SERVO_LAG."""
+def servo_gains(experiment: 'Experiment') -> tuple[float, float]:
+    """(kp N m/rad, kv N m s/rad) of a wheel's servo: critically damped at 1 / SERVO_LAG on
+    the inertia one wheel drives (its share of the robot's mass, the wheel, the rotor).
+    """
     physics = experiment.spec.physics
     r = wheel_radius(experiment)
-    inertia = 0.5 * physics.mass * r * r + 0.5 * WHEEL_MASS * r * r
-    return inertia / SERVO_LAG
+    inertia = 0.5 * physics.mass * r * r + 0.5 * WHEEL_MASS * r * r + physics.motor_inertia
+    return inertia / SERVO_LAG ** 2, 2.0 * inertia / SERVO_LAG
 
 
 def arena_mjcf(experiment: 'Experiment', robots: Robots | None = None) -> str:
@@ -113,23 +126,26 @@ def arena_mjcf(experiment: 'Experiment', robots: Robots | None = None) -> str:
     base = wheel_base(experiment)
     radius = body_radius(experiment)
     r0 = robots.nominal_radius
-    body_mass = physics.mass - 2 * WHEEL_MASS - physics.casters * CASTER_MASS
+    body_mass = physics.mass - 2 * WHEEL_MASS
+    disc_side = body_mass * (0.25 * radius ** 2 + physics.height ** 2 / 12.0)
+    max_speed = experiment.limits.max_wheel_speed
+    max_speed = max_speed if math.isfinite(max_speed) else DRAG_SPEED
     if body_mass <= 0:
-        raise ValueError(f'physics.mass {physics.mass:g} kg is less than the wheels and '
-                         'casters alone')
-    kv = servo_gain(experiment)
-    caster_x = radius - CASTER_RADIUS - 0.003
+        raise ValueError(f'physics.mass {physics.mass:g} kg is less than the wheels alone')
+    kp, kv = servo_gains(experiment)
     width, height = (experiment.spec.arena.size if experiment.spec.arena is not None
                      else (0.0, 0.0))
     extent = max(width, height, 2.0) + 2.0
     out = ['<mujoco model="curve_formation arena">',
            _element('compiler', angle='radian', autolimits='true'),
-           _element('option', timestep=physics.timestep, integrator='implicitfast'),
+           _element('option', timestep=physics.timestep, integrator='implicitfast',
+                    noslip_iterations=NOSLIP),
            '<worldbody>',
-           # the floor's own friction is the least: MuJoCo takes the larger of two geoms'
+           # the floor's own friction is the least (a contact takes the larger of its two
+           # geoms'): the wheels set theirs
            _element('geom', name='floor', type='plane', size=(extent, extent, 0.1),
                     pos=(0.5 * width, 0.5 * height, 0), contype=FLOOR_BIT, conaffinity=0,
-                    friction=(1e-4, 0, 0))]
+                    condim=1, friction=(1e-4, 0, 0))]
     if width > 0 and height > 0:
         t, h = WALL
         for name, (x, y, sx, sy) in {
@@ -139,39 +155,52 @@ def arena_mjcf(experiment: 'Experiment', robots: Robots | None = None) -> str:
                 'wall_north': (width / 2, height + t / 2, width / 2 + t, t / 2)}.items():
             out.append(_element('geom', name=name, type='box', pos=(x, y, h / 2),
                                 size=(sx, sy, h / 2), contype=BODY_BIT, conaffinity=0))
-    for i, (x, y, theta) in enumerate(experiment.initial_poses, 1):
-        out += [_element('body', name=f'robot{i}', pos=(x, y, r0), euler=(0, 0, theta),
-                         close=False),
-                '<freejoint/>',
+    # The casters' drag (viscous: caster_drag times the robot's weight at the wheels' top
+    # speed, along the floor and, at their distance from the axle, against turning).
+    drag = physics.caster_drag * physics.mass * 9.81 / max_speed
+    arm = radius - CASTER_INSET
+    for i in range(1, experiment.n + 1):
+        # Joints at the axle centre: x, y and z along the floor's axes and the heading
+        # (unwrapped); the casters keep the body level (no pitch or roll: a robot on two
+        # wheels and two casters does not tip on a flat floor); the start pose is set in
+        # their positions (MujocoWorld).
+        out += [_element('body', name=f'robot{i}', pos=(0, 0, r0), close=False),
+                _element('joint', name=f'x{i}', type='slide', axis=(1, 0, 0),
+                         damping=drag),
+                _element('joint', name=f'y{i}', type='slide', axis=(0, 1, 0),
+                         damping=drag),
+                _element('joint', name=f'z{i}', type='slide', axis=(0, 0, 1)),
+                _element('joint', name=f'heading{i}', type='hinge', axis=(0, 0, 1),
+                         damping=drag * arm * arm),
+                # a disc of the body's radius and height, its centre of mass below the axle
+                # (the robot hangs between its wheels instead of rocking on them)
+                _element('inertial', pos=(0, 0, -COM_DROP), mass=body_mass,
+                         diaginertia=(disc_side, disc_side, 0.5 * body_mass * radius ** 2)),
                 # a sphere at axle height: its horizontal section is the body's disc
-                _element('geom', name=f'body{i}', type='sphere', size=radius, mass=body_mass,
+                _element('geom', name=f'body{i}', type='sphere', size=radius,
                          contype=BODY_BIT, conaffinity=BODY_BIT)]
-        for k, cx in enumerate([caster_x, -caster_x][:physics.casters]):
-            out.append(_element('geom', name=f'caster{i}_{k}', type='sphere',
-                                size=CASTER_RADIUS, mass=CASTER_MASS,
-                                pos=(cx, 0, -r0 + CASTER_RADIUS + CASTER_LIFT), contype=0,
-                                conaffinity=FLOOR_BIT, friction=(physics.caster_friction, 0, 0)))
         for side, sign, r in (('left', 1.0, robots.wheel_radii[i - 1, 0]),
                               ('right', -1.0, robots.wheel_radii[i - 1, 1])):
             out += [_element('body', name=f'{side}{i}', pos=(0, sign * 0.5 * base, r - r0),
                              close=False),
-                    _element('joint', name=f'{side}{i}', type='hinge', axis=(0, 1, 0)),
+                    _element('joint', name=f'{side}{i}', type='hinge', axis=(0, 1, 0),
+                             armature=physics.motor_inertia),
                     # a sphere: a thin wheel meets the floor at one point, as a sphere does
                     # (and MuJoCo collides it with the plane at half a cylinder's cost)
                     _element('geom', type='sphere', size=r, mass=WHEEL_MASS, contype=0,
                              conaffinity=FLOOR_BIT, condim=3,
-                             solref=(-CONTACT_STIFFNESS, -CONTACT_DAMPING),
-                             solimp=(0.99, 0.999, 1e-4), friction=(physics.floor_friction, 0, 0)),
+                             solref=WHEEL_SOLREF, solimp=WHEEL_SOLIMP,
+                             friction=(physics.floor_friction, 0, 0)),
                     '</body>']
         out.append('</body>')
     out += ['</worldbody>', '<actuator>']
     for i in range(1, experiment.n + 1):
         for side in ('left', 'right'):
-            # force = kv (act - wheel speed), act' = (command - act) / time constant
+            # act' = speed command, force = kp (act - angle) - kv speed: a wheel-speed loop
+            # with integral action, as closed-loop firmware runs (no steady error under drag)
             out.append(_element('general', name=f'{side}{i}', joint=f'{side}{i}',
-                                dyntype='filter', dynprm=physics.motor_time_constant,
-                                gaintype='fixed', gainprm=kv, biastype='affine',
-                                biasprm=(0, 0, -kv),
+                                dyntype='integrator', gaintype='fixed', gainprm=kp,
+                                biastype='affine', biasprm=(0, -kp, -kv),
                                 forcerange=(-physics.motor_torque, physics.motor_torque)))
     out += ['</actuator>', '</mujoco>']
     return '\n'.join(out) + '\n'
@@ -222,12 +251,20 @@ class MujocoWorld:
                             else np.zeros((self.n, 2)))
         self.queues = [CommandQueue(latency, timeout) for _ in range(self.n)]
         self.wheels = np.zeros((self.n, 2))   # wheel speed commands in force (m/s)
+        self.target = np.zeros(2 * self.n)    # the motors' speed commands (rad/s)
+        self.motor = np.zeros(2 * self.n)     # ... after their lag (rad/s)
+        self.lagging = False                  # the motors have not caught up yet
+        lag = max(spec.physics.motor_time_constant - 2.0 * SERVO_LAG, 1e-6)
+        self.follow = 1.0 - math.exp(-self.dt / lag)
         self.next_change = -math.inf   # s: when a command falls due or a watchdog fires
-        self.qpos = np.array([self.model.jnt_qposadr[self.model.body(f'robot{i}').jntadr[0]]
-                              for i in range(1, self.n + 1)])
+        self.pose_qpos = np.array([[self.model.jnt_qposadr[self.model.joint(f'{axis}{i}').id]
+                                    for axis in ('x', 'y', 'heading')]
+                                   for i in range(1, self.n + 1)])
+        self.data.qpos[self.pose_qpos] = np.asarray(experiment.initial_poses, float)
         self.wheel_dofs = np.array([[self.model.jnt_dofadr[self.model.joint(f'{s}{i}').id]
                                      for s in ('left', 'right')] for i in range(1, self.n + 1)])
-        self.headings = np.asarray(experiment.initial_poses, float)[:, 2].copy()
+        self.wheel_qpos = np.array([self.model.jnt_qposadr[self.model.joint(f'{s}{i}').id]
+                                    for i in range(1, self.n + 1) for s in ('left', 'right')])
         # geom id -> robot index (bodies), -2 for walls, -1 otherwise
         self.geom_owner = np.full(self.model.ngeom, -1)
         for i in range(self.n):
@@ -235,10 +272,14 @@ class MujocoWorld:
         for g in range(self.model.ngeom):
             if self.model.geom(g).name.startswith('wall_'):
                 self.geom_owner[g] = -2
-        bodies = [self.model.geom(f'body{i + 1}').id for i in range(self.n)]
-        self.body_pairs = [(bodies[i], bodies[j]) for i in range(self.n)
-                           for j in range(i + 1, self.n)]
+        self.body_geoms = [self.model.geom(f'body{i + 1}').id for i in range(self.n)]
+        self.body_ids = [self.model.body(f'robot{i + 1}').id for i in range(self.n)]
+        self.pairs = np.triu_indices(self.n, 1)
+        self.near = 2.0 * body_radius(experiment) + GAP_RANGE
         self.touching: set[tuple[int, int]] = set()
+        self.last_touch: dict[tuple[int, int], int] = {}   # pair -> step it last touched
+        self.rejoin = REJOIN / self.dt
+        self.floor_contacts = 2 * self.n
         self.contacts = 0
         self.wall_contacts = 0
         self.contact_steps = 0
@@ -266,10 +307,20 @@ class MujocoWorld:
         stopped: list[int] = []
         while self.time + 0.5 * self.dt <= until:
             end = self.time + self.dt
-            if end >= self.next_change:
-                stopped += self._take_commands(end)
-            self.data.ctrl[:] = self.motor_commands(self.wheels, self.time).ravel()
+            if end >= self.next_change or self.sag > 0:
+                if end >= self.next_change:
+                    stopped += self._take_commands(end)
+                self.target = self.motor_commands(self.wheels, self.time).ravel()
+                self.lagging = True
+            if self.lagging:   # the motors' lag, until they have caught up
+                ahead = self.target - self.motor
+                self.motor += ahead * self.follow
+                self.lagging = bool(np.abs(ahead).max() > 1e-9)
+                self.data.ctrl[:] = self.motor
             mujoco.mj_step(self.model, self.data)
+            if self.steps % GAP_EVERY == 0:   # anti-windup
+                angle = self.data.qpos[self.wheel_qpos]
+                np.clip(self.data.act, angle - WINDUP, angle + WINDUP, out=self.data.act)
             self.time = end
             self.steps += 1
             self._tally()
@@ -315,29 +366,23 @@ class MujocoWorld:
 
     def poses(self) -> FloatArray:
         """(n, 3) x, y (m) of each axle centre and its heading (rad, unwrapped)."""
-        self._unwrap()
-        return np.column_stack([self.data.qpos[self.qpos], self.data.qpos[self.qpos + 1],
-                                self.headings])
-
-    def _unwrap(self) -> None:
-        """Carry the unwrapped headings to the bodies' yaw now (called at least every
-        GAP_EVERY steps: no body turns half a revolution in between).
-        """
-        q = self.data.qpos[self.qpos[:, None] + np.arange(3, 7)]   # (n, 4) w, x, y, z
-        yaw = np.arctan2(2.0 * (q[:, 0] * q[:, 3] + q[:, 1] * q[:, 2]),
-                         1.0 - 2.0 * (q[:, 2] ** 2 + q[:, 3] ** 2))
-        self.headings += (yaw - self.headings + np.pi) % (2.0 * np.pi) - np.pi
+        return self.data.qpos[self.pose_qpos]
 
     def _tally(self) -> None:
         """Contacts of the step just taken, from MuJoCo's contact list; every GAP_EVERY
         steps, the smallest gap between two bodies from MuJoCo's geom distance.
         """
         if self.steps % GAP_EVERY == 0:
-            self._unwrap()
-            for g1, g2 in self.body_pairs:
-                gap = mujoco.mj_geomDistance(self.model, self.data, g1, g2, GAP_RANGE, None)
-                if gap < GAP_RANGE:
-                    self.smallest_gap = min(self.smallest_gap, gap)
+            centres = self.data.xpos[self.body_ids, :2]
+            a, b = self.pairs
+            near = np.flatnonzero(np.sum((centres[a] - centres[b]) ** 2, axis=1)
+                                  < self.near ** 2)   # only these can be within GAP_RANGE
+            for k in near:
+                gap = mujoco.mj_geomDistance(self.model, self.data, self.body_geoms[a[k]],
+                                             self.body_geoms[b[k]], GAP_RANGE, None)
+                self.smallest_gap = min(self.smallest_gap, gap)
+        if self.data.ncon == self.floor_contacts and not self.touching:
+            return   # only the wheels on the floor (one contact each), as nearly always
         contact = self.data.contact
         owners = self.geom_owner[contact.geom]   # (ncon, 2)
         touching = set()
@@ -350,11 +395,16 @@ class MujocoWorld:
                 touching.add((max(i, j), -1))
             mujoco.mj_contactForce(self.model, self.data, int(k), self._force)
             self.largest_push = max(self.largest_push, abs(float(self._force[0])))
-        if not touching and not self.touching:
-            return
-        new = touching - self.touching
-        self.contacts += sum(1 for _, j in new if j >= 0)
-        self.wall_contacts += sum(1 for _, j in new if j < 0)
+        for pair in touching - self.touching:
+            # a pair pushing on flickers in and out of contact: one contact until it has
+            # been apart for REJOIN s
+            if self.steps - self.last_touch.get(pair, -math.inf) > self.rejoin:
+                if pair[1] >= 0:
+                    self.contacts += 1
+                else:
+                    self.wall_contacts += 1
+        for pair in touching:
+            self.last_touch[pair] = self.steps
         self.contact_steps += bool(touching)
         self.touching = touching
 

@@ -1,0 +1,201 @@
+"""The formation against robots with mass, motors and friction (MuJoCo), and the worlds' speed.
+
+Run: scripts/bench physics            (20 random starts of each arena experiment; ~8 min)
+     scripts/bench physics --seeds 3  (a quick look)
+     scripts/bench physics --part speed
+
+Part `starts`: for each random start (experiment.seeded_start, seeds 1..N) of arena_demo and
+mona_arena, the nodes' tick pipeline (core.pipeline) runs in three worlds:
+- kinematic: the paper's unicycles with the experiment's disturbance (the reference);
+- mujoco: MuJoCo bodies, no imperfection, the experiment's disturbance on the wheel commands
+  (goal: every phase settles, no contact, within 1.15x of kinematic);
+- imperfect: MuJoCo bodies with IMPERFECTIONS (each start its own draw of them) and no
+  injected disturbance: the observer learns a physical one; the controllers are told the
+  motors' dead band and time constant (limits.min_wheel_speed, motor_time_constant), as a lab
+  measures them (goal: every phase settles, no contact, within 1.3x of mujoco);
+- untold (with --untold): the same robots, the dead band not told.
+Part `speed`: seconds of world per second of wall clock, MuJoCo and kinematic worlds alone,
+9 robots (mona_arena) and 50 (a 5 m x 5 m arena), every robot driven on its own circle with
+commands renewed at 10 Hz (goals: MuJoCo >= 20x for 9, >= 1x for 50).
+Writes JSON to --out (default out/bench/physics).
+"""
+
+import argparse
+import json
+from multiprocessing import Pool
+from pathlib import Path
+import time
+
+import numpy as np
+import yaml
+
+from curve_formation.core import metrics
+from curve_formation.core.config_schema import PhysicsSpec
+from curve_formation.core.experiment import build_experiment, seeded_start, with_start
+from curve_formation.core.pipeline import simulate_pipeline
+from curve_formation.core.worlds import make_world
+from curve_formation.paths import resolve_config
+
+
+CASES = ('arena_demo', 'mona_arena')
+IMPERFECTIONS = {'wheel_radius_mismatch': 0.03, 'motor_gain_spread': 0.1, 'dead_band': 0.05,
+                 'command_bits': 8, 'battery_sag': 0.1}
+GOALS = {'mujoco': 1.15, 'imperfect': 1.3, 'untold': 1.3}
+WORLDS = ('kinematic', 'mujoco', 'imperfect')
+
+
+def experiment(name, seed, world):
+    """The shipped experiment `name` from random start `seed`, set up for `world`."""
+    path = resolve_config(name)
+    data = yaml.safe_load(Path(path).read_text())
+    if world != 'kinematic':
+        data['physics'] = {'engine': 'mujoco'}
+    if world in ('imperfect', 'untold'):
+        data['physics']['imperfections'] = {**IMPERFECTIONS, 'seed': seed}
+        data['disturbance'] = {**data.get('disturbance', {}), 'value': [0.0, 0.0]}
+        data['disturbance'].pop('per_agent', None)
+    if world == 'imperfect':   # dead band and motor lag, measured on the robots, told
+        limits = data['limits']
+        limits['min_wheel_speed'] = IMPERFECTIONS['dead_band'] * limits['max_wheel_speed']
+        limits['motor_time_constant'] = PhysicsSpec().motor_time_constant
+    case = build_experiment(data, str(path))
+    return with_start(case, seeded_start(case, seed))
+
+
+def one_start(job):
+    """Every world's run of one (experiment, seed): settle times, contacts, wall time."""
+    name, seed, worlds = job
+    row = {'case': name, 'seed': seed}
+    for world in worlds:
+        begin = time.perf_counter()
+        result = simulate_pipeline(experiment(name, seed, world),
+                                   'kinematic' if world == 'kinematic' else 'mujoco')
+        data = metrics.result_metrics(result)
+        row[world] = {'settle': [p['settle_time'] for p in data['phases']],
+                      'final_mm': [1000 * p['final_max_agent_error'] for p in data['phases']],
+                      'contacts': result.contacts, 'wall_s': time.perf_counter() - begin}
+    return row
+
+
+def ratio(a, b):
+    return None if a is None or b is None else a / b
+
+
+def starts_report(rows):
+    out = {}
+    for name in CASES:
+        case_rows = [r for r in rows if r['case'] == name]
+        phases = len(case_rows[0]['kinematic']['settle'])
+        print(f"\n{name}: {len(case_rows)} random starts, nodes' tick pipeline")
+        print(f'{"phase":>5} {"world":>10} {"settled":>8} {"median s":>9} {"max s":>7} '
+              f'{"worst ratio":>12} {"goal":>5} {"contacts":>9} {"worst final mm":>15}')
+        summary = {}
+        for k in range(phases):
+            for world, against in (('kinematic', None), ('mujoco', 'kinematic'),
+                                   ('imperfect', 'mujoco'), ('untold', 'mujoco')):
+                if world not in case_rows[0]:
+                    continue
+                times = [r[world]['settle'][k] for r in case_rows]
+                done = [t for t in times if t is not None]
+                ratios = [ratio(r[world]['settle'][k], r[against]['settle'][k])
+                          for r in case_rows] if against else []
+                worst = (None if not ratios else
+                         float('inf') if None in ratios else max(ratios))
+                contacts = sum(int(r[world]['contacts']['count'])
+                               + int(r[world]['contacts'].get('walls') or 0) for r in case_rows)
+                final = max(r[world]['final_mm'][k] for r in case_rows)
+                goal = GOALS.get(world)
+                summary[f'{world}/{k}'] = {'settled': len(done), 'of': len(times),
+                                           'median': float(np.median(done)) if done else None,
+                                           'max': max(done) if done else None,
+                                           'worst_ratio': worst, 'contacts': contacts,
+                                           'worst_final_mm': final}
+                print(f'{k:>5} {world:>10} {len(done):>4}/{len(times):<3} '
+                      f'{np.median(done) if done else float("nan"):9.1f} '
+                      f'{max(done) if done else float("nan"):7.1f} '
+                      f'{"" if worst is None else f"{worst:.2f}x":>12} '
+                      f'{"" if goal is None else f"{goal}x":>5} {contacts:>9} {final:15.2f}')
+        out[name] = summary
+    return out
+
+
+def circling(n, size):
+    """An experiment of n robots on a grid in a size x size m arena, for the speed part."""
+    side = int(np.ceil(np.sqrt(n)))
+    pitch = size / side
+    poses = [[pitch * (0.5 + k % side), pitch * (0.5 + k // side), 0.0] for k in range(n)]
+    return build_experiment({
+        'name': f'circling_{n}', 'agents': {'count': n, 'initial': {'poses': poses}},
+        'graph': {'edges': [{'from': i, 'to': i + 1} for i in range(1, n)]},
+        'controller': {'law': 'observer', 'k1': 0.5, 'k2': 0.5, 'offset': 0.01,
+                       'rate_hz': 10.0},
+        'limits': {'wheel_base': 0.08, 'max_wheel_speed': 0.0225},
+        'arena': {'size': [size, size]}, 'robots': {'radius': 0.04},
+        'physics': {'engine': 'mujoco'},
+        'curves': [{'basis': 'fourier', 'harmonics': max(1, n // 2), 'samples': 3 * n + 400,
+                    'x': f'{size / 2} + {size / 3} * cos(2*pi*s)',
+                    'y': f'{size / 2} + {size / 3} * sin(2*pi*s)'}],
+        'simulation': {'duration': 10.0}}, f'<circling {n}>')
+
+
+def world_speed(case, engine, seconds, repeats=3):
+    """Seconds of world per wall-clock second, robots circling at 2 cm/s: the best of
+    `repeats` runs (what the machine does when nothing else runs on it).
+    """
+    best = 0.0
+    for _ in range(repeats):
+        world = make_world(case, engine)
+        world.advance(0.0)
+        begin = time.perf_counter()
+        t = 0.0
+        while t < seconds:
+            for i in range(case.n):
+                world.command(i, 0.02, 0.25, t)
+            t += 0.1
+            world.advance(t)
+        best = max(best, seconds / (time.perf_counter() - begin))
+    return best, world.contact_summary()
+
+
+def speed_report(seconds):
+    out = {}
+    print(f'\nworld speed (robots circling, commands at 10 Hz, {seconds:g} s of world, '
+          'best of 3)')
+    print(f'{"robots":>6} {"engine":>10} {"x real time":>12} {"goal":>6}')
+    for n, size, goal in ((9, 1.8, 20.0), (50, 5.0, 1.0)):
+        case = circling(n, size)
+        for engine in ('mujoco', 'kinematic'):
+            speed, contacts = world_speed(case, engine, seconds)
+            out[f'{n}/{engine}'] = {'x_real_time': speed, 'contacts': contacts}
+            print(f'{n:>6} {engine:>10} {speed:12.1f} '
+                  f'{f"{goal:g}x" if engine == "mujoco" else "":>6}')
+    return out
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    parser.add_argument('--part', choices=('starts', 'speed', 'all'), default='all')
+    parser.add_argument('--seeds', type=int, default=20)
+    parser.add_argument('--workers', type=int, default=2)
+    parser.add_argument('--untold', action='store_true',
+                        help='also the imperfect robots with the dead band not told')
+    parser.add_argument('--out', default='out/bench/physics')
+    args = parser.parse_args()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    results = {}
+    if args.part in ('speed', 'all'):
+        results['speed'] = speed_report(30.0)
+    if args.part in ('starts', 'all'):
+        worlds = WORLDS + (('untold',) if args.untold else ())
+        jobs = [(name, seed, worlds) for name in CASES for seed in range(1, args.seeds + 1)]
+        with Pool(args.workers) as pool:
+            rows = pool.map(one_start, jobs, chunksize=1)
+        results['starts'] = starts_report(rows)
+        results['runs'] = rows
+    (out / 'physics.json').write_text(json.dumps(results, indent=2, default=float))
+    print(f'\nwrote {out / "physics.json"}')
+
+
+if __name__ == '__main__':
+    main()
