@@ -251,7 +251,7 @@ class MujocoWorld:
                             else np.zeros((self.n, 2)))
         self.queues = [CommandQueue(latency, timeout) for _ in range(self.n)]
         self.wheels = np.zeros((self.n, 2))   # wheel speed commands in force (m/s)
-        self.target = np.zeros(2 * self.n)    # the motors' speed commands (rad/s)
+        self.target: FloatArray = np.zeros(2 * self.n)   # the motors' speed commands (rad/s)
         self.motor = np.zeros(2 * self.n)     # ... after their lag (rad/s)
         self.lagging = False                  # the motors have not caught up yet
         lag = max(spec.physics.motor_time_constant - 2.0 * SERVO_LAG, 1e-6)
