@@ -436,3 +436,49 @@ def test_pose_noise_does_not_start_the_observers_search_once_d_is_learnt():
     noisy = settled_at(leader_alone('mona_arena', 40.0, pose_noise=(0.0001, 0.002))[0])
     assert prompt is not None and noisy is not None
     assert noisy < 1.12 * prompt, (noisy, prompt)
+
+
+def test_a_command_in_the_told_dead_band_teaches_the_observer_nothing():
+    """Told the motors' dead band (min_wheel_speed), a controller whose command is too small
+    to turn either wheel expects the robot to stand still: a robot that does stand still
+    leaves the estimate as it was, where untold the observer takes the missing motion for a
+    disturbance (and winds up, as measured in the MuJoCo world).
+    """
+    def estimate(min_wheel_speed):
+        cfg = config(gains=Gains(1.0, 0.5, 0.1, law='observer', observer_rate=5.0),
+                     limits=WheelLimits(0.08, 0.0225), min_wheel_speed=min_wheel_speed)
+        ctrl = ready(cfg)
+        ctrl.on_neighbour(1, 0.0001, 0.0, 0, 10.0, 0.0)   # a tiny error: a tiny command
+        ctrl.target = (0.1 + 0.0002, 0.0)
+        speeds = []
+        for k in range(1, 20):   # the robot does not move
+            ctrl.on_pose(0.0, 0.0, 0.0, 10.0 + 0.1 * k)
+            ctrl.on_neighbour(1, 0.0001, 0.0, 0, 10.0 + 0.1 * k, 0.0)
+            tick = ctrl.tick(10.0 + 0.1 * k)
+            assert tick.stopped is None
+            speeds.append(abs(tick.v))
+        return ctrl.dhat, max(speeds)
+    dhat, fastest = estimate(0.001)
+    assert dhat == [0.0, 0.0] and 0 < fastest < 0.001   # within the band throughout
+    dhat, fastest = estimate(0.0)
+    assert abs(dhat[0]) > 1e-3 and fastest > 0.001   # wound up out of the band
+
+
+@pytest.mark.parametrize('elapsed', [0.05, 0.1, 0.2])
+def test_the_observer_pairs_a_motion_with_what_the_lagging_motors_realised(elapsed):
+    """Told a motor time constant tau, the observer's reference over a pose interval is the
+    first-order response to the commands sent (closed form for a step from rest:
+    c (1 - tau / T (1 - exp(-T / tau))) over the first T s), each command from its sending
+    plus the command latency.
+    """
+    from curve_formation.core.agent import Sent
+    tau, latency, c = 0.05, 0.03, 0.02
+    ctrl = AgentController(config(motor_time_constant=tau, command_latency=latency))
+    for k in range(5):   # at rest: commands of 0 (driven) before the step at t = 1 s
+        ctrl.sent.append(Sent(0.5 + 0.1 * k, 0.0, 0.0, (0.0, 0.0), (0.0, 0.0), False, True))
+    ctrl.sent.append(Sent(1.0, c, 0.0, (c, 0.0), (0.0, 0.0), False, True))
+    ctrl.pose_stamp = ctrl.pose_received = 1.0 + latency + elapsed
+    realised = ctrl._realised(elapsed)
+    expected = c * (1 - tau / elapsed * (1 - math.exp(-elapsed / tau)))
+    assert realised.reference[0] == pytest.approx(expected, rel=1e-9)
+    assert realised.driven and not realised.limited

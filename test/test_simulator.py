@@ -209,3 +209,18 @@ def test_the_simulator_keeps_the_acceleration_limits_as_the_node_does():
         steps[label] = np.abs(np.diff(result.commands, axis=0)).max(axis=(0, 1))
     assert np.all(steps['ramped'] <= np.array([0.05, 0.2]) + 1e-12), steps
     assert np.all(steps['free'] > 4 * np.array([0.05, 0.2])), steps
+
+
+@pytest.mark.parametrize('key', ['min_wheel_speed', 'motor_time_constant'])
+def test_the_batch_simulator_refuses_settings_of_motors_it_does_not_have(key):
+    """Told of real motors (a dead band, a lag), the controller expects what its unicycles
+    do not do: the batch simulator names the setting and where to simulate it instead.
+    """
+    import yaml
+
+    from curve_formation.core.experiment import build_experiment, ConfigError
+    data = yaml.safe_load(open('config/arena_demo.yaml'))
+    data['limits'][key] = 0.001
+    experiment = build_experiment(data, 'arena_demo.yaml')
+    with pytest.raises(ConfigError, match=f'limits.{key}.*--physics mujoco'):
+        simulate(experiment, duration=1.0)

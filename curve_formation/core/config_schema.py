@@ -483,10 +483,10 @@ class PhysicsSpec(Strict):
         'rigid bodies on driven wheels in the MuJoCo engine')
     timestep: float = Field(0.002, gt=0, le=0.01, description='MuJoCo integration step (s)')
     mass: float = Field(0.1, gt=0, description='robot mass with wheels (kg)')
-    height: float = Field(0.03, gt=0, description='body height (m)')
-    casters: Literal[1, 2] = Field(2, description='ball casters, front (and back)')
-    caster_drag: float = Field(0.02, ge=0, description="the casters' drag against the "
-                               "robot's motion, as a fraction of its weight")
+    height: float = Field(0.03, gt=0, description='body height (m), for its inertia')
+    caster_drag: float = Field(0.02, ge=0, description="the ball casters' drag against the "
+                               "robot's motion at the wheels' top speed, as a fraction of its "
+                               'weight (viscous)')
     floor_friction: float = Field(0.8, gt=0, description='wheel-floor friction coefficient: '
                                   'lower, wheels slip sooner when robots push')
     motor_time_constant: float = Field(0.05, gt=0, description='first-order time constant '

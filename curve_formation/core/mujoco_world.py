@@ -2,11 +2,12 @@
 
 The world is generated from an experiment (`physics:` for the bodies and motors, `limits:`
 for the wheels, `robots.radius` and `arena.size` for bodies and walls) as an MJCF model
-(`arena_mjcf`). Each robot is a free body: a disc of the configured radius carried by two
-wheels on hinges (limits.wheel_base apart, limits.wheel_radius) and one or two ball casters.
-Each wheel is driven by a motor that follows its speed command as a first-order lag
-(MuJoCo's filter actuator dynamics, physics.motor_time_constant) through a stiff velocity
-servo with a torque limit (physics.motor_torque).
+(`arena_mjcf`). Each robot is a body moving on the floor (x, y, z and heading joints): a disc
+of the configured radius carried by two wheels on hinges (limits.wheel_base apart,
+limits.wheel_radius) and casters that keep it level and drag. Each wheel is driven by a motor
+that follows its speed command as a first-order lag (physics.motor_time_constant) through a
+wheel-speed servo with integral action and a torque limit (physics.motor_torque).
+docs/physics.md says why each part is modelled as it is.
 
 A velocity command (v, w) (m/s, rad/s) reaches the wheels as the firmware would turn it into
 wheel speeds: with its latency and watchdog (dynamics.CommandQueue), the robot-side
@@ -36,11 +37,9 @@ if TYPE_CHECKING:
 
 
 # Geometry the experiment does not set (m): the wheels' width (the bodies' clearance of
-# them without robots.radius), ground clearance under the body, the body's centre of mass
-# below the axle, the casters' distance in from the body's rim, wall thickness and height,
-# the mass of a wheel (kg).
+# them without robots.radius), the body's centre of mass below the axle, the casters'
+# distance in from the body's rim, wall thickness and height, the mass of a wheel (kg).
 WHEEL_WIDTH = 0.006
-CLEARANCE = 0.004
 COM_DROP = 0.003
 CASTER_INSET = 0.008
 # MuJoCo's friction is soft: a wheel pushing against drag creeps (about 0.1 mm/s here);

@@ -31,7 +31,7 @@ from curve_formation.core import bodies, control, driving, dynamics, metrics
 from curve_formation.core.assignment import reassigned
 from curve_formation.core.control import Gains, Law, WheelLimits
 from curve_formation.core.driving import REVERSE_HYSTERESIS
-from curve_formation.core.experiment import Experiment, Phase, whole_steps
+from curve_formation.core.experiment import ConfigError, Experiment, Phase, whole_steps
 from curve_formation.core.safety import Avoidance
 from curve_formation.core.shapes import BoolArray, FloatArray, IntArray
 
@@ -418,6 +418,12 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
     Returns a SimResult.
     """
     spec = experiment.spec
+    told = [key for key in ('min_wheel_speed', 'motor_time_constant')
+            if spec.limits is not None and getattr(spec.limits, key)]
+    if told:
+        raise ConfigError(experiment.source, f'limits.{told[0]}', "describes real motors the "
+                          "batch simulator's unicycles do not have: simulate them in the "
+                          'MuJoCo world (sim --physics mujoco)')
     rate_hz = spec.controller.rate_hz if rate_hz == 'config' else rate_hz
     duration = spec.simulation.duration if duration is None else duration
     dt = spec.simulation.dt if dt is None else dt

@@ -110,6 +110,12 @@ PARAMETERS = (
           'wheels: predict_pose carries the pose to when the command acts, the observer '
           'compares the motion with the command acting on it and searches no faster than '
           'the motion answers', low=0.0, high=0.25),
+    Param('min_wheel_speed', 'double', 0.0, "the slowest wheel speed (m/s) the robot's motors "
+          'turn at (their dead band): the observer expects no motion from a smaller command; '
+          '0 = none', low=0.0),
+    Param('motor_time_constant', 'double', 0.0, "the first-order lag (s) of the robot's wheels "
+          'behind their commands: the observer compares each motion with what the commands '
+          'realised through it; 0 = none', low=0.0, high=1.0),
     Param('fault_state_drop', 'double', 0.0, 'fault injection: probability of not publishing '
           'a formation_state message', low=0.0, high=1.0),
     Param('pc_disturbance', 'double[]', [0.0, 0.0], 'disturbance [d_v, d_w] added to the '
@@ -155,6 +161,8 @@ def node_parameters(config):
         'predict_pose': bool(config.predict_pose),
         'command_latency': float(config.command_latency),
         'feed_forward': bool(config.feed_forward),
+        'min_wheel_speed': float(config.min_wheel_speed),
+        'motor_time_constant': float(config.motor_time_constant),
         'compiled_law': bool(config.compiled),
     }
     if av.on:
@@ -218,7 +226,8 @@ def agent_config(p):
         rate_hz=p.rate_hz, pose_timeout=p.pose_timeout, neighbour_timeout=p.neighbour_timeout,
         pc_disturbance=tuple(p.pc_disturbance), leader_timeout=p.leader_timeout,
         geofence=None if fence is None else tuple(fence), predict_pose=p.predict_pose,
-        command_latency=p.command_latency, feed_forward=p.feed_forward, compiled=p.compiled_law)
+        command_latency=p.command_latency, feed_forward=p.feed_forward, compiled=p.compiled_law,
+        min_wheel_speed=p.min_wheel_speed, motor_time_constant=p.motor_time_constant)
 
 
 def _avoidance(p):
