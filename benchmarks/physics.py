@@ -7,13 +7,14 @@ Run: scripts/bench physics            (20 random starts of each arena experiment
 Part `starts`: for each random start (experiment.seeded_start, seeds 1..N) of arena_demo and
 mona_arena, the nodes' tick pipeline (core.pipeline) runs in three worlds:
 - kinematic: the paper's unicycles with the experiment's disturbance (the reference);
-- mujoco: MuJoCo bodies, no imperfection, the experiment's disturbance on the wheel commands
-  (goal: every phase settles, no contact, within 1.15x of kinematic);
+- mujoco: MuJoCo bodies, no imperfection, the experiment's disturbance on the wheel commands,
+  the controllers told the motors' time constant (limits.motor_time_constant), as a lab
+  measures it (goal: every phase settles, no contact, within 1.15x of kinematic);
 - imperfect: MuJoCo bodies with IMPERFECTIONS (each start its own draw of them) and no
   injected disturbance: the observer learns a physical one; the controllers are told the
   motors' dead band and time constant (limits.min_wheel_speed, motor_time_constant), as a lab
   measures them (goal: every phase settles, no contact, within 1.3x of mujoco);
-- untold (with --untold): the same robots, the dead band not told.
+- untold (with --untold): the imperfect robots, nothing told.
 Part `speed`: seconds of world per second of wall clock, MuJoCo and kinematic worlds alone,
 9 robots (mona_arena) and 50 (a 5 m x 5 m arena), every robot driven on its own circle with
 commands renewed at 10 Hz (goals: MuJoCo >= 20x for 9, >= 1x for 50).
@@ -50,14 +51,15 @@ def experiment(name, seed, world):
     data = yaml.safe_load(Path(path).read_text())
     if world != 'kinematic':
         data['physics'] = {'engine': 'mujoco'}
+    if world in ('mujoco', 'imperfect'):   # the motors' lag, measured on the robots, told
+        data['limits']['motor_time_constant'] = PhysicsSpec().motor_time_constant
     if world in ('imperfect', 'untold'):
         data['physics']['imperfections'] = {**IMPERFECTIONS, 'seed': seed}
         data['disturbance'] = {**data.get('disturbance', {}), 'value': [0.0, 0.0]}
         data['disturbance'].pop('per_agent', None)
-    if world == 'imperfect':   # dead band and motor lag, measured on the robots, told
+    if world == 'imperfect':   # and their dead band
         limits = data['limits']
         limits['min_wheel_speed'] = IMPERFECTIONS['dead_band'] * limits['max_wheel_speed']
-        limits['motor_time_constant'] = PhysicsSpec().motor_time_constant
     case = build_experiment(data, str(path))
     return with_start(case, seeded_start(case, seed))
 
