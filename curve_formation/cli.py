@@ -51,17 +51,26 @@ def simulate_to_dir(config, out_dir, rate='config', law=None, heading=None, phys
         gains = dataclasses.replace(gains, law=law)
     if heading is not None:
         gains = dataclasses.replace(gains, sampled_heading=heading == 'sampled')
-    if (physics or experiment.spec.physics.engine) == 'mujoco':
+    engine = physics or experiment.spec.physics.engine
+    latency = experiment.spec.controller.command_latency
+    if engine == 'mujoco' or latency > 0:
+        # The nodes' tick pipeline: robots in MuJoCo, or a link as slow as the controllers
+        # are told (the batch simulator's robots act on a command at once).
         from curve_formation.core.pipeline import simulate_pipeline
         if rate is None:
-            raise ValueError("--continuous: the MuJoCo world runs the nodes' tick pipeline, "
-                             'at a control rate (--rate, or controller.rate_hz)')
-        result = simulate_pipeline(dataclasses.replace(experiment, gains=gains), 'mujoco',
+            why = 'the MuJoCo world' if engine == 'mujoco' else 'controller.command_latency'
+            raise ValueError(f"--continuous: {why} runs the nodes' tick pipeline, at a "
+                             'control rate (--rate, or controller.rate_hz)')
+        result = simulate_pipeline(dataclasses.replace(experiment, gains=gains), engine,
                                    rate_hz=None if rate == 'config' else rate)
+        simulator = (f"the nodes' tick pipeline, {engine} world, commands {latency:g} s late "
+                     'as told')
     else:
         result = simulate(experiment, rate_hz=rate, gains=gains)
+        simulator = 'batch (compiled)'
     out = Path(out_dir)
     data = metrics.result_metrics(result)
+    data['simulator'] = simulator
     _write_json(out / 'metrics.json', described(data, path))
     plots.run_figures(out, experiment, result.t, result.poses, result.phase, result.dhat,
                       label=data['control'])

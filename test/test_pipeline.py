@@ -3,6 +3,7 @@ the batch simulator; in the MuJoCo world (robots with mass, motors and casters) 
 arena demo settles as in the kinematic one, without a contact.
 """
 
+import dataclasses
 import json
 
 import numpy as np
@@ -46,8 +47,13 @@ def test_sim_physics_mujoco_runs_the_pipeline_and_settles_as_the_kinematic_world
     the kinematic pipeline's time, with no robot-robot or robot-wall contact, and learn the
     disturbance (added to their wheel commands) as they do there.
     """
+    import yaml
+    data = yaml.safe_load(open('config/arena_demo.yaml'))
+    data['simulation']['duration'] = 40.0   # it settles in 23 s
+    path = tmp_path / 'arena_demo.yaml'
+    path.write_text(yaml.safe_dump(data))
     out = tmp_path / 'sim'
-    assert cli.main(['sim', 'arena_demo', '--physics', 'mujoco', '--out', str(out)]) in (0, None)
+    assert cli.main(['sim', str(path), '--physics', 'mujoco', '--out', str(out)]) in (0, None)
     data = json.loads((out / 'metrics.json').read_text())
     assert data['all_settled'], data['phases']
     for mujoco, kinematic_time in zip(settle_times(data), settle_times(kinematic), strict=True):
@@ -63,3 +69,35 @@ def test_sim_refuses_continuous_control_in_the_mujoco_world(tmp_path, capsys):
                      '--out', str(tmp_path / 'x')])
     assert code == 2
     assert '--continuous' in capsys.readouterr().err
+
+
+def test_sim_honours_a_told_command_latency_through_the_pipeline(tmp_path, arena_demo):
+    """`sim` of a file whose controllers are told a 200 ms command latency runs the nodes'
+    pipeline with commands that late (the batch simulator's robots act at once, and its
+    metrics were the same whatever the latency): it settles, later than without latency.
+    """
+    import yaml
+    data = yaml.safe_load(open('config/arena_demo.yaml'))
+    data['controller']['command_latency'] = 0.2
+    data['simulation']['duration'] = 35.0
+    path = tmp_path / 'late.yaml'
+    path.write_text(yaml.safe_dump(data))
+    assert cli.main(['sim', str(path), '--out', str(tmp_path / 'late')]) in (0, None)
+    late = json.loads((tmp_path / 'late' / 'metrics.json').read_text())
+    assert 'pipeline' in late['simulator'] and '0.2 s late' in late['simulator']
+    assert late['all_settled']
+    batch = result_metrics(simulate(arena_demo, duration=35.0))
+    assert settle_times(late)[0] > settle_times(batch)[0]
+
+
+def test_an_untold_link_delay_is_what_the_nodes_meet(arena_demo):
+    """The pipeline's link delays commands as the fake robots do: 100 ms untold keeps
+    arena_demo from settling at its tolerance (as measured over ROS); told, it settles.
+    """
+    from curve_formation.core.pipeline import Link
+    untold = result_metrics(simulate_pipeline(arena_demo, 'kinematic', duration=30.0,
+                                              link=Link(command_latency=0.1)))
+    assert not untold['all_settled']
+    told = dataclasses.replace(arena_demo, spec=arena_demo.spec.model_copy(update={
+        'controller': arena_demo.spec.controller.model_copy(update={'command_latency': 0.1})}))
+    assert result_metrics(simulate_pipeline(told, 'kinematic', duration=30.0))['all_settled']

@@ -291,7 +291,7 @@ def test_fake_robots_stand_still_while_stopped_whatever_cmd_vel_says(ros):
     spin_until(lambda: cmd.get_subscription_count() >= 2 and estop.get_subscription_count())
     estop.publish(Bool(data=True))
     spin_until(lambda: robot.estop.engaged and arena.estop.engaged, timeout=5.0)
-    before = robot.pose, arena.robots[0].pose
+    before = robot.pose, tuple(arena.world.poses()[0])
     end = time.monotonic() + 1.0
     moving = Twist()
     moving.linear.x, moving.angular.z = 0.02, 0.3
@@ -299,7 +299,7 @@ def test_fake_robots_stand_still_while_stopped_whatever_cmd_vel_says(ros):
         cmd.publish(moving)
         pause = time.monotonic() + 0.05
         spin_until(lambda pause=pause: time.monotonic() > pause)
-    assert (robot.pose, arena.robots[0].pose) == before
+    assert (robot.pose, tuple(arena.world.poses()[0])) == before
 
 
 def test_estop_with_nobody_on_the_domain_exits_1_naming_the_domain(ros_domain):

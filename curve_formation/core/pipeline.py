@@ -10,10 +10,14 @@ publishes it); every controller ticking at the control rate at its own phase of 
 paper's unicycles or MuJoCo bodies.
 
 Everything happens at exact event times on one clock (s), in this order at equal times:
-curves, poses, ticks, records. Inputs arrive the instant they are sent (no link delay).
+curves, poses, ticks, records. A Link delays, jitters and loses commands on their way to the
+robots and poses on their way to the controllers (the camera and Wi-Fi a lab has); the
+default link delivers everything at once. The graph's own messages (curves, neighbours'
+states) arrive the instant they are sent.
 """
 
 import dataclasses
+from dataclasses import dataclass
 import heapq
 import math
 from typing import Literal
@@ -24,7 +28,7 @@ from curve_formation.core import metrics
 from curve_formation.core.agent import agent_configs, AgentController
 from curve_formation.core.assignment import reassigned
 from curve_formation.core.experiment import control_rate, Experiment, Phase
-from curve_formation.core.shapes import FloatArray
+from curve_formation.core.shapes import BoolArray, FloatArray
 from curve_formation.core.simulator import SimResult
 from curve_formation.core.worlds import make_world, World
 
@@ -37,6 +41,23 @@ POSE_RATE = 30.0
 CURVE, REASSIGN, POSE, TICK, RECORD = range(5)
 
 
+@dataclass(frozen=True)
+class Link:
+    """What lies between the PC and the robots: each command reaches its robot
+    command_latency (s) plus a uniform jitter of +-command_jitter (s) after it was sent (never
+    before the one sent before it: the newest wins), or is lost (command_loss, a
+    probability); each pose reaches its controller pose_latency (s) after it was taken, or is
+    lost (pose_loss). seed: the draws.
+    """
+
+    command_latency: float = 0.0
+    command_jitter: float = 0.0
+    command_loss: float = 0.0
+    pose_latency: float = 0.0
+    pose_loss: float = 0.0
+    seed: int = 0
+
+
 def _times(period: float, offset: float, end: float) -> list[float]:
     """offset, offset + period, ... below end (s)."""
     count = int(math.floor((end - offset) / period - 1e-9)) + 1
@@ -47,8 +68,13 @@ class Pipeline:
     """The controllers, the curve schedule and the world of one run (see the module)."""
 
     def __init__(self, experiment: Experiment, world: World, rate_hz: float,
-                 tick_phases: FloatArray, pose_rate: float) -> None:
+                 tick_phases: FloatArray, pose_rate: float, link: Link = Link()) -> None:
         self.experiment = experiment
+        self.link = link
+        self.rng = np.random.default_rng(link.seed)
+        self.due = np.full(experiment.n, -math.inf)   # each robot's last command's arrival
+        self.in_flight: dict[int, tuple[float, FloatArray, BoolArray]] = {}   # poses
+        self.sent_poses = 0
         self.world = world
         n = experiment.n
         self.controllers = [AgentController(dataclasses.replace(config, compiled=True))
@@ -117,14 +143,31 @@ class Pipeline:
         if self.phase is not None:
             self.followed.append(dataclasses.replace(self.phase, changes=tuple(self.changes)))
 
-    def poses_taken(self, now: float) -> None:
-        """Every robot's pose at `now` handed to its controller; states to out-neighbours."""
-        poses = self.world.poses()
+    def poses_taken(self, now: float) -> list[tuple[float, int, int]]:
+        """Every robot's pose taken at `now`: delivered at once, or (with the link's pose
+        latency) the event of its delivery, to be scheduled.
+        """
+        poses = self.world.poses().copy()
+        arrives = self.rng.random(len(poses)) >= self.link.pose_loss
+        if self.link.pose_latency <= 0.0:
+            self.deliver_poses(now, poses, arrives, now)
+            return []
+        key = self.sent_poses = self.sent_poses + 1
+        self.in_flight[key] = (now, poses, arrives)
+        return [(now + self.link.pose_latency, POSE, key)]
+
+    def deliver_poses(self, stamp: float, poses: FloatArray, arrives: BoolArray,
+                      now: float) -> None:
+        """Poses taken at `stamp` reach the controllers at `now`, those that arrive; each
+        controller then passes its state on to its out-neighbours (as the node does).
+        """
         for i, controller in enumerate(self.controllers):
+            if not arrives[i]:
+                continue
             x, y, theta = poses[i]
             if self.avoidance:
-                controller.on_others(poses, now, now)
-            if not controller.on_pose(float(x), float(y), float(theta), now, now):
+                controller.on_others(poses, stamp, now)
+            if not controller.on_pose(float(x), float(y), float(theta), stamp, now):
                 continue
             state = controller.state()
             if state is None:
@@ -136,7 +179,14 @@ class Pipeline:
     def tick(self, i: int, now: float) -> None:
         tick = self.controllers[i].tick(now)
         self.commands[i] = tick.v, tick.w
-        self.world.command(i, tick.v, tick.w, now)
+        link = self.link
+        if link.command_loss and self.rng.random() < link.command_loss:
+            return
+        delay = link.command_latency
+        if link.command_jitter:
+            delay += self.rng.uniform(-link.command_jitter, link.command_jitter)
+        self.due[i] = max(now + max(delay, 0.0), self.due[i])
+        self.world.command(i, tick.v, tick.w, float(self.due[i]))
 
     def run(self, duration: float, record_dt: float, reassign_every: float | None
             ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
@@ -154,7 +204,7 @@ class Pipeline:
         if reassign_every:
             events += [(t, REASSIGN, 0) for t in _times(reassign_every, reassign_every,
                                                            duration)]
-        events += [(t, POSE, 0) for t in _times(1.0 / self.pose_rate, 0.0, duration)]
+        events += [(t, POSE, -1) for t in _times(1.0 / self.pose_rate, 0.0, duration)]
         period = 1.0 / self.rate_hz
         for i, phase in enumerate(self.tick_phases):
             events += [(t, TICK, i) for t in _times(period, float(phase) * period, duration)]
@@ -172,8 +222,11 @@ class Pipeline:
                 self.start_phase(index, now) if index >= 0 else self.renew(now)
             elif kind == REASSIGN:
                 self.reassign(now)
+            elif kind == POSE and index < 0:
+                for event in self.poses_taken(now):
+                    heapq.heappush(events, event)
             elif kind == POSE:
-                self.poses_taken(now)
+                self.deliver_poses(*self.in_flight.pop(index), now)
             elif kind == TICK:
                 self.tick(index, now)
             else:
@@ -187,14 +240,16 @@ class Pipeline:
 def simulate_pipeline(experiment: Experiment, engine: Literal['kinematic', 'mujoco'] | None
                       = None, rate_hz: float | None = None, duration: float | None = None,
                       record_dt: float | None = None, seed: int = 0,
-                      pose_rate: float | None = None) -> SimResult:
+                      pose_rate: float | None = None, link: Link | None = None) -> SimResult:
     """Run an experiment through the nodes' tick pipeline (module doc) in a world of
     `engine` (None: the experiment's physics.engine); a SimResult as simulator.simulate
     gives.
 
     rate_hz: control rate (Hz; default the experiment's, checked as the file's); seed:
     each controller's phase of the control period (uniform in [0, 1)); pose_rate: poses per
-    second (Hz; default the camera's rate, else POSE_RATE).
+    second (Hz; default the camera's rate, else POSE_RATE); link: the link's delays and
+    losses (default: a link as long as the controllers are told, controller.command_latency,
+    and no loss).
     """
     spec = experiment.spec
     rate = control_rate(experiment, rate_hz)
@@ -204,7 +259,9 @@ def simulate_pipeline(experiment: Experiment, engine: Literal['kinematic', 'mujo
         pose_rate = spec.camera.rate_hz if spec.camera is not None else POSE_RATE
     world = make_world(experiment, engine)
     phases = np.random.default_rng(seed).random(experiment.n)
-    pipeline = Pipeline(experiment, world, rate, phases, pose_rate)
+    if link is None:
+        link = Link(command_latency=spec.controller.command_latency, seed=seed)
+    pipeline = Pipeline(experiment, world, rate, phases, pose_rate, link)
     t, poses, dhat, commands = pipeline.run(duration, record_dt,
                                             spec.agents.reassign_every)
     starts = np.array([p.start for p in experiment.phases[1:]])
