@@ -407,7 +407,10 @@ def test_estop_cli_stops_all_nine_robots_at_once_holds_them_and_releases(ros_dom
     restarted = (tmp_path / 'logs' / 'robot_4.formation_controller.log').read_text()
     assert 'passed on by' in restarted.split('agent 4/9')[-1], restarted[-2000:]
     phase = result['phases'][0]
-    assert phase['settled'] and phase['interrupted_by_estop'], phase
+    # (flaky once in a full run, 2026-12-03: passed alone; the reason is now said)
+    assert phase['settled'] and phase['interrupted_by_estop'], (
+        phase['not_settled_because'], phase['interrupted_by_estop'], phase['final_error_norm'],
+        phase['tolerance'], result.get('estop'), result.get('node_deaths'))
     assert phase['settle_time'] >= released, (phase, released)
     (start, stop), = result['estop']['intervals']
     assert 4.5 < start < 9.0 and released - 1.0 < stop <= released + 1.0, result['estop']
