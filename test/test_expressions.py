@@ -30,3 +30,9 @@ def test_constant_expression_broadcasts():
 def test_refuses_anything_beyond_arithmetic(text, fragment):
     with pytest.raises(ExpressionError, match=fragment.replace('(', r'\(')):
         Expression(text)(np.linspace(0, 1, 5))
+
+
+def test_a_null_byte_is_refused_as_an_expression_error():
+    """Found by the mutation property test: ast.parse raises ValueError, not SyntaxError."""
+    with pytest.raises(ExpressionError, match='cannot parse'):
+        Expression('sin(2*pi*s)\x00')

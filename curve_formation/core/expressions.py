@@ -55,6 +55,8 @@ class Expression:
             tree = ast.parse(text.strip(), mode='eval')
         except SyntaxError as exc:
             raise ExpressionError(f'cannot parse {self.label}: {exc.msg}') from None
+        except ValueError as exc:   # e.g. a null byte: ast.parse refuses it outright
+            raise ExpressionError(f'cannot parse {self.label}: {exc}') from None
         except (RecursionError, MemoryError):
             raise ExpressionError(f'{self.label}: nested too deeply to parse') from None
         self._order = self._checked(tree.body)
