@@ -13,9 +13,8 @@ import socket
 
 import yaml
 
-from curve_formation.core import wire
 from curve_formation.core.agent import agent_configs
-from curve_formation.core.experiment import control_rate, wheel_radius
+from curve_formation.core.experiment import control_rate, wheel_base, wheel_radius
 from curve_formation.nodes.formation_controller import node_parameters
 from curve_formation.nodes.params import limit_parameter
 from curve_formation.run_options import DEFAULTS
@@ -145,7 +144,7 @@ def bridge_parameters(experiment, rate, link):
     limits = experiment.limits
     kind, _, where = link.partition(':')
     return {'link': link if kind == 'udp' else f'serial:{where}',
-            'wheel_base': float(limits.wheel_base or wire.MONA_WHEEL_BASE),
+            'wheel_base': wheel_base(experiment),
             'wheel_radius': wheel_radius(experiment),
             'max_wheel_speed': limit_parameter(limits.max_wheel_speed),
             'rate_hz': float(rate)}

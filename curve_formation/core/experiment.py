@@ -179,6 +179,12 @@ def wheel_radius(experiment: Experiment) -> float:
                  else LimitsSpec.model_fields['wheel_radius'].default)
 
 
+def wheel_base(experiment: Experiment) -> float:
+    """Distance between the wheels (m): limits.wheel_base, or a Mona's without limits."""
+    from curve_formation.core.wire import MONA_WHEEL_BASE
+    return float(experiment.limits.wheel_base or MONA_WHEEL_BASE)
+
+
 def check_rate_override(experiment: Experiment, rate_hz: float, option: str = '--rate'
                         ) -> None:
     """ConfigError unless the file's controller section passes its checks at rate_hz (Hz), as

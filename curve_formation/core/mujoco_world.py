@@ -28,7 +28,7 @@ import mujoco
 import numpy as np
 
 from curve_formation.core.dynamics import CommandQueue
-from curve_formation.core.experiment import wheel_radius
+from curve_formation.core.experiment import wheel_base, wheel_radius
 from curve_formation.core.shapes import FloatArray
 
 
@@ -95,12 +95,6 @@ def draw_robots(experiment: 'Experiment') -> Robots:
     radii = radius * np.column_stack([1.0 + 0.5 * mismatch, 1.0 - 0.5 * mismatch])
     gains = 1.0 + rng.uniform(-1.0, 1.0, (n, 2)) * imperfect.motor_gain_spread
     return Robots(radii, gains, radius)
-
-
-def wheel_base(experiment: 'Experiment') -> float:
-    """Distance between the wheels (m): limits.wheel_base, or a Mona's without limits."""
-    from curve_formation.core.wire import MONA_WHEEL_BASE
-    return float(experiment.limits.wheel_base or MONA_WHEEL_BASE)
 
 
 def body_radius(experiment: 'Experiment') -> float:

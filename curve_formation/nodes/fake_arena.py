@@ -27,6 +27,7 @@ from rclpy.duration import Duration
 from rclpy.node import Node
 
 from curve_formation.core import metrics, wire
+from curve_formation.core.experiment import wheel_base
 from curve_formation.core.worlds import ENGINES, make_world
 from curve_formation.links import robot_endpoint
 from curve_formation.nodes import messages, topics
@@ -134,7 +135,7 @@ class FakeArena(Node):
         if len(p.fault_link_down) not in (0, 3):
             raise ParameterError("parameter 'fault_link_down' must be [robot, from, for]")
         self.format = wire_format_parameter(p)
-        self.wheel_base = experiment.limits.wheel_base or wire.MONA_WHEEL_BASE
+        self.wheel_base = wheel_base(experiment)
         self.first_line = None
         try:
             return [robot_endpoint(link) for link in p.links]
