@@ -61,14 +61,27 @@ class CommandQueue:
             due, v, w = self.pending.popleft()
             self._hold(max(due, self.time), out)
             self.command = (v, w)
-        if (self.timeout > 0 and self.command != (0.0, 0.0) and self.last_command_time
-                is not None and until > self.last_command_time + self.timeout + self.latency):
-            self._hold(self.last_command_time + self.timeout + self.latency, out)
+        watchdog = self.watchdog_time()
+        if until > watchdog:
+            self._hold(watchdog, out)
             self.command = (0.0, 0.0)
             self._hold(until, out)
             return out, True
         self._hold(until, out)
         return out, False
+
+    def watchdog_time(self):
+        """When (s) the watchdog turns the motors off if no command comes (inf: it will not,
+        the motors are off already or there is no watchdog).
+        """
+        if self.timeout <= 0 or self.command == (0.0, 0.0) or self.last_command_time is None:
+            return math.inf
+        return self.last_command_time + self.timeout + self.latency
+
+    def next_change(self):
+        """When (s) the command in force changes next: the next one due, or the watchdog."""
+        due = self.pending[0][0] if self.pending else math.inf
+        return min(due, self.watchdog_time())
 
     def _hold(self, until, out):
         if until > self.time:

@@ -232,7 +232,6 @@ class MujocoWorld:
         self.steps = 0
         self.base = wheel_base(experiment)
         limits = experiment.limits
-        self.max_wheel_speed = limits.max_wheel_speed
         imperfect = spec.physics.imperfections
         self.dead_band = imperfect.dead_band * limits.max_wheel_speed
         bits = imperfect.command_bits
@@ -259,13 +258,12 @@ class MujocoWorld:
         self.wheel_qpos = np.array([self.model.jnt_qposadr[self.model.joint(f'{s}{i}').id]
                                     for i in range(1, self.n + 1) for s in ('left', 'right')])
         # geom id -> robot index (bodies), -2 for walls, -1 otherwise
+        self.body_geoms = [self.model.geom(f'body{i + 1}').id for i in range(self.n)]
         self.geom_owner = np.full(self.model.ngeom, -1)
-        for i in range(self.n):
-            self.geom_owner[self.model.geom(f'body{i + 1}').id] = i
+        self.geom_owner[self.body_geoms] = np.arange(self.n)
         for g in range(self.model.ngeom):
             if self.model.geom(g).name.startswith('wall_'):
                 self.geom_owner[g] = -2
-        self.body_geoms = [self.model.geom(f'body{i + 1}').id for i in range(self.n)]
         self.body_ids = [self.model.body(f'robot{i + 1}').id for i in range(self.n)]
         self.pairs = np.triu_indices(self.n, 1)
         self.near = 2.0 * body_radius(experiment) + GAP_RANGE
@@ -285,11 +283,6 @@ class MujocoWorld:
         """Robot i's (0-based) velocity command (m/s, rad/s) received at `now` (s)."""
         self.queues[i].push(v, w, now)
         self.next_change = min(self.next_change, now + self.queues[i].latency)
-
-    def top_speed(self, until: float) -> float:
-        """The fastest (m/s) any robot may be commanded up to `until`."""
-        return max(abs(v) + 0.5 * self.base * abs(w)
-                   for q in self.queues for v, w in q.upcoming(until))
 
     def advance(self, until: float) -> list[int]:
         """Step the engine up to `until` (s, to within half a step); the robots (0-based)
@@ -324,8 +317,7 @@ class MujocoWorld:
         stopped = []
         self.next_change = math.inf
         for i, queue in enumerate(self.queues):
-            segments, off = queue.segments(end)
-            if off:
+            if queue.segments(end)[1]:
                 stopped.append(i)
             v, w = queue.command
             self.wheels[i] = 0.0
@@ -333,12 +325,7 @@ class MujocoWorld:
                 v += self.disturbance[i, 0]
                 w += self.disturbance[i, 1]
                 self.wheels[i] = v - 0.5 * self.base * w, v + 0.5 * self.base * w
-            if queue.pending:
-                self.next_change = min(self.next_change, queue.pending[0][0])
-            if (queue.timeout > 0 and queue.command != (0.0, 0.0)
-                    and queue.last_command_time is not None):
-                self.next_change = min(self.next_change, queue.last_command_time
-                                       + queue.timeout + queue.latency)
+            self.next_change = min(self.next_change, queue.next_change())
         return stopped
 
     def motor_commands(self, wheels: FloatArray, now: float) -> FloatArray:
