@@ -167,3 +167,9 @@ def test_the_shipped_arena_builds_with_walls_and_every_robot():
     names = {world.model.geom(g).name for g in range(world.model.ngeom)}
     assert {'wall_west', 'wall_east', 'wall_south', 'wall_north'} <= names
     assert world.model.nu == 2 * experiment.n
+
+
+def test_a_robot_lighter_than_its_wheels_is_refused_when_the_file_loads():
+    from curve_formation.core.experiment import ConfigError
+    with pytest.raises(ConfigError, match='physics.mass'):
+        two_robots(physics={'mass': 0.008})

@@ -14,6 +14,7 @@ from curve_formation.core.curves import MAX_HARMONICS, MAX_ORDER
 
 Pair = tuple[float, float]
 MAX_FIT_ENTRIES = 50_000_000   # samples x basis functions of one fit (400 MB of float64)
+WHEEL_MASS = 0.005   # kg, each of a MuJoCo robot's two wheels (physics.mass includes them)
 
 
 class Strict(BaseModel):
@@ -482,7 +483,8 @@ class PhysicsSpec(Strict):
         'kinematic', description='kinematic: unicycles (and discs pushed apart); mujoco: '
         'rigid bodies on driven wheels in the MuJoCo engine')
     timestep: float = Field(0.002, gt=0, le=0.01, description='MuJoCo integration step (s)')
-    mass: float = Field(0.1, gt=0, description='robot mass with wheels (kg)')
+    mass: float = Field(0.1, gt=2 * WHEEL_MASS, description='robot mass with its two '
+                        f'wheels of {WHEEL_MASS * 1000:g} g (kg)')
     height: float = Field(0.03, gt=0, description='body height (m), for its inertia')
     caster_drag: float = Field(0.02, ge=0, description="the ball casters' drag against the "
                                "robot's motion at the wheels' top speed, as a fraction of its "

@@ -27,6 +27,7 @@ from xml.sax.saxutils import quoteattr
 import mujoco
 import numpy as np
 
+from curve_formation.core.config_schema import WHEEL_MASS
 from curve_formation.core.dynamics import CommandQueue
 from curve_formation.core.experiment import wheel_base, wheel_radius
 from curve_formation.core.shapes import FloatArray
@@ -38,7 +39,7 @@ if TYPE_CHECKING:
 
 # Geometry the experiment does not set (m): the wheels' width (the bodies' clearance of
 # them without robots.radius), the body's centre of mass below the axle, the casters'
-# distance in from the body's rim, wall thickness and height, the mass of a wheel (kg).
+# distance in from the body's rim, wall thickness and height.
 WHEEL_WIDTH = 0.006
 COM_DROP = 0.003
 CASTER_INSET = 0.008
@@ -46,7 +47,6 @@ CASTER_INSET = 0.008
 # this many no-slip iterations remove that creep.
 NOSLIP = 3
 WALL = (0.02, 0.05)
-WHEEL_MASS = 0.005
 # The wheel-speed servo behind each motor's lag: its own lag (s), small beside a motor time
 # constant, sets its gains from the inertia a wheel drives; the lag filter before it takes
 # the rest of the motor's time constant (2 SERVO_LAG less).
@@ -123,8 +123,6 @@ def arena_mjcf(experiment: 'Experiment', robots: Robots | None = None) -> str:
     disc_side = body_mass * (0.25 * radius ** 2 + physics.height ** 2 / 12.0)
     max_speed = experiment.limits.max_wheel_speed
     max_speed = max_speed if math.isfinite(max_speed) else DRAG_SPEED
-    if body_mass <= 0:
-        raise ValueError(f'physics.mass {physics.mass:g} kg is less than the wheels alone')
     kp, kv = servo_gains(experiment)
     width, height = (experiment.spec.arena.size if experiment.spec.arena is not None
                      else (0.0, 0.0))
