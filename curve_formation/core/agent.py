@@ -561,8 +561,7 @@ class AgentController:
         still_left = abs(left) < cfg.min_wheel_speed
         self.idle = still_right and still_left
         moved_v, moved_w = rim_velocity(0.0 if still_left else left,
-                                                   0.0 if still_right else right,
-                                                   cfg.limits.wheel_base)
+                                        0.0 if still_right else right, cfg.limits.wheel_base)
         return ref_v + moved_v - v, ref_w + moved_w - w
 
     def _acting(self, at: float) -> Sent | None:
