@@ -19,6 +19,7 @@ from curve_formation.core import metrics, plots
 from curve_formation.core.curve_codec import (
     decode_agent_parameters,
     decode_curve,
+    decode_curve_clock,
     yaw_from_quaternion,
 )
 from curve_formation.core.estop import parse_report, stopped_intervals
@@ -132,7 +133,7 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0, progress=None):
             if s is None or len(s) != n:
                 raise BagError(f"{path}: curve {curve_id} carries no agents' parameters for "
                                f'{n} agents: cannot tell which robot goes where')
-            curves.append((t, curve_id, curve, s))
+            curves.append((t, curve_id, curve, s, decode_curve_clock(dims, msg.data)))
             continue
         match = _ROBOT_TOPIC.match(topic)
         if not match or not 1 <= int(match.group(1)) <= n:
@@ -158,7 +159,9 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0, progress=None):
     if end - t0 < 2.0 / sample_hz:
         raise BagError(f'{path}: less than two samples of poses after the first curve')
     grid = t0 + np.arange(0.0, end - t0, 1.0 / sample_hz)
-    phases = received_phases(experiment, [(t - t0, k, curve, s) for t, k, curve, s in curves])
+    phases = received_phases(experiment, [(t - t0, k, curve, s, None if clock is None
+                                           else clock.since(t0))
+                                          for t, k, curve, s, clock in curves])
     starts = np.array([p.start for p in phases]) + t0
     phase = np.searchsorted(starts, grid, side='right') - 1
     estops = stopped_intervals([(t - t0, holder, engaged)
@@ -249,9 +252,10 @@ def _known(run, path):
 
 
 def simulate_recorded(experiment, t, poses):
-    """The batch simulator on a recorded run's experiment (its phases as the run received
-    them: curves, agents' parameters and switch times) from the run's first known poses
-    (t[0], poses[0]); returns a SimResult whose t is on the run's clock (s since t = 0).
+    """The batch simulator (the tick pipeline where the controllers were told of a command
+    latency) on a recorded run's experiment (its phases as the run received them: curves,
+    agents' parameters and switch times) from the run's first known poses (t[0], poses[0]);
+    returns a SimResult whose t is on the run's clock (s since t = 0).
     """
     from curve_formation.core.simulator import simulate
     begin = float(t[0])
@@ -265,7 +269,13 @@ def simulate_recorded(experiment, t, poses):
     spec = experiment.spec.simulation
     duration = float(t[-1] - begin)
     duration = round(duration / spec.record_dt) * spec.record_dt
-    result = simulate(sim_experiment, rate_hz=control_rate(experiment), duration=duration)
+    if experiment.spec.controller.command_latency > 0:
+        # commands as late as the controllers were told: the nodes' tick pipeline
+        from curve_formation.core.pipeline import simulate_pipeline
+        result = simulate_pipeline(sim_experiment, 'kinematic', control_rate(experiment),
+                                   duration)
+    else:
+        result = simulate(sim_experiment, rate_hz=control_rate(experiment), duration=duration)
     result.t = result.t + begin
     result.phase = result.phase + start_phase
     # The simulation's own re-assignments, on the run's clock.

@@ -11,9 +11,11 @@ from curve_formation.core.agent import agent_configs, AgentConfig, AgentControll
 from curve_formation.core.assignment import AssignmentError, reassigned
 from curve_formation.core.bodies import separate
 from curve_formation.core.control import Gains, WheelLimits
+from curve_formation.core.curves import Curve
 from curve_formation.core.dynamics import arc_step, DrivenUnicycle
 from curve_formation.core.experiment import load_experiment, with_start
 from curve_formation.core.metrics import offset_points, settle_time
+from curve_formation.core.motion import constant_coefficients
 from curve_formation.core.safety import AVOIDANCE_OFF
 from curve_formation.core.simulator import simulate
 from curve_formation.paths import resolve_config
@@ -154,6 +156,31 @@ def test_missing_neighbour_stops_until_it_reports():
     assert ctrl.tick(10.0).stopped is None
 
 
+def test_a_neighbour_not_yet_on_the_new_curve_is_measured_against_it_not_waited_for():
+    """Right after a curve switch a follower may tick before its neighbour's state on the new
+    curve comes: the neighbour's point (its error plus its old target) is measured against
+    its target on the new curve, the state it is about to send, instead of stopping the
+    robot (over DDS, 4 of 8 followers stopped a tick at each switch, and the formation fell
+    behind a curve that began to turn).
+    """
+    basis = circle().basis
+    moved = Curve(basis, basis.from_matrix(basis.to_matrix(circle().xi) + np.outer(
+        constant_coefficients(basis), [0.05, -0.02])))   # the circle 5 cm right, 2 cm down
+    late, told = ready(), ready()
+    for ctrl in (late, told):
+        ctrl.set_curve(moved, 1, THIRDS, received=10.0)
+        ctrl.on_pose(0.0, 0.0, 0.0, 10.05)
+    shift = circle().points([THIRDS[0]])[0] - moved.points([THIRDS[0]])[0]
+    np.testing.assert_allclose(shift, [-0.05, 0.02], atol=1e-12)
+    told.on_neighbour(1, 0.2 + shift[0], shift[1], 1, 10.0, 0.0)   # as if sent on curve 1
+    sooner, later = late.tick(10.1), told.tick(10.1)
+    assert sooner.stopped is None and later.stopped is None
+    np.testing.assert_allclose(sooner.feedback, later.feedback, atol=1e-12)
+    assert (sooner.v, sooner.w) == pytest.approx((later.v, later.w), abs=1e-12)
+    late.on_neighbour(1, 0.2, 0.0, 7, 10.1, 0.0)   # any other curve still stops it
+    assert 'neighbour 1 is on curve 7' in late.tick(10.2).stopped
+
+
 def test_non_finite_and_unknown_inputs_are_rejected():
     ctrl = ready()
     assert not ctrl.on_pose(math.nan, 0.0, 0.0, 10.0)
@@ -270,6 +297,30 @@ def test_curve_parameters_from_the_sender_are_used_and_checked():
     with pytest.raises(AssignmentError, match='no agent parameters'):
         ctrl.set_curve(circle(), 1, None)      # agents never derive s_i themselves
     assert ctrl.curve_id == 0                  # a refused curve leaves the previous one
+
+
+@pytest.mark.parametrize('valid_at, carried_from', [
+    (99.97, 99.97),   # the sender's clock is this one's: from when the curve held
+    (42.0, 100.0),    # another clock (no time sync): from its arrival
+])
+def test_a_moving_target_is_carried_from_when_its_curve_held(valid_at, carried_from):
+    """A moving curve that held at `valid_at` (the sender's clock) and arrived at 100 s is
+    carried from valid_at where the clocks agree; a neighbour's error is measured against the
+    target where it was when the pose was taken (the pose's stamp), not when it arrived.
+    """
+    curve = circle()
+    velocity = np.array([0.01, 0.0])
+    shift = Curve(curve.basis, curve.basis.from_matrix(np.outer(
+        constant_coefficients(curve.basis), velocity)))   # every point at 1 cm/s along x
+    ctrl = AgentController(config())
+    ctrl.set_curve(curve, 0, THIRDS, shift, received=100.0, valid_at=valid_at)
+    target = curve.points([THIRDS[1]])[0]
+    ctrl.on_pose(*target, 0.0, 100.02, received=100.06)   # taken 40 ms before it came
+    ex, ey = ctrl.own_error()
+    bx = target[0] + config().gains.offset   # the point steered, heading 0
+    moved = 0.01 * (100.02 - carried_from)
+    assert ex == pytest.approx(bx - (target[0] + moved), abs=1e-12)
+    assert ey == pytest.approx(0.0, abs=1e-12)
 
 
 def test_clocks_that_differ_between_hosts_neither_stop_nor_keep_robots_driving():

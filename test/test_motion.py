@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 
 from conftest import DATA_DIR
+from curve_formation.core.curve_codec import CurveClock
 from curve_formation.core.experiment import load_experiment, received_phases
+from curve_formation.core.metrics import run_metrics
 from curve_formation.core.motion import CurveMotion
 from curve_formation.core.simulator import simulate
 from curve_formation.paths import resolve_config
@@ -59,12 +61,32 @@ def test_a_moving_curve_received_late_is_judged_from_when_its_renewals_show_it_b
     sent = 0.1 * np.arange(40)
     got = sent - late + lags
     renewals = np.flatnonzero((sent > 0) & (got > 0))
-    messages = [(0.0, 0, phase.curve, phase.s)]
-    messages += [(got[k], 0, phase.motion.curve(phase.curve, sent[k]), phase.s)
+    messages = [(0.0, 0, phase.curve, phase.s, None)]
+    messages += [(got[k], 0, phase.motion.curve(phase.curve, sent[k]), phase.s, None)
                  for k in renewals]
     received, = received_phases(experiment, messages)
     assert received.start == pytest.approx(min(0.0, (got - sent)[renewals].min()), abs=1e-5)
     assert received.motion == phase.motion and not received.changes
+
+
+@pytest.mark.parametrize('first', [0, 7])
+def test_a_dated_moving_curve_starts_when_its_clock_says_whatever_the_arrivals(first):
+    """Messages carrying their clock (CurveClock: valid at, moving for) date the motion's
+    start exactly, whatever their delays, even for a reader whose first message is the 7th
+    renewal (it is still known as the schedule's phase, with its motion).
+    """
+    experiment = load_experiment(DATA_DIR / 'moving_loop.yaml')
+    phase = experiment.phases[0]
+    began = 2.5   # s, on the reader's time scale
+    sent = began + 0.1 * np.arange(first, 40)
+    got = sent + np.random.default_rng(1).uniform(0.001, 0.05, len(sent))
+    messages = [(got[k], 0, phase.motion.curve(phase.curve, sent[k] - began), phase.s,
+                 CurveClock(sent[k], sent[k] - began)) for k in range(len(sent))]
+    received, = received_phases(experiment, messages)
+    assert received.start == pytest.approx(began, abs=1e-12)
+    assert received.motion == phase.motion and not received.changes
+    np.testing.assert_allclose(received.curve.xi, phase.curve.xi, atol=1e-15)
+    assert received.fit == phase.fit   # the schedule's curve, residuals known
 
 
 def test_the_next_phase_is_assigned_from_where_the_moving_curve_left_its_targets(moving):
@@ -90,6 +112,10 @@ def test_feed_forward_keeps_the_formation_on_a_curve_moving_at_1_cm_per_s(moving
     assert with_ff.max() < 0.002
     np.testing.assert_allclose(without, 0.01 / moving.gains.k1, rtol=0.05)
     assert result.contacts['count'] == 0
+    # evenly spread along the curve where it is, not where it started (40 cm to the left)
+    carried = run_metrics(result.experiment, result.t, result.poses, result.phase
+                          )['phases'][1]
+    assert carried['spacing']['cv'] == pytest.approx(carried['target_spacing']['cv'], abs=1e-6)
 
 
 def test_a_curve_that_would_move_out_of_the_arena_is_refused():

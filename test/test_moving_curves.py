@@ -43,15 +43,19 @@ def test_a_moving_phase_over_dds_settles_as_simulated_and_the_bag_agrees(ros_dom
     sim, ros, bag = (r['phases'][1] for r in (simulated, live, bagged))
     tolerance = ros['tolerance']
     assert ros['settled'] and bag['settled'], (ros, bag)
-    # Within 1.2x of the simulator's time, or of a second where that is a few seconds (a slow
-    # turn or growth barely unsettles robots already settled: 2.24 s simulated, 2.89 s over
-    # DDS for the turn; DDS, the 10 Hz ticks and renewals and the 20 Hz record take that).
-    allowed = max(1.2 * sim['settle_time'], sim['settle_time'] + 1.0)
+    print(motion, 'settling: sim', sim['settle_time'], 'ros', ros['settle_time'], 'bag',
+          bag['settle_time'], 'final: ros', ros['final_error_norm'], 'bag',
+          bag['final_error_norm'])
+    # Within 1.2x of the simulator's time, to a sample (growth never unsettles the robots:
+    # 0 s simulated). The curve server announces a curve that begins to move 0.2 s ahead,
+    # so no controller's unsynchronised tick starts it late (without: the turn 2.8-3.1 s
+    # against 2.24 s simulated; with: 2.17 s).
+    allowed = 1.2 * sim['settle_time'] + RECORD_PERIOD
     assert ros['settle_time'] <= allowed, (ros['settle_time'], sim)
-    # Each robot is ~0.1 mm behind its target at 1 cm/s (measured against the target at its
-    # pose's stamp): the ~10 ms from a tick to the wheels over DDS that the controllers are not
-    # told of (controller.command_latency 0). Half the tolerance holds; the 0.1x the tolerance
-    # asked for does not (0.23-0.34 mm against 0.098 mm; docs/limitations.md).
-    assert ros['final_error_norm'] <= 0.5 * tolerance, (ros['final_error_norm'], tolerance)
+    # On its target to within 10x the tolerance's 1 % (each controller carries its moving
+    # target from when the curve held, by the message's clock, not from its arrival).
+    assert ros['final_error_norm'] <= 0.1 * tolerance, (ros['final_error_norm'], tolerance)
     assert abs(bag['settle_time'] - ros['settle_time']) <= 2 * RECORD_PERIOD, (bag, ros)
-    assert abs(bag['final_error_norm'] - ros['final_error_norm']) <= 0.2 * tolerance
+    assert abs(bag['final_error_norm'] - ros['final_error_norm']) <= 0.01 * tolerance
+    # evenly spread on the curve where it has moved to
+    assert ros['spacing']['cv'] == pytest.approx(ros['target_spacing']['cv'], abs=0.01)

@@ -17,9 +17,11 @@ import yaml
 
 from conftest import DATA_DIR, no_history_qos
 from curve_formation.core.agent import State
+from curve_formation.core.curve_codec import CurveClock
 from curve_formation.core.curve_sources import expression_samples
 from curve_formation.core.curves import fit_curve, FourierBasis
 from curve_formation.core.experiment import load_experiment
+from curve_formation.core.motion import CurveMotion
 from curve_formation.nodes import messages, qos, topics
 from curve_formation.nodes.curve_server import CurveServer
 from curve_formation.nodes.estop import EstopHolder
@@ -251,6 +253,43 @@ def test_console_script_exits_2_with_one_line(ros_domain):
     assert 'Traceback' not in proc.stderr
 
 
+def test_a_curve_that_begins_to_move_is_announced_ahead_and_dated_to_its_start(ros, tmp_path):
+    """The loop, still, then the same loop moving from 1.5 s: the moving phase's first message
+    comes announce_ahead (0.2 s) before its start, its clock saying it begins to move at the
+    start; renewals follow from then, each dated where its curve is.
+    """
+    text = (DATA_DIR / 'moving_loop.yaml').read_text()
+    moving = '    motion: {velocity: [0.01, 0.0]}\n'
+    still = text.split('curves:\n')[1].split(moving)[0]
+    assert still.startswith('  - basis') and moving in text
+    path = tmp_path / 'begins_to_move.yaml'
+    path.write_text(text.replace(moving, still.replace('  - basis', '  - start: 1.5\n    basis')
+                                 + moving))
+    context, add, spin_until = ros
+    server = add(CurveServer(context=context, parameter_overrides=overrides(
+        experiment=str(path))))
+    probe = add(rclpy.create_node('observer', context=context))
+    got = []
+    probe.create_subscription(
+        Float64MultiArray, topics.CURVE, lambda m: got.append(
+            (time.time(), messages.curve_from_msg(m), messages.curve_clock_from_msg(m))),
+        qos.LATCHED)
+    spin_until(lambda: server.start is not None and any(c[1] == 1 for _, c, _ in got))
+    spin_until(lambda: sum(c[1] == 1 for _, c, _ in got) >= 4)
+    began = server.start + 1.5
+    (first_at, (first, _), first_clock), *renewals = [g for g in got if g[1][1] == 1]
+    assert first_clock.motion_began == pytest.approx(began, abs=1e-9)
+    assert began - first_at == pytest.approx(0.2, abs=0.05)   # the wall and ROS clocks agree
+    phase = load_experiment(str(path)).phases[1]
+    np.testing.assert_allclose(first.xi, phase.curve.xi, atol=1e-12)
+    for _, (curve, _), clock in renewals:
+        assert clock.motion_began == pytest.approx(began, abs=1e-9)
+        np.testing.assert_allclose(curve.xi, phase.motion.curve(phase.curve,
+                                                                clock.moving_for).xi,
+                                   atol=1e-12)
+        assert clock.moving_for >= 0.0
+
+
 def test_curve_server_fits_and_publishes_an_observed_curve(ros):
     from geometry_msgs.msg import Point32, PolygonStamped
     context, add, spin_until = ros
@@ -307,6 +346,24 @@ def test_curve_message_round_trip_with_and_without_agent_parameters():
     msg.layout.dim[-1].size = 99
     with pytest.raises(messages.MessageError, match='99 agent parameters'):
         messages.agent_parameters_from_msg(msg)
+
+
+def test_a_moving_curve_message_carries_its_rate_and_clock():
+    curve = load_experiment(resolve_config('closed_curve')).phases[0].curve
+    rate = CurveMotion((0.01, 0.0)).rate(curve, 0.0)
+    msg = messages.curve_to_msg(curve, 2, [0.5, 0.0, 0.25], rate,
+                                CurveClock(1.7e9 + 0.123456, 3.5))
+    back, _ = messages.curve_from_msg(msg)
+    np.testing.assert_allclose(back.xi, curve.xi)
+    np.testing.assert_allclose(messages.curve_rate_from_msg(msg).xi, rate.xi)
+    clock = messages.curve_clock_from_msg(msg)
+    assert clock.valid_at == 1.7e9 + 0.123456 and clock.moving_for == 3.5
+    assert clock.motion_began == pytest.approx(1.7e9 - 3.376544, abs=1e-6)
+    np.testing.assert_allclose(messages.agent_parameters_from_msg(msg), [0.5, 0.0, 0.25])
+    assert messages.curve_clock_from_msg(messages.curve_to_msg(curve, 2)) is None
+    backwards = messages.curve_to_msg(curve, 2, None, rate, CurveClock(5.0, -1.0))
+    with pytest.raises(messages.MessageError, match='moved for -1 s'):
+        messages.curve_clock_from_msg(backwards)
 
 
 def test_curve_server_sends_each_agents_assigned_parameter(ros, tmp_path, arena_dict):

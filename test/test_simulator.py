@@ -224,3 +224,17 @@ def test_the_batch_simulator_refuses_settings_of_motors_it_does_not_have(key):
     experiment = build_experiment(data, 'arena_demo.yaml')
     with pytest.raises(ConfigError, match=f'limits.{key}.*--physics mujoco'):
         simulate(experiment, duration=1.0)
+
+
+def test_the_batch_simulator_refuses_a_command_latency_its_robots_do_not_have():
+    """Its robots act on each command at once: a told latency would be predicted over for
+    nothing. It names the setting and the pipeline that simulates the late link.
+    """
+    import yaml
+
+    from curve_formation.core.experiment import build_experiment, ConfigError
+    data = yaml.safe_load(open('config/arena_demo.yaml'))
+    data['controller']['command_latency'] = 0.1
+    experiment = build_experiment(data, 'arena_demo.yaml')
+    with pytest.raises(ConfigError, match='controller.command_latency.*simulate_pipeline'):
+        simulate(experiment, duration=1.0)

@@ -230,6 +230,24 @@ class _Neighbour:
     received: Optional[float] = None    # s, this controller's clock
 
 
+@dataclass(frozen=True)
+class _CurveTargets:
+    """Every agent's target on one curve (n, 2; m, arena frame) as it held at `dated` (s, this
+    controller's clock) and their velocities (n, 2; m/s; zero on a still curve).
+    """
+
+    curve_id: int
+    targets: FloatArray
+    velocities: FloatArray
+    dated: float
+
+    def at(self, j: int, t: float) -> Point:
+        """Agent j's (1-based) target at t (s)."""
+        age = max(t - self.dated, 0.0)
+        tx, ty = self.targets[j - 1] + self.velocities[j - 1] * age
+        return float(tx), float(ty)
+
+
 def compiled_command(config: AgentConfig) -> Callable[..., tuple]:
     """control.agent_command compiled (core.simulator.compiled) and called once with the
     argument types of config's ticks, so that no tick waits for numba.
@@ -258,6 +276,10 @@ class AgentController:
         self.ahead: Point = (0.0, 0.0)   # the target's velocity on a moving curve (m/s)
         self.s: float | None = None
         self.target: Point | None = None
+        # every agent's target on the current curve and on the one before it, which converts
+        # a neighbour's error on the curve before into one on this (_neighbour_error)
+        self.curve_targets: _CurveTargets | None = None
+        self.previous_targets: _CurveTargets | None = None
         self.pose: Pose | None = None
         self.pose_stamp: float | None = None
         self.pose_received: float | None = None   # s, this controller's clock (as every
@@ -296,14 +318,16 @@ class AgentController:
 
     def set_curve(self, curve: Curve, curve_id: int,
                   s_all: Sequence[float] | FloatArray | None, rate: Curve | None = None,
-                  received: float = 0.0) -> None:
+                  received: float = 0.0, valid_at: float | None = None) -> None:
         """Adopt a new curve; raises ValueError (AssignmentError) if it breaks the assumptions.
 
         s_all (n,): every agent's parameter as the sender (the curve server) assigned them;
         a curve without them is refused: agents never derive s_i themselves. rate: a moving
-        curve's coefficient rate (1/s), received at `received` (s, this controller's clock):
-        the target is carried forward from then (at most leader_timeout) and its velocity
-        added to the command (feed_forward).
+        curve's coefficient rate (1/s), received at `received` (s, this controller's clock)
+        and holding at `valid_at` (s, the sender's clock; CurveClock): the target is carried
+        forward from valid_at where the two clocks agree (within leader_timeout), else from
+        its receipt, for at most leader_timeout, and its velocity added to the command
+        (feed_forward).
         """
         n = self.config.agent_count
         if s_all is None:
@@ -316,7 +340,14 @@ class AgentController:
         check_assumptions(curve.basis, s)
         self.first_pose = self.first_pose or int(curve_id) != self.curve_id
         self.curve, self.curve_id = curve, int(curve_id)
-        self.curve_rate, self.curve_received = rate, received
+        dated = (valid_at if valid_at is not None
+                 and abs(received - valid_at) <= self.config.leader_timeout else received)
+        self.curve_rate, self.curve_received = rate, dated
+        targets = _CurveTargets(int(curve_id), curve.points(s),
+                                np.zeros((n, 2)) if rate is None else rate.points(s), dated)
+        if self.curve_targets is not None and self.curve_targets.curve_id != targets.curve_id:
+            self.previous_targets = self.curve_targets
+        self.curve_targets = targets
         self.s = float(s[self.config.index - 1])
         tx, ty = curve.points([self.s])[0]
         self.target = self.received_target = (float(tx), float(ty))
@@ -425,15 +456,40 @@ class AgentController:
                else max(0.0, self.pose_received - self.leader_heard))
         return State(error, self.curve_id, self.pose_stamp, age)
 
+    def _neighbour_error(self, j: int, nb: _Neighbour) -> Point | None:
+        """Neighbour j's error on this robot's curve: as sent, or, sent on the curve before
+        (j has not had the new one yet, for a tick or two after a switch), its point measured
+        against its target on this curve instead (xb_j = e_j + its old target), both targets
+        where they were when j's pose was taken. None if on any other curve.
+        """
+        if nb.curve_id == self.curve_id:
+            return nb.error
+        old, new = self.previous_targets, self.curve_targets
+        if (old is None or new is None or nb.curve_id != old.curve_id or nb.stamp is None
+                or nb.received is None):
+            return None
+        taken = self._taken_at(nb.stamp, nb.received)
+        (ox, oy), (tx, ty) = old.at(j, taken), new.at(j, taken)
+        return nb.error[0] + ox - tx, nb.error[1] + oy - ty
+
     def own_error(self) -> Point | None:
         """e_i = xb_i - G(s_i) xi (m) from the latest pose (a moving curve's target taken
         when the pose came), or None.
         """
         if self.pose is None or self.target is None:
             return None
-        if self.pose_received is not None:
-            self._move_target(self.pose_received)
+        if self.pose_received is not None and self.pose_stamp is not None:
+            self._move_target(self._taken_at(self.pose_stamp, self.pose_received))
         return self._error_at(self.pose, self.target)
+
+    def _taken_at(self, stamp: float, received: float) -> float:
+        """When a pose was taken (s, this controller's clock): its stamp where the pose's
+        source shares this clock (the pose is 0 to min(pose_timeout, MAX_PREDICTION) s old by
+        it), else its receipt.
+        """
+        if 0.0 <= received - stamp <= min(self.config.pose_timeout, MAX_PREDICTION):
+            return stamp
+        return received
 
     def _error_at(self, pose: Pose, target: Point) -> Point:
         bx, by = offset_point(*pose, self.front * self.config.gains.offset)
@@ -491,9 +547,11 @@ class AgentController:
         if not inside_fence(pose[0], pose[1], cfg.geofence):
             return self._stop(f'outside the geofence at ({pose[0]:.3f}, {pose[1]:.3f}) m')
         measured = pose
+        aim = now   # when the target is taken: with the pose predicted, when this command acts
         if cfg.predict_pose:
             pose = self.predicted(pose, stamp, received, now)
-        if not self._move_target(now):
+            aim = now + cfg.command_latency
+        if not self._move_target(aim):
             return self._stop(f'moving curve not renewed for {now - self.curve_received:.2f} s')
         ex, ey = self._error_at(pose, self.target)
         base = Tick(error=(ex, ey), error_stamp=stamp, curve_id=self.curve_id)
@@ -504,17 +562,20 @@ class AgentController:
                 return self._stop('no news from the leader yet' if self.leader_heard is None
                                   else f'no news from the leader '
                                   f'({now - self.leader_heard:.2f} s old)', base)
+            errors: list[Point] = []
             for j, nb in self.neighbours.items():
                 if nb.received is None:
                     return self._stop(f'no state from neighbour {j} yet', base)
                 if is_stale(nb.received, now, cfg.neighbour_timeout):
                     return self._stop(f'neighbour {j} stale ({now - nb.received:.2f} s old)',
                                       base)
-                if nb.curve_id != self.curve_id:
+                error = self._neighbour_error(j, nb)
+                if error is None:
                     return self._stop(f'neighbour {j} is on curve {nb.curve_id}, this robot on '
                                       f'{self.curve_id}', base)
-            fx, fy = follower_feedback(ex, ey, [nb.error for nb in self.neighbours.values()],
-                                       [w for _, w in cfg.neighbours], cfg.pinning)
+                errors.append(error)
+            fx, fy = follower_feedback(ex, ey, errors, [w for _, w in cfg.neighbours],
+                                       cfg.pinning)
             base.neighbour_stamps = tuple((j, nb.stamp) for j, nb in self.neighbours.items())
         if cfg.avoidance.on and is_stale(self.others_received, now, cfg.pose_timeout):
             return self._stop('no poses of the other robots yet' if self.others_received is None
@@ -523,7 +584,13 @@ class AgentController:
         law = cfg.law
         if law.code == OBSERVER:
             self._observe()
-        ahead = self.ahead if cfg.feed_forward else (0.0, 0.0)
+        ahead = (0.0, 0.0)
+        if cfg.feed_forward:
+            # the part of this command's period (from when it acts) in which the target moves:
+            # all of it, except for a curve announced before it begins to move
+            period = 1.0 / cfg.rate_hz
+            moving = min(max((aim + period - self.curve_received) / period, 0.0), 1.0)
+            ahead = (self.ahead[0] * moving, self.ahead[1] * moving)
         v, w, ref_v, ref_w, ddv, ddw, code, shift_v, shift_w, limited = self.command(
             fx, fy, *ahead, ex, ey, *pose, self.dhat[0], self.dhat[1], *self.last_command,
             *cfg.pc_disturbance, steered_law(law, self.front), cfg.limits, self.others,

@@ -172,14 +172,59 @@ class ControllerSpec(Strict):
         return self
 
 
+class VariationSpec(Strict):
+    """One relative change of the disturbance over time (s since the first curve): a sine
+    (amplitude, period, phase), a step (change at `at`) or a ramp (change reached from
+    `start` to `end`, held after), on the listed agents (default all).
+    """
+
+    kind: Literal['sine', 'step', 'ramp']
+    amplitude: Optional[float] = Field(None, description='sine: relative amplitude (0.5: '
+                                       '+-50 % of the value)')
+    period: Optional[float] = Field(None, gt=0, description='sine: period (s)')
+    phase: float = Field(0.0, description='sine: phase (rad) at t = 0')
+    at: Optional[float] = Field(None, ge=0, description='step: when (s)')
+    start: Optional[float] = Field(None, ge=0, description='ramp: when it begins (s)')
+    end: Optional[float] = Field(None, description='ramp: when the change is reached (s)')
+    change: Optional[float] = Field(None, description='step, ramp: relative change (-0.2: '
+                                    'the value falls by 20 %)')
+    agents: Optional[list[int]] = Field(None, description='the agents it acts on (1-based; '
+                                        'default all)')
+
+    @model_validator(mode='after')
+    def _fields_of_kind(self):
+        needs = {'sine': ('amplitude', 'period'), 'step': ('at', 'change'),
+                 'ramp': ('start', 'end', 'change')}[self.kind]
+        missing = [key for key in needs if getattr(self, key) is None]
+        if missing:
+            raise ValueError(f'a {self.kind} needs {", ".join(needs)}; missing: '
+                             f'{", ".join(missing)}')
+        unused = [key for key in ('amplitude', 'period', 'at', 'start', 'end', 'change')
+                  if key not in needs and getattr(self, key) is not None]
+        if unused or (self.kind != 'sine' and self.phase != 0.0):
+            raise ValueError(f'a {self.kind} takes {", ".join(needs)}'
+                             f'{", phase" if self.kind == "sine" else ""}; not '
+                             f'{", ".join(unused or ["phase"])}')
+        if (self.kind == 'ramp' and self.end is not None and self.start is not None
+                and not self.end > self.start):
+            raise ValueError(f'a ramp ends after it starts (start {self.start:g} s, end '
+                             f'{self.end:g} s)')
+        return self
+
+
 class DisturbanceSpec(Strict):
-    """Constant input disturbance d_i = [d_v, d_w], the same for all agents or per agent."""
+    """Input disturbance d_i = [d_v, d_w], the same for all agents or per agent, constant or
+    varying over time (`varies`: each agent's value times 1 + the sum of its variations).
+    """
 
     value: Optional[Pair] = None
     per_agent: Optional[list[Pair]] = None
     injected: Literal['on_robot', 'on_pc'] = Field(
         'on_robot', description='on_robot: added after the wheel limits (physical); on_pc: '
         'added to the command before the limits, as in the arena experiment')
+    varies: list[VariationSpec] = Field(
+        default_factory=list, description='relative changes over time (s since the first '
+        'curve): sines, steps, ramps, each on some agents or all')
 
     @model_validator(mode='after')
     def _one_of(self):

@@ -2,10 +2,14 @@
 
 A curve travels as a flat array xi (2H values, the paper's layout) with three labelled
 dimensions: ('xi', 2H, 2H), ('basis=<fourier|polynomial>', K or p, 0), ('curve_id=<k>', 0, 0);
-for a moving curve, ('xi_dot', 2H, 2H): the coefficients' rate (per second) follows them; and,
-when the sender assigns the agents' parameters, ('s', n, n), whose n values s_1..s_n come last.
+for a moving curve, ('xi_dot', 2H, 2H): the coefficients' rate (per second) follows them; when
+the sender dates the curve, ('clock', 2, 2): the time (s, the sender's ROS clock) at which the
+coefficients are as given, and how long (s) the curve had been moving then (the curve's own
+time, 0 for a still curve); and when the sender assigns the agents' parameters, ('s', n, n),
+whose n values s_1..s_n come last.
 """
 
+from dataclasses import dataclass
 import math
 
 import numpy as np
@@ -15,6 +19,27 @@ from curve_formation.core.curves import Curve, make_basis, MAX_HARMONICS, MAX_OR
 
 class CodecError(ValueError):
     """A curve message that cannot be decoded."""
+
+
+@dataclass(frozen=True)
+class CurveClock:
+    """When a curve message's coefficients hold: valid_at (s, the sender's ROS clock), and
+    moving_for (s), how long the curve had then been moving (its own time; 0: still). A
+    receiver on the same clock carries a moving curve from valid_at, not from the message's
+    arrival, and dates the motion's start at valid_at - moving_for.
+    """
+
+    valid_at: float
+    moving_for: float = 0.0
+
+    @property
+    def motion_began(self) -> float:
+        """When the curve began moving (s, the sender's clock)."""
+        return self.valid_at - self.moving_for
+
+    def since(self, t0: float) -> 'CurveClock':
+        """The same clock counted from t0 (s, the sender's clock)."""
+        return CurveClock(self.valid_at - t0, self.moving_for)
 
 
 # Curve ids are whole numbers 0..MAX_CURVE_ID; they also travel in doubles (a neighbour's
@@ -39,10 +64,10 @@ def curve_id_from_float(value):
     return int(value)
 
 
-def encode_curve(curve, curve_id, s=None, rate=None):
+def encode_curve(curve, curve_id, s=None, rate=None, clock=None):
     """(dims, data): dims [(label, size, stride)], data the 2H coefficients, then the 2H of
-    `rate` (a Curve of the coefficients' rate, 1/s) if the curve moves, then s (n,) if given
-    (the agents' curve parameters).
+    `rate` (a Curve of the coefficients' rate, 1/s) if the curve moves, then `clock` if given
+    (CurveClock), then s (n,) if given (the agents' curve parameters).
     """
     basis = curve.basis
     size = basis.K if basis.kind == 'fourier' else basis.p
@@ -52,6 +77,9 @@ def encode_curve(curve, curve_id, s=None, rate=None):
     if rate is not None:
         dims.append(('xi_dot', 2 * basis.H, 2 * basis.H))
         data += [float(v) for v in rate.xi]
+    if clock is not None:
+        dims.append(('clock', 2, 2))
+        data += [float(clock.valid_at), float(clock.moving_for)]
     if s is not None:
         dims.append(('s', len(s), len(s)))
         data += [float(v) for v in s]
@@ -77,7 +105,10 @@ def decode_curve(dims, data):
     values = np.array(data, dtype=float)
     n_s = labels['s'][1] if 's' in labels else 0
     n_rate = labels['xi_dot'][1] if 'xi_dot' in labels else 0
-    xi = values[:len(values) - n_s - n_rate]
+    n_clock = labels['clock'][1] if 'clock' in labels else 0
+    if n_clock not in (0, 2):
+        raise CodecError(f'curve message has a clock of {n_clock} values, expected 2')
+    xi = values[:len(values) - n_s - n_rate - n_clock]
     if n_rate not in (0, 2 * basis.H):
         raise CodecError(f'curve message has {n_rate} coefficient rates, {basis.describe()} '
                          f'needs {2 * basis.H}')
@@ -99,6 +130,19 @@ def decode_curve_rate(dims, data):
     curve, _ = decode_curve(dims, data)
     start = 2 * curve.basis.H
     return Curve(curve.basis, np.array(data[start:start + int(sizes['xi_dot'])], dtype=float))
+
+
+def decode_curve_clock(dims, data):
+    """The CurveClock a curve message carries, or None; call after decode_curve."""
+    sizes = {label.split('=')[0]: size for label, size in dims}
+    if 'clock' not in sizes:
+        return None
+    curve, _ = decode_curve(dims, data)
+    start = 2 * curve.basis.H + int(sizes.get('xi_dot', 0))
+    valid_at, moving_for = (float(v) for v in data[start:start + 2])
+    if moving_for < 0.0:
+        raise CodecError(f'curve message says the curve has moved for {moving_for:g} s')
+    return CurveClock(valid_at, moving_for)
 
 
 def decode_agent_parameters(dims, data):

@@ -28,10 +28,12 @@ from curve_formation.core.config_schema import (
     RobotsSpec,
 )
 from curve_formation.core.control import Gains, NO_LIMITS, timed_by, WheelLimits
+from curve_formation.core.curve_codec import CurveClock
 from curve_formation.core.curves import Curve, CurveError, Fit, fit_curve, make_basis
+from curve_formation.core.disturbance import disturbance_at, Variation
 from curve_formation.core.expressions import ExpressionError
 from curve_formation.core.graph import DirectedGraph, Edge, GraphError
-from curve_formation.core.metrics import offset_points
+from curve_formation.core.metrics import MAX_STAMP_GAP, offset_points
 from curve_formation.core.motion import CurveMotion
 from curve_formation.core.safety import Avoidance, AVOIDANCE_OFF
 from curve_formation.core.shapes import FloatArray, Point
@@ -97,6 +99,11 @@ class Experiment:
     radius: float = 0.0        # bodies (m); 0: points
     avoidance: Avoidance = AVOIDANCE_OFF
     warnings: tuple[str, ...] = ()   # what `check` warns of: possible but questionable
+    variations: tuple[Variation, ...] = ()   # the disturbance's changes over time
+
+    def disturbance_at(self, t: ArrayLike) -> FloatArray:
+        """(*t.shape, n, 2) the disturbance [d_v, d_w] at times t (s since the first curve)."""
+        return disturbance_at(self.disturbance, self.variations, t)
 
     @property
     def n(self) -> int:
@@ -318,7 +325,8 @@ def _build(spec: ExperimentSpec, source: str) -> Experiment:
                       limits=limits, disturbance=_disturbance(spec, source),
                       initial_poses=initial, phases=phases, radius=spec.robots.radius,
                       avoidance=avoidance,
-                      warnings=tuple(_body_warnings(spec, phases, avoidance, gains.offset)))
+                      warnings=tuple(_body_warnings(spec, phases, avoidance, gains.offset)),
+                      variations=_variations(spec, source))
 
 
 def with_start(experiment: Experiment, poses: ArrayLike) -> Experiment:
@@ -345,14 +353,14 @@ def point_robots(experiment: Experiment) -> Experiment:
 
 
 def received_phases(experiment: Experiment,
-                    curves: Sequence[tuple[float, int, Curve, ArrayLike]]
+                    curves: Sequence[tuple[float, int, Curve, ArrayLike, CurveClock | None]]
                     ) -> tuple[Phase, ...]:
     """The phases a run followed, from the curve messages it received, in order: curves is a
-    list of (t, curve id, curve, s) (see ReceivedPhases.add).
+    list of (t, curve id, curve, s, clock) (see ReceivedPhases.add).
     """
     followed = ReceivedPhases(experiment)
-    for when, curve_id, curve, given in curves:
-        followed.add(when, curve_id, curve, given)
+    for when, curve_id, curve, given, clock in curves:
+        followed.add(when, curve_id, curve, given, clock)
     return followed.phases
 
 
@@ -370,34 +378,49 @@ class ReceivedPhases:
     def phases(self) -> tuple[Phase, ...]:
         return tuple(self._phases)
 
-    def add(self, when: float, curve_id: int, curve: Curve, given: ArrayLike) -> None:
-        """One curve message received at `when` (s since the first curve) with its id and the
-        agents' parameters s (n,) it carried. The first message of an id starts a phase; a
-        later one with the same id re-assigns its targets (Phase.changes) or, for a moving
-        curve, only renews it. A curve equal to the schedule's curve of the same index keeps
-        that phase's fit (residuals) and motion, from the phase's first message on or from
-        earlier, where its renewals show the first came late (_moving_since); any other (an
-        observed curve) has no fit residual (NaN).
+    def add(self, when: float, curve_id: int, curve: Curve, given: ArrayLike,
+            clock: CurveClock | None = None) -> None:
+        """One curve message received at `when` (s since the first curve) with its id, the
+        agents' parameters s (n,) it carried and its clock (CurveClock on the same time scale
+        as `when`, or None). The first message of an id starts a phase; a later one with the
+        same id re-assigns its targets (Phase.changes) or, for a moving curve, only renews
+        it. A curve equal to the schedule's curve of the same index (moved on as its clock
+        says) keeps that phase's fit (residuals) and motion; any other (an observed curve) has
+        no fit residual (NaN). A moving phase starts when its clock says it began to move
+        (where that is within MAX_STAMP_GAP of the message's arrival); without a clock, from
+        its first message on or from earlier, where its renewals show the first came late
+        (_moving_since).
         """
         phases = self._phases
         s = np.asarray(given, dtype=float)
+        dated = clock is not None and abs(clock.valid_at - when) <= MAX_STAMP_GAP
         if self._ids and curve_id == self._ids[-1]:
             last = phases[-1]
             if last.motion is not None:
-                last = phases[-1] = _moving_since(last, last.motion, when, curve)
+                last = phases[-1] = (
+                    dataclasses.replace(last, start=clock.motion_began)
+                    if dated and clock is not None
+                    else _moving_since(last, last.motion, when, curve))
             if not np.array_equal(s, last.changes[-1][1] if last.changes else last.s):
                 phases[-1] = dataclasses.replace(   # targets on the curve as it started
                     last, changes=last.changes + ((float(when), s, last.curve.points(s)),))
             return
         k = len(phases)
         scheduled = self.experiment.phases[k] if k < len(self.experiment.phases) else None
-        same = (scheduled is not None and scheduled.curve.basis.describe()
-                == curve.basis.describe() and np.allclose(scheduled.curve.xi, curve.xi,
-                                                          rtol=0, atol=1e-12))
-        fit = scheduled.fit if same and scheduled is not None else Fit(curve, math.nan,
-                                                                       math.nan, 0)
-        motion = scheduled.motion if same and scheduled is not None else None
-        phases.append(Phase(k, float(when), fit, s, curve.points(s), curve.basis.stacked(s),
+        moved = 0.0 if clock is None or not dated else clock.moving_for
+        expected = (None if scheduled is None else scheduled.curve if scheduled.motion is None
+                    else scheduled.motion.curve(scheduled.curve, moved))
+        same = (scheduled is not None and expected is not None
+                and expected.basis.describe() == curve.basis.describe()
+                and np.allclose(expected.xi, curve.xi, rtol=0, atol=1e-12))
+        start = float(when)
+        if same and scheduled is not None:
+            fit, motion, curve = scheduled.fit, scheduled.motion, scheduled.curve
+            if motion is not None and dated and clock is not None:
+                start = clock.motion_began
+        else:
+            fit, motion = Fit(curve, math.nan, math.nan, 0), None
+        phases.append(Phase(k, start, fit, s, curve.points(s), curve.basis.stacked(s),
                             motion=motion))
         self._ids.append(curve_id)
 
@@ -649,6 +672,21 @@ def _disturbance(spec: ExperimentSpec, source: str) -> FloatArray:
                               f'(one per agent), got {len(dist.per_agent)}')
         return np.array(dist.per_agent, dtype=float)
     return np.tile(np.array(dist.value if dist.value is not None else (0.0, 0.0)), (n, 1))
+
+
+def _variations(spec: ExperimentSpec, source: str) -> tuple[Variation, ...]:
+    n = spec.agents.count
+    out = []
+    for k, v in enumerate(spec.disturbance.varies):
+        agents = v.agents or []
+        wrong = [i for i in agents if not 1 <= i <= n]
+        if wrong or len(set(agents)) != len(agents):
+            raise ConfigError(source, f'disturbance.varies[{k}].agents', f'expected distinct '
+                              f'agents among 1..{n}, got {agents}')
+        fields = {key: value for key, value in v.model_dump(exclude={'agents'}).items()
+                  if value is not None}
+        out.append(Variation(**fields, agents=tuple(i - 1 for i in agents)))
+    return tuple(out)
 
 
 MAX_DRAWS_PER_ROBOT = 1000

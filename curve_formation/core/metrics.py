@@ -350,7 +350,8 @@ def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance
                 estops=None, deaths=(), stamps=None):
     """All metrics of a run as a JSON-ready dict (one entry per curve phase).
 
-    gains, disturbance and limits default to the experiment's; pass the ones the run used.
+    gains, disturbance and limits default to the experiment's; pass the ones the run used
+    (disturbance: (n, 2), or (R, n, 2) at each sample where it varies).
     contacts, unseen: see body_metrics (experiments with bodies or avoidance).
     estops: [(start, stop or None)] (s) while the e-stop held robots (core.estop): a phase
     they interrupt settles only after the release, and not at all if still held at its end.
@@ -360,7 +361,12 @@ def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance
     """
     tolerance = experiment.spec.metrics.tolerance if tolerance is None else tolerance
     gains = experiment.gains if gains is None else gains
-    disturbance = experiment.disturbance if disturbance is None else disturbance
+    if disturbance is None:   # at each sample where it varies
+        disturbance = (experiment.disturbance_at(t) if experiment.variations
+                       else experiment.disturbance)
+    disturbance = np.asarray(disturbance, float)
+    d_first, d_last = ((disturbance[:1], disturbance[-1:]) if disturbance.ndim == 3
+                       else (disturbance, disturbance))
     limits = experiment.limits if limits is None else limits
     targets = sample_targets(experiment, phase, t, stamps)
     points = steered_points(poses, targets, gains)
@@ -398,7 +404,9 @@ def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance
             'initial_error_norm': float(norm[window][0]),
             'final_error_norm': float(norm[last]),
             'final_max_agent_error': float(agent_err.max()),
-            'spacing': spacing_uniformity(p.curve, points[last]),
+            'spacing': spacing_uniformity(p.curve if p.motion is None else
+                                          p.motion.curve(p.curve, t[last] - p.start),
+                                          points[last]),
             'target_spacing': spacing_uniformity(p.curve, p.targets),
             'reassignments': len(p.changes),
         })
@@ -410,9 +418,9 @@ def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance
         'final_error_norm': float(norm[-1]),
         'final_orientation_rates_max': float(np.abs(orientation_rates(t, poses)).max()),
         'lyapunov_initial': float(lyapunov(errors[:1], None if dhat is None else dhat[:1],
-                                           experiment, disturbance, gains)[0]),
+                                           experiment, d_first, gains)[0]),
         'lyapunov_final': float(lyapunov(errors[-1:], None if dhat is None else dhat[-1:],
-                                         experiment, disturbance, gains)[0]),
+                                         experiment, d_last, gains)[0]),
         'all_settled': all(p['settled'] for p in phases),
         'closest_approach': closest_approach(poses)[0],
     }
@@ -420,7 +428,7 @@ def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance
         out['estop'] = {'intervals': [[a, b] for a, b in estops],
                         'stopped_for': stopped_time(estops, float(t[-1]))}
     if dhat is not None and gains.k2 > 0:
-        target = np.asarray(disturbance) / gains.k2
+        target = d_last.reshape(-1, experiment.n, 2)[-1] / gains.k2
         out['final_estimate_error_max'] = float(np.linalg.norm(dhat[-1] - target, axis=1).max())
     out.update(peak_speeds(commands, limits.wheel_base))
     if experiment.radius > 0 or experiment.avoidance.on:

@@ -30,6 +30,7 @@ from numpy.typing import ArrayLike
 from curve_formation.core import bodies, control, driving, dynamics, metrics
 from curve_formation.core.assignment import reassigned
 from curve_formation.core.control import Gains, Law, WheelLimits
+from curve_formation.core.disturbance import disturbance_at
 from curve_formation.core.driving import REVERSE_HYSTERESIS
 from curve_formation.core.experiment import ConfigError, Experiment, Phase, whole_steps
 from curve_formation.core.safety import Avoidance
@@ -362,7 +363,8 @@ class SimResult:
 
     t: (R,) s.  poses: (R, n, 3) x, y, theta (arena frame).  dhat: (R, n, 2) estimates.
     commands: (R, n, 2) (v, w) sent to the robots (after limits; with an on_pc disturbance it
-    includes d).  phase: (R,) index of the active curve.  gains, limits, disturbance (n, 2):
+    includes d).  phase: (R,) index of the active curve.  gains, limits, disturbance (n, 2;
+    (R, n, 2) at each sample where it varies):
     the settings the run used (the experiment's unless overridden). contacts: counted at every
     fine step (new contacts between two bodies, time with any, smallest surface gap).
     """
@@ -399,6 +401,12 @@ class SimResult:
                                 self.gains)
 
 
+def _split(dist: FloatArray, on_pc: bool) -> tuple[FloatArray, FloatArray]:
+    """(d_pc, d_robot) (n, 2): the disturbance where it is injected, zeros elsewhere."""
+    dist = np.ascontiguousarray(dist, dtype=float)
+    return (dist, np.zeros_like(dist)) if on_pc else (np.zeros_like(dist), dist)
+
+
 def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] = 'config',
              duration: float | None = None, dt: float | None = None,
              record_dt: float | None = None, disturbance: ArrayLike | None = None,
@@ -424,6 +432,10 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
         raise ConfigError(experiment.source, f'limits.{told[0]}', "describes real motors the "
                           "batch simulator's unicycles do not have: simulate them in the "
                           'MuJoCo world (sim --physics mujoco)')
+    if spec.controller.command_latency > 0:
+        raise ConfigError(experiment.source, 'controller.command_latency', "the batch "
+                          "simulator's robots act on each command at once: simulate a link "
+                          "that late with core.pipeline.simulate_pipeline (as sim does)")
     rate_hz = spec.controller.rate_hz if rate_hz == 'config' else rate_hz
     duration = spec.simulation.duration if duration is None else duration
     dt = spec.simulation.dt if dt is None else dt
@@ -437,7 +449,8 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
     dist = experiment.disturbance if disturbance is None else np.asarray(disturbance, float)
     dist = np.broadcast_to(dist, (experiment.n, 2)).astype(float)
     on_pc = experiment.spec.disturbance.injected == 'on_pc'
-    d_pc, d_robot = (dist, np.zeros_like(dist)) if on_pc else (np.zeros_like(dist), dist)
+    d_pc, d_robot = _split(dist, on_pc)
+    varies = bool(experiment.variations)
     poses = np.array(experiment.initial_poses if initial_poses is None else initial_poses,
                      dtype=float)
     record_every = whole_steps(record_dt, dt, 'record_dt')
@@ -482,7 +495,8 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
         # without a control rate), with their velocities as the feed-forward.
         moving = phase.motion
         hop = control_every or max(1, int(round(MOVING_STEP / dt)))
-        cuts = sorted(reassign | (set(range((a // hop + 1) * hop, b, hop)) if moving else set()))
+        cuts = sorted(reassign | (set(range((a // hop + 1) * hop, b, hop))
+                                  if moving or varies else set()))
         still: FloatArray = np.zeros((n, 2))
         for begin, end in zip([a] + cuts, cuts + [b], strict=True):
             if begin in reassign:
@@ -498,6 +512,9 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
                 if feed_forward:
                     ahead = moving.velocities(targets, tau)
             sent = now
+            if varies:   # held over each control period (MOVING_STEP without a rate)
+                d_pc, d_robot = _split(disturbance_at(dist, experiment.variations, begin * dt),
+                                       on_pc)
             if begin == a:   # a curve's first pose: the sooner way outright
                 _choose_directions(state, now, law, limits)
             _run(state, np.ascontiguousarray(now), np.ascontiguousarray(ahead), graph, law,
@@ -506,6 +523,8 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
         followed.append(dataclasses.replace(phase, changes=tuple(changes)))
     t = np.arange(n_rec) * record_every * dt
     phase_index = np.searchsorted(np.array(starts[1:-1]) * dt, t, side='right')
+    if varies:   # the disturbance at each recorded sample
+        dist = disturbance_at(dist, experiment.variations, t)
     new, steps, gap = contacts.tally
     return SimResult(dataclasses.replace(experiment, phases=tuple(followed)
                                          + experiment.phases[len(followed):]),

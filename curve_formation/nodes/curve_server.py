@@ -24,6 +24,7 @@ from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
 from curve_formation.core.assignment import AssignmentError, phase_parameters, reassigned
+from curve_formation.core.curve_codec import CurveClock
 from curve_formation.core.curve_sources import fit_points
 from curve_formation.core.curves import CurveError, make_basis
 from curve_formation.core.experiment import points_outside_arena
@@ -53,6 +54,12 @@ PARAMETERS = (
           'observed curves', low=1),
     Param('moving_rate_hz', 'double', 10.0, 'how often a moving curve (curves[].motion) is '
           'published again, with its coefficients and their rate', positive=True),
+    Param('announce_ahead', 'double', 0.2, 'a curve that begins to move where it is (the '
+          "next phase's curve and targets are the current ones, with a motion) is published "
+          "this long (s) before its start, dated by its clock to begin moving then: every "
+          "controller's tick before the start already has it, and the robots move off with "
+          'the curve instead of up to a control period after it (0 = at the start)',
+          low=0.0),
     Param('schedule', 'bool', True, "publish the experiment's `curves` on their schedule; "
           'false = only observed curves (a curve drawn on the floor)'),
     Param('frame_id', 'string', 'arena', 'frame of the published curve'),
@@ -115,10 +122,11 @@ class CurveServer(Node):
         self.targets = offset_points(self.experiment.initial_poses,
                                      self.experiment.gains.offset)
         self.start = None
-        self.current = None   # (curve, curve id, s, rate) last published
+        self.current = None   # (curve, curve id, s, rate, CurveClock) last published
         self.refresh_timer = None   # fires refresh_period after the last curve message
         self.last_observed = None   # (stamp s, closed, points bytes) of the last observed curve
         self.moving = None    # the Phase being published as it moves
+        self.moving_since = 0.0   # when it began moving (s, this node's clock)
         self.poses = None     # (poses (n, 3), stamp s) last received
         self.reassigned = False   # targets re-assigned since the last scheduled curve
         every = self.params.reassign_every
@@ -168,30 +176,57 @@ class CurveServer(Node):
                                                        self._refresh)
         phases = self.experiment.phases if self.params.schedule else ()
         elapsed = now_seconds(self) - self.start
-        while self.next_phase < len(phases) and phases[self.next_phase].start <= elapsed:
+        while (self.next_phase < len(phases)
+               and phases[self.next_phase].start - self._lead(self.next_phase) <= elapsed):
+            lead = self._lead(self.next_phase)
             phase = phases[self.next_phase]
             self.next_phase += 1
             phase = self.experiment.switched_to(phase, self.reassigned, self.targets)
             self.reassigned = False
+            # A moving curve begins to move when it is published (the timer may fire late),
+            # or, announced ahead, at its scheduled start.
             self.moving = phase if phase.motion is not None else None
+            self.moving_since = (self.start + phase.start if lead > 0
+                                 else now_seconds(self))
             rate = None if phase.motion is None else phase.motion.rate(phase.curve, 0.0)
-            self.publish_curve(phase.curve, phase.s, rate=rate)
+            self.publish_curve(phase.curve, phase.s, rate=rate,
+                               clock=CurveClock(self.moving_since))
         if self.next_phase == len(phases):
             self.timer.cancel()
             return
-        wait = phases[self.next_phase].start - (now_seconds(self) - self.start)
+        wait = (phases[self.next_phase].start - self._lead(self.next_phase)
+                - (now_seconds(self) - self.start))
         self.timer.timer_period_ns = max(1_000_000, int(wait * 1e9))
         self.timer.reset()
+
+    def _lead(self, k):
+        """How long (s) before its start scheduled phase k is published: announce_ahead if
+        it only sets the current curve moving (same curve, same targets), else 0.
+        """
+        phase = self.experiment.phases[k]
+        if (self.params.announce_ahead <= 0 or phase.motion is None or self.current is None
+                or self.moving is not None):
+            return 0.0
+        curve, _, s, _, _ = self.current
+        switched = self.experiment.switched_to(phase, self.reassigned, self.targets)
+        same = (curve.basis.describe() == switched.curve.basis.describe()
+                and np.allclose(curve.xi, switched.curve.xi, rtol=0.0, atol=1e-12)
+                and np.allclose(s, switched.s, rtol=0.0, atol=1e-9))
+        return self.params.announce_ahead if same else 0.0
 
     def _renew_moving(self):
         """Publish the moving phase's curve where it is now, with its rate (same id)."""
         phase = self.moving
         if phase is None or self.current is None:
             return
-        _, curve_id, s, _ = self.current
-        tau = now_seconds(self) - self.start - phase.start
+        _, curve_id, s, _, _ = self.current
+        now = now_seconds(self)
+        tau = now - self.moving_since
+        if tau < 0:   # announced ahead: still until it begins
+            return
         self.publish_curve(phase.motion.curve(phase.curve, tau), s, curve_id,
-                           phase.motion.rate(phase.curve, tau), quiet=True)
+                           phase.motion.rate(phase.curve, tau), quiet=True,
+                           clock=CurveClock(now, tau))
 
     def _refresh(self):
         """Publish the current curve message again: refresh_period has passed without one
@@ -202,10 +237,10 @@ class CurveServer(Node):
 
     def _send_current(self):
         """Publish the current curve message; the refresh waits a whole period from now."""
-        curve, curve_id, s, rate = self.current
+        curve, curve_id, s, rate, clock = self.current
         if self.refresh_timer is not None:
             self.refresh_timer.reset()
-        self.curve_pub.publish(messages.curve_to_msg(curve, curve_id, s, rate))
+        self.curve_pub.publish(messages.curve_to_msg(curve, curve_id, s, rate, clock))
 
     def on_shutdown(self):
         """Wait (0.5 s at most) until the last curve message is acknowledged, so that a
@@ -229,24 +264,25 @@ class CurveServer(Node):
         if (len(poses) != self.experiment.n or not np.isfinite(poses).all()
                 or now_seconds(self) - stamp > self.params.pose_timeout):
             return
-        curve, curve_id, s, rate = self.current
+        curve, curve_id, s, rate, clock = self.current
         new = reassigned(curve, s, offset_points(poses, self.experiment.gains.offset))
         if new is not s:
             self.reassigned = True
-            self.publish_curve(curve, new, curve_id, rate)
+            # The curve as it was renewed (a moving one has moved on since): dated then.
+            self.publish_curve(curve, new, curve_id, rate, clock=clock)
             self.get_logger().info(f'curve {curve_id}: targets re-assigned')
 
-    def publish_curve(self, curve, s, curve_id=None, rate=None, quiet=False):
+    def publish_curve(self, curve, s, curve_id=None, rate=None, quiet=False, clock=None):
         """Publish a curve with the agents' parameters s (n,) (and a moving curve's rate),
-        its path and its markers: the next curve, or with `curve_id` the current one with its
-        agents re-assigned or moved on.
+        dated by `clock` (CurveClock; default: now, still), its path and its markers: the next
+        curve, or with `curve_id` the current one with its agents re-assigned or moved on.
         """
         if curve_id is None:
             curve_id = self.next_id
             self.next_id += 1
         targets = curve.points(s)
         self.targets = targets
-        self.current = (curve, curve_id, s, rate)
+        self.current = (curve, curve_id, s, rate, clock or CurveClock(now_seconds(self)))
         self._send_current()
         stamp = self.get_clock().now().to_msg()
         _, pts = curve.sample(self.params.path_samples)

@@ -319,8 +319,10 @@ class FormationController(Node):
         before = (self.controller.curve_id, self.controller.s)
         try:
             curve, curve_id = messages.curve_from_msg(msg)
+            clock = messages.curve_clock_from_msg(msg)
             self.controller.set_curve(curve, curve_id, messages.agent_parameters_from_msg(msg),
-                                      messages.curve_rate_from_msg(msg), now_seconds(self))
+                                      messages.curve_rate_from_msg(msg), now_seconds(self),
+                                      None if clock is None else clock.valid_at)
         except (messages.MessageError, AssignmentError, ValueError) as exc:
             self.get_logger().error(f'curve refused, keeping the previous one: {exc}')
             return

@@ -36,6 +36,7 @@ from curve_formation.core.curve_codec import (
     curve_id_from_float,
     decode_agent_parameters,
     decode_curve,
+    decode_curve_clock,
     decode_curve_rate,
     encode_curve,
     quaternion_from_yaw,
@@ -57,11 +58,11 @@ def seconds_to_stamp(seconds):
     return Time(sec=int(sec), nanosec=int(round((seconds - sec) * 1e9)) % 1_000_000_000)
 
 
-def curve_to_msg(curve, curve_id, s=None, rate=None):
-    """Float64MultiArray of a curve and, if given, its coefficients' rate (a moving curve)
-    and the agents' parameters s (n,).
+def curve_to_msg(curve, curve_id, s=None, rate=None, clock=None):
+    """Float64MultiArray of a curve and, if given, its coefficients' rate (a moving curve),
+    when it holds (core.curve_codec.CurveClock) and the agents' parameters s (n,).
     """
-    dims, data = encode_curve(curve, curve_id, s, rate)
+    dims, data = encode_curve(curve, curve_id, s, rate, clock)
     msg = Float64MultiArray()
     msg.layout.dim = [MultiArrayDimension(label=label, size=size, stride=stride)
                       for label, size, stride in dims]
@@ -77,6 +78,11 @@ def curve_from_msg(msg):
 def curve_rate_from_msg(msg):
     """A moving curve's coefficient rate (Curve; points(s) in m/s), or None; MessageError."""
     return decode_curve_rate([(d.label, d.size) for d in msg.layout.dim], msg.data)
+
+
+def curve_clock_from_msg(msg):
+    """When a curve message's coefficients hold (CurveClock), or None; MessageError."""
+    return decode_curve_clock([(d.label, d.size) for d in msg.layout.dim], msg.data)
 
 
 def agent_parameters_from_msg(msg):

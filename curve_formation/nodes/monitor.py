@@ -184,8 +184,10 @@ class Monitor(Node):
         if self.t0 is None:
             self.t0 = now
         if self.followed is not None:
+            clock = messages.curve_clock_from_msg(msg)
             self.followed.add(now - self.t0, self.curve_id, curve,
-                              messages.agent_parameters_from_msg(msg))
+                              messages.agent_parameters_from_msg(msg),
+                              None if clock is None else clock.since(self.t0))
 
     def _watch_command_sources(self):
         if self.t0 is None:

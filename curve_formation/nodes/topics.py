@@ -79,8 +79,10 @@ class Topic:
 
 REGISTRY = {t.name: t for t in (
     Topic(CURVE, Float64MultiArray, 'LATCHED',
-          "the active curve: coefficients xi, then each agent's s_i; layout labels: basis "
-          'kind and size, curve id, number of agents', EVERY_BAG),
+          "the active curve: coefficients xi, for a moving curve their rate xi_dot, its "
+          "clock (when it holds, s on the server's ROS clock; how long it has moved, s), then "
+          "each agent's s_i; layout labels: basis kind and size, curve id, sizes of each part "
+          '(core/curve_codec.py)', EVERY_BAG),
     Topic(ESTOP, Bool, 'LATCHED', 'true stops every robot at once, false releases; read '
           'from any publisher (any reliability, any durability)', EVERY_BAG,
           reader_qos_name='ANY_PUBLISHER'),

@@ -1,0 +1,62 @@
+"""A disturbance that changes over time: each agent's value d_i = [d_v, d_w] (m/s, rad/s)
+times 1 + the sum of the variations acting on it at t (s since the first curve).
+
+A variation is a sine (relative amplitude, period, phase), a step (a relative change from a
+time on) or a ramp (a relative change reached linearly between two times, then held); each
+acts on some agents or all (experiment key `disturbance.varies`).
+"""
+
+from dataclasses import dataclass
+import math
+from typing import Literal, Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from curve_formation.core.shapes import FloatArray
+
+
+@dataclass(frozen=True)
+class Variation:
+    """One relative change over time; agents: 0-based indices it acts on (empty: all)."""
+
+    kind: Literal['sine', 'step', 'ramp']
+    amplitude: float = 0.0   # sine: relative amplitude
+    period: float = 1.0      # sine: s
+    phase: float = 0.0       # sine: rad at t = 0
+    at: float = 0.0          # step: s
+    start: float = 0.0       # ramp: s
+    end: float = 1.0         # ramp: s
+    change: float = 0.0      # step, ramp: relative change
+    agents: tuple[int, ...] = ()
+
+    def relative(self, t: ArrayLike) -> FloatArray:
+        """The relative change at times t (s), shaped as t."""
+        t = np.asarray(t, float)
+        if self.kind == 'sine':
+            return self.amplitude * np.sin(2.0 * math.pi * t / self.period + self.phase)
+        if self.kind == 'step':
+            return np.where(t >= self.at, self.change, 0.0)
+        return self.change * np.clip((t - self.start) / (self.end - self.start), 0.0, 1.0)
+
+
+def factors(variations: Sequence[Variation], n: int, t: ArrayLike) -> FloatArray:
+    """(*t.shape, n) each agent's factor 1 + the sum of its variations at times t (s)."""
+    t = np.asarray(t, float)
+    out = np.ones(t.shape + (n,))
+    for variation in variations:
+        change = variation.relative(t)[..., None]
+        if variation.agents:
+            out[..., list(variation.agents)] += change
+        else:
+            out += change
+    return out
+
+
+def disturbance_at(base: FloatArray, variations: Sequence[Variation], t: ArrayLike
+                   ) -> FloatArray:
+    """(*t.shape, n, 2) the disturbance of agents whose constant values are base (n, 2) at
+    times t (s).
+    """
+    base = np.asarray(base, float)
+    return factors(variations, len(base), t)[..., None] * base

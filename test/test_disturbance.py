@@ -1,0 +1,73 @@
+"""A disturbance that changes over time (disturbance.varies): sines, steps and ramps on some
+agents or all, checked at load and followed by the simulator.
+"""
+
+import numpy as np
+import pytest
+import yaml
+
+from conftest import DATA_DIR
+from curve_formation.core.disturbance import factors, Variation
+from curve_formation.core.experiment import build_experiment, ConfigError
+from curve_formation.core.metrics import result_metrics
+from curve_formation.core.simulator import simulate
+
+
+def test_each_kind_of_variation_changes_the_value_as_stated():
+    t = np.array([0.0, 2.5, 5.0, 7.5, 10.0, 20.0])
+    sine = Variation('sine', amplitude=0.5, period=10.0)
+    np.testing.assert_allclose(sine.relative(t), [0, 0.5, 0, -0.5, 0, 0], atol=1e-12)
+    step = Variation('step', at=5.0, change=-0.2)
+    np.testing.assert_allclose(step.relative(t), [0, 0, -0.2, -0.2, -0.2, -0.2])
+    ramp = Variation('ramp', start=5.0, end=10.0, change=0.4)
+    np.testing.assert_allclose(ramp.relative(t), [0, 0, 0, 0.2, 0.4, 0.4])
+    # on agents 2 and 3 only (0-based 1, 2), added to a sine on all
+    both = factors([sine, Variation('step', at=5.0, change=-0.2, agents=(1, 2))], 3, t)
+    np.testing.assert_allclose(both[:, 0], 1 + sine.relative(t))
+    np.testing.assert_allclose(both[:, 1], 1 + sine.relative(t) + step.relative(t))
+
+
+def fast_disturbed(**disturbance):
+    data = yaml.safe_load((DATA_DIR / 'fast_disturbed.yaml').read_text())
+    data['disturbance'].update(disturbance)
+    return build_experiment(data, 'fast_disturbed.yaml')
+
+
+@pytest.mark.parametrize('variation, key, expected', [
+    ({'kind': 'sine', 'amplitude': 0.5}, r'disturbance.varies\[0\]', 'a sine needs amplitude, '
+     'period; missing: period'),
+    ({'kind': 'step', 'at': 3.0, 'change': 0.1, 'period': 2.0}, r'disturbance.varies\[0\]',
+     'a step takes at, change; not period'),
+    ({'kind': 'ramp', 'start': 5.0, 'end': 5.0, 'change': 0.1}, r'disturbance.varies\[0\]',
+     'a ramp ends after it starts'),
+    ({'kind': 'step', 'at': 3.0, 'change': 0.1, 'agents': [2, 7]},
+     r'disturbance.varies\[0\].agents', r'expected distinct agents among 1..6, got \[2, 7\]'),
+    ({'kind': 'wobble'}, r'disturbance.varies\[0\].kind', "'sine', 'step' or 'ramp'"),
+])
+def test_a_variation_that_cannot_be_is_refused_naming_its_key(variation, key, expected):
+    with pytest.raises(ConfigError, match=f'{key}.*{expected}'):
+        fast_disturbed(varies=[variation])
+
+
+def test_the_simulator_follows_a_step_of_the_disturbance_and_the_observer_learns_it():
+    """d = [0.3, 0.5] on the robots halves at 25 s on agents 1-3: the formation, settled by
+    then (20.1 s), is pushed off and settles again, and the observer ends on the new values (the
+    metrics compare the estimate with the disturbance at the end, not at the start).
+    """
+    experiment = fast_disturbed(varies=[{'kind': 'step', 'at': 25.0, 'change': -0.5,
+                                         'agents': [1, 2, 3]}])
+    result = simulate(experiment, duration=50.0)
+    np.testing.assert_allclose(result.disturbance[-1, :3], [[0.15, 0.25]] * 3)
+    np.testing.assert_allclose(result.disturbance[-1, 3:], [[0.3, 0.5]] * 3)
+    np.testing.assert_allclose(result.disturbance[0], [[0.3, 0.5]] * 6)
+    norm = np.linalg.norm(result.errors.reshape(len(result.t), -1), axis=1)
+    before = norm[(result.t > 24.0) & (result.t < 25.0)].max()
+    pushed = norm[(result.t > 25.0) & (result.t < 27.0)].max()
+    metrics = result_metrics(result)
+    tolerance = metrics['phases'][0]['tolerance']
+    assert before < tolerance < pushed   # settled, then pushed off by the step
+    assert metrics['phases'][0]['settled'], metrics['phases'][0]   # and settled again
+    assert metrics['phases'][0]['settle_time'] > 25.0
+    assert metrics['final_estimate_error_max'] < 1e-6
+    k2 = experiment.gains.k2
+    np.testing.assert_allclose(result.dhat[-1] * k2, result.disturbance[-1], atol=1e-6)
