@@ -14,7 +14,12 @@ import socket
 import yaml
 
 from curve_formation.core.agent import agent_configs
-from curve_formation.core.experiment import control_rate, wheel_base, wheel_radius
+from curve_formation.core.experiment import (
+    control_rate,
+    variations_text,
+    wheel_base,
+    wheel_radius,
+)
 from curve_formation.nodes.formation_controller import node_parameters
 from curve_formation.nodes.params import limit_parameter
 from curve_formation.run_options import DEFAULTS
@@ -57,6 +62,7 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None,
                else camera_launches(experiment, experiment_path, with_robots, camera))
     rate = control_rate(experiment, options.rate_hz)
     on_pc = spec.disturbance.injected == 'on_pc'
+    varies = variations_text(experiment)   # the disturbance's changes, as JSON
     engine = options.physics or spec.physics.engine
     one_world = uses_fake_arena(experiment, engine) or bridge is not None
     links = robot_links(experiment.n, bridge, links_dir) if bridge and with_robots else []
@@ -74,6 +80,7 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None,
         ns = f'/robot_{i}'
         d = [float(v) for v in experiment.disturbance[i - 1]]
         controller = {**node_parameters(config),
+                      'disturbance_varies': varies if on_pc else '',
                       'fault_state_drop': float(faults.get('state_drop', 0.0)),
                       'compiled_law': options.single_process}
         launches.append(NodeLaunch('curve_formation.nodes.formation_controller', ns,
@@ -87,6 +94,7 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None,
                 'index': i,
                 'initial_pose': [float(v) for v in experiment.initial_poses[i - 1]],
                 'disturbance': [0.0, 0.0] if on_pc else d, 'seed': i,
+                'disturbance_varies': '' if on_pc else varies,
                 'pose_noise': [float(v) for v in pose_noise],
                 'command_latency': float(command_latency),
                 'fault_pose_drop': float(faults.get('pose_drop', 0.0)),

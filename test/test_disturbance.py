@@ -71,3 +71,51 @@ def test_the_simulator_follows_a_step_of_the_disturbance_and_the_observer_learns
     assert metrics['final_estimate_error_max'] < 1e-6
     k2 = experiment.gains.k2
     np.testing.assert_allclose(result.dhat[-1] * k2, result.disturbance[-1], atol=1e-6)
+
+
+@pytest.mark.parametrize('injected', ['on_robot', 'on_pc'])
+def test_the_nodes_pipeline_follows_the_same_variation_where_it_is_injected(injected):
+    """The nodes' tick pipeline (unsynchronised controllers, 30 Hz poses) under the same
+    step: the robots' disturbance (on_robot) or the controllers' (on_pc) changes, and each
+    observer ends on the new value (the metrics compare it with the disturbance at the end).
+    """
+    from curve_formation.core.pipeline import simulate_pipeline
+    experiment = fast_disturbed(injected=injected, varies=[
+        {'kind': 'step', 'at': 25.0, 'change': -0.5, 'agents': [1, 2, 3]}])
+    result = simulate_pipeline(experiment, 'kinematic', duration=50.0)
+    np.testing.assert_allclose(result.disturbance[-1, :3], [[0.15, 0.25]] * 3)
+    metrics = result_metrics(result)
+    assert metrics['phases'][0]['settled'] and metrics['phases'][0]['settle_time'] > 25.0
+    assert metrics['final_estimate_error_max'] < 1e-3, metrics['final_estimate_error_max']
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize('injected, bodies', [
+    ('on_robot', False), pytest.param('on_robot', True, marks=pytest.mark.slow),
+    pytest.param('on_pc', False, marks=pytest.mark.slow)])
+def test_over_dds_the_disturbance_changes_on_the_runs_clock_and_the_nodes_learn_it(
+        injected, bodies, ros_domain, tmp_path):
+    """The ROS graph (curve server, controllers, fake robots) under a step of the disturbance
+    at 4 s on agents 1-3 (halved): where it is injected (the fake robots, each its own or all
+    in fake_arena's world with bodies, or the controllers on the PC), the nodes date it by
+    the curve's clock, and each controller's published estimate ends on its agent's new
+    value (the others on the old).
+    """
+    from curve_formation.runner import Run
+    data = yaml.safe_load((DATA_DIR / 'fast_disturbed.yaml').read_text())
+    data['disturbance'].update(injected=injected, varies=[
+        {'kind': 'step', 'at': 4.0, 'change': -0.5, 'agents': [1, 2, 3]}])
+    if bodies:   # 5 cm discs in a 10 m spread: fake_arena, contacts unlikely
+        data['robots'] = {'radius': 0.05}
+    path = tmp_path / 'stepped.yaml'
+    path.write_text(yaml.safe_dump(data))
+    with Run(path, tmp_path / 'run', log=lambda *_: None) as run:
+        run.spin_for(16.0)
+        recorded = run.recording()
+    k2 = run.experiment.gains.k2
+    learnt = recorded['dhat'][-1] * k2
+    np.testing.assert_allclose(learnt[:3], [[0.15, 0.25]] * 3, atol=0.01)
+    np.testing.assert_allclose(learnt[3:], [[0.3, 0.5]] * 3, atol=0.01)
+    # not before its time: nearer the old value than the new just before 4 s
+    before = recorded['dhat'][(recorded['t'] > 3.5) & (recorded['t'] < 3.9)] * k2
+    assert len(before) and (before[:, :3, 1] > 0.375).all(), before[:, :3]

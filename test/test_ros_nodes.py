@@ -282,8 +282,10 @@ def test_a_curve_that_begins_to_move_is_announced_ahead_and_dated_to_its_start(r
     assert began - first_at == pytest.approx(0.2, abs=0.05)   # the wall and ROS clocks agree
     phase = load_experiment(str(path)).phases[1]
     np.testing.assert_allclose(first.xi, phase.curve.xi, atol=1e-12)
+    assert first_clock.run_time == pytest.approx(1.5, abs=1e-9)
     for _, (curve, _), clock in renewals:
         assert clock.motion_began == pytest.approx(began, abs=1e-9)
+        assert clock.run_start == pytest.approx(server.start, abs=1e-9)
         np.testing.assert_allclose(curve.xi, phase.motion.curve(phase.curve,
                                                                 clock.moving_for).xi,
                                    atol=1e-12)
@@ -359,6 +361,10 @@ def test_a_moving_curve_message_carries_its_rate_and_clock():
     clock = messages.curve_clock_from_msg(msg)
     assert clock.valid_at == 1.7e9 + 0.123456 and clock.moving_for == 3.5
     assert clock.motion_began == pytest.approx(1.7e9 - 3.376544, abs=1e-6)
+    assert clock.run_time is None and clock.run_start is None
+    dated = messages.curve_clock_from_msg(messages.curve_to_msg(
+        curve, 2, [0.5, 0.0, 0.25], rate, CurveClock(1.7e9, 3.5, 62.0)))
+    assert dated == CurveClock(1.7e9, 3.5, 62.0) and dated.run_start == 1.7e9 - 62.0
     np.testing.assert_allclose(messages.agent_parameters_from_msg(msg), [0.5, 0.0, 0.25])
     assert messages.curve_clock_from_msg(messages.curve_to_msg(curve, 2)) is None
     backwards = messages.curve_to_msg(curve, 2, None, rate, CurveClock(5.0, -1.0))

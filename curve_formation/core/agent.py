@@ -315,6 +315,8 @@ class AgentController:
         self.sent: deque[Sent] = deque(maxlen=int(math.ceil(
             self.config.rate_hz * (self.config.pose_timeout + self.config.command_latency))) + 2)
         self.command = compiled_command(self.config) if self.config.compiled else agent_command
+        # added to the command before the limits (m/s, rad/s): the config's, or as it varies
+        self.pc_disturbance: Command = self.config.pc_disturbance
 
     def set_curve(self, curve: Curve, curve_id: int,
                   s_all: Sequence[float] | FloatArray | None, rate: Curve | None = None,
@@ -593,7 +595,7 @@ class AgentController:
             ahead = (self.ahead[0] * moving, self.ahead[1] * moving)
         v, w, ref_v, ref_w, ddv, ddw, code, shift_v, shift_w, limited = self.command(
             fx, fy, *ahead, ex, ey, *pose, self.dhat[0], self.dhat[1], *self.last_command,
-            *cfg.pc_disturbance, steered_law(law, self.front), cfg.limits, self.others,
+            *self.pc_disturbance, steered_law(law, self.front), cfg.limits, self.others,
             cfg.index - 1, cfg.avoidance)
         if law.code != OBSERVER:
             self.dhat[0] += law.period * ddv

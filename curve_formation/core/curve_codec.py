@@ -3,9 +3,10 @@
 A curve travels as a flat array xi (2H values, the paper's layout) with three labelled
 dimensions: ('xi', 2H, 2H), ('basis=<fourier|polynomial>', K or p, 0), ('curve_id=<k>', 0, 0);
 for a moving curve, ('xi_dot', 2H, 2H): the coefficients' rate (per second) follows them; when
-the sender dates the curve, ('clock', 2, 2): the time (s, the sender's ROS clock) at which the
-coefficients are as given, and how long (s) the curve had been moving then (the curve's own
-time, 0 for a still curve); and when the sender assigns the agents' parameters, ('s', n, n),
+the sender dates the curve, ('clock', 3, 3): the time (s, the sender's ROS clock) at which the
+coefficients are as given, how long (s) the curve had been moving then (the curve's own time,
+0 for a still curve) and the run's time then (s since the first curve; a 2-value clock leaves
+it unknown); and when the sender assigns the agents' parameters, ('s', n, n),
 whose n values s_1..s_n come last.
 """
 
@@ -31,15 +32,21 @@ class CurveClock:
 
     valid_at: float
     moving_for: float = 0.0
+    run_time: float | None = None   # s since the run's first curve, at valid_at
 
     @property
     def motion_began(self) -> float:
         """When the curve began moving (s, the sender's clock)."""
         return self.valid_at - self.moving_for
 
+    @property
+    def run_start(self) -> float | None:
+        """When the run's first curve was sent (s, the sender's clock), if known."""
+        return None if self.run_time is None else self.valid_at - self.run_time
+
     def since(self, t0: float) -> 'CurveClock':
         """The same clock counted from t0 (s, the sender's clock)."""
-        return CurveClock(self.valid_at - t0, self.moving_for)
+        return CurveClock(self.valid_at - t0, self.moving_for, self.run_time)
 
 
 # Curve ids are whole numbers 0..MAX_CURVE_ID; they also travel in doubles (a neighbour's
@@ -78,8 +85,10 @@ def encode_curve(curve, curve_id, s=None, rate=None, clock=None):
         dims.append(('xi_dot', 2 * basis.H, 2 * basis.H))
         data += [float(v) for v in rate.xi]
     if clock is not None:
-        dims.append(('clock', 2, 2))
-        data += [float(clock.valid_at), float(clock.moving_for)]
+        values = [clock.valid_at, clock.moving_for] + (
+            [] if clock.run_time is None else [clock.run_time])
+        dims.append(('clock', len(values), len(values)))
+        data += [float(v) for v in values]
     if s is not None:
         dims.append(('s', len(s), len(s)))
         data += [float(v) for v in s]
@@ -106,8 +115,8 @@ def decode_curve(dims, data):
     n_s = labels['s'][1] if 's' in labels else 0
     n_rate = labels['xi_dot'][1] if 'xi_dot' in labels else 0
     n_clock = labels['clock'][1] if 'clock' in labels else 0
-    if n_clock not in (0, 2):
-        raise CodecError(f'curve message has a clock of {n_clock} values, expected 2')
+    if n_clock not in (0, 2, 3):
+        raise CodecError(f'curve message has a clock of {n_clock} values, expected 2 or 3')
     xi = values[:len(values) - n_s - n_rate - n_clock]
     if n_rate not in (0, 2 * basis.H):
         raise CodecError(f'curve message has {n_rate} coefficient rates, {basis.describe()} '
@@ -139,10 +148,12 @@ def decode_curve_clock(dims, data):
         return None
     curve, _ = decode_curve(dims, data)
     start = 2 * curve.basis.H + int(sizes.get('xi_dot', 0))
-    valid_at, moving_for = (float(v) for v in data[start:start + 2])
-    if moving_for < 0.0:
-        raise CodecError(f'curve message says the curve has moved for {moving_for:g} s')
-    return CurveClock(valid_at, moving_for)
+    values = [float(v) for v in data[start:start + int(sizes['clock'])]]
+    if values[1] < 0.0:
+        raise CodecError(f'curve message says the curve has moved for {values[1]:g} s')
+    if len(values) == 3 and values[2] < 0.0:
+        raise CodecError(f'curve message says the run is {values[2]:g} s old')
+    return CurveClock(*values)
 
 
 def decode_agent_parameters(dims, data):

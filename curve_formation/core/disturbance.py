@@ -60,3 +60,29 @@ def disturbance_at(base: FloatArray, variations: Sequence[Variation], t: ArrayLi
     """
     base = np.asarray(base, float)
     return factors(variations, len(base), t)[..., None] * base
+
+
+def factor_of(variations: Sequence[Variation], i: int, t: float) -> float:
+    """Agent i's (0-based) factor 1 + the sum of its variations at t (s)."""
+    return 1.0 + sum(float(v.relative(t)) for v in variations if not v.agents or i in v.agents)
+
+
+class RunTime:
+    """The run's time (s since its first curve) on a node's clock, from the curve messages'
+    clocks (CurveClock.run_start: the curve server's clock, which this node's must follow, as
+    chrony keeps a lab's hosts; a message without a run time dates it by its arrival).
+    """
+
+    def __init__(self) -> None:
+        self.start: float | None = None   # the run's t = 0 on this node's clock (s)
+
+    def heard(self, clock, received: float) -> None:
+        """A curve message with `clock` (CurveClock or None) arrived at `received` (s)."""
+        if clock is not None and clock.run_start is not None:
+            self.start = clock.run_start
+        elif self.start is None:
+            self.start = received
+
+    def at(self, now: float) -> float | None:
+        """The run's time at `now` (s, this node's clock); None before any curve."""
+        return None if self.start is None else now - self.start

@@ -7,13 +7,14 @@ from collections.abc import Sequence
 import copy
 import dataclasses
 from dataclasses import dataclass
+import json
 import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
-from pydantic import ValidationError
+from pydantic import TypeAdapter, ValidationError
 from scipy.spatial.distance import pdist
 
 from curve_formation.core import curve_sources, safe_yaml
@@ -26,6 +27,7 @@ from curve_formation.core.config_schema import (
     LimitsSpec,
     MotionSpec,
     RobotsSpec,
+    VariationSpec,
 )
 from curve_formation.core.control import Gains, NO_LIMITS, timed_by, WheelLimits
 from curve_formation.core.curve_codec import CurveClock
@@ -675,18 +677,47 @@ def _disturbance(spec: ExperimentSpec, source: str) -> FloatArray:
 
 
 def _variations(spec: ExperimentSpec, source: str) -> tuple[Variation, ...]:
-    n = spec.agents.count
+    return _checked_variations(spec.disturbance.varies, spec.agents.count, source,
+                               'disturbance.varies')
+
+
+def _checked_variations(specs: Sequence[VariationSpec], n: int | None, source: str, key: str
+                        ) -> tuple[Variation, ...]:
     out = []
-    for k, v in enumerate(spec.disturbance.varies):
+    for k, v in enumerate(specs):
         agents = v.agents or []
-        wrong = [i for i in agents if not 1 <= i <= n]
+        wrong = [i for i in agents if not 1 <= i <= (n or i)]
         if wrong or len(set(agents)) != len(agents):
-            raise ConfigError(source, f'disturbance.varies[{k}].agents', f'expected distinct '
-                              f'agents among 1..{n}, got {agents}')
-        fields = {key: value for key, value in v.model_dump(exclude={'agents'}).items()
+            raise ConfigError(source, f'{key}[{k}].agents', f'expected distinct agents among '
+                              f'1..{n or "n"}, got {agents}')
+        fields = {name: value for name, value in v.model_dump(exclude={'agents'}).items()
                   if value is not None}
         out.append(Variation(**fields, agents=tuple(i - 1 for i in agents)))
     return tuple(out)
+
+
+def variations_text(experiment: Experiment) -> str:
+    """The experiment's disturbance.varies as JSON ('' if constant), for a node parameter."""
+    varies = experiment.spec.disturbance.varies
+    return json.dumps([v.model_dump(exclude_none=True) for v in varies]) if varies else ''
+
+
+def variations_from_text(text: str, n: int | None, source: str) -> tuple[Variation, ...]:
+    """Variations from the JSON (or YAML) list a node parameter holds ('' = none), checked as
+    the experiment's `disturbance.varies` for n agents (None: any number); ConfigError naming
+    `source`.
+    """
+    if not text.strip():
+        return ()
+    try:
+        specs = TypeAdapter(list[VariationSpec]).validate_python(safe_yaml.load(text))
+    except ValidationError as exc:
+        key, problem = validation_problem(exc)
+        raise ConfigError(source, f'varies{key if key.startswith("[") else "." + key}',
+                          problem) from None
+    except ValueError as exc:   # not YAML
+        raise ConfigError(source, 'varies', str(exc)) from None
+    return _checked_variations(specs, n, source, 'varies')
 
 
 MAX_DRAWS_PER_ROBOT = 1000

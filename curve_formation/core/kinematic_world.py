@@ -33,7 +33,7 @@ class KinematicWorld:
     def __init__(self, experiment: 'Experiment', latency: float = 0.0, timeout: float = 0.0,
                  physics_dt: float = PHYSICS_DT) -> None:
         spec = experiment.spec
-        on_robot = spec.disturbance.injected == 'on_robot'
+        on_robot = self.on_robot = spec.disturbance.injected == 'on_robot'
         self.robots = [DrivenUnicycle(pose, d if on_robot else (0.0, 0.0), latency, timeout)
                        for pose, d in zip(experiment.initial_poses, experiment.disturbance,
                                           strict=True)]
@@ -51,6 +51,13 @@ class KinematicWorld:
         self.separate = separate
         if self.radius > 0:
             separate(np.zeros((0, 3)), 0.0, 0.0, 0.0, self.touching[:0, :0])   # compile now
+
+    def disturb(self, i: int, d: FloatArray) -> None:
+        """Robot i's (0-based) disturbance [d_v, d_w] (m/s, rad/s) from its next step on (a
+        disturbance that varies; none where it is injected on the PC).
+        """
+        if self.on_robot:
+            self.robots[i].disturbance = (float(d[0]), float(d[1]))
 
     def command(self, i: int, v: float, w: float, now: float) -> None:
         """Robot i's (0-based) velocity command (m/s, rad/s) received at `now` (s); taken up,

@@ -236,7 +236,7 @@ class MujocoWorld:
         self.quantum = (limits.max_wheel_speed / (2 ** (bits - 1) - 1)
                         if bits is not None and math.isfinite(limits.max_wheel_speed) else 0.0)
         self.sag = imperfect.battery_sag / 600.0   # gain lost per s
-        on_robot = spec.disturbance.injected == 'on_robot'
+        on_robot = self.on_robot = spec.disturbance.injected == 'on_robot'
         self.disturbance = (np.asarray(experiment.disturbance, float) if on_robot
                             else np.zeros((self.n, 2)))
         self.queues = [CommandQueue(latency, timeout) for _ in range(self.n)]
@@ -276,6 +276,14 @@ class MujocoWorld:
         self.largest_push = 0.0
         self._force = np.zeros(6)
         mujoco.mj_forward(self.model, self.data)
+
+    def disturb(self, i: int, d: FloatArray) -> None:
+        """Robot i's (0-based) disturbance [d_v, d_w] (m/s, rad/s) from the next step on (a
+        disturbance that varies; none where it is injected on the PC).
+        """
+        if self.on_robot:
+            self.disturbance[i] = d
+            self.next_change = min(self.next_change, self.time or 0.0)
 
     def command(self, i: int, v: float, w: float, now: float) -> None:
         """Robot i's (0-based) velocity command (m/s, rad/s) received at `now` (s)."""

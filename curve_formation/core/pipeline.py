@@ -177,6 +177,13 @@ class Pipeline:
                                                  state.stamp, state.leader_age, now)
 
     def tick(self, i: int, now: float) -> None:
+        experiment = self.experiment
+        if experiment.variations:   # held over the control period, as the batch simulator
+            d = experiment.disturbance_at(now)[i]
+            if experiment.spec.disturbance.injected == 'on_pc':
+                self.controllers[i].pc_disturbance = (float(d[0]), float(d[1]))
+            else:
+                self.world.disturb(i, d)
         tick = self.controllers[i].tick(now)
         self.commands[i] = tick.v, tick.w
         link = self.link
@@ -270,5 +277,6 @@ def simulate_pipeline(experiment: Experiment, engine: Literal['kinematic', 'mujo
     return SimResult(dataclasses.replace(experiment, phases=followed
                                          + experiment.phases[len(followed):]),
                      rate, experiment.gains, experiment.limits,
-                     np.asarray(experiment.disturbance, float), t, poses, dhat, commands,
+                     experiment.disturbance_at(t) if experiment.variations
+                     else np.asarray(experiment.disturbance, float), t, poses, dhat, commands,
                      phase_index, experiment.radius, world.contact_summary())

@@ -190,7 +190,7 @@ class CurveServer(Node):
                                  else now_seconds(self))
             rate = None if phase.motion is None else phase.motion.rate(phase.curve, 0.0)
             self.publish_curve(phase.curve, phase.s, rate=rate,
-                               clock=CurveClock(self.moving_since))
+                               clock=self._curve_clock(self.moving_since))
         if self.next_phase == len(phases):
             self.timer.cancel()
             return
@@ -198,6 +198,13 @@ class CurveServer(Node):
                 - (now_seconds(self) - self.start))
         self.timer.timer_period_ns = max(1_000_000, int(wait * 1e9))
         self.timer.reset()
+
+    def _curve_clock(self, valid_at, moving_for=0.0):
+        """A CurveClock of a curve as it holds at valid_at (s, this node's clock), moving for
+        moving_for (s), dated in the run's time too (s since the first curve was sent).
+        """
+        run_time = None if self.start is None else max(valid_at - self.start, 0.0)
+        return CurveClock(valid_at, moving_for, run_time)
 
     def _lead(self, k):
         """How long (s) before its start scheduled phase k is published: announce_ahead if
@@ -226,7 +233,7 @@ class CurveServer(Node):
             return
         self.publish_curve(phase.motion.curve(phase.curve, tau), s, curve_id,
                            phase.motion.rate(phase.curve, tau), quiet=True,
-                           clock=CurveClock(now, tau))
+                           clock=self._curve_clock(now, tau))
 
     def _refresh(self):
         """Publish the current curve message again: refresh_period has passed without one
@@ -282,7 +289,7 @@ class CurveServer(Node):
             self.next_id += 1
         targets = curve.points(s)
         self.targets = targets
-        self.current = (curve, curve_id, s, rate, clock or CurveClock(now_seconds(self)))
+        self.current = (curve, curve_id, s, rate, clock or self._curve_clock(now_seconds(self)))
         self._send_current()
         stamp = self.get_clock().now().to_msg()
         _, pts = curve.sample(self.params.path_samples)

@@ -27,6 +27,7 @@ from rclpy.duration import Duration
 from rclpy.node import Node
 
 from curve_formation.core import metrics, wire
+from curve_formation.core.disturbance import RunTime
 from curve_formation.core.experiment import wheel_base
 from curve_formation.core.worlds import ENGINES, make_world
 from curve_formation.links import robot_endpoint
@@ -75,6 +76,8 @@ TOPICS = (
         'pose_topic)', '<i>'),
     Use('pub', topics.ROBOT_POSES, 'every pose in one message (x, y, theta per robot), with '
         'publish_robot_poses'),
+    Use('sub', topics.CURVE, "with the experiment's disturbance.varies: the run's time, from "
+        "the curve's clock"),
     Use('pub', topics.DIAGNOSTICS, 'contacts: count, total time (s), smallest gap between '
         'two bodies (m); with MuJoCo also robot-wall contacts and the largest push (N); 1 Hz'),
 ) + ESTOP_TOPICS
@@ -95,6 +98,11 @@ class FakeArena(Node):
             raise ParameterError(f"parameter 'physics': {exc}") from None
         self.n = experiment.n
         self.radius = experiment.radius
+        self.experiment = experiment
+        self.run_time = RunTime()   # a disturbance that varies, over the run's time
+        if experiment.variations and spec.disturbance.injected == 'on_robot':
+            topics.subscription(self, topics.CURVE, lambda msg: self.run_time.heard(
+                messages.curve_clock_from_msg(msg), now_seconds(self)))
         self.size = tuple(spec.arena.size) if spec.arena is not None else (0.0, 0.0)
         self.rng = np.random.default_rng(p.seed)
         self.pose_pubs = [topics.publisher(self, p.pose_topic, robot=i)
@@ -198,6 +206,10 @@ class FakeArena(Node):
     def _on_timer(self):
         now = now_seconds(self)
         self.advance(now)
+        run_time = self.run_time.at(now)
+        if run_time is not None:   # until the next pose, as it is now
+            for i, d in enumerate(self.experiment.disturbance_at(run_time)):
+                self.world.disturb(i, d)
         noise = self.params.pose_noise
         poses = self.world.poses()
         if noise[0] > 0 or noise[1] > 0:

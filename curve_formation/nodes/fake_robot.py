@@ -8,7 +8,8 @@ publication: no integration step. A zero command means motors off: the robot sta
 `command_timeout` (a robot-side watchdog, as a driver should have). While the e-stop is
 engaged, and while its cmd_vel has more than one publishing node (nodes/command_source.py),
 it stands still whatever cmd_vel says (nodes/estop.py). Options: Gaussian pose
-noise, a fixed command latency, and dropped poses (fault injection).
+noise, a fixed command latency, dropped poses (fault injection), and a disturbance that varies
+over the run's time (`disturbance_varies`, dated by the curve messages' clock).
 """
 
 import math
@@ -16,11 +17,17 @@ import math
 import numpy as np
 from rclpy.node import Node
 
+from curve_formation.core.disturbance import factor_of, RunTime
 from curve_formation.core.dynamics import DrivenUnicycle
 from curve_formation.nodes import messages, topics
 from curve_formation.nodes.command_source import CommandSourceWatch
 from curve_formation.nodes.estop import estop_uses, EstopHolder
-from curve_formation.nodes.params import declare_parameters, Param, ParameterError
+from curve_formation.nodes.params import (
+    declare_parameters,
+    node_variations,
+    Param,
+    ParameterError,
+)
 from curve_formation.nodes.runtime import now_seconds, run_node
 from curve_formation.nodes.topics import Use
 
@@ -48,8 +55,11 @@ PARAMETERS = (
     Param('initial_pose', 'double[]', [0.0, 0.0, 0.0], 'start pose [x, y, theta] (m, rad)'),
     Param('rate_hz', 'double', 30.0, 'pose publishing rate (Hz), as an overhead camera',
           positive=True),
-    Param('disturbance', 'double[]', [0.0, 0.0], 'constant input disturbance [d_v, d_w] '
-          '(m/s, rad/s) added to a non-zero command'),
+    Param('disturbance', 'double[]', [0.0, 0.0], 'input disturbance [d_v, d_w] (m/s, rad/s) '
+          'added to a non-zero command'),
+    Param('disturbance_varies', 'string', '', "how the disturbance changes over the run's "
+          "time (s since the first curve, from the curve's clock): the experiment's "
+          "disturbance.varies as JSON (sines, steps, ramps); '' = constant"),
 ) + ROBOT_PARAMETERS
 
 
@@ -60,6 +70,7 @@ TOPICS = (
     Use('sub', topics.CMD_VEL, 'velocity command; with more than one publishing node, the '
         'robot stands still until one is left'),
     Use('pub', topics.POSE, f'pose at rate_hz (on {topics.TRUE_POSE} instead with pose_topic)'),
+    Use('sub', topics.CURVE, "with disturbance_varies: the run's time, from the curve's clock"),
 ) + ESTOP_TOPICS
 
 class FakeRobot(Node):
@@ -74,12 +85,22 @@ class FakeRobot(Node):
                                      f'{getattr(p, name)}')
         self.robot = DrivenUnicycle(p.initial_pose, p.disturbance, p.command_latency,
                                     p.command_timeout)
+        self.variations = node_variations(p.disturbance_varies)
+        self.run_time = RunTime()
+        if self.variations:
+            topics.subscription(self, topics.CURVE, self._on_curve)
         self.rng = np.random.default_rng(p.seed)
         self.pose_pub = topics.publisher(self, p.pose_topic)
         topics.subscription(self, topics.CMD_VEL, self._on_cmd)
         self.estop = EstopHolder(self, f'robot_{p.index}', on_change=self._stop_if_held)
         self.source = CommandSourceWatch(self, topics.CMD_VEL, self._stop_if_held)
         self.create_timer(1.0 / p.rate_hz, self._on_timer)
+
+    def _on_curve(self, msg):
+        known = self.run_time.start is not None
+        self.run_time.heard(messages.curve_clock_from_msg(msg), now_seconds(self))
+        if not known:
+            self.get_logger().info('the disturbance varies from the first curve on')
 
     @property
     def pose(self):
@@ -108,6 +129,11 @@ class FakeRobot(Node):
         if self.robot.advance(now):
             self.get_logger().warning(f'no command for {self.params.command_timeout:g} s: '
                                       'motors off')
+        run_time = self.run_time.at(now)
+        if self.variations and run_time is not None:   # until the next pose, as it is now
+            factor = factor_of(self.variations, self.params.index - 1, run_time)
+            d_v, d_w = self.params.disturbance
+            self.robot.disturbance = (d_v * factor, d_w * factor)
         if self.rng.random() < self.params.fault_pose_drop:
             return
         noise = self.params.pose_noise

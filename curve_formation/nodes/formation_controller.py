@@ -19,6 +19,7 @@ from sensor_msgs.msg import JointState
 from curve_formation.core.agent import AgentConfig, AgentController
 from curve_formation.core.assignment import AssignmentError
 from curve_formation.core.control import Gains, LAWS, timed_by, WheelLimits
+from curve_formation.core.disturbance import factor_of, RunTime
 from curve_formation.core.plausibility import bounded_command
 from curve_formation.core.safety import Avoidance, AVOIDANCE_OFF
 from curve_formation.nodes import messages, topics
@@ -28,6 +29,7 @@ from curve_formation.nodes.guard import rejections
 from curve_formation.nodes.params import (
     declare_parameters,
     limit_parameter,
+    node_variations,
     Param,
     ParameterError,
 )
@@ -120,6 +122,9 @@ PARAMETERS = (
           'a formation_state message', low=0.0, high=1.0),
     Param('pc_disturbance', 'double[]', [0.0, 0.0], 'disturbance [d_v, d_w] added to the '
           "command before the wheel limits (the paper's arena experiment); normally zero"),
+    Param('disturbance_varies', 'string', '', "how pc_disturbance changes over the run's time "
+          "(s since the first curve, from the curve's clock): the experiment's "
+          "disturbance.varies as JSON (sines, steps, ramps); '' = constant"),
     Param('frame_id', 'string', 'arena', 'frame of poses and errors'),
     Param('compiled_law', 'bool', False, 'run the law and safety filter compiled by numba, as '
           'the batch simulator does (the same source): ~15x faster a tick, ~0.7 s and ~65 MB '
@@ -281,6 +286,9 @@ class FormationController(Node):
         self.params = declare_parameters(self, PARAMETERS)
         self.config = agent_config(self.params)
         self.controller = AgentController(self.config)
+        self.variations = node_variations(self.params.disturbance_varies,
+                                          self.config.agent_count)
+        self.run_time = RunTime()
         self.rejections = rejections(self)
         self.source = CommandSourceWatch(self, topics.CMD_VEL,
                                          lambda *_: self._publish_diagnostics())
@@ -320,6 +328,7 @@ class FormationController(Node):
         try:
             curve, curve_id = messages.curve_from_msg(msg)
             clock = messages.curve_clock_from_msg(msg)
+            self.run_time.heard(clock, now_seconds(self))
             self.controller.set_curve(curve, curve_id, messages.agent_parameters_from_msg(msg),
                                       messages.curve_rate_from_msg(msg), now_seconds(self),
                                       None if clock is None else clock.valid_at)
@@ -374,6 +383,11 @@ class FormationController(Node):
 
     def _on_timer(self):
         now = now_seconds(self)
+        run_time = self.run_time.at(now)
+        if self.variations and run_time is not None:   # the emulated disturbance as it varies
+            factor = factor_of(self.variations, self.config.index - 1, run_time)
+            base = self.config.pc_disturbance
+            self.controller.pc_disturbance = (base[0] * factor, base[1] * factor)
         try:
             self._take_others()
             tick = self.controller.tick(now)

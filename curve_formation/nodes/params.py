@@ -188,3 +188,14 @@ def experiment_parameter(value, needs=()):
             raise ParameterError(f"parameter 'experiment': {experiment.source} has no "
                                  f'`{section}` section')
     return experiment
+
+
+def node_variations(value, n=None):
+    """The Variations a `disturbance_varies` parameter holds (JSON; '' = none) for n agents
+    (None: any number); ParameterError names the parameter and what is wrong.
+    """
+    from curve_formation.core.experiment import ConfigError, variations_from_text
+    try:
+        return variations_from_text(value, n, "parameter 'disturbance_varies'")
+    except ConfigError as exc:
+        raise ParameterError(str(exc)) from None
