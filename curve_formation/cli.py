@@ -2,7 +2,7 @@
 
 Subcommands: check, sim (batch simulator), demo (the headless main job), run (ROS 2 node
 graph), params (its parameters files and `ros2 run` start scripts), analyze, replay and bag
-(info, repair) for recorded bags, estop, calibrate-camera
+(info, repair) for recorded bags, measure-link, estop, calibrate-camera
 (the lens, from ChArUco board views), discovery-server, clean-shm, nodes-doc.
 Bad input ends with one line `error: FILE: KEY: ...` and exit status 2, never a traceback.
 """
@@ -268,6 +268,32 @@ def _cmd_analyze(args):
     print(f'wrote {args.out}/metrics.json and figures')
 
 
+def _cmd_measure_link(args):
+    from curve_formation.measure_link import measure_bag
+    found = measure_bag(args.bag)
+    print(f'{"robot":>5s} {"latency (ms)":>12s} {"spread (ms)":>11s} {"windows":>7s} '
+          f'{"commands":>8s} {"poses":>6s}')
+    for i, row in found['robots'].items():
+        told = row['latency'] is not None
+        print(f'{i:5d} {_ms(row["latency"]):>12s} {_ms(row["spread"]):>11s} '
+              f'{row["windows"]:7d} {row["commands"]:8d} {row["poses"]:6d}'
+              + ('' if told else '  (its commands hardly changed: nothing to time)'))
+    if found['latency'] is None:
+        print('no robot told its latency: record a run in which the robots drive')
+        return 1
+    print('spread: how much the latency of 4 s windows varies (the jitter, and the '
+          "estimate's own noise)")
+    print(f'set in the experiment:\ncontroller: {{command_latency: '
+          f'{found["latency"]:.3f}}}   # the median over the robots, s')
+    if args.json:
+        _write_json(Path(args.json), found)
+    return 0
+
+
+def _ms(value):
+    return '-' if value is None else f'{1000 * value:.1f}'
+
+
 def _seconds(value):
     return 'not settled' if value is None else f'{value:.2f}'
 
@@ -507,6 +533,11 @@ def build_parser():
                          'curves: paths, error norms, settling per phase')
     _force_option(analyze)
     analyze.set_defaults(func=_cmd_analyze)
+    link = sub.add_parser('measure-link', help="each robot's command latency from a recorded "
+                          'bag (its cmd_vel against its poses), and the experiment setting')
+    link.add_argument('bag', help='bag folder of a run in which the robots drive')
+    link.add_argument('--json', help='also write the figures to this JSON file')
+    link.set_defaults(func=_cmd_measure_link)
     bag = sub.add_parser('bag', help='inspect or repair a bag (no ROS CLI needed)')
     bag_sub = bag.add_subparsers(dest='bag_command', required=True, parser_class=_Parser)
     info = bag_sub.add_parser('info', help='what `ros2 bag info` prints: storage, duration, '

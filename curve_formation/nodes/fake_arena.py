@@ -100,9 +100,9 @@ class FakeArena(Node):
         self.radius = experiment.radius
         self.experiment = experiment
         self.run_time = RunTime()   # a disturbance that varies, over the run's time
-        if experiment.variations and spec.disturbance.injected == 'on_robot':
-            topics.subscription(self, topics.CURVE, lambda msg: self.run_time.heard(
-                messages.curve_clock_from_msg(msg), now_seconds(self)))
+        self.varies = bool(experiment.variations) and spec.disturbance.injected == 'on_robot'
+        topics.subscription(self, topics.CURVE, lambda msg: self.run_time.heard(
+            messages.curve_clock_from_msg(msg), now_seconds(self)))
         self.size = tuple(spec.arena.size) if spec.arena is not None else (0.0, 0.0)
         self.rng = np.random.default_rng(p.seed)
         self.pose_pubs = [topics.publisher(self, p.pose_topic, robot=i)
@@ -207,7 +207,7 @@ class FakeArena(Node):
         now = now_seconds(self)
         self.advance(now)
         run_time = self.run_time.at(now)
-        if run_time is not None:   # until the next pose, as it is now
+        if self.varies and run_time is not None:   # until the next pose, as it is now
             for i, d in enumerate(self.experiment.disturbance_at(run_time)):
                 self.world.disturb(i, d)
         noise = self.params.pose_noise

@@ -87,8 +87,7 @@ class FakeRobot(Node):
                                     p.command_timeout)
         self.variations = node_variations(p.disturbance_varies)
         self.run_time = RunTime()
-        if self.variations:
-            topics.subscription(self, topics.CURVE, self._on_curve)
+        topics.subscription(self, topics.CURVE, self._on_curve)
         self.rng = np.random.default_rng(p.seed)
         self.pose_pub = topics.publisher(self, p.pose_topic)
         topics.subscription(self, topics.CMD_VEL, self._on_cmd)
@@ -99,7 +98,7 @@ class FakeRobot(Node):
     def _on_curve(self, msg):
         known = self.run_time.start is not None
         self.run_time.heard(messages.curve_clock_from_msg(msg), now_seconds(self))
-        if not known:
+        if not known and self.variations:
             self.get_logger().info('the disturbance varies from the first curve on')
 
     @property

@@ -1,0 +1,47 @@
+"""The link's latency per robot from a recorded bag: each robot's cmd_vel (dated when the
+recorder got it, as the robot's link would) against its poses (dated by their stamps, when the
+camera saw them), by core.link_estimate. What `curve-formation measure-link` prints, and the
+experiment setting it suggests (controller.command_latency).
+"""
+
+import re
+
+import numpy as np
+
+from curve_formation.bag import bag_summary, BagError, read_messages
+from curve_formation.core.curve_codec import yaw_from_quaternion
+from curve_formation.core.link_estimate import estimate_latency
+
+
+_TOPIC = re.compile(r'^/robot_(\d+)/(pose|cmd_vel)$')
+
+
+def measure_bag(path):
+    """{'robots': {i: {'latency', 'spread', 'windows', 'residual', 'commands', 'poses'}},
+    'latency': the median over the robots that told one (s, or None)} of a bag.
+    """
+    topics = [t for t in bag_summary(path) if _TOPIC.match(t)]
+    commands, poses = {}, {}
+    for topic, _, stamp, msg in read_messages(path, topics):
+        i, kind = _TOPIC.match(topic).groups()
+        if kind == 'cmd_vel':
+            commands.setdefault(int(i), []).append((stamp * 1e-9, msg.linear.x, msg.angular.z))
+        else:
+            q = msg.pose.orientation
+            taken = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+            poses.setdefault(int(i), []).append(
+                (taken, msg.pose.position.x, msg.pose.position.y,
+                 yaw_from_quaternion(q.x, q.y, q.z, q.w)))
+    robots = sorted(set(commands) & set(poses))
+    if not robots:
+        raise BagError(f'{path}: no robot with both /robot_<i>/cmd_vel and /robot_<i>/pose: '
+                       'nothing to time')
+    out = {}
+    for i in robots:
+        sent = np.array(commands[i])
+        seen = np.array(poses[i])
+        found = estimate_latency(sent[:, 0], sent[:, 1:], seen[:, 0], seen[:, 1:])
+        out[i] = {'latency': found.latency, 'spread': found.spread, 'windows': found.windows,
+                  'residual': found.residual, 'commands': len(sent), 'poses': len(seen)}
+    told = [r['latency'] for r in out.values() if r['latency'] is not None]
+    return {'robots': out, 'latency': float(np.median(told)) if told else None}
