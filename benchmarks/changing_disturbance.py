@@ -1,13 +1,16 @@
 """The formation under a disturbance that changes over time (disturbance.varies), from random
 starts, against the same starts under the constant disturbance.
 
-Run: scripts/bench changing_disturbance            (20 random starts of each case; ~3 min)
+Run: scripts/bench changing_disturbance            (20 random starts of each case; ~6 min)
      scripts/bench changing_disturbance --seeds 3  (a quick look)
 
 Cases (issue goals): the arena demo's drift on the robots varying +-50 % with a 10 s period
 (every phase settles), and mona_arena's disturbance on the PC varying +-10 % (settles), also
-+-5 % and +-20 %. Each start runs the nodes' tick pipeline (core.pipeline: unsynchronised
-controllers, 30 Hz poses, the paper's unicycles), bodies and avoidance as the file says.
++-5 % and +-20 %; each with the file's controller, and with the second-order observer
+(controller.observer_order 2, observer_rate 8). Ratios are against the file's controller under
+the constant disturbance, from the same start. Each start runs the nodes' tick pipeline
+(core.pipeline: unsynchronised controllers, 30 Hz poses, the paper's unicycles), bodies and
+avoidance as the file says.
 Prints settled starts, the slowest settling against the constant disturbance's, and the
 largest final error; writes JSON to --out (default out/bench/changing_disturbance).
 """
@@ -26,17 +29,26 @@ from curve_formation.core.pipeline import simulate_pipeline
 from curve_formation.paths import resolve_config
 
 
-# (label, shipped experiment, relative amplitude of a 10 s sine; 0: constant)
-CASES = (('arena_demo on the robots +-50 %', 'arena_demo', 0.5),
-         ('mona_arena on the PC +-5 %', 'mona_arena', 0.05),
-         ('mona_arena on the PC +-10 %', 'mona_arena', 0.1),
-         ('mona_arena on the PC +-20 %', 'mona_arena', 0.2))
+# (label, shipped experiment, relative amplitude of a 10 s sine (0: constant), controller
+# settings changed from the file's)
+SECOND_ORDER = (('observer_order', 2), ('observer_rate', 8.0))
+CASES = (('arena_demo on the robots +-50 %', 'arena_demo', 0.5, ()),
+         ('mona_arena on the PC +-5 %', 'mona_arena', 0.05, ()),
+         ('mona_arena on the PC +-10 %', 'mona_arena', 0.1, ()),
+         ('mona_arena on the PC +-20 %', 'mona_arena', 0.2, ()),
+         ('mona_arena on the PC +-10 %, second-order observer at 8 /s', 'mona_arena', 0.1,
+          SECOND_ORDER),
+         ('mona_arena on the PC +-20 %, second-order observer at 8 /s', 'mona_arena', 0.2,
+          SECOND_ORDER),
+         ('arena_demo on the robots +-50 %, second-order observer at 8 /s', 'arena_demo', 0.5,
+          SECOND_ORDER))
 PERIOD = 10.0   # s
 
 
-def experiment(name, seed, amplitude):
+def experiment(name, seed, amplitude, controller=()):
     path = resolve_config(name)
     data = yaml.safe_load(Path(path).read_text())
+    data['controller'].update(dict(controller))
     if amplitude:
         data['disturbance']['varies'] = [{'kind': 'sine', 'amplitude': amplitude,
                                           'period': PERIOD}]
@@ -45,11 +57,11 @@ def experiment(name, seed, amplitude):
 
 
 def one_run(job):
-    name, seed, amplitude = job
+    name, seed, amplitude, controller = job
     begin = time.perf_counter()
-    result = simulate_pipeline(experiment(name, seed, amplitude), 'kinematic')
+    result = simulate_pipeline(experiment(name, seed, amplitude, controller), 'kinematic')
     data = metrics.result_metrics(result)
-    return {'case': name, 'seed': seed, 'amplitude': amplitude,
+    return {'case': name, 'seed': seed, 'amplitude': amplitude, 'controller': controller,
             'settle': [p['settle_time'] for p in data['phases']],
             'final_mm': [1000 * p['final_max_agent_error'] for p in data['phases']],
             'contacts': result.contacts['count'], 'wall_s': time.perf_counter() - begin}
@@ -60,20 +72,21 @@ def main():
     parser.add_argument('--seeds', type=int, default=20)
     parser.add_argument('--out', type=Path, default=Path('out/bench/changing_disturbance'))
     args = parser.parse_args()
-    jobs = [(name, seed, amplitude) for _, name, base in CASES
-            for amplitude in (0.0, base) for seed in range(1, args.seeds + 1)]
-    jobs = list(dict.fromkeys(jobs))   # the constant runs once per experiment
+    jobs = [job for _, name, amplitude, controller in CASES
+            for seed in range(1, args.seeds + 1)
+            for job in ((name, seed, 0.0, ()), (name, seed, amplitude, controller))]
+    jobs = list(dict.fromkeys(jobs))   # the file's constant run once per start
     with Pool(2) as pool:
         rows = pool.map(one_run, jobs)
-    by = {(r['case'], r['seed'], r['amplitude']): r for r in rows}
+    by = {(r['case'], r['seed'], r['amplitude'], r['controller']): r for r in rows}
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / 'runs.json').write_text(json.dumps(rows, indent=1))
-    for label, name, amplitude in CASES:
-        runs = [by[(name, s, amplitude)] for s in range(1, args.seeds + 1)]
+    (args.out / 'runs.json').write_text(json.dumps(rows, indent=1, default=list))
+    for label, name, amplitude, controller in CASES:
+        runs = [by[(name, s, amplitude, controller)] for s in range(1, args.seeds + 1)]
         settled = sum(all(t is not None for t in r['settle']) for r in runs)
-        ratios = [t / by[(name, r['seed'], 0.0)]['settle'][k]
+        ratios = [t / by[(name, r['seed'], 0.0, ())]['settle'][k]
                   for r in runs for k, t in enumerate(r['settle'])
-                  if t is not None and by[(name, r['seed'], 0.0)]['settle'][k]]
+                  if t is not None and by[(name, r['seed'], 0.0, ())]['settle'][k]]
         worst = max(max(r['final_mm']) for r in runs)
         print(f'{label}: {settled}/{len(runs)} starts settle every phase; slowest '
               f'{max(ratios, default=float("nan")):.2f}x the constant disturbance; largest '

@@ -253,9 +253,10 @@ def _known(run, path):
 
 def simulate_recorded(experiment, t, poses):
     """The batch simulator (the tick pipeline where the controllers were told of a command
-    latency) on a recorded run's experiment (its phases as the run received them: curves,
-    agents' parameters and switch times) from the run's first known poses (t[0], poses[0]);
-    returns a SimResult whose t is on the run's clock (s since t = 0).
+    latency or observe to the second order) on a recorded run's experiment (its phases as
+    the run received them: curves, agents' parameters and switch times) from the run's first
+    known poses (t[0], poses[0]); returns a SimResult whose t is on the run's clock (s since
+    t = 0).
     """
     from curve_formation.core.simulator import simulate
     begin = float(t[0])
@@ -269,8 +270,10 @@ def simulate_recorded(experiment, t, poses):
     spec = experiment.spec.simulation
     duration = float(t[-1] - begin)
     duration = round(duration / spec.record_dt) * spec.record_dt
-    if experiment.spec.controller.command_latency > 0:
-        # commands as late as the controllers were told: the nodes' tick pipeline
+    controller = experiment.spec.controller
+    if controller.command_latency > 0 or controller.observer_order != 1:
+        # commands as late as the controllers were told, or the second-order observer: the
+        # nodes' tick pipeline
         from curve_formation.core.pipeline import simulate_pipeline
         result = simulate_pipeline(sim_experiment, 'kinematic', control_rate(experiment),
                                    duration)

@@ -97,12 +97,14 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None,
                 'disturbance_varies': '' if on_pc else varies,
                 'pose_noise': [float(v) for v in pose_noise],
                 'command_latency': float(command_latency),
+                'command_jitter': float(options.command_jitter),
                 'fault_pose_drop': float(faults.get('pose_drop', 0.0)),
                 'pose_topic': 'pose' if camera is None else 'true_pose'}))
     if with_robots and one_world:
         arena = {'experiment': str(Path(experiment_path).resolve()),
                  'pose_noise': [float(v) for v in pose_noise],
                  'command_latency': float(command_latency),
+                 'command_jitter': float(options.command_jitter),
                  'fault_pose_drop': float(faults.get('pose_drop', 0.0)),
                  'pose_topic': 'pose' if camera is None else 'true_pose',
                  'publish_robot_poses': camera is None, 'physics': engine}

@@ -15,7 +15,8 @@ class RunOptions:
     rate_hz: control rate (Hz; None: the experiment's).
     record_hz: the monitor's sampling rate (Hz).
     pose_noise: (position m, heading rad) standard deviations added to simulated poses.
-    command_latency: delay (s) of every command at the simulated robots.
+    command_latency: delay (s) of every command at the simulated robots; command_jitter: how
+        much each command's delay varies either way (s, uniform).
     faults: fault injection, {'pose_drop': p, 'state_drop': p, 'link_down': [robot, from s,
         for s]}.
     camera: None, or fake_camera parameter overrides ({} for none): poses then come from
@@ -43,6 +44,7 @@ class RunOptions:
     record_hz: float = 20.0
     pose_noise: tuple[float, float] = (0.0, 0.0)
     command_latency: float = 0.0
+    command_jitter: float = 0.0
     faults: dict | None = None
     camera: dict | None = None
     bridge: str | None = None

@@ -63,3 +63,23 @@ def test_the_kinematic_world_steps_at_once_only_where_no_contact_can_happen():
     assert at_once.contact_time == pytest.approx(fine.contact_time)
     assert at_once.smallest_gap == pytest.approx(fine.smallest_gap, abs=1e-9)
     assert steps[0] < steps[1] / 2
+
+
+def test_a_jittered_link_delays_each_command_its_own_way_but_never_reorders_them():
+    """CommandQueue with latency 0.1 s and jitter +-0.03 s (as fake robots emulate Wi-Fi):
+    every command acts 0.07-0.13 s after it came, or as soon as the one before it has, and
+    the delays spread as a uniform draw does (std 0.017 s).
+    """
+    from curve_formation.core.dynamics import CommandQueue
+    queue = CommandQueue(latency=0.1, jitter=0.03, seed=4)
+    sent = np.arange(0.0, 100.0, 0.1)
+    for k, t in enumerate(sent):
+        queue.push(float(k), 0.0, t)
+    due = np.array([d for d, _, _ in queue.pending])
+    assert (np.diff(due) >= 0).all()
+    delays = due - sent
+    assert delays.min() >= 0.07 - 1e-12 and delays.max() <= 0.13 + 1e-12
+    assert np.std(delays) == pytest.approx(0.06 / np.sqrt(12), rel=0.1)
+    steady = CommandQueue(latency=0.1)
+    steady.push(1.0, 0.0, 5.0)
+    assert [d for d, _, _ in steady.pending] == [5.1]

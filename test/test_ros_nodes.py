@@ -553,8 +553,12 @@ def test_agent_settings_survive_the_trip_through_node_parameters(ros, name):
     from curve_formation.nodes.formation_controller import agent_config, node_parameters
     from curve_formation.paths import resolve_config
     context, add, _ = ros
+    import dataclasses
     experiment = load_experiment(resolve_config(name))
-    for config in agent_configs(experiment, 10.0):
+    configs = agent_configs(experiment, 10.0)
+    # and a setting no shipped file uses
+    configs[0] = dataclasses.replace(configs[0], observer_order=2)
+    for config in configs:
         params = [Parameter(k, value=v) for k, v in node_parameters(config).items()]
         node = add(FormationController(context=context, namespace=f'/robot_{config.index}',
                                        parameter_overrides=params))

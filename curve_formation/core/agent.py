@@ -94,7 +94,8 @@ def agent_configs(experiment: 'Experiment', rate_hz: float) -> list['AgentConfig
         command_latency=spec.controller.command_latency,
         feed_forward=spec.controller.feed_forward,
         min_wheel_speed=(spec.limits.min_wheel_speed or 0.0) if spec.limits else 0.0,
-        motor_time_constant=(spec.limits.motor_time_constant or 0.0) if spec.limits else 0.0)
+        motor_time_constant=(spec.limits.motor_time_constant or 0.0) if spec.limits else 0.0,
+        observer_order=spec.controller.observer_order)
         for i in range(1, experiment.n + 1)]
 
 
@@ -158,6 +159,10 @@ class AgentConfig:
     # (each from its sending plus command_latency, through the lag); 0: the command acting
     # from the previous tick on
     motor_time_constant: float = 0.0
+    # 2: the observer also estimates how fast the disturbance changes (an alpha-beta filter,
+    # critically damped at observer_rate), so a disturbance that drifts is tracked without
+    # the first-order filter's lag; 1: the observer as the simulator has it
+    observer_order: int = 1
     # The law and filter (control.agent_command) compiled by numba as in the batch simulator:
     # the same source, about 15x faster a tick; loading it costs ~0.7 s and ~65 MB.
     compiled: bool = False
@@ -228,6 +233,32 @@ class _Neighbour:
     curve_id: Optional[int] = None
     stamp: Optional[float] = None       # s, the sender's pose source's clock
     received: Optional[float] = None    # s, this controller's clock
+
+
+# observer_order 2 predicts the disturbance over the coming period only after this many
+# updates in a row whose commands the wheel limits did not cut (its rate has settled)
+TRACKING_TICKS = 10
+
+
+def _rate_update(rate: tuple[float, float], predicted: tuple[float, float],
+                 corrected: tuple[float, float], alpha: float, elapsed: float, searching: bool
+                 ) -> tuple[float, float]:
+    """The second-order observer's rate of the estimate (per s) after a tick: an alpha-beta
+    filter's, the estimate corrected by alpha of the innovation and its rate by beta of it
+    over the elapsed time, beta = (1 - sqrt(1 - alpha))^2 so that the estimation error's
+    two poles coincide at sqrt(1 - alpha) (critically damped: the error of a disturbance
+    changing at a constant rate decays without overshoot); zero while the wheel limits cut
+    the command (the motion shows the disturbance's direction, not its size, and the search
+    along it is no change of the disturbance).
+    """
+    if searching:
+        return 0.0, 0.0
+    if alpha <= 0.0 or elapsed <= 0.0:
+        return rate
+    beta = (1.0 - math.sqrt(max(1.0 - alpha, 0.0))) ** 2
+    gain = beta / alpha / elapsed
+    return (rate[0] + gain * (corrected[0] - predicted[0]),
+            rate[1] + gain * (corrected[1] - predicted[1]))
 
 
 @dataclass(frozen=True)
@@ -317,6 +348,9 @@ class AgentController:
         self.command = compiled_command(self.config) if self.config.compiled else agent_command
         # added to the command before the limits (m/s, rad/s): the config's, or as it varies
         self.pc_disturbance: Command = self.config.pc_disturbance
+        # observer_order 2: how fast the estimate changes (per s)
+        self.dhat_rate: tuple[float, float] = (0.0, 0.0)
+        self.tracking = 0   # observer updates since the wheel limits last cut a command
 
     def set_curve(self, curve: Curve, curve_id: int,
                   s_all: Sequence[float] | FloatArray | None, rate: Curve | None = None,
@@ -593,8 +627,15 @@ class AgentController:
             period = 1.0 / cfg.rate_hz
             moving = min(max((aim + period - self.curve_received) / period, 0.0), 1.0)
             ahead = (self.ahead[0] * moving, self.ahead[1] * moving)
+        dhat_v, dhat_w = self.dhat
+        if cfg.observer_order == 2 and self.tracking >= TRACKING_TICKS:
+            # the estimate is of the last period's mean: carried to the mean of the period
+            # this command holds for, once it acts
+            ahead_by = 1.0 / cfg.rate_hz + cfg.command_latency
+            dhat_v += self.dhat_rate[0] * ahead_by
+            dhat_w += self.dhat_rate[1] * ahead_by
         v, w, ref_v, ref_w, ddv, ddw, code, shift_v, shift_w, limited = self.command(
-            fx, fy, *ahead, ex, ey, *pose, self.dhat[0], self.dhat[1], *self.last_command,
+            fx, fy, *ahead, ex, ey, *pose, dhat_v, dhat_w, *self.last_command,
             *self.pc_disturbance, steered_law(law, self.front), cfg.limits, self.others,
             cfg.index - 1, cfg.avoidance)
         if law.code != OBSERVER:
@@ -669,9 +710,18 @@ class AgentController:
             return
         measured_v, measured_w = body_velocity(x0, y0, th0, *self.pose, elapsed)
         blend = 1.0 - math.exp(-self.config.gains.observer_rate * elapsed)
-        dhat_v, dhat_w, *ray = observe(self.dhat[0], self.dhat[1], *self.ray, measured_v,
+        second = self.config.observer_order == 2
+        rate_v, rate_w = self.dhat_rate
+        before = ((self.dhat[0] + rate_v * elapsed, self.dhat[1] + rate_w * elapsed) if second
+                  else (self.dhat[0], self.dhat[1]))
+        dhat_v, dhat_w, *ray = observe(*before, *self.ray, measured_v,
                                        measured_w, *acting.reference, *acting.shift,
                                        acting.limited, self.config.law, self.config.limits, blend)
+        if second:
+            searching = acting.limited or ray[0] != 1.0
+            self.dhat_rate = _rate_update(self.dhat_rate, before, (dhat_v, dhat_w), blend,
+                                          elapsed, searching)
+            self.tracking = 0 if searching else self.tracking + 1
         self.dhat[:] = (dhat_v, dhat_w)
         self.ray = (ray[0], ray[1], ray[2])
 

@@ -121,6 +121,11 @@ class ControllerSpec(Strict):
         "shows the disturbance's direction but not its size; the observer then searches "
         'along that direction, its step doubling each tick up to this factor '
         '(control.ray_growth; needs limits.wheel_base and max_wheel_speed); 1 = off')
+    observer_order: Literal[1, 2] = Field(
+        1, description='law observer: 2 = it also estimates how fast the disturbance changes '
+        '(an alpha-beta filter critically damped at observer_rate) and follows one that '
+        'drifts without lag; runs in the nodes and their tick pipeline (sim runs that); 1 = '
+        'the first-order observer')
     k1: float = Field(gt=0, description='gain on the target error (1/s)')
     k2: float = Field(ge=0, description='estimator gain; 0 = estimator off (every law '
                       'estimates d / k2, as the paper)')

@@ -7,6 +7,8 @@ robot node calls it as is.
 
 import math
 
+import numpy as np
+
 
 def chord_ratio(half):
     """sin(h) / h: chord over arc length of an arc turning 2 h (rad); accurate as h -> 0."""
@@ -26,15 +28,19 @@ def arc_step(x, y, theta, v, w, dt):
 
 
 class CommandQueue:
-    """Velocity commands on their way to a robot's motors: each acts `latency` s after it was
-    received and holds until the next; a zero command means motors off, and so does a
+    """Velocity commands on their way to a robot's motors: each acts `latency` s (plus a
+    uniform +-`jitter` s, its own draw from `seed`, never before the one before it) after it
+    was received and holds until the next; a zero command means motors off, and so does a
     command older than `timeout` s (a robot-side watchdog; 0 = none). Times in s.
     """
 
-    def __init__(self, latency=0.0, timeout=0.0):
+    def __init__(self, latency=0.0, timeout=0.0, jitter=0.0, seed=None):
         from collections import deque
         self.latency = latency
         self.timeout = timeout
+        self.jitter = jitter
+        self.rng = np.random.default_rng(seed) if jitter > 0 else None
+        self.last_due = -math.inf
         self.command = (0.0, 0.0)   # in force at self.time
         self.pending: deque[tuple[float, float, float]] = deque()   # (due s, v, w)
         self.time = None
@@ -42,7 +48,11 @@ class CommandQueue:
 
     def push(self, v, w, now):
         """A command (m/s, rad/s) received at `now`."""
-        self.pending.append((now + self.latency, v, w))
+        due = now + self.latency
+        if self.rng is not None:
+            due = max(due + self.rng.uniform(-self.jitter, self.jitter), self.last_due)
+        self.last_due = due
+        self.pending.append((due, v, w))
         self.last_command_time = now
 
     def upcoming(self, until):
@@ -98,10 +108,11 @@ class DrivenUnicycle:
     rad/s) acts on a driven input only: motors off, it does not. Times in s.
     """
 
-    def __init__(self, pose, disturbance=(0.0, 0.0), latency=0.0, timeout=0.0):
+    def __init__(self, pose, disturbance=(0.0, 0.0), latency=0.0, timeout=0.0, jitter=0.0,
+                 seed=None):
         self.pose = (float(pose[0]), float(pose[1]), float(pose[2]))
         self.disturbance = tuple(disturbance)
-        self.queue = CommandQueue(latency, timeout)
+        self.queue = CommandQueue(latency, timeout, jitter, seed)
 
     def drive(self, v, w, now, advance=True):
         """A command received at `now`; it takes effect the queue's latency later.

@@ -31,12 +31,13 @@ class KinematicWorld:
     """Every robot of an experiment as a unicycle body (see the module)."""
 
     def __init__(self, experiment: 'Experiment', latency: float = 0.0, timeout: float = 0.0,
-                 physics_dt: float = PHYSICS_DT) -> None:
+                 physics_dt: float = PHYSICS_DT, jitter: float = 0.0, seed: int = 0) -> None:
         spec = experiment.spec
         on_robot = self.on_robot = spec.disturbance.injected == 'on_robot'
-        self.robots = [DrivenUnicycle(pose, d if on_robot else (0.0, 0.0), latency, timeout)
-                       for pose, d in zip(experiment.initial_poses, experiment.disturbance,
-                                          strict=True)]
+        self.robots = [DrivenUnicycle(pose, d if on_robot else (0.0, 0.0), latency, timeout,
+                                      jitter, (seed, i))
+                       for i, (pose, d) in enumerate(zip(experiment.initial_poses,
+                                                         experiment.disturbance, strict=True))]
         self.n = experiment.n
         self.radius = experiment.radius
         self.physics_dt = physics_dt

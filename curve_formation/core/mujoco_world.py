@@ -219,7 +219,7 @@ class MujocoWorld:
     """
 
     def __init__(self, experiment: 'Experiment', latency: float = 0.0,
-                 timeout: float = 0.0) -> None:
+                 timeout: float = 0.0, jitter: float = 0.0, seed: int = 0) -> None:
         spec = experiment.spec
         self.n = experiment.n
         self.robots = draw_robots(experiment)
@@ -239,7 +239,7 @@ class MujocoWorld:
         on_robot = self.on_robot = spec.disturbance.injected == 'on_robot'
         self.disturbance = (np.asarray(experiment.disturbance, float) if on_robot
                             else np.zeros((self.n, 2)))
-        self.queues = [CommandQueue(latency, timeout) for _ in range(self.n)]
+        self.queues = [CommandQueue(latency, timeout, jitter, (seed, i)) for i in range(self.n)]
         self.wheels = np.zeros((self.n, 2))   # wheel speed commands in force (m/s)
         self.target: FloatArray = np.zeros(2 * self.n)   # the motors' speed commands (rad/s)
         self.motor = np.zeros(2 * self.n)     # ... after their lag (rad/s)

@@ -432,6 +432,10 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
         raise ConfigError(experiment.source, f'limits.{told[0]}', "describes real motors the "
                           "batch simulator's unicycles do not have: simulate them in the "
                           'MuJoCo world (sim --physics mujoco)')
+    if spec.controller.observer_order != 1:
+        raise ConfigError(experiment.source, 'controller.observer_order', "the batch "
+                          "simulator's observer is first-order: simulate the second-order "
+                          'one with core.pipeline.simulate_pipeline (as sim does)')
     if spec.controller.command_latency > 0:
         raise ConfigError(experiment.source, 'controller.command_latency', "the batch "
                           "simulator's robots act on each command at once: simulate a link "

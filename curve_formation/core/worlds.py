@@ -18,10 +18,12 @@ World = Union[KinematicWorld, 'MujocoWorld']
 
 
 def make_world(experiment: 'Experiment', engine: str | None = None, latency: float = 0.0,
-               timeout: float = 0.0, physics_dt: float = PHYSICS_DT) -> World:
+               timeout: float = 0.0, physics_dt: float = PHYSICS_DT, jitter: float = 0.0,
+               seed: int = 0) -> World:
     """The experiment's world: `engine` ('kinematic' or 'mujoco'; None: physics.engine), each
-    command acting `latency` s after it came, motors off `timeout` s (0: never) after the
-    last; physics_dt (s): the kinematic world's longest step between contact resolutions.
+    command acting `latency` s (+- a uniform `jitter` s, drawn from `seed`) after it came,
+    motors off `timeout` s (0: never) after the last; physics_dt (s): the kinematic world's
+    longest step between contact resolutions.
     """
     engine = experiment.spec.physics.engine if engine is None else engine
     if engine == 'mujoco':
@@ -30,7 +32,7 @@ def make_world(experiment: 'Experiment', engine: str | None = None, latency: flo
         except ImportError as exc:
             raise ValueError(f'physics engine mujoco needs the mujoco package ({exc}): '
                              'pip install mujoco') from None
-        return MujocoWorld(experiment, latency, timeout)
+        return MujocoWorld(experiment, latency, timeout, jitter, seed)
     if engine not in ENGINES:
         raise ValueError(f'physics engine {engine!r}: expected one of {", ".join(ENGINES)}')
-    return KinematicWorld(experiment, latency, timeout, physics_dt)
+    return KinematicWorld(experiment, latency, timeout, physics_dt, jitter, seed)

@@ -91,9 +91,12 @@ class FakeArena(Node):
         p = self.params = declare_parameters(self, PARAMETERS)
         experiment = experiment_parameter(p.experiment)
         spec = experiment.spec
+        if p.command_jitter > p.command_latency:
+            raise ParameterError(f"parameter 'command_jitter' ({p.command_jitter:g}) must not "
+                                 f"exceed 'command_latency' ({p.command_latency:g})")
         try:
             self.world = make_world(experiment, p.physics or None, p.command_latency,
-                                    p.command_timeout, p.physics_dt)
+                                    p.command_timeout, p.physics_dt, p.command_jitter, p.seed)
         except ValueError as exc:   # an engine not known, or MuJoCo not installed
             raise ParameterError(f"parameter 'physics': {exc}") from None
         self.n = experiment.n

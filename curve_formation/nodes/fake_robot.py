@@ -38,6 +38,9 @@ ROBOT_PARAMETERS = (
           'position (m) and heading (rad)'),
     Param('command_latency', 'double', 0.0, 'delay before a command takes effect (s)',
           low=0.0),
+    Param('command_jitter', 'double', 0.0, "each command's delay varies by up to this much "
+          'either way (s, uniform; never before the command before it), as over Wi-Fi',
+          low=0.0),
     Param('command_timeout', 'double', 1.0, 'motors off when the last command is older than '
           'this (s); 0 = keep the last command forever', low=0.0),
     Param('fault_pose_drop', 'double', 0.0, 'fault injection: probability of not publishing '
@@ -83,8 +86,11 @@ class FakeRobot(Node):
             if len(getattr(p, name)) != size:
                 raise ParameterError(f'parameter {name!r} must have {size} values, got '
                                      f'{getattr(p, name)}')
+        if p.command_jitter > p.command_latency:
+            raise ParameterError(f"parameter 'command_jitter' ({p.command_jitter:g}) must not "
+                                 f"exceed 'command_latency' ({p.command_latency:g})")
         self.robot = DrivenUnicycle(p.initial_pose, p.disturbance, p.command_latency,
-                                    p.command_timeout)
+                                    p.command_timeout, p.command_jitter, p.seed)
         self.variations = node_variations(p.disturbance_varies)
         self.run_time = RunTime()
         topics.subscription(self, topics.CURVE, self._on_curve)

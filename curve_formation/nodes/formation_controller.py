@@ -59,6 +59,9 @@ PARAMETERS = (
           choices=tuple(LAWS)),
     Param('adaptation', 'double[]', [1.0, 1.0], 'law adaptive: [gamma_v, gamma_w] '
           "multiplying the paper's estimator rate per channel"),
+    Param('observer_order', 'int', 1, 'law observer: 2 = it also estimates how fast the '
+          'disturbance changes (alpha-beta filter) and predicts it over the coming period; '
+          '1 = first-order', low=1, high=2),
     Param('observer_rate', 'double', 5.0, 'law observer: observer bandwidth (1/s)',
           positive=True),
     Param('observer_growth', 'double', 1.0, 'law observer, pc_disturbance set: largest '
@@ -168,6 +171,7 @@ def node_parameters(config):
         'feed_forward': bool(config.feed_forward),
         'min_wheel_speed': float(config.min_wheel_speed),
         'motor_time_constant': float(config.motor_time_constant),
+        'observer_order': int(config.observer_order),
         'compiled_law': bool(config.compiled),
     }
     if av.on:
@@ -232,7 +236,8 @@ def agent_config(p):
         pc_disturbance=tuple(p.pc_disturbance), leader_timeout=p.leader_timeout,
         geofence=None if fence is None else tuple(fence), predict_pose=p.predict_pose,
         command_latency=p.command_latency, feed_forward=p.feed_forward, compiled=p.compiled_law,
-        min_wheel_speed=p.min_wheel_speed, motor_time_constant=p.motor_time_constant)
+        min_wheel_speed=p.min_wheel_speed, motor_time_constant=p.motor_time_constant,
+        observer_order=p.observer_order)
 
 
 def _avoidance(p):
