@@ -271,7 +271,8 @@ def simulate_recorded(experiment, t, poses):
     duration = float(t[-1] - begin)
     duration = round(duration / spec.record_dt) * spec.record_dt
     controller = experiment.spec.controller
-    if controller.command_latency > 0 or controller.observer_order != 1:
+    if (controller.command_latency > 0 or controller.observer_order != 1
+            or controller.estimate_latency):
         # commands as late as the controllers were told, or the second-order observer: the
         # nodes' tick pipeline
         from curve_formation.core.pipeline import simulate_pipeline

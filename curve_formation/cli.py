@@ -54,13 +54,15 @@ def simulate_to_dir(config, out_dir, rate='config', law=None, heading=None, phys
     engine = physics or experiment.spec.physics.engine
     latency = experiment.spec.controller.command_latency
     order = experiment.spec.controller.observer_order
-    if engine == 'mujoco' or latency > 0 or order != 1:
+    estimated = experiment.spec.controller.estimate_latency
+    if engine == 'mujoco' or latency > 0 or order != 1 or estimated:
         # The nodes' tick pipeline: robots in MuJoCo, or a link as slow as the controllers
         # are told (the batch simulator's robots act on a command at once).
         from curve_formation.core.pipeline import simulate_pipeline
         if rate is None:
             why = ('the MuJoCo world' if engine == 'mujoco' else 'controller.command_latency'
-                   if latency > 0 else 'controller.observer_order 2')
+                   if latency > 0 else 'controller.observer_order 2' if order != 1
+                   else 'controller.estimate_latency')
             raise ValueError(f"--continuous: {why} runs the nodes' tick pipeline, at a "
                              'control rate (--rate, or controller.rate_hz)')
         result = simulate_pipeline(dataclasses.replace(experiment, gains=gains), engine,

@@ -31,7 +31,7 @@ UNITS = {
     'final_orientation_rates_max': 'rad/s',
     'lyapunov_initial': 'm^2', 'lyapunov_final': 'm^2',
     'final_estimate_error_max': 'as the disturbance over k2 (m/s and rad/s, over 1/s)',
-    'latency_ms_p50': 'ms', 'latency_ms_p99': 'ms',
+    'latency_ms_p50': 'ms', 'latency_ms_p99': 'ms', 'estimated_latency': 's',
     'cv': '1 (coefficient of variation)', 'min_over_max': '1', 'P': '1', 'Q': '1',
     'count': 'contacts', 'messages': 'messages',
 }

@@ -557,7 +557,7 @@ def test_agent_settings_survive_the_trip_through_node_parameters(ros, name):
     experiment = load_experiment(resolve_config(name))
     configs = agent_configs(experiment, 10.0)
     # and a setting no shipped file uses
-    configs[0] = dataclasses.replace(configs[0], observer_order=2)
+    configs[0] = dataclasses.replace(configs[0], observer_order=2, estimate_latency=True)
     for config in configs:
         params = [Parameter(k, value=v) for k, v in node_parameters(config).items()]
         node = add(FormationController(context=context, namespace=f'/robot_{config.index}',

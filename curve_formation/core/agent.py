@@ -50,6 +50,7 @@ from curve_formation.core.control import (
 from curve_formation.core.curves import Curve
 from curve_formation.core.driving import drive_direction, REVERSE_HYSTERESIS, steered_law
 from curve_formation.core.dynamics import arc_step
+from curve_formation.core.link_estimate import ONLINE_LAGS, OnlineLatency
 from curve_formation.core.plausibility import (
     error_problem,
     jump_problem,
@@ -95,7 +96,8 @@ def agent_configs(experiment: 'Experiment', rate_hz: float) -> list['AgentConfig
         feed_forward=spec.controller.feed_forward,
         min_wheel_speed=(spec.limits.min_wheel_speed or 0.0) if spec.limits else 0.0,
         motor_time_constant=(spec.limits.motor_time_constant or 0.0) if spec.limits else 0.0,
-        observer_order=spec.controller.observer_order)
+        observer_order=spec.controller.observer_order,
+        estimate_latency=spec.controller.estimate_latency)
         for i in range(1, experiment.n + 1)]
 
 
@@ -163,6 +165,9 @@ class AgentConfig:
     # critically damped at observer_rate), so a disturbance that drifts is tracked without
     # the first-order filter's lag; 1: the observer as the simulator has it
     observer_order: int = 1
+    # estimate command_latency online from the commands sent and the poses measured
+    # (core.link_estimate.OnlineLatency), starting from command_latency
+    estimate_latency: bool = False
     # The law and filter (control.agent_command) compiled by numba as in the batch simulator:
     # the same source, about 15x faster a tick; loading it costs ~0.7 s and ~65 MB.
     compiled: bool = False
@@ -343,8 +348,14 @@ class AgentController:
         self.first_pose = True
         # The commands sent (Sent), as far back as a pose may be (pose_timeout) plus the
         # command latency, for predict_pose and the observer.
+        longest = (max(self.config.command_latency, float(ONLINE_LAGS.max()))
+                   if self.config.estimate_latency else self.config.command_latency)
         self.sent: deque[Sent] = deque(maxlen=int(math.ceil(
-            self.config.rate_hz * (self.config.pose_timeout + self.config.command_latency))) + 2)
+            self.config.rate_hz * (self.config.pose_timeout + longest))) + 2)
+        # s from a command leaving to the wheels: as told, or as estimated online
+        self.latency = self.config.command_latency
+        self.link = (OnlineLatency(self.latency, self.config.rate_hz)
+                     if self.config.estimate_latency else None)
         self.command = compiled_command(self.config) if self.config.compiled else agent_command
         # added to the command before the limits (m/s, rad/s): the config's, or as it varies
         self.pc_disturbance: Command = self.config.pc_disturbance
@@ -421,6 +432,8 @@ class AgentController:
         if problem is not None:
             return self.reject(f'own pose {problem}')
         self.pose, self.pose_stamp, self.pose_received = (x, y, theta), stamp, at
+        if self.link is not None:
+            self.link.seen(self._taken_at(stamp, at), x, y, theta)
         if self.config.is_leader:
             self.leader_heard = at
         if self.config.gains.reverse and self.target is not None:   # the point steered
@@ -533,9 +546,13 @@ class AgentController:
 
     def tick(self, now: float) -> Tick:
         """One control step at time `now` (s, this controller's clock)."""
+        if self.link is not None:
+            self.latency = self.link.update(now)
         tick = self._tick(now)
         self.sent.append(Sent(now, tick.v, tick.w, self.reference, self.shift, self.limited,
                               tick.stopped is None and not self.idle))
+        if self.link is not None:
+            self.link.sent(now, tick.v, tick.w)
         return tick
 
     def predicted(self, pose: Pose, stamp: float, received: float, now: float) -> Pose:
@@ -554,7 +571,7 @@ class AgentController:
         if not 0.0 <= age <= longest:
             age = min(max(now - received, 0.0), longest)
         start = now - age
-        delay = cfg.command_latency
+        delay = self.latency
         law = cfg.law
         # the robot moves by its command plus the disturbance while driven (motors off at 0)
         drift_v = 0.0 if law.on_pc else law.k2 * self.dhat[0]
@@ -586,7 +603,7 @@ class AgentController:
         aim = now   # when the target is taken: with the pose predicted, when this command acts
         if cfg.predict_pose:
             pose = self.predicted(pose, stamp, received, now)
-            aim = now + cfg.command_latency
+            aim = now + self.latency
         if not self._move_target(aim):
             return self._stop(f'moving curve not renewed for {now - self.curve_received:.2f} s')
         ex, ey = self._error_at(pose, self.target)
@@ -631,7 +648,7 @@ class AgentController:
         if cfg.observer_order == 2 and self.tracking >= TRACKING_TICKS:
             # the estimate is of the last period's mean: carried to the mean of the period
             # this command holds for, once it acts
-            ahead_by = 1.0 / cfg.rate_hz + cfg.command_latency
+            ahead_by = 1.0 / cfg.rate_hz + self.latency
             dhat_v += self.dhat_rate[0] * ahead_by
             dhat_w += self.dhat_rate[1] * ahead_by
         v, w, ref_v, ref_w, ddv, ddw, code, shift_v, shift_w, limited = self.command(
@@ -680,7 +697,7 @@ class AgentController:
         """
         acting = None
         for sent in self.sent:
-            if sent.at > at - self.config.command_latency + 1e-9:
+            if sent.at > at - self.latency + 1e-9:
                 break
             acting = sent
         return acting
@@ -738,7 +755,7 @@ class AgentController:
         """
         assert self.pose_stamp is not None and self.pose_received is not None
         cfg = self.config
-        tau, delay = cfg.motor_time_constant, cfg.command_latency
+        tau, delay = cfg.motor_time_constant, self.latency
         age = self.pose_received - self.pose_stamp
         end = self.pose_stamp if 0.0 <= age <= MAX_PREDICTION else self.pose_received
         begin = end - elapsed

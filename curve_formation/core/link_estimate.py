@@ -134,21 +134,23 @@ def estimate_latency(command_times: ArrayLike, commands: ArrayLike, pose_times: 
             lats.append(_best_lag(res, lags))
     if not lats:
         return LinkEstimate(None, None, 0, None)
+    # the windows' median: a window whose disturbance changed (the fit holds it constant)
+    # does not pull it, as it would a fit over the whole run
+    latency = float(np.median(lats))
     idx = np.flatnonzero(inside)
     res = _residuals(tc, cmd, driven, np.append(tp[idx], tp[idx[-1] + 1]), v_meas[idx],
-                     w_meas[idx], lags)
-    latency = _best_lag(res, lags)
+                     w_meas[idx], np.array([latency]))
     return LinkEstimate(latency, float(np.std(lats)), len(lats),
                         math.sqrt(float(res.min()) / max(len(idx), 1)))
 
 
 def _clear(residuals: FloatArray, count: int) -> bool:
     """Whether the fit over `count` intervals tells one latency: its least residual below the
-    typical one by more than the noise would make it vary (three standard deviations of a
-    sum of count squared Gaussian residuals); a robot that stood still fits every lag alike.
+    typical one by more than the noise would make it vary (a standard deviation of a sum of
+    count squared Gaussian residuals); a robot that stood still fits every lag alike.
     """
     typical, best = float(np.median(residuals)), float(residuals.min())
-    return typical > 0.0 and typical - best > 3.0 * best * math.sqrt(2.0 / count)
+    return typical > 0.0 and typical - best > best * math.sqrt(2.0 / count)
 
 
 def _excited(tc: FloatArray, cmd: FloatArray, begin: float, end: float) -> bool:
@@ -158,3 +160,60 @@ def _excited(tc: FloatArray, cmd: FloatArray, begin: float, end: float) -> bool:
         return False
     v, w = cmd[sel, 0], cmd[sel, 1] * TURN_SCALE
     return bool(max(np.ptp(v), np.ptp(w)) >= MIN_EXCITATION)
+
+
+# Online: candidate latencies on a coarser grid (refined by the parabola), how often (s) and
+# over how much of the past (s) a controller estimates, how many estimates in a row must agree
+# and within what (s) before one is taken.
+ONLINE_LAGS = np.arange(0.0, 0.5001, 0.01)
+ONLINE_EVERY = 2.0
+ONLINE_SPAN = 6.0
+AGREEING = 3
+AGREEMENT = 0.02
+
+
+class OnlineLatency:
+    """A controller's running estimate of its command latency (estimate_latency over the last
+    ONLINE_SPAN s, every ONLINE_EVERY s): a new value is taken only when AGREEING estimates in
+    a row lie within AGREEMENT of each other (their median), so one that wanders is not.
+    Times in s on the controller's clock.
+    """
+
+    def __init__(self, initial: float, rate_hz: float, pose_rate: float = 60.0) -> None:
+        from collections import deque
+        self.latency = initial
+        self.commands: deque[tuple[float, float, float]] = deque(
+            maxlen=int(rate_hz * (ONLINE_SPAN + 1.0)) + 2)
+        self.poses: deque[tuple[float, float, float, float]] = deque(
+            maxlen=int(pose_rate * ONLINE_SPAN) + 2)
+        self.recent: deque[float] = deque(maxlen=AGREEING)
+        self.next_at: float | None = None
+        self.taken: list[tuple[float, float]] = []   # (when, latency) of each value taken
+
+    def sent(self, at: float, v: float, w: float) -> None:
+        self.commands.append((at, v, w))
+
+    def seen(self, stamp: float, x: float, y: float, theta: float) -> None:
+        if not self.poses or stamp > self.poses[-1][0]:
+            self.poses.append((stamp, x, y, theta))
+
+    def update(self, now: float) -> float:
+        """The latency to use from `now` on (s): a new estimate every ONLINE_EVERY s."""
+        if self.next_at is None:
+            self.next_at = now + ONLINE_EVERY
+        if now < self.next_at or len(self.commands) < 2 or len(self.poses) < 3:
+            return self.latency
+        self.next_at = now + ONLINE_EVERY
+        sent = np.array(self.commands)
+        seen = np.array(self.poses)
+        found = estimate_latency(sent[:, 0], sent[:, 1:], seen[:, 0], seen[:, 1:],
+                                 ONLINE_LAGS, ONLINE_SPAN)
+        if found.latency is None:
+            return self.latency
+        self.recent.append(found.latency)
+        if len(self.recent) == AGREEING and max(self.recent) - min(self.recent) <= AGREEMENT:
+            latency = float(np.median(self.recent))
+            if abs(latency - self.latency) > 1e-3:
+                self.latency = latency
+                self.taken.append((now, latency))
+        return self.latency

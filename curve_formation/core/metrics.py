@@ -443,6 +443,8 @@ def result_metrics(result, tolerance=None):
                       result.limits, contacts=result.contacts)
     out['control'] = ('continuous' if result.rate_hz is None
                       else f'zero-order hold at {result.rate_hz:g} Hz')
+    if result.experiment.spec.controller.estimate_latency and result.latencies is not None:
+        out['estimated_latency'] = [float(v) for v in result.latencies]
     return out
 
 

@@ -279,4 +279,5 @@ def simulate_pipeline(experiment: Experiment, engine: Literal['kinematic', 'mujo
                      rate, experiment.gains, experiment.limits,
                      experiment.disturbance_at(t) if experiment.variations
                      else np.asarray(experiment.disturbance, float), t, poses, dhat, commands,
-                     phase_index, experiment.radius, world.contact_summary())
+                     phase_index, experiment.radius, world.contact_summary(),
+                     [c.latency for c in pipeline.controllers])

@@ -382,6 +382,9 @@ class SimResult:
     radius: float = 0.0      # bodies (m); 0: points
     # {'count', 'time' (s), 'smallest_gap' (m)} over every fine step
     contacts: dict[str, float | None] | None = None
+    # each controller's command latency at the end (s): the nodes' pipeline, which may
+    # estimate it online (controller.estimate_latency); None from the batch simulator
+    latencies: list[float] | None = None
 
     @property
     def errors(self) -> FloatArray:
@@ -432,6 +435,10 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
         raise ConfigError(experiment.source, f'limits.{told[0]}', "describes real motors the "
                           "batch simulator's unicycles do not have: simulate them in the "
                           'MuJoCo world (sim --physics mujoco)')
+    if spec.controller.estimate_latency:
+        raise ConfigError(experiment.source, 'controller.estimate_latency', "the batch "
+                          "simulator's robots act on each command at once, with no latency "
+                          'to estimate: simulate a link with core.pipeline.simulate_pipeline')
     if spec.controller.observer_order != 1:
         raise ConfigError(experiment.source, 'controller.observer_order', "the batch "
                           "simulator's observer is first-order: simulate the second-order "
