@@ -436,6 +436,8 @@ class FormationController(Node):
             values=[KeyValue(key='curve_id', value=str(c.curve_id)),
                     KeyValue(key='s', value=f'{c.s}'),
                     KeyValue(key='dhat', value=f'{c.dhat[0]:.6g} {c.dhat[1]:.6g}'),
+                    # s: as told, or as estimated online (estimate_latency)
+                    KeyValue(key='command_latency', value=f'{c.latency:.4f}'),
                     KeyValue(key='rejected_inputs', value=str(c.rejected)),
                     KeyValue(key='rejected_messages', value=self.rejections.summary()),
                     KeyValue(key='last_rejection', value=self.rejections.last),
