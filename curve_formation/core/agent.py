@@ -307,13 +307,11 @@ class AgentController:
         self.curve: Curve | None = None
         self.curve_id: int | None = None
         self.curve_rate: Curve | None = None   # a moving curve's coefficient rate (1/s)
-        self.curve_received = 0.0
-        self.received_target: Point = (0.0, 0.0)   # the target when the curve came (m)
-        self.ahead: Point = (0.0, 0.0)   # the target's velocity on a moving curve (m/s)
         self.s: float | None = None
-        self.target: Point | None = None
-        # every agent's target on the current curve and on the one before it, which converts
-        # a neighbour's error on the curve before into one on this (_neighbour_error)
+        self.target: Point | None = None   # this agent's, carried to where it is used
+        # every agent's target and its velocity on the current curve, as it held when dated,
+        # and on the one before it, which converts a neighbour's error on the curve before
+        # into one on this (_neighbour_error)
         self.curve_targets: _CurveTargets | None = None
         self.previous_targets: _CurveTargets | None = None
         self.pose: Pose | None = None
@@ -389,31 +387,35 @@ class AgentController:
         self.curve, self.curve_id = curve, int(curve_id)
         dated = (valid_at if valid_at is not None
                  and abs(received - valid_at) <= self.config.leader_timeout else received)
-        self.curve_rate, self.curve_received = rate, dated
+        self.curve_rate = rate
         targets = _CurveTargets(int(curve_id), curve.points(s),
                                 np.zeros((n, 2)) if rate is None else rate.points(s), dated)
         if self.curve_targets is not None and self.curve_targets.curve_id != targets.curve_id:
             self.previous_targets = self.curve_targets
         self.curve_targets = targets
         self.s = float(s[self.config.index - 1])
-        tx, ty = curve.points([self.s])[0]
-        self.target = self.received_target = (float(tx), float(ty))
-        self.ahead = (0.0, 0.0)
-        if rate is not None:
-            vx, vy = rate.points([self.s])[0]
-            self.ahead = (float(vx), float(vy))
+        self.target = targets.at(self.config.index, dated)
+
+    @property
+    def curve_received(self) -> float:
+        """When the current curve held (s, this controller's clock; set_curve); 0 before."""
+        return 0.0 if self.curve_targets is None else self.curve_targets.dated
+
+    @property
+    def ahead(self) -> Point:
+        """This agent's target's velocity on the current curve (m/s; zero on a still one)."""
+        if self.curve_targets is None:
+            return 0.0, 0.0
+        vx, vy = self.curve_targets.velocities[self.config.index - 1]
+        return float(vx), float(vy)
 
     def _move_target(self, now: float) -> bool:
         """Carry a moving curve's target to `now` (s); False if the curve is too old."""
-        if self.curve_rate is None:
+        if self.curve_rate is None or self.curve_targets is None:
             return True
-        age = now - self.curve_received
-        if age > self.config.leader_timeout:
+        if now - self.curve_targets.dated > self.config.leader_timeout:
             return False
-        tx, ty = self.received_target
-        vx, vy = self.ahead
-        age = max(age, 0.0)
-        self.target = (float(tx + vx * age), float(ty + vy * age))
+        self.target = self.curve_targets.at(self.config.index, now)
         return True
 
     def on_pose(self, x: float, y: float, theta: float, stamp: float,
