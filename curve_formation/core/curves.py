@@ -186,6 +186,13 @@ class Curve:
         """Derivatives dc/ds: array (m, 2)."""
         return self.basis.dphi(s) @ self.coeffs
 
+    def matches(self, other: 'Curve', atol: float = 1e-12) -> bool:
+        """The same basis and coefficients within atol (units of c): the same curve as sent
+        again, or as the schedule has it.
+        """
+        return (self.basis.describe() == other.basis.describe()
+                and np.allclose(self.xi, other.xi, rtol=0.0, atol=atol))
+
     def sample(self, count: int = 400) -> tuple[FloatArray, FloatArray]:
         """count points evenly spaced in s (closed curves exclude s = 1): (s, points)."""
         s = np.linspace(0.0, 1.0, count, endpoint=not self.basis.closed)

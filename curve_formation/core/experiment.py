@@ -412,9 +412,7 @@ class ReceivedPhases:
         moved = 0.0 if clock is None or not dated else clock.moving_for
         expected = (None if scheduled is None else scheduled.curve if scheduled.motion is None
                     else scheduled.motion.curve(scheduled.curve, moved))
-        same = (scheduled is not None and expected is not None
-                and expected.basis.describe() == curve.basis.describe()
-                and np.allclose(expected.xi, curve.xi, rtol=0, atol=1e-12))
+        same = scheduled is not None and expected is not None and expected.matches(curve)
         start = float(when)
         if same and scheduled is not None:
             fit, motion, curve = scheduled.fit, scheduled.motion, scheduled.curve

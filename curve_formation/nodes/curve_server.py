@@ -176,9 +176,11 @@ class CurveServer(Node):
                                                        self._refresh)
         phases = self.experiment.phases if self.params.schedule else ()
         elapsed = now_seconds(self) - self.start
-        while (self.next_phase < len(phases)
-               and phases[self.next_phase].start - self._lead(self.next_phase) <= elapsed):
-            lead = self._lead(self.next_phase)
+        lead = 0.0
+        while self.next_phase < len(phases):
+            lead = self._lead(self.next_phase)   # of the phase due next, as things are now
+            if phases[self.next_phase].start - lead > elapsed:
+                break
             phase = phases[self.next_phase]
             self.next_phase += 1
             phase = self.experiment.switched_to(phase, self.reassigned, self.targets)
@@ -194,8 +196,7 @@ class CurveServer(Node):
         if self.next_phase == len(phases):
             self.timer.cancel()
             return
-        wait = (phases[self.next_phase].start - self._lead(self.next_phase)
-                - (now_seconds(self) - self.start))
+        wait = phases[self.next_phase].start - lead - (now_seconds(self) - self.start)
         self.timer.timer_period_ns = max(1_000_000, int(wait * 1e9))
         self.timer.reset()
 
@@ -216,8 +217,7 @@ class CurveServer(Node):
             return 0.0
         curve, _, s, _, _ = self.current
         switched = self.experiment.switched_to(phase, self.reassigned, self.targets)
-        same = (curve.basis.describe() == switched.curve.basis.describe()
-                and np.allclose(curve.xi, switched.curve.xi, rtol=0.0, atol=1e-12)
+        same = (curve.matches(switched.curve)
                 and np.allclose(s, switched.s, rtol=0.0, atol=1e-9))
         return self.params.announce_ahead if same else 0.0
 
