@@ -62,9 +62,14 @@ def disturbance_at(base: FloatArray, variations: Sequence[Variation], t: ArrayLi
     return factors(variations, len(base), t)[..., None] * base
 
 
-def factor_of(variations: Sequence[Variation], i: int, t: float) -> float:
-    """Agent i's (0-based) factor 1 + the sum of its variations at t (s)."""
-    return 1.0 + sum(float(v.relative(t)) for v in variations if not v.agents or i in v.agents)
+def varied(base: Sequence[float], variations: Sequence[Variation], i: int, t: float
+           ) -> tuple[float, float]:
+    """Agent i's (0-based) disturbance [d_v, d_w] at t (s): its constant value base times 1 +
+    the sum of its variations then (what one node, knowing only its own agent, applies).
+    """
+    factor = 1.0 + sum(float(v.relative(t)) for v in variations
+                       if not v.agents or i in v.agents)
+    return base[0] * factor, base[1] * factor
 
 
 class RunTime:

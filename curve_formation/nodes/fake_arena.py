@@ -34,7 +34,11 @@ from curve_formation.links import robot_endpoint
 from curve_formation.nodes import messages, topics
 from curve_formation.nodes.command_source import CommandSourceWatch
 from curve_formation.nodes.estop import EstopHolder
-from curve_formation.nodes.fake_robot import ESTOP_TOPICS, ROBOT_PARAMETERS
+from curve_formation.nodes.fake_robot import (
+    check_command_jitter,
+    ESTOP_TOPICS,
+    ROBOT_PARAMETERS,
+)
 from curve_formation.nodes.params import (
     declare_parameters,
     experiment_parameter,
@@ -91,9 +95,7 @@ class FakeArena(Node):
         p = self.params = declare_parameters(self, PARAMETERS)
         experiment = experiment_parameter(p.experiment)
         spec = experiment.spec
-        if p.command_jitter > p.command_latency:
-            raise ParameterError(f"parameter 'command_jitter' ({p.command_jitter:g}) must not "
-                                 f"exceed 'command_latency' ({p.command_latency:g})")
+        check_command_jitter(p)
         try:
             self.world = make_world(experiment, p.physics or None, p.command_latency,
                                     p.command_timeout, p.physics_dt, p.command_jitter, p.seed)

@@ -17,7 +17,7 @@ import math
 import numpy as np
 from rclpy.node import Node
 
-from curve_formation.core.disturbance import factor_of, RunTime
+from curve_formation.core.disturbance import RunTime, varied
 from curve_formation.core.dynamics import DrivenUnicycle
 from curve_formation.nodes import messages, topics
 from curve_formation.nodes.command_source import CommandSourceWatch
@@ -66,6 +66,15 @@ PARAMETERS = (
 ) + ROBOT_PARAMETERS
 
 
+def check_command_jitter(p):
+    """ParameterError unless the command_jitter of ROBOT_PARAMETERS p is at most the
+    command_latency (a command never acts before it was sent).
+    """
+    if p.command_jitter > p.command_latency:
+        raise ParameterError(f"parameter 'command_jitter' ({p.command_jitter:g}) must not "
+                             f"exceed 'command_latency' ({p.command_latency:g})")
+
+
 # The e-stop as the fake robots and the fake arena obey it.
 ESTOP_TOPICS = estop_uses('true: motors off and every cmd_vel taken as zero until released')
 
@@ -86,9 +95,7 @@ class FakeRobot(Node):
             if len(getattr(p, name)) != size:
                 raise ParameterError(f'parameter {name!r} must have {size} values, got '
                                      f'{getattr(p, name)}')
-        if p.command_jitter > p.command_latency:
-            raise ParameterError(f"parameter 'command_jitter' ({p.command_jitter:g}) must not "
-                                 f"exceed 'command_latency' ({p.command_latency:g})")
+        check_command_jitter(p)
         self.robot = DrivenUnicycle(p.initial_pose, p.disturbance, p.command_latency,
                                     p.command_timeout, p.command_jitter, p.seed)
         self.variations = node_variations(p.disturbance_varies)
@@ -136,9 +143,8 @@ class FakeRobot(Node):
                                       'motors off')
         run_time = self.run_time.at(now)
         if self.variations and run_time is not None:   # until the next pose, as it is now
-            factor = factor_of(self.variations, self.params.index - 1, run_time)
-            d_v, d_w = self.params.disturbance
-            self.robot.disturbance = (d_v * factor, d_w * factor)
+            self.robot.disturbance = varied(self.params.disturbance, self.variations,
+                                            self.params.index - 1, run_time)
         if self.rng.random() < self.params.fault_pose_drop:
             return
         noise = self.params.pose_noise

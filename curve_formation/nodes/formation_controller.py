@@ -19,7 +19,7 @@ from sensor_msgs.msg import JointState
 from curve_formation.core.agent import AgentConfig, AgentController
 from curve_formation.core.assignment import AssignmentError
 from curve_formation.core.control import Gains, LAWS, timed_by, WheelLimits
-from curve_formation.core.disturbance import factor_of, RunTime
+from curve_formation.core.disturbance import RunTime, varied
 from curve_formation.core.plausibility import bounded_command
 from curve_formation.core.safety import Avoidance, AVOIDANCE_OFF
 from curve_formation.nodes import messages, topics
@@ -394,9 +394,8 @@ class FormationController(Node):
         now = now_seconds(self)
         run_time = self.run_time.at(now)
         if self.variations and run_time is not None:   # the emulated disturbance as it varies
-            factor = factor_of(self.variations, self.config.index - 1, run_time)
-            base = self.config.pc_disturbance
-            self.controller.pc_disturbance = (base[0] * factor, base[1] * factor)
+            self.controller.pc_disturbance = varied(self.config.pc_disturbance, self.variations,
+                                                    self.config.index - 1, run_time)
         try:
             self._take_others()
             tick = self.controller.tick(now)
