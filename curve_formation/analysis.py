@@ -252,13 +252,13 @@ def _known(run, path):
 
 
 def simulate_recorded(experiment, t, poses):
-    """The batch simulator (the tick pipeline where the controllers were told of a command
-    latency or observe to the second order) on a recorded run's experiment (its phases as
+    """The batch simulator (the nodes' tick pipeline for settings only it models:
+    simulator.pipeline_only) on a recorded run's experiment (its phases as
     the run received them: curves, agents' parameters and switch times) from the run's first
     known poses (t[0], poses[0]); returns a SimResult whose t is on the run's clock (s since
     t = 0).
     """
-    from curve_formation.core.simulator import simulate
+    from curve_formation.core.simulator import pipeline_only, simulate
     begin = float(t[0])
     # A phase that began before the first known poses starts the simulation.
     start_phase = max(0, int(np.searchsorted([p.start for p in experiment.phases], begin,
@@ -270,11 +270,7 @@ def simulate_recorded(experiment, t, poses):
     spec = experiment.spec.simulation
     duration = float(t[-1] - begin)
     duration = round(duration / spec.record_dt) * spec.record_dt
-    controller = experiment.spec.controller
-    if (controller.command_latency > 0 or controller.observer_order != 1
-            or controller.estimate_latency):
-        # commands as late as the controllers were told, or the second-order observer: the
-        # nodes' tick pipeline
+    if pipeline_only(experiment):   # settings only the nodes' tick pipeline models
         from curve_formation.core.pipeline import simulate_pipeline
         result = simulate_pipeline(sim_experiment, 'kinematic', control_rate(experiment),
                                    duration)

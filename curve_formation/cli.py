@@ -38,7 +38,7 @@ def simulate_to_dir(config, out_dir, rate='config', law=None, heading=None, phys
     simulator, or the nodes' tick pipeline in the MuJoCo world (core.pipeline).
     """
     from curve_formation.core import metrics, plots
-    from curve_formation.core.simulator import simulate
+    from curve_formation.core.simulator import pipeline_only, simulate
     from curve_formation.provenance import described
 
     path = resolve_config(config)
@@ -54,15 +54,13 @@ def simulate_to_dir(config, out_dir, rate='config', law=None, heading=None, phys
     engine = physics or experiment.spec.physics.engine
     latency = experiment.spec.controller.command_latency
     order = experiment.spec.controller.observer_order
-    estimated = experiment.spec.controller.estimate_latency
-    if engine == 'mujoco' or latency > 0 or order != 1 or estimated:
-        # The nodes' tick pipeline: robots in MuJoCo, or a link as slow as the controllers
-        # are told (the batch simulator's robots act on a command at once).
+    needs = pipeline_only(experiment)
+    if engine == 'mujoco' or needs:
+        # The nodes' tick pipeline: robots in MuJoCo, or controller settings only it models
+        # (a link as slow as the controllers are told, the second-order observer, ...).
         from curve_formation.core.pipeline import simulate_pipeline
         if rate is None:
-            why = ('the MuJoCo world' if engine == 'mujoco' else 'controller.command_latency'
-                   if latency > 0 else 'controller.observer_order 2' if order != 1
-                   else 'controller.estimate_latency')
+            why = 'the MuJoCo world' if engine == 'mujoco' else needs[0][0]
             raise ValueError(f"--continuous: {why} runs the nodes' tick pipeline, at a "
                              'control rate (--rate, or controller.rate_hz)')
         result = simulate_pipeline(dataclasses.replace(experiment, gains=gains), engine,

@@ -404,6 +404,30 @@ class SimResult:
                                 self.gains)
 
 
+# The controller settings the batch simulator does not model, where set: (key, is it set,
+# why and where to simulate it instead). sim and analyze --compare-sim run the nodes' tick
+# pipeline (core.pipeline) for them.
+PIPELINE_ONLY: tuple[tuple[str, Callable[[Any], bool], str], ...] = (
+    ('controller.command_latency', lambda c: c.command_latency > 0,
+     "the batch simulator's robots act on each command at once: simulate a link that late "
+     'with core.pipeline.simulate_pipeline (as sim does)'),
+    ('controller.observer_order', lambda c: c.observer_order != 1,
+     "the batch simulator's observer is first-order: simulate the second-order one with "
+     'core.pipeline.simulate_pipeline (as sim does)'),
+    ('controller.estimate_latency', lambda c: c.estimate_latency,
+     "the batch simulator's robots act on each command at once, with no latency to "
+     'estimate: simulate a link with core.pipeline.simulate_pipeline'),
+)
+
+
+def pipeline_only(experiment: Experiment) -> list[tuple[str, str]]:
+    """(key, why) of each controller setting of the experiment that the batch simulator
+    does not model and the nodes' tick pipeline does (PIPELINE_ONLY); [] if none is set.
+    """
+    controller = experiment.spec.controller
+    return [(key, why) for key, is_set, why in PIPELINE_ONLY if is_set(controller)]
+
+
 def _split(dist: FloatArray, on_pc: bool) -> tuple[FloatArray, FloatArray]:
     """(d_pc, d_robot) (n, 2): the disturbance where it is injected, zeros elsewhere."""
     dist = np.ascontiguousarray(dist, dtype=float)
@@ -435,18 +459,9 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
         raise ConfigError(experiment.source, f'limits.{told[0]}', "describes real motors the "
                           "batch simulator's unicycles do not have: simulate them in the "
                           'MuJoCo world (sim --physics mujoco)')
-    if spec.controller.estimate_latency:
-        raise ConfigError(experiment.source, 'controller.estimate_latency', "the batch "
-                          "simulator's robots act on each command at once, with no latency "
-                          'to estimate: simulate a link with core.pipeline.simulate_pipeline')
-    if spec.controller.observer_order != 1:
-        raise ConfigError(experiment.source, 'controller.observer_order', "the batch "
-                          "simulator's observer is first-order: simulate the second-order "
-                          'one with core.pipeline.simulate_pipeline (as sim does)')
-    if spec.controller.command_latency > 0:
-        raise ConfigError(experiment.source, 'controller.command_latency', "the batch "
-                          "simulator's robots act on each command at once: simulate a link "
-                          "that late with core.pipeline.simulate_pipeline (as sim does)")
+    needs = pipeline_only(experiment)
+    if needs:
+        raise ConfigError(experiment.source, *needs[0])
     rate_hz = spec.controller.rate_hz if rate_hz == 'config' else rate_hz
     duration = spec.simulation.duration if duration is None else duration
     dt = spec.simulation.dt if dt is None else dt
