@@ -610,7 +610,7 @@ def build_parser():
     calib.add_argument('--limit', type=int, help='from a video or device: at most this many '
                        'frames')
     calib.set_defaults(func=_cmd_calibrate_camera)
-    nodes_doc = sub.add_parser('nodes-doc', help="print the README's node reference "
+    nodes_doc = sub.add_parser('nodes-doc', help='print the node reference of docs/nodes.md '
                                '(parameters, topics, QoS) from the code')
     nodes_doc.set_defaults(func=_cmd_nodes_doc)
     demo = sub.add_parser('demo', help='the headless demo: paper cases simulated, then a ROS '

@@ -1,4 +1,4 @@
-"""The README's node reference is generated from the code, and the nodes match it."""
+"""The node reference (docs/nodes.md) is generated from the code, and the nodes match it."""
 
 from pathlib import Path
 
@@ -11,16 +11,16 @@ from curve_formation.launches import node_class
 from curve_formation.nodes import docs, qos, topics
 
 
-README = Path(__file__).resolve().parent.parent / 'README.md'
+NODE_REFERENCE = Path(__file__).resolve().parent.parent / 'docs' / 'nodes.md'
 
 
-def test_readme_node_reference_is_the_generated_one():
-    text = README.read_text()
+def test_the_node_reference_is_the_generated_one():
+    text = NODE_REFERENCE.read_text()
     begin, end = '<!-- nodes:begin -->\n', '\n<!-- nodes:end -->'
-    assert begin in text and end in text, 'README lacks the node reference markers'
+    assert begin in text and end in text, 'docs/nodes.md lacks the node reference markers'
     current = text.split(begin, 1)[1].split(end, 1)[0]
     assert current == docs.nodes_markdown(), (
-        'README node reference is stale: regenerate with `curve-formation nodes-doc`')
+        'docs/nodes.md is stale: regenerate with `curve-formation nodes-doc`')
 
 
 def test_a_run_records_every_robots_topics_once_with_their_registered_types():

@@ -1,4 +1,6 @@
-"""README tables of every node's parameters, topics and QoS, generated from the node modules."""
+"""Tables of every node's parameters, topics and QoS (docs/nodes.md), generated from the node
+modules.
+"""
 
 from curve_formation.nodes import (
     camera_tracker,
@@ -51,7 +53,9 @@ def topic_table(uses):
 
 
 def nodes_markdown():
-    """The README's node reference, between its `nodes:begin` and `nodes:end` markers."""
+    """The node reference in docs/nodes.md, between its `nodes:begin` and `nodes:end`
+    markers.
+    """
     parts = []
     for name, module in NODES:
         summary = module.__doc__.strip().split('\n', 1)[1].strip().replace('\n', ' ')

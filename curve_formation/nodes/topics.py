@@ -1,9 +1,9 @@
 """The formation's topics, each described once: name, message type, QoS and meaning.
 
 Nodes create their publishers and subscriptions through `publisher` and `subscription`, the
-recorder records the topics marked `recorded`, and the README's node tables (nodes/docs.py)
-are generated from the same records. Per-robot topics have relative names, so a robot is
-placed by its namespace; `robot_topic` gives their absolute names.
+recorder records the topics marked `recorded`, and the node tables of docs/nodes.md
+(nodes/docs.py) are generated from the same records. Per-robot topics have relative names, so
+a robot is placed by its namespace; `robot_topic` gives their absolute names.
 """
 
 from dataclasses import dataclass
