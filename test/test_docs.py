@@ -72,3 +72,16 @@ def test_nodes_create_the_documented_topics(ros_domain, name, module):
     finally:
         node.destroy_node()
         rclpy.try_shutdown(context=context)
+
+
+def test_the_readme_example_experiment_is_valid_and_settles(tmp_path):
+    """The minimal experiment the README shows passes check and settles in the simulator."""
+    from curve_formation.core.experiment import load_experiment
+    from curve_formation.core.metrics import result_metrics
+    from curve_formation.core.simulator import simulate
+    text = (NODE_REFERENCE.parent.parent / 'README.md').read_text()
+    begin = text.index('```yaml\nname: my_loop')
+    path = tmp_path / 'my_loop.yaml'
+    path.write_text(text[begin + len('```yaml\n'):text.index('```', begin + 7)])
+    metrics = result_metrics(simulate(load_experiment(path)))
+    assert metrics['all_settled'], metrics['phases']

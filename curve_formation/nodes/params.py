@@ -1,7 +1,8 @@
 """Declare and validate a node's parameters in one place, from a table of Param entries.
 
-Each Param has a default, a description and optional bounds; the table is also what the README's
-parameter tables are generated from (`curve-formation params-doc`), so they cannot drift apart.
+Each Param has a default, a description and optional bounds; the table is also what the
+parameter tables of docs/nodes.md are generated from (`curve-formation nodes-doc`), so they
+cannot drift apart.
 """
 
 from dataclasses import dataclass
