@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 
-from curve_formation.bag import bag_info, bag_summary, BagError, read_messages, stream_topic
+from curve_formation.bag import bag_info, bag_summary, BagError, read_messages
 from curve_formation.core import metrics, plots
 from curve_formation.core.curve_codec import (
     decode_agent_parameters,
@@ -32,6 +32,7 @@ from curve_formation.core.experiment import (
 )
 from curve_formation.paths import resolve_config
 from curve_formation.provenance import described
+from curve_formation.streams import stream_topic
 
 
 # Keys of the bag metadata (custom_data) that make a bag self-describing: the experiment file
@@ -305,7 +306,7 @@ def bag_accounting(bag_path, publications_dir, streams, best_effort=()):
     """Per recorded topic: messages the nodes published, should have recorded, and recorded.
 
     A DDS writer numbers its samples 1, 2, ... in publish order, so a writer stream (see
-    bag.stream_key) of N publications whose first received sample was number f should have
+    streams.stream_key) of N publications whose first received sample was number f should have
     put N - f + 1 in the bag, however late the recorder was matched. `streams` is the
     recorder's tally (Recorder.streams). A stream never received counts whole, and so does
     one with several writers or out of order. `lost`: expected but not in the bag, summed over

@@ -123,18 +123,6 @@ def _open_error(path, exc):
                     'from a run killed hard needs `curve-formation bag repair` first')
 
 
-def stream_key(topic, writer=None):
-    """Names one writer's stream of a topic: the topic, or with several writers on it (as on
-    /diagnostics), the topic and that writer's name.
-    """
-    return topic if writer is None else f'{topic} {writer}'
-
-
-def stream_topic(key):
-    """The topic of a stream_key."""
-    return key.split(' ', 1)[0]
-
-
 def read_raw(path, topics=None):
     """Yield (connection, stamp_ns, cdr_bytes) in time order (file after file of a split
     bag); BagError if unreadable.

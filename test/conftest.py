@@ -23,6 +23,16 @@ os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 CONFIG_DIR = Path(__file__).resolve().parent.parent / 'config'
 
 
+def pytest_collection_modifyitems(items):
+    """A test on a ROS context or domain of its own is a `ros` test, whether or not its module
+    says so: the default run (scripts/test) spreads the tests marked `not ros` over the cores
+    and runs the `ros` ones one at a time, their nodes having the machine to themselves.
+    """
+    for item in items:
+        if {'ros', 'ros_domain'} & set(getattr(item, 'fixturenames', ())):
+            item.add_marker(pytest.mark.ros)
+
+
 @pytest.fixture
 def closed_curve_dict():
     """The shipped closed-curve experiment as a plain dict (a fresh copy per test)."""
