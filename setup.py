@@ -25,14 +25,14 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml', 'LICENSE']),
-        ('share/' + PACKAGE + '/config', glob('config/*.yaml')),
+        ('share/' + PACKAGE + '/config', glob('config/*.yaml') + glob('config/*.json')),
         ('share/' + PACKAGE + '/launch', glob('launch/*.launch.py')),
     ],
     # What `sim`, `run --bag`, `analyze` and the nodes need at run time (requirements.txt
     # pins the ROS 2 wheels and the test tools; package.xml names the same with rosdep keys).
     install_requires=['setuptools', 'numpy', 'scipy', 'numba', 'matplotlib', 'PyYAML',
                       'pydantic>=2', 'opencv-python-headless', 'rosbags>=0.11', 'mcap>=1.2',
-                      'pyserial', 'mujoco'],
+                      'pyserial', 'mujoco', 'imageio-ffmpeg', 'pillow'],
     zip_safe=True,
     maintainer='curve_formation maintainers',
     maintainer_email='curve-formation@example.org',

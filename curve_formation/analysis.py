@@ -30,8 +30,8 @@ from curve_formation.core.experiment import (
     parse_experiment_text,
     received_phases,
 )
+from curve_formation.outputs import write_outputs
 from curve_formation.paths import resolve_config
-from curve_formation.provenance import described
 from curve_formation.streams import stream_topic
 
 
@@ -68,6 +68,7 @@ class BagRun:
     deaths: list = None    # [(t s, node, how)] nodes of the run that died
     pose_stamps: np.ndarray = None   # (R, n) s since t = 0: when each sampled pose was taken
     provenance: dict = None          # of the run that wrote the bag (provenance.py), if told
+    experiment_text: str = None      # the experiment as the bag carries it (or the file's)
 
 
 PROGRESS_PERIOD = 2.0   # s between progress lines while a bag is read
@@ -90,7 +91,9 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0, progress=None):
                            '--bag`)')
     if experiment_path is not None:
         experiment = load_experiment(resolve_config(experiment_path))
+        experiment_text = resolve_config(experiment_path).read_text()
     elif EXPERIMENT_KEY in custom:
+        experiment_text = custom[EXPERIMENT_KEY]
         source = f'{path} (metadata)'
         experiment = build_experiment(parse_experiment_text(custom[EXPERIMENT_KEY], source),
                                       source)
@@ -171,7 +174,8 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0, progress=None):
                   _sample(events['pose'], grid, 3), _sample(events['cmd_vel'], grid, 2),
                   _sample(events['disturbance_estimate'], grid, 2), phase, counts, contacts,
                   estops, [(t - t0, node, how) for t, node, how in death_events],
-                  _sample(stamps, grid, 1)[..., 0] - t0, _run_provenance(custom))
+                  _sample(stamps, grid, 1)[..., 0] - t0, _run_provenance(custom),
+                  experiment_text)
 
 
 def _run_provenance(custom):
@@ -196,9 +200,10 @@ def _sample(per_robot, grid, width):
 
 
 def analyze_bag(path, out_dir, experiment_path=None, compare=None, compare_sim=False,
-                progress=None):
-    """metrics.json and the paper's figures from a bag; `compare` overlays a second bag,
-    `compare_sim` the batch simulator run from the bag's own start (simulate_recorded).
+                progress=None, animate=False):
+    """The run's folder from a bag (outputs.write_outputs: metrics.json, the paper's figures,
+    trajectory.npz, report.html; animation.mp4 if `animate`); `compare` overlays a second
+    bag, `compare_sim` the batch simulator run from the bag's own start (simulate_recorded).
     progress: called with a line on what is being done (load_bag_run).
     """
     run = load_bag_run(path, experiment_path, progress=progress)
@@ -211,8 +216,6 @@ def analyze_bag(path, out_dir, experiment_path=None, compare=None, compare_sim=F
     result['bag'] = {'path': str(path), 'messages': run.counts}
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    plots.run_figures(out, run.experiment, t, poses, phase, np.nan_to_num(dhat),
-                      label=Path(path).name)
     others = []
     if compare is not None:
         other = load_bag_run(compare, experiment_path)
@@ -236,7 +239,11 @@ def analyze_bag(path, out_dir, experiment_path=None, compare=None, compare_sim=F
         plots.plot_paths(out / f'{stem}_paths.png', run.experiment, poses, phase,
                          overlay=(label, o_poses))
     result['run_provenance'] = run.provenance
-    (out / 'metrics.json').write_text(metrics.strict_json(described(result, experiment_path)))
+    write_outputs(out, run.experiment, {'t': t, 'poses': poses, 'phase': phase,
+                                        'dhat': np.nan_to_num(dhat), 'commands': commands,
+                                        'pose_stamps': stamps},
+                  result, experiment_path, label=Path(path).name,
+                  experiment_text=run.experiment_text, animate=animate)
     return result
 
 

@@ -15,8 +15,6 @@ import os
 from pathlib import Path
 import sys
 
-import numpy as np
-
 from curve_formation.bag import BagError, DEFAULT_STORAGE, STORAGES
 from curve_formation.core.aruco import MARKER_IDS
 from curve_formation.core.experiment import check_rate_override, ConfigError, load_experiment
@@ -30,16 +28,18 @@ def _write_json(path, data):
     path.write_text(strict_json(data))
 
 
-def simulate_to_dir(config, out_dir, rate='config', law=None, heading=None, physics=None):
+def simulate_to_dir(config, out_dir, rate='config', law=None, heading=None, physics=None,
+                    animate=False):
     """Batch-simulate one experiment; write metrics.json and figures into out_dir.
 
     law ('paper', 'adaptive', 'observer') and heading ('paper', 'sampled') override the file's;
     physics ('kinematic', 'mujoco'; None: the file's physics.engine): the kinematic batch
     simulator, or the nodes' tick pipeline in the MuJoCo world (core.pipeline).
+    animate: also write animation.mp4. Writes the folder of outputs.write_outputs.
     """
-    from curve_formation.core import metrics, plots
+    from curve_formation.core import metrics
     from curve_formation.core.simulator import pipeline_only, simulate
-    from curve_formation.provenance import described
+    from curve_formation.outputs import write_outputs
 
     path = resolve_config(config)
     experiment = load_experiment(path)
@@ -70,14 +70,12 @@ def simulate_to_dir(config, out_dir, rate='config', law=None, heading=None, phys
     else:
         result = simulate(experiment, rate_hz=rate, gains=gains)
         simulator = 'batch (compiled)'
-    out = Path(out_dir)
     data = metrics.result_metrics(result)
     data['simulator'] = simulator
-    _write_json(out / 'metrics.json', described(data, path))
-    plots.run_figures(out, experiment, result.t, result.poses, result.phase, result.dhat,
-                      label=data['control'])
-    np.savez_compressed(out / 'trajectory.npz', t=result.t, poses=result.poses,
-                        dhat=result.dhat, commands=result.commands, phase=result.phase)
+    write_outputs(out_dir, experiment, {'t': result.t, 'poses': result.poses,
+                                        'dhat': result.dhat, 'commands': result.commands,
+                                        'phase': result.phase},
+                  data, path, label=data['control'], animate=animate)
     return data
 
 
@@ -122,6 +120,11 @@ def _cmd_check(args):
         print(line)
 
 
+def _animate_option(parser):
+    parser.add_argument('--animate', action='store_true',
+                        help='also write animation.mp4 of the run (robots, targets, curve)')
+
+
 def _cmd_sim(args):
     rate = 'config'
     if args.continuous:
@@ -129,9 +132,11 @@ def _cmd_sim(args):
     elif args.rate is not None:
         rate = args.rate
     _output_folder(args.out, args.force)
-    data = simulate_to_dir(args.config, args.out, rate, args.law, args.heading, args.physics)
+    data = simulate_to_dir(args.config, args.out, rate, args.law, args.heading, args.physics,
+                           args.animate)
     print(_summary_line(data['experiment'], data))
-    print(f'wrote {args.out}/metrics.json and figures')
+    print(f'wrote {args.out}/: report.html, metrics.json, figures (PNG and PDF), '
+          f'trajectory.npz{", animation.mp4" if args.animate else ""}')
 
 
 PAPER_CASES = ('closed_curve', 'open_curve', 'shape_change', 'mona_arena')
@@ -140,28 +145,48 @@ DEMO_RUN = 'arena_demo'
 
 def _cmd_demo(args):
     """Batch-simulate the paper's cases, then run the arena demo as ROS nodes with a bag."""
+    import shutil
+
+    import numpy as np
+
+    from curve_formation.outputs import write_law_comparison
+    from curve_formation.report import write_report
     from curve_formation.run_options import RunOptions
     from curve_formation.runner import run_experiment
     out = Path(args.out)
     _output_folder(out)
     summary = {'paper_cases_batch_simulation': {}}
-    print("1/2 batch simulation of the paper's cases, with the paper's law and with ours")
+    print("1/3 batch simulation of the paper's cases, with the paper's law and with ours")
     for name in PAPER_CASES:
         for law, heading in (('paper', 'paper'), ('observer', 'sampled')):
             data = simulate_to_dir(name, out / 'paper_cases' / name / law, law=law,
                                    heading=heading)
             summary['paper_cases_batch_simulation'].setdefault(name, {})[law] = data
             print('    ' + _summary_line(f'{name} ({law})', data))
-    print(f'2/2 ROS 2 run of {DEMO_RUN}: 9 robots in one fake arena, 9 controllers, curve server, '
+    print(f'2/3 ROS 2 run of {DEMO_RUN}: 9 robots in one fake arena, 9 controllers, curve server, '
           f'one process each ({args.duration:g} s)')
-    result = run_experiment(DEMO_RUN, out / DEMO_RUN, args.duration,
-                            RunOptions(bag_path=out / DEMO_RUN / 'bag', isolated=True),
+    run_dir = out / DEMO_RUN
+    result = run_experiment(DEMO_RUN, run_dir, args.duration,
+                            RunOptions(bag_path=run_dir / 'bag', isolated=True, animate=True),
                             log=lambda m: print('    ' + m))
     summary[DEMO_RUN] = result
     print('    ' + _summary_line(DEMO_RUN, result))
+    print(f"3/3 the paper's law and ours from the same start ({DEMO_RUN}, simulated, with the "
+          'ROS run); the report')
+    record = np.load(run_dir / 'trajectory.npz')
+    compared = write_law_comparison(
+        run_dir, load_experiment(resolve_config(DEMO_RUN)), args.duration,
+        [('ours over ROS 2 (this run)', record['t'], record['poses'], record['phase'])])
+    summary['law_comparison_simulated'] = compared
+    for law, data in compared.items():
+        print('    ' + _summary_line(f'{DEMO_RUN} ({law}, sim)', data))
+    write_report(run_dir, f'{DEMO_RUN}: the demo run over ROS 2')
+    for name in ('report.html', 'law_comparison.png', 'law_comparison.pdf', 'animation.mp4'):
+        shutil.copy2(run_dir / name, out / name)
     _write_json(out / 'summary.json', summary)
-    print(f'wrote {out}/: summary.json; paper_cases/<case>/ and {DEMO_RUN}/ with '
-          f'metrics.json and figures; {DEMO_RUN}/bag (ROS 2 bag, MCAP)')
+    print(f'wrote {out}/: report.html (open it in a browser), law_comparison.png/.pdf, '
+          f'animation.mp4, summary.json; paper_cases/<case>/ and {DEMO_RUN}/ with their '
+          f'reports, metrics.json and figures; {DEMO_RUN}/bag (ROS 2 bag, MCAP)')
 
 
 def _cmd_run(args):
@@ -177,14 +202,14 @@ def _cmd_run(args):
                          bag_storage=args.bag_storage, bridge=args.bridge,
                          discovery_server=args.discovery_server, only=only,
                          agents=_agents(args.agents), isolated=args.isolated,
-                         physics=args.physics)
+                         physics=args.physics, animate=args.animate)
     result = run_experiment(args.config, args.out, args.duration, options)
     if not options.runs('observer'):
         print(f'ran {", ".join(sorted(only or ()))} of {result["experiment"]}; logs/ in '
               f'{args.out} (the host with `observer` writes the metrics)')
         return
     print(_summary_line(result['experiment'], result))
-    print(f'wrote {args.out}/metrics.json, figures, params/ and logs/')
+    print(f'wrote {args.out}/: report.html, metrics.json, figures, params/ and logs/')
     if result['node_deaths']:
         died = ', '.join(f'{d["node"]} ({d["how"]})' for d in result['node_deaths'])
         print(f'error: nodes died during the run: {died}; metrics.json says when',
@@ -257,7 +282,8 @@ def _cmd_analyze(args):
     from curve_formation.analysis import analyze_bag
     _output_folder(args.out, args.force)
     result = analyze_bag(args.bag, args.out, args.experiment, args.compare, args.compare_sim,
-                         progress=lambda line: print(line, file=sys.stderr, flush=True))
+                         progress=lambda line: print(line, file=sys.stderr, flush=True),
+                         animate=args.animate)
     print(_summary_line(result['experiment'], result))
     if args.compare_sim:
         print(_summary_line('simulated', result['compare_sim']))
@@ -267,7 +293,8 @@ def _cmd_analyze(args):
             print(f'{row["phase"]:5d} {row["start"]:9.2f} {_seconds(row["settle_time"]):>12s} '
                   f'{_seconds(row["settle_time_sim"]):>14s} {row["final_error_norm"]:12.3g} '
                   f'{_number(row["final_error_norm_sim"]):>10s}')
-    print(f'wrote {args.out}/metrics.json and figures')
+    print(f'wrote {args.out}/: report.html, metrics.json, figures (PNG and PDF), '
+          f'trajectory.npz{", animation.mp4" if args.animate else ""}')
 
 
 def _cmd_measure_link(args):
@@ -465,6 +492,7 @@ def build_parser():
     mode.add_argument('--continuous', action='store_true', help='continuous control')
     _physics_option(sim, "kinematic: the batch simulator (exact, fast); mujoco: the nodes' "
                     'tick pipeline with the robots as MuJoCo bodies')
+    _animate_option(sim)
     _force_option(sim)
     sim.set_defaults(func=_cmd_sim)
     run = sub.add_parser('run', help='run the experiment as a ROS 2 node graph')
@@ -475,6 +503,7 @@ def build_parser():
     run.add_argument('--single-process', action='store_true',
                      help='all nodes in one process and executor')
     run.add_argument('--bag', help='record a ROS 2 bag at this new path')
+    _animate_option(run)
     run.add_argument('--bag-storage', choices=tuple(STORAGES), default=DEFAULT_STORAGE,
                      help="bag storage (default mcap, as Jazzy's ros2 bag record)")
     run.add_argument('--no-sim', action='store_true',
@@ -530,6 +559,7 @@ def build_parser():
     analyze.add_argument('--out', required=True, help='output folder')
     analyze.add_argument('--experiment', help='experiment YAML, if the bag does not carry it')
     analyze.add_argument('--compare', help='a second bag to overlay (e.g. real vs simulated)')
+    _animate_option(analyze)
     analyze.add_argument('--compare-sim', action='store_true',
                          help="overlay the batch simulator run from the bag's own start and "
                          'curves: paths, error norms, settling per phase')

@@ -22,15 +22,17 @@ from rclpy.serialization import serialize_message
 
 from curve_formation.analysis import bag_accounting, RUN_END_KEY
 from curve_formation.bag import BagWriter
-from curve_formation.core import metrics, plots
+from curve_formation.core import metrics
 from curve_formation.core.experiment import control_rate, load_experiment
 from curve_formation.launches import node_launches, part_of
 from curve_formation.node_graph import NodeGraph
 from curve_formation.nodes.runtime import now_seconds
 from curve_formation.nodes.topics import CURVE, DIAGNOSTICS
 from curve_formation.observers import Observers
+from curve_formation.outputs import write_outputs
 from curve_formation.paths import discovery_text, resolve_config, ros_environment
 from curve_formation.provenance import described, provenance_text
+from curve_formation.report import write_report
 from curve_formation.run_options import DEFAULTS
 from curve_formation.start_scripts import write_node_files
 
@@ -345,8 +347,8 @@ class Run:
         return self.monitor.recording.arrays()
 
     def write_results(self, label='ROS run'):
-        """metrics.json, figures and trajectory.npz from what the monitor recorded; the run
-        ends first (end).
+        """The run's folder (outputs.write_outputs: metrics.json, figures, trajectory.npz,
+        report.html) from what the monitor recorded; the run ends first (end).
         """
         self.end()
         data = self.recording()
@@ -375,12 +377,8 @@ class Run:
         if camera:
             result['ground_truth'] = metrics.ground_truth_metrics(
                 experiment, data, phase, self.monitor.law_pose_rms(), estops, deaths)
-        self.out.mkdir(parents=True, exist_ok=True)
-        (self.out / 'metrics.json').write_text(
-            metrics.strict_json(described(result, self.experiment_path)))
-        plots.run_figures(self.out, experiment, data['t'], data['poses'], phase,
-                          data['dhat'], label=label)
-        np.savez_compressed(self.out / 'trajectory.npz', phase=phase, **data)
+        write_outputs(self.out, experiment, {'phase': phase, **data}, result,
+                      self.experiment_path, label=label, animate=self.options.animate)
         return result
 
     def bag_accounting(self):
@@ -459,6 +457,7 @@ def run_experiment(config, out_dir, duration=None, options=DEFAULTS, log=print):
                          **run.bag_accounting()}
     (run.out / 'metrics.json').write_text(
         metrics.strict_json(described(result, run.experiment_path)))
+    write_report(run.out)   # with what was added since write_results
     if failure is not None:
         raise failure
     return result

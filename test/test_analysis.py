@@ -118,6 +118,10 @@ def test_bag_info_tells_what_ros2_bag_info_does(switched):
     assert 'QoS: best effort, volatile, keep last 5' in proc.stdout   # the poses
     assert 'QoS: reliable, transient local, keep last 1' in proc.stdout   # the curve
     assert f'Messages:          {meta["message_count"]}' in proc.stdout
+    # what RViz and Foxglove draw from: the curve's markers, one array per curve published
+    counts = {entry['topic_metadata']['name']: entry['message_count']
+              for entry in meta['topics_with_message_count']}
+    assert counts['/formation/markers'] >= 2, counts   # two curves
 
 
 def test_the_run_against_its_simulation(switched, tmp_path):

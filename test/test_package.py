@@ -33,7 +33,8 @@ RUNTIME = {'numpy': ('numpy', 'python3-numpy'), 'scipy': ('scipy', 'python3-scip
            'yaml': ('PyYAML', 'python3-yaml'), 'pydantic': ('pydantic', 'python3-pydantic'),
            'cv2': ('opencv-python-headless', 'python3-opencv'),
            'rosbags': ('rosbags', 'python3-rosbags-pip'), 'mcap': ('mcap', None),
-           'serial': ('pyserial', 'python3-serial'), 'mujoco': ('mujoco', None)}
+           'serial': ('pyserial', 'python3-serial'), 'mujoco': ('mujoco', None),
+           'imageio_ffmpeg': ('imageio-ffmpeg', None), 'PIL': ('pillow', 'python3-pil')}
 ROS = {'rclpy', 'geometry_msgs', 'std_msgs', 'nav_msgs', 'sensor_msgs', 'visualization_msgs',
        'diagnostic_msgs', 'builtin_interfaces', 'ament_index_python', 'rcl_interfaces',
        'rosgraph_msgs'}

@@ -461,6 +461,13 @@ def test_estop_cli_stops_all_nine_robots_at_once_holds_them_and_releases(ros_dom
     # The bag says the same: the e-stop states are recorded.
     from curve_formation.analysis import analyze_bag
     bagged = analyze_bag(tmp_path / 'bag', tmp_path / 'analysis')
+    # and what RViz or Foxglove draw from: the arena's poses (~30 Hz) and the curve's markers
+    import yaml
+    meta = yaml.safe_load((tmp_path / 'bag' / 'metadata.yaml').read_text())
+    counts = {entry['topic_metadata']['name']: entry['message_count'] for entry in
+              meta['rosbag2_bagfile_information']['topics_with_message_count']}
+    assert counts.get('/formation/robot_poses', 0) > 30 * 20 and counts.get(
+        '/formation/markers', 0) >= 1, counts
     (bag_start, bag_stop), = bagged['estop']['intervals']
     assert abs(bag_start - start) < 0.2 and abs(bag_stop - stop) < 0.2, bagged['estop']
     assert bagged['phases'][0]['settled'] and bagged['phases'][0]['settle_time'] >= released

@@ -15,7 +15,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 from pydantic import TypeAdapter, ValidationError
-from scipy.spatial.distance import pdist
 
 from curve_formation.core import curve_sources, safe_yaml
 from curve_formation.core.aruco import MARKER_IDS
@@ -588,6 +587,7 @@ def _avoidance(spec: ExperimentSpec, source: str) -> Avoidance:
 def _check_bodies(spec: ExperimentSpec, source: str, poses: FloatArray,
                   phases: Sequence[Phase]) -> None:
     """Refuse bodies that start overlapping or through a wall, and curves outside the arena."""
+    from scipy.spatial.distance import pdist  # scipy.spatial: 0.4 s to import
     radius = spec.robots.radius
     if radius > 0 and len(poses) > 1:
         gaps = pdist(poses[:, :2])
@@ -638,6 +638,7 @@ def points_outside_arena(points: FloatArray, width: float, height: float,
 def _body_warnings(spec: ExperimentSpec, phases: Sequence[Phase], avoidance: Avoidance,
                    offset: float) -> list[str]:
     """Targets closer than the bodies allow: to each other, and to the walls."""
+    from scipy.spatial.distance import pdist  # scipy.spatial: 0.4 s to import
     if not avoidance.on and spec.robots.radius <= 0:
         return []
     out = []

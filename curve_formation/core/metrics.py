@@ -8,7 +8,6 @@ index of the active curve, and the experiment (curves, gains, graph, disturbance
 import math
 
 import numpy as np
-from scipy.spatial.distance import pdist
 
 from curve_formation.core.estop import stopped_time
 
@@ -211,6 +210,7 @@ def closest_approach(poses):
 
     The law has no collision avoidance: compare with the robots' size.
     """
+    from scipy.spatial.distance import pdist  # scipy.spatial: 0.4 s to import
     if poses.shape[1] < 2:
         return float('inf'), 0
     # One sample at a time: n (n - 1) / 2 distances each, never the whole R x n x n array.
@@ -242,6 +242,7 @@ def longest_standstill(t, poses, errors, away=0.03, still=1e-3):
 
 def surface_gaps(poses, radius):
     """(R,) smallest distance (m) between two bodies' surfaces at each sample (NaN: unknown)."""
+    from scipy.spatial.distance import pdist  # scipy.spatial: 0.4 s to import
     if poses.shape[1] < 2:
         return np.full(len(poses), np.inf)
     return np.array([np.nan_to_num(pdist(row[:, :2]), nan=np.inf).min() for row in poses]) \

@@ -111,10 +111,11 @@ REGISTRY = {t.name: t for t in (
     Topic(CAMERA_DEBUG, Image, 'IMAGE', 'annotated camera frame (bgr8)'),
     Topic(TRUE_POSE, PoseStamped, 'SENSOR', "a fake robot's ground-truth pose"),
     Topic(ROBOT_POSES, JointState, 'SENSOR',
-          "every robot's pose in one message (x, y, theta per robot)"),
+          "every robot's pose in one message (x, y, theta per robot)", EVERY_BAG),
     Topic(OBSERVED_CURVE, PolygonStamped, 'EVENTS',
           'a newly observed curve as ordered points (arena frame, m)'),
-    Topic(CURVE_MARKERS, MarkerArray, 'LATCHED', "curve line and each agent's target point"),
+    Topic(CURVE_MARKERS, MarkerArray, 'LATCHED', "curve line and each agent's target point",
+          EVERY_BAG),
     Topic(READY, String, 'ROLL_CALL',
           'names of the nodes that can receive /formation/curve (start-up handshake)'),
 )}

@@ -1,0 +1,81 @@
+"""How long a run's figures, animation and report take: the arena demo's 9 robots over 120 s.
+
+Run: scripts/bench figures          (~1 min)
+
+Simulates arena_demo for 120 s (the batch simulator, sampled at 100 Hz: 12,000 samples), then
+times, each three times, core.plots.run_figures (four figures as PNG at 300 dpi and PDF),
+core.animation.animate (MP4, 30 s of film at 15 fps) and report.write_report, and prints the
+best of three of each. Goal (issue #43): figures and animation of a 9-robot, 120 s run in
+under 30 s. JSON to --out (default out/bench/figures).
+"""
+
+import argparse
+import json
+from pathlib import Path
+import shutil
+import tempfile
+import time
+
+from curve_formation.core import metrics
+from curve_formation.core.experiment import load_experiment
+from curve_formation.core.simulator import simulate
+from curve_formation.outputs import write_outputs
+from curve_formation.paths import resolve_config
+
+
+GOAL = 30.0   # s, figures and animation together
+
+
+def timed(work, repeats=3):
+    best = float('inf')
+    for _ in range(repeats):
+        started = time.perf_counter()
+        work()
+        best = min(best, time.perf_counter() - started)
+    return best
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--out', default='out/bench/figures')
+    args = parser.parse_args()
+    path = resolve_config('arena_demo')
+    experiment = load_experiment(path)
+    sim = simulate(experiment, duration=120.0)
+    record = {'t': sim.t, 'poses': sim.poses, 'phase': sim.phase, 'dhat': sim.dhat}
+    result = metrics.result_metrics(sim)
+    folder = Path(tempfile.mkdtemp(prefix='bench-figures-'))
+    try:
+        from curve_formation.core import plots
+        from curve_formation.core.animation import animate
+        from curve_formation.report import write_report
+        write_outputs(folder, experiment, record, result, path)   # warm: fonts, imports
+        found = {
+            'samples': len(sim.t), 'robots': experiment.n, 'run_seconds': float(sim.t[-1]),
+            'figures_s': timed(lambda: plots.run_figures(folder, experiment, sim.t, sim.poses,
+                                                         sim.phase, sim.dhat, result=result)),
+            'animation_s': timed(lambda: animate(folder / 'animation.mp4', experiment, sim.t,
+                                                 sim.poses, sim.phase)),
+            'report_s': timed(lambda: write_report(folder)),
+            'report_bytes': (folder / 'report.html').stat().st_size,
+        }
+    finally:
+        shutil.rmtree(folder)
+    total = found['figures_s'] + found['animation_s']
+    found['figures_and_animation_s'] = total
+    found['goal_s'] = GOAL
+    print(f"arena_demo, {found['robots']} robots, {found['run_seconds']:.0f} s "
+          f"({found['samples']} samples)")
+    print(f"  figures (4 x PNG 300 dpi + PDF): {found['figures_s']:6.2f} s")
+    print(f"  animation (MP4, 30 s film):      {found['animation_s']:6.2f} s")
+    print(f"  report.html ({found['report_bytes'] / 1e6:.1f} MB):        "
+          f"{found['report_s']:6.2f} s")
+    print(f'  figures + animation:             {total:6.2f} s  (goal < {GOAL:g} s: '
+          f'{total / GOAL:.2f} of it)')
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / 'figures.json').write_text(json.dumps(found, indent=2) + '\n')
+
+
+if __name__ == '__main__':
+    main()
