@@ -207,7 +207,7 @@ def analyze_bag(path, out_dir, experiment_path=None, compare=None, compare_sim=F
     progress: called with a line on what is being done (load_bag_run).
     """
     run = load_bag_run(path, experiment_path, progress=progress)
-    t, poses, phase, dhat, commands = _known(run, path)
+    t, poses, phase, dhat, commands = known_samples(run, path)
     stamps = run.pose_stamps[len(run.t) - len(t):]
     result = metrics.run_metrics(run.experiment, t, poses, phase, np.nan_to_num(dhat),
                                  np.nan_to_num(commands), contacts=run.contacts,
@@ -219,7 +219,7 @@ def analyze_bag(path, out_dir, experiment_path=None, compare=None, compare_sim=F
     others = []
     if compare is not None:
         other = load_bag_run(compare, experiment_path)
-        o_t, o_poses, o_phase, _, _ = _known(other, compare)
+        o_t, o_poses, o_phase, _, _ = known_samples(other, compare)
         result['compare'] = metrics.run_metrics(run.experiment, o_t, o_poses, o_phase)
         others.append((Path(compare).name, o_t, o_poses, o_phase))
     if compare_sim:
@@ -247,7 +247,7 @@ def analyze_bag(path, out_dir, experiment_path=None, compare=None, compare_sim=F
     return result
 
 
-def _known(run, path):
+def known_samples(run, path):
     """(t, poses, phase, dhat, commands) from the first sample at which every robot's pose is
     known; BagError if there is none.
     """

@@ -297,6 +297,18 @@ def _cmd_analyze(args):
           f'trajectory.npz{", animation.mp4" if args.animate else ""}')
 
 
+def _cmd_animate(args):
+    from curve_formation.core.animation import animate
+    from curve_formation.outputs import load_run
+    out = Path(args.out)
+    if out.exists() and not args.force:
+        raise ValueError(f'{out} exists: choose another --out, or --force to replace it')
+    experiment, t, poses, phase = load_run(args.source, args.experiment)
+    frames = animate(out, experiment, t, poses, phase, fps=args.fps,
+                     max_seconds=args.max_seconds)
+    print(f'wrote {out}: {frames} frames of {experiment.name} ({t[-1] - t[0]:.1f} s of run)')
+
+
 def _cmd_measure_link(args):
     from curve_formation.measure_link import measure_bag
     found = measure_bag(args.bag)
@@ -565,6 +577,15 @@ def build_parser():
                          'curves: paths, error norms, settling per phase')
     _force_option(analyze)
     analyze.set_defaults(func=_cmd_analyze)
+    animate = sub.add_parser('animate', help='an animation (MP4 or GIF) of a run folder or bag')
+    animate.add_argument('source', help='a run folder (sim, run, analyze --out) or a bag')
+    animate.add_argument('--out', required=True, help='the film: FILE.mp4 or FILE.gif')
+    animate.add_argument('--experiment', help='experiment YAML, if the source does not carry it')
+    animate.add_argument('--fps', type=positive, default=15.0, help='frames per second of film')
+    animate.add_argument('--max-seconds', type=positive, default=30.0,
+                         help='longest film (s): a longer run is played faster')
+    _force_option(animate)
+    animate.set_defaults(func=_cmd_animate)
     link = sub.add_parser('measure-link', help="each robot's command latency from a recorded "
                           'bag (its cmd_vel against its poses), and the experiment setting')
     link.add_argument('bag', help='bag folder of a run in which the robots drive')

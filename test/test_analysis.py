@@ -146,3 +146,15 @@ def test_the_run_against_its_simulation(switched, tmp_path):
     assert 'simulated (s)' in proc.stdout
     for name in ('compare_sim_error_norm.png', 'compare_sim_paths.png'):
         assert (tmp_path / name).stat().st_size > 10_000
+
+
+def test_animate_a_bag(switched, tmp_path):
+    """`curve-formation animate BAG`: the film of a recorded run, its curve switch included."""
+    from PIL import Image
+    folder, _ = switched
+    proc = subprocess.run([sys.executable, '-m', 'curve_formation.cli', 'animate',
+                           str(folder / 'bag'), '--out', str(tmp_path / 'film.gif'),
+                           '--fps', '4', '--max-seconds', '3'], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    with Image.open(tmp_path / 'film.gif') as gif:
+        assert gif.n_frames >= 12

@@ -177,3 +177,18 @@ def test_sim_leaves_a_folder_a_lab_can_show(tmp_path):
     assert 'Curve 0 settled' in page and result['phases'][0]['settled']
     assert 'data:video/mp4;base64,' in page and page.count('data:image/png;base64,') >= 3
     assert 'http://' not in page and 'https://' not in page   # nothing from the network
+
+
+def test_animate_takes_a_run_folder_and_refuses_what_is_not_one(tmp_path, capsys):
+    from PIL import Image
+
+    from curve_formation.cli import main
+    run = tmp_path / 'run'
+    assert main(['sim', 'open_curve', '--out', str(run)]) in (0, None)
+    assert main(['animate', str(run), '--out', str(tmp_path / 'film.gif'), '--fps', '5',
+                 '--max-seconds', '3']) in (0, None)
+    with Image.open(tmp_path / 'film.gif') as gif:
+        assert gif.n_frames == 16   # 3 s at 5 fps, both ends
+    assert 'frames of open_curve' in capsys.readouterr().out
+    assert main(['animate', str(tmp_path), '--out', str(tmp_path / 'x.mp4')]) == 2
+    assert 'neither a run folder (trajectory.npz) nor a ROS 2 bag' in capsys.readouterr().err
