@@ -304,8 +304,12 @@ def _cmd_animate(args):
     if out.exists() and not args.force:
         raise ValueError(f'{out} exists: choose another --out, or --force to replace it')
     experiment, t, poses, phase = load_run(args.source, args.experiment)
+    view = None
+    if args.camera:
+        from curve_formation.vision.render import camera_view
+        view = camera_view(experiment, (960, 540))
     frames = animate(out, experiment, t, poses, phase, fps=args.fps,
-                     max_seconds=args.max_seconds)
+                     max_seconds=args.max_seconds, camera_view=view)
     print(f'wrote {out}: {frames} frames of {experiment.name} ({t[-1] - t[0]:.1f} s of run)')
 
 
@@ -584,6 +588,9 @@ def build_parser():
     animate.add_argument('--fps', type=positive, default=15.0, help='frames per second of film')
     animate.add_argument('--max-seconds', type=positive, default=30.0,
                          help='longest film (s): a longer run is played faster')
+    animate.add_argument('--camera', action='store_true',
+                         help="beside the plan, the overhead camera's view (rendered; needs "
+                              "the experiment's camera and arena)")
     _force_option(animate)
     animate.set_defaults(func=_cmd_animate)
     link = sub.add_parser('measure-link', help="each robot's command latency from a recorded "

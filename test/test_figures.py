@@ -192,3 +192,34 @@ def test_animate_takes_a_run_folder_and_refuses_what_is_not_one(tmp_path, capsys
     assert 'frames of open_curve' in capsys.readouterr().out
     assert main(['animate', str(tmp_path), '--out', str(tmp_path / 'x.mp4')]) == 2
     assert 'neither a run folder (trajectory.npz) nor a ROS 2 bag' in capsys.readouterr().err
+
+
+def test_the_film_can_show_the_overhead_cameras_view_and_its_markers_are_found(tmp_path):
+    """`animate --camera`: beside the plan, the overhead camera's frame as fake_camera renders
+    it, in which the tracker's detector finds every robot's marker.
+    """
+    import imageio_ffmpeg
+
+    from curve_formation.cli import main
+    from curve_formation.vision.markers import MarkerLayout
+    from curve_formation.vision.render import camera_view
+    from curve_formation.vision.tracker import MarkerTracker
+    experiment = load_experiment(CONFIG_DIR / 'arena_demo.yaml')
+    sim = simulate(experiment, duration=5.0)
+    frame = camera_view(experiment, (1280, 720))(sim.poses[-1])
+    layout = MarkerLayout.from_spec(experiment.spec.camera)
+    found = MarkerTracker(layout, continuous=False, refinement='contour').detect(frame)
+    assert set(layout.robot_ids) <= set(found), sorted(found)
+    run = tmp_path / 'run'
+    assert main(['sim', 'arena_demo', '--out', str(run)]) in (0, None)
+    sizes = {}
+    for camera in (False, True):
+        film = tmp_path / f'film{camera}.mp4'
+        assert main(['animate', str(run), '--out', str(film), '--fps', '4', '--max-seconds',
+                     '2'] + (['--camera'] if camera else [])) in (0, None)
+        reader = imageio_ffmpeg.read_frames(str(film))
+        sizes[camera] = next(reader)['size']
+        width, height = sizes[camera]
+        last = np.frombuffer(list(reader)[-1], np.uint8).reshape(height, width, 3)
+    assert sizes[True][0] > sizes[False][0] + 300   # a second panel
+    assert last[:, -width // 3:].std() > 20   # the camera's frame, not a blank panel

@@ -35,8 +35,11 @@ def frame_times(t, fps=FPS, max_seconds=30.0):
 
 
 def animate(path, experiment, t, poses, phase, fps=FPS, max_seconds=30.0, dpi=100,
-            title=None):
-    """Write the film to `path` (.mp4 or .gif); returns the number of frames."""
+            title=None, camera_view=None):
+    """Write the film to `path` (.mp4 or .gif); returns the number of frames.
+    camera_view: optional poses (n, 3) -> image (grey or RGB uint8), drawn beside the plan
+    at each frame (e.g. vision.render.camera_view: the overhead camera's frame).
+    """
     path = Path(path)
     if path.suffix not in ('.mp4', '.gif'):
         raise ValueError(f'{path}: the animation is written as .mp4 or .gif')
@@ -48,10 +51,19 @@ def animate(path, experiment, t, poses, phase, fps=FPS, max_seconds=30.0, dpi=10
     n, radius = experiment.n, experiment.radius
     colors = robot_colors(n)
     with plt.rc_context(STYLE):
-        fig, ax = plt.subplots(figsize=(6.4, 5.4), dpi=dpi, layout='constrained')
+        fig = plt.figure(figsize=(6.4, 5.4), dpi=dpi, layout='constrained')
+        ax = fig.add_subplot(1, 2 if camera_view else 1, 1)
         aspect = _frame_axes(ax, experiment, poses, xb)
         # axes about 4.6 in wide, the legend beside them; whole pixels, even (H.264)
         width, height = 6.8, float(np.clip(4.6 * aspect + 0.9, 2.6, 7.0))
+        view = None
+        if camera_view is not None:
+            first = np.asarray(camera_view(poses[rows[0]]))
+            width, height = width + 4.6, max(height, 4.6 * first.shape[0] / first.shape[1] + 0.9)
+            cam_ax = fig.add_subplot(1, 2, 2)
+            view = cam_ax.imshow(first, cmap='gray', vmin=0, vmax=255)
+            cam_ax.set_axis_off()
+            cam_ax.set_title('the overhead camera (rendered)')
         fig.set_size_inches(*(2 * np.round(np.array([width, height]) * dpi / 2) / dpi))
         curve_line, = ax.plot([], [], color='0.15', lw=1.1, ls='--', label='curve')
         target_dots = ax.scatter(targets[0, :, 0], targets[0, :, 1], marker='*', s=60,
@@ -71,6 +83,8 @@ def animate(path, experiment, t, poses, phase, fps=FPS, max_seconds=30.0, dpi=10
         ax.legend(loc='upper left', bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0)
         ax.set_title(title or f'{experiment.name}')
         moving = [curve_line, target_dots, *trails, *bodies, *headings, clock]
+        if view is not None:
+            moving.append(view)
         for artist in moving:          # drawn on a still background, frame by frame
             artist.set_animated(True)
         canvas = fig.canvas
@@ -98,9 +112,11 @@ def animate(path, experiment, t, poses, phase, fps=FPS, max_seconds=30.0, dpi=10
                 headings[i].set_data([x, x + reach * np.cos(theta)],
                                      [y, y + reach * np.sin(theta)])
             clock.set_text(f't = {now:6.1f} s   curve {p.index}   x{speed:.3g} speed')
+            if view is not None:
+                view.set_data(camera_view(poses[r]))
             canvas.restore_region(background)
             for artist in moving:
-                ax.draw_artist(artist)
+                fig.draw_artist(artist)
             return np.asarray(canvas.buffer_rgba())[..., :3].copy()
 
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -309,3 +309,21 @@ def _rotation(tilt_x_deg, tilt_y_deg, spin_deg):
     ry = np.array([[math.cos(ay), 0, math.sin(ay)], [0, 1, 0], [-math.sin(ay), 0, math.cos(ay)]])
     rz = np.array([[math.cos(az), -math.sin(az), 0], [math.sin(az), math.cos(az), 0], [0, 0, 1]])
     return rx @ ry @ rz
+
+
+def camera_view(experiment, resolution=(480, 270), tilt_deg=0.0, distance=2.0):
+    """poses (n, 3) -> the overhead camera's frame (grey, uint8) of the arena with the robots
+    there, as fake_camera renders it (no noise or blur), for a film's camera view. ValueError
+    when the experiment has no camera or arena.
+    """
+    from curve_formation.vision.camera import overhead_camera
+    from curve_formation.vision.markers import MarkerLayout
+    spec = experiment.spec
+    if spec.camera is None or spec.arena is None:
+        raise ValueError(f'{experiment.name}: a camera view needs the `camera` and `arena` '
+                         'sections')
+    arena = spec.arena.size
+    renderer = ArenaRenderer(overhead_camera(arena, tuple(resolution), tilt_deg, distance),
+                             MarkerLayout.from_spec(spec.camera), arena,
+                             RenderOptions(0.0, 0.0, 1.0), robot_radius=spec.robots.radius)
+    return lambda poses: renderer.render({i + 1: tuple(pose) for i, pose in enumerate(poses)})
