@@ -30,7 +30,7 @@ from curve_formation.core.experiment import (
     parse_experiment_text,
     received_phases,
 )
-from curve_formation.outputs import write_outputs
+from curve_formation.outputs import load_run, write_outputs
 from curve_formation.paths import resolve_config
 from curve_formation.streams import stream_topic
 
@@ -203,7 +203,8 @@ def analyze_bag(path, out_dir, experiment_path=None, compare=None, compare_sim=F
                 progress=None, animate=False):
     """The run's folder from a bag (outputs.write_outputs: metrics.json, the paper's figures,
     trajectory.npz, report.html; animation.mp4 if `animate`); `compare` overlays a second
-    bag, `compare_sim` the batch simulator run from the bag's own start (simulate_recorded).
+    run (a bag, or a folder of `sim`, `run` or `analyze`), `compare_sim` the batch simulator
+    run from the bag's own start (simulate_recorded).
     progress: called with a line on what is being done (load_bag_run).
     """
     run = load_bag_run(path, experiment_path, progress=progress)
@@ -218,8 +219,7 @@ def analyze_bag(path, out_dir, experiment_path=None, compare=None, compare_sim=F
     out.mkdir(parents=True, exist_ok=True)
     others = []
     if compare is not None:
-        other = load_bag_run(compare, experiment_path)
-        o_t, o_poses, o_phase, _, _ = known_samples(other, compare)
+        _, o_t, o_poses, o_phase = load_run(compare, experiment_path)   # a bag or a folder
         result['compare'] = metrics.run_metrics(run.experiment, o_t, o_poses, o_phase)
         others.append((Path(compare).name, o_t, o_poses, o_phase))
     if compare_sim:

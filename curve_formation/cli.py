@@ -574,7 +574,8 @@ def build_parser():
     analyze.add_argument('bag', help='bag folder')
     analyze.add_argument('--out', required=True, help='output folder')
     analyze.add_argument('--experiment', help='experiment YAML, if the bag does not carry it')
-    analyze.add_argument('--compare', help='a second bag to overlay (e.g. real vs simulated)')
+    analyze.add_argument('--compare', help='a second run to overlay: a bag, or a folder of sim, '
+                         'run or analyze (e.g. real vs simulated, before vs after)')
     _animate_option(analyze)
     analyze.add_argument('--compare-sim', action='store_true',
                          help="overlay the batch simulator run from the bag's own start and "

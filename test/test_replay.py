@@ -92,9 +92,18 @@ def test_bag_topics_carry_the_types_and_hashes_ros_2_jazzy_announces(recorded, r
 
 def test_compare_overlays_two_runs(recorded, tmp_path):
     folder, _ = recorded
-    result = analyze_bag(folder / 'bag', tmp_path, compare=folder / 'bag')
+    result = analyze_bag(folder / 'bag', tmp_path / 'bags', compare=folder / 'bag')
     assert result['compare']['final_error_norm'] == pytest.approx(result['final_error_norm'])
-    assert (tmp_path / 'compare_error_norm.png').exists()
+    assert (tmp_path / 'bags' / 'compare_error_norm.png').exists()
+    # the real run against a simulated one, from its folder (sim writes trajectory.npz)
+    from curve_formation.cli import main
+    assert main(['sim', str(DATA_DIR / 'fast_closed.yaml'), '--out', str(tmp_path / 'sim'),
+                 '--rate', '10']) in (0, None)
+    result = analyze_bag(folder / 'bag', tmp_path / 'real_vs_sim', compare=tmp_path / 'sim')
+    simulated = json.loads((tmp_path / 'sim' / 'metrics.json').read_text())
+    assert result['compare']['phases'][0]['initial_error_norm'] == pytest.approx(
+        simulated['phases'][0]['initial_error_norm'])
+    assert (tmp_path / 'real_vs_sim' / 'compare_error_norm.png').exists()
 
 
 def test_a_topic_of_a_type_unknown_here_does_not_stop_the_analysis(recorded, tmp_path):
