@@ -14,7 +14,8 @@ import json
 from pathlib import Path
 import shutil
 import tempfile
-import time
+
+from simulation_speed import best_time  # benchmarks/ is the script's folder
 
 from curve_formation.core import metrics
 from curve_formation.core.experiment import load_experiment
@@ -24,15 +25,6 @@ from curve_formation.paths import resolve_config
 
 
 GOAL = 30.0   # s, figures and animation together
-
-
-def timed(work, repeats=3):
-    best = float('inf')
-    for _ in range(repeats):
-        started = time.perf_counter()
-        work()
-        best = min(best, time.perf_counter() - started)
-    return best
 
 
 def main():
@@ -52,11 +44,11 @@ def main():
         write_outputs(folder, experiment, record, result, path)   # warm: fonts, imports
         found = {
             'samples': len(sim.t), 'robots': experiment.n, 'run_seconds': float(sim.t[-1]),
-            'figures_s': timed(lambda: plots.run_figures(folder, experiment, sim.t, sim.poses,
-                                                         sim.phase, sim.dhat, result=result)),
-            'animation_s': timed(lambda: animate(folder / 'animation.mp4', experiment, sim.t,
-                                                 sim.poses, sim.phase)),
-            'report_s': timed(lambda: write_report(folder)),
+            'figures_s': best_time(lambda: plots.run_figures(folder, experiment, sim.t, sim.poses,
+                                                         sim.phase, sim.dhat, result=result), 3),
+            'animation_s': best_time(lambda: animate(folder / 'animation.mp4', experiment, sim.t,
+                                                 sim.poses, sim.phase), 3),
+            'report_s': best_time(lambda: write_report(folder), 3),
             'report_bytes': (folder / 'report.html').stat().st_size,
         }
     finally:

@@ -78,6 +78,16 @@ def _mark_switches(ax, experiment, label=True):
         ax.axvline(p.start, **SWITCH_STYLE, label='curve switch' if label and k == 0 else None)
 
 
+def _time_axes(fig, ax, experiment, ylabel, title, path):
+    """Finish a figure against time: curve switches, labels, the legend; save it."""
+    _mark_switches(ax, experiment)
+    ax.set_xlabel('time t (s)')
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    _legend_outside(ax)
+    return _save(fig, path)
+
+
 def _robot_entries(ax, colors, n):
     if n <= LEGEND_LIMIT:
         return [ax.plot([], [], color=colors[i], lw=1.2, label=f'robot {i + 1}')[0]
@@ -166,12 +176,8 @@ def plot_error_norm(path, experiment, series, tolerance=None, title=None, settle
     for k, (label, when) in enumerate(settled):
         ax.axvline(when, color='tab:green', lw=0.9, ls=('-.', (0, (5, 2)), '-')[k % 3],
                    label=f'{label} settled ({when:.1f} s)')
-    _mark_switches(ax, experiment)
-    ax.set_xlabel('time t (s)')
-    ax.set_ylabel(r'error norm $\|\bar{x}_e\|$ (m)')
-    ax.set_title(title or f'{experiment.name}: formation error')
-    _legend_outside(ax)
-    return _save(fig, path)
+    return _time_axes(fig, ax, experiment, r'error norm $\|\bar{x}_e\|$ (m)',
+                      title or f'{experiment.name}: formation error', path)
 
 
 @_styled
@@ -184,12 +190,8 @@ def plot_orientations(path, experiment, t, poses, title=None):
     for i in range(experiment.n):
         ax.plot(np.asarray(t)[rows], headings[:, i], color=colors[i], lw=0.9)
     _robot_entries(ax, colors, experiment.n)
-    _mark_switches(ax, experiment)
-    ax.set_xlabel('time t (s)')
-    ax.set_ylabel(r'heading $\theta$ (rad)')
-    ax.set_title(title or f'{experiment.name}: orientations')
-    _legend_outside(ax)
-    return _save(fig, path)
+    return _time_axes(fig, ax, experiment, r'heading $\theta$ (rad)',
+                      title or f'{experiment.name}: orientations', path)
 
 
 @_styled
@@ -200,12 +202,8 @@ def plot_lyapunov(path, experiment, t, value, title=None):
     value = np.asarray(value)[rows]
     ax.semilogy(np.asarray(t)[rows], np.where(value > 0, value, np.nan), lw=1.0, color='0.15',
                 label='V')
-    _mark_switches(ax, experiment)
-    ax.set_xlabel('time t (s)')
-    ax.set_ylabel(r'Lyapunov function $V$ (m$^2$)')
-    ax.set_title(title or f'{experiment.name}: Lyapunov function')
-    _legend_outside(ax)
-    return _save(fig, path)
+    return _time_axes(fig, ax, experiment, r'Lyapunov function $V$ (m$^2$)',
+                      title or f'{experiment.name}: Lyapunov function', path)
 
 
 def settle_marks(result):
