@@ -30,7 +30,7 @@ from curve_formation.core.experiment import (
     parse_experiment_text,
     received_phases,
 )
-from curve_formation.outputs import load_run, write_outputs
+from curve_formation.outputs import write_outputs
 from curve_formation.paths import resolve_config
 from curve_formation.streams import stream_topic
 
@@ -348,3 +348,26 @@ def bag_accounting(bag_path, publications_dir, streams, best_effort=()):
         return sum(v['lost'] for v in topics.values() if v['best_effort'] == effort)
     return {'topics': topics, 'lost': lost(False), 'lost_best_effort': lost(True),
             'published': sum(v['published'] for v in topics.values())}
+
+
+def load_run(source, experiment_path=None):
+    """(experiment, t, poses, phase) of a run's folder (trajectory.npz and experiment.yaml, as
+    write_outputs leaves them) or of a bag. experiment_path: the experiment, where the folder
+    or the bag does not carry it. ValueError naming the source when it is neither.
+    """
+    source = Path(source)
+    trajectory = source / 'trajectory.npz'
+    if trajectory.exists():
+        path = (resolve_config(experiment_path) if experiment_path is not None
+                else source / 'experiment.yaml')
+        if not path.exists():
+            raise ValueError(f'{source}: no experiment.yaml beside trajectory.npz; pass '
+                             '--experiment FILE')
+        record = np.load(trajectory)
+        return load_experiment(path), record['t'], record['poses'], record['phase']
+    if (source / 'metadata.yaml').exists() or any(source.glob('*.mcap')) or any(
+            source.glob('*.db3')):
+        run = load_bag_run(source, experiment_path)
+        t, poses, phase, _, _ = known_samples(run, source)
+        return run.experiment, t, poses, phase
+    raise ValueError(f'{source}: neither a run folder (trajectory.npz) nor a ROS 2 bag')

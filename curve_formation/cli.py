@@ -298,8 +298,8 @@ def _cmd_analyze(args):
 
 
 def _cmd_animate(args):
+    from curve_formation.analysis import load_run
     from curve_formation.core.animation import animate
-    from curve_formation.outputs import load_run
     out = Path(args.out)
     if out.exists() and not args.force:
         raise ValueError(f'{out} exists: choose another --out, or --force to replace it')

@@ -69,29 +69,3 @@ def write_law_comparison(out, experiment, duration, runs=()):
     plots.plot_error_norm(Path(out) / LAW_COMPARISON, experiment, series, tolerance,
                           title=f"{experiment.name}: the paper's law and ours, same start")
     return found
-
-
-def load_run(source, experiment_path=None):
-    """(experiment, t, poses, phase) of a run's folder (trajectory.npz and experiment.yaml, as
-    write_outputs leaves them) or of a bag. experiment_path: the experiment, where the folder
-    or the bag does not carry it. ValueError naming the source when it is neither.
-    """
-    from curve_formation.core.experiment import load_experiment
-    from curve_formation.paths import resolve_config
-    source = Path(source)
-    trajectory = source / 'trajectory.npz'
-    if trajectory.exists():
-        path = (resolve_config(experiment_path) if experiment_path is not None
-                else source / 'experiment.yaml')
-        if not path.exists():
-            raise ValueError(f'{source}: no experiment.yaml beside trajectory.npz; pass '
-                             '--experiment FILE')
-        record = np.load(trajectory)
-        return load_experiment(path), record['t'], record['poses'], record['phase']
-    if (source / 'metadata.yaml').exists() or any(source.glob('*.mcap')) or any(
-            source.glob('*.db3')):
-        from curve_formation.analysis import known_samples, load_bag_run
-        run = load_bag_run(source, experiment_path)
-        t, poses, phase, _, _ = known_samples(run, source)
-        return run.experiment, t, poses, phase
-    raise ValueError(f'{source}: neither a run folder (trajectory.npz) nor a ROS 2 bag')
