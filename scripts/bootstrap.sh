@@ -19,10 +19,8 @@ if ! (
     echo "bootstrap: installing dependencies into $VENV (about a minute)" >&2
     "$VENV/bin/python" -m pip install -q --disable-pip-version-check --upgrade pip 2>&1 \
       | grep -v 'is ignored' >&2 || true
-    # --no-compile: Python compiles what is imported on first use; compiling every installed
-    # module here took 30 of the install's 53 s (measured 2026-12-03)
-    "$VENV/bin/python" -m pip install -q --disable-pip-version-check --no-compile \
-      -r "$ROOT/requirements.txt" 2>&1 | grep -v 'is ignored' >&2 || true
+    "$VENV/bin/python" -m pip install -q --disable-pip-version-check -r "$ROOT/requirements.txt" 2>&1 \
+      | grep -v 'is ignored' >&2 || true
     "$VENV/bin/python" -m pip install -q --disable-pip-version-check --no-deps -e "$ROOT" 2>&1 \
       | grep -v 'is ignored' >&2 || true
     "$VENV/bin/python" -c 'import rclpy, numba, curve_formation' \
