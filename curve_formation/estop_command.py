@@ -3,11 +3,13 @@ it reached.
 
 The command sends the e-stop on /formation/estop again every RESEND_PERIOD until every
 expected robot's controller has confirmed it in its own state on /formation/estop_state
-(nodes/estop.py), or `wait` seconds have passed. The robots expected are `expect` (from
---expect or --experiment), else as many as the controllers and the curve server on the domain
-say the formation has. It reports how many confirmed and how fast, names the ones that did not,
-and returns 0 only when all did. Each node holds the state it was given (latched there), so
-the command need not stay up; `hold` keeps it sending every second until Ctrl-C all the same.
+(nodes/estop.py), and every other holder heard there (robot bridges, fake robots or arena,
+the curve server) says the same, or `wait` seconds have passed. The robots expected are
+`expect` (from --expect or --experiment), else as many as the controllers and the curve server
+on the domain say the formation has. It reports how many confirmed and how fast, names the
+ones that did not, and returns 0 only when all did. Each node holds the state it was given
+(latched there), so the command need not stay up; `hold` keeps it sending every second until
+Ctrl-C all the same.
 """
 
 from dataclasses import dataclass, field
@@ -53,8 +55,16 @@ class Tally:
         expected = self.expected()
         return None if expected is None else [r for r in expected if r not in self.confirmed]
 
+    def others_missing(self):
+        """The other holders heard (robot bridges, fake robots or arena, the curve server)
+        whose last state is not the wanted one: a release that reached every controller but
+        not the arena's robots leaves them stopped.
+        """
+        return sorted(holder for holder, report in self.reports.items()
+                      if report.role != CONTROLLER and report.engaged != self.engage)
+
     def done(self):
-        return self.missing() == []
+        return self.missing() == [] and not self.others_missing()
 
 
 def send_estop(engage, expect=None, wait=10.0, hold=False, log=None):
@@ -124,12 +134,14 @@ def _report(tally, word, wait, log):
     missing = tally.missing()
     confirmed = [r for r in expected if r not in missing]
     slowest = max((tally.confirmed[r] for r in confirmed), default=0.0)
-    if not missing:
+    others = tally.others_missing()
+    if not missing and not others:
         log(f'e-stop {word}: {len(confirmed)} of {len(expected)} robots {done} within '
             f'{slowest:.2f} s{held}', True)
         return 0
     log(f'error: e-stop {word}: {len(confirmed)} of {len(expected)} robots confirmed '
-        f'{done} within {wait:g} s; no confirmation from {", ".join(missing)}{held}', False)
+        f'{done} within {wait:g} s; no confirmation from {", ".join(missing + others)}{held}',
+        False)
     return 1
 
 

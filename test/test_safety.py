@@ -471,3 +471,27 @@ def test_estop_cli_stops_all_nine_robots_at_once_holds_them_and_releases(ros_dom
     (bag_start, bag_stop), = bagged['estop']['intervals']
     assert abs(bag_start - start) < 0.2 and abs(bag_stop - stop) < 0.2, bagged['estop']
     assert bagged['phases'][0]['settled'] and bagged['phases'][0]['settle_time'] >= released
+
+
+def test_a_release_is_done_only_when_the_nodes_that_move_the_robots_have_it_too():
+    """`estop off` reached every controller but not the fake arena once (the arena's robots
+    stayed stopped while the command said all were released): the command waits for every
+    holder it has heard, and names one that did not confirm.
+    """
+    from curve_formation.core.estop import EstopReport
+    from curve_formation.estop_command import _report, Tally
+
+    tally = Tally(engage=False, expect=2)
+    for robot in ('robot_1', 'robot_2'):
+        tally.add(EstopReport(f'/{robot}/formation_controller', 'formation_controller', robot,
+                              False, '/formation_estop', 1.0, 2), 0.05)
+    tally.add(EstopReport('/fake_arena', 'fake_arena', '', True, '/formation_estop', 0.0, 2),
+              0.06)
+    assert tally.missing() == [] and tally.others_missing() == ['/fake_arena']
+    assert not tally.done()
+    said = []
+    assert _report(tally, 'off', 4.0, lambda text, ok: said.append((text, ok))) == 1
+    assert 'no confirmation from /fake_arena' in said[0][0] and said[0][1] is False
+    tally.add(EstopReport('/fake_arena', 'fake_arena', '', False, '/formation_estop', 1.0, 2),
+              0.9)
+    assert tally.done()
