@@ -26,8 +26,7 @@ def write_outputs(out, experiment, record, result, experiment_path=None, label='
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    described_result = described(result, experiment_path)
-    (out / 'metrics.json').write_text(metrics.strict_json(described_result))
+    described_result = write_metrics(out, result, experiment_path)
     t, poses, phase = record['t'], record['poses'], record['phase']
     plots.run_figures(out, experiment, t, poses, phase, record.get('dhat'), label=label,
                       result=result)
@@ -43,6 +42,13 @@ def write_outputs(out, experiment, record, result, experiment_path=None, label='
     return described_result
 
 
+def write_metrics(out, result, experiment_path=None):
+    """metrics.json in `out`: the result with its units and provenance, which it returns."""
+    described_result = described(result, experiment_path)
+    (Path(out) / 'metrics.json').write_text(metrics.strict_json(described_result))
+    return described_result
+
+
 LAW_COMPARISON = 'law_comparison.png'
 
 
@@ -55,7 +61,6 @@ def write_law_comparison(out, experiment, duration, runs=()):
     import dataclasses
 
     from curve_formation.core.simulator import simulate
-    tolerance = experiment.spec.metrics.tolerance * experiment.phases[0].curve.size()
     paper = dataclasses.replace(experiment.gains, law='paper', sampled_heading=False)
     series, found = [], {}
     for key, label, gains in (('paper', "paper's law (simulated)", paper),
@@ -66,6 +71,7 @@ def write_law_comparison(out, experiment, duration, runs=()):
     for label, t, poses, phase in runs:
         errors = metrics.target_errors(poses, phase, experiment, t=t)
         series.append((label, t, metrics.error_norm(errors)))
-    plots.plot_error_norm(Path(out) / LAW_COMPARISON, experiment, series, tolerance,
+    plots.plot_error_norm(Path(out) / LAW_COMPARISON, experiment, series,
+                          experiment.tolerance(),
                           title=f"{experiment.name}: the paper's law and ours, same start")
     return found

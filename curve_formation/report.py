@@ -146,20 +146,23 @@ def _provenance(provenance):
     return f'<table>{rows}</table>'
 
 
+def _data_url(path, mime):
+    """The file as a data: URL (the page fetches nothing)."""
+    return f'data:{mime};base64,' + base64.b64encode(path.read_bytes()).decode('ascii')
+
+
 def _figure(path, caption):
-    data = base64.b64encode(path.read_bytes()).decode('ascii')
     pdf = path.with_suffix('.pdf')
     also = f' (vector: {pdf.name} beside this page)' if pdf.exists() else ''
-    return (f'<figure><img src="data:image/png;base64,{data}" alt="{_e(path.stem)}">'
+    return (f'<figure><img src="{_data_url(path, "image/png")}" alt="{_e(path.stem)}">'
             f'<figcaption>{_e(path.name)}: {_e(caption)}{_e(also)}</figcaption></figure>')
 
 
 def _film(path):
-    data = base64.b64encode(path.read_bytes()).decode('ascii')
     if path.suffix == '.gif':
-        return f'<img class="film" src="data:image/gif;base64,{data}" alt="animation">'
+        return f'<img class="film" src="{_data_url(path, "image/gif")}" alt="animation">'
     return (f'<video controls muted loop playsinline preload="auto" '
-            f'src="data:video/mp4;base64,{data}"></video>')
+            f'src="{_data_url(path, "video/mp4")}"></video>')
 
 
 def _number(value):

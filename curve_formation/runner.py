@@ -29,9 +29,9 @@ from curve_formation.node_graph import NodeGraph
 from curve_formation.nodes.runtime import now_seconds
 from curve_formation.nodes.topics import CURVE, DIAGNOSTICS
 from curve_formation.observers import Observers
-from curve_formation.outputs import write_outputs
+from curve_formation.outputs import write_metrics, write_outputs
 from curve_formation.paths import discovery_text, resolve_config, ros_environment
-from curve_formation.provenance import described, provenance_text
+from curve_formation.provenance import provenance_text
 from curve_formation.report import write_report
 from curve_formation.run_options import DEFAULTS
 from curve_formation.start_scripts import write_node_files
@@ -299,7 +299,7 @@ class Run:
                                        t=np.array([t]),
                                        stamps=(monitor.pose_stamps - monitor.t0)[None])[0]
         norm = float(metrics.error_norm(errors[None])[0])
-        tolerance = self.experiment.spec.metrics.tolerance * phases[k].curve.size()
+        tolerance = followed.tolerance(k)
         worst = np.nanmax(np.linalg.norm(errors, axis=1)) if np.isfinite(errors).any() \
             else math.nan
         n = self.experiment.n
@@ -455,8 +455,7 @@ def run_experiment(config, out_dir, duration=None, options=DEFAULTS, log=print):
     if options.bag_path is not None:
         result['bag'] = {'path': str(options.bag_path), 'messages': run.bag_writer.count,
                          **run.bag_accounting()}
-    (run.out / 'metrics.json').write_text(
-        metrics.strict_json(described(result, run.experiment_path)))
+    write_metrics(run.out, result, run.experiment_path)
     write_report(run.out)   # with what was added since write_results
     if failure is not None:
         raise failure

@@ -14,12 +14,12 @@ import matplotlib
 
 matplotlib.use('Agg')
 from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: E402
-from matplotlib.patches import Circle, Rectangle  # noqa: E402
+from matplotlib.patches import Circle  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from curve_formation.core import metrics  # noqa: E402
-from curve_formation.core.plots import robot_colors, STYLE  # noqa: E402
+from curve_formation.core.plots import draw_arena, robot_colors, STYLE  # noqa: E402
 
 
 FPS = 15
@@ -58,10 +58,10 @@ def animate(path, experiment, t, poses, phase, fps=FPS, max_seconds=30.0, dpi=10
         width, height = 6.8, float(np.clip(4.6 * aspect + 0.9, 2.6, 7.0))
         view = None
         if camera_view is not None:
-            first = np.asarray(camera_view(poses[rows[0]]))
-            width, height = width + 4.6, max(height, 4.6 * first.shape[0] / first.shape[1] + 0.9)
+            frame = np.asarray(camera_view(poses[rows[0]]))
+            width, height = width + 4.6, max(height, 4.6 * frame.shape[0] / frame.shape[1] + 0.9)
             cam_ax = fig.add_subplot(1, 2, 2)
-            view = cam_ax.imshow(first, cmap='gray', vmin=0, vmax=255)
+            view = cam_ax.imshow(frame, cmap='gray', vmin=0, vmax=255)
             cam_ax.set_axis_off()
             cam_ax.set_title('the overhead camera (rendered)')
         fig.set_size_inches(*(2 * np.round(np.array([width, height]) * dpi / 2) / dpi))
@@ -71,6 +71,7 @@ def animate(path, experiment, t, poses, phase, fps=FPS, max_seconds=30.0, dpi=10
                                  label='targets')
         trails = [ax.plot([], [], color=colors[i], lw=0.8, alpha=0.8)[0] for i in range(n)]
         size = radius if radius > 0 else 0.015 * _span(ax)
+        reach = 1.4 * max(size, 1e-9)   # the heading's line (m)
         bodies = [Circle((0, 0), size, fill=radius > 0, color=colors[i], lw=1.2, zorder=4)
                   for i in range(n)]
         for body in bodies:
@@ -92,23 +93,21 @@ def animate(path, experiment, t, poses, phase, fps=FPS, max_seconds=30.0, dpi=10
         canvas.draw()
         fig.set_layout_engine('none')   # laid out once
         background = canvas.copy_from_bbox(fig.bbox)
-        shown: list[tuple[int, int | None] | None] = [None]
+        drawn_curve = [None]   # the phase whose curve is drawn (a moving one: every frame)
 
         def draw(k):
             r, now = rows[k], times[k]
             p = experiment.phases[int(phase[r])]
-            if shown[0] != (p.index, None if p.motion is None else k):
-                _, pts = p.curve_at(float(now)).sample(CURVE_SAMPLES)
-                pts = np.vstack([pts, pts[:1]]) if p.curve.basis.closed else pts
-                curve_line.set_data(pts[:, 0], pts[:, 1])
-                shown[0] = (p.index, None if p.motion is None else k)
+            if drawn_curve[0] != p.index or p.motion is not None:
+                line = p.curve_at(float(now)).outline(CURVE_SAMPLES)
+                curve_line.set_data(line[:, 0], line[:, 1])
+                drawn_curve[0] = p.index
             target_dots.set_offsets(targets[k])
             first = max(0, np.searchsorted(t, now - TRAIL))
             for i in range(n):
                 x, y, theta = poses[r, i]
                 trails[i].set_data(xb[first:r + 1, i, 0], xb[first:r + 1, i, 1])
                 bodies[i].center = (x, y)
-                reach = max(size, 1e-9) * 1.4
                 headings[i].set_data([x, x + reach * np.cos(theta)],
                                      [y, y + reach * np.sin(theta)])
             clock.set_text(f't = {now:6.1f} s   curve {p.index}   x{speed:.3g} speed')
@@ -155,9 +154,8 @@ def _frame_axes(ax, experiment, poses, xb):
     returns their height over their width.
     """
     arena = experiment.spec.arena
+    draw_arena(ax, arena)
     if arena is not None:
-        ax.add_patch(Rectangle((0.0, 0.0), *arena.size, fill=False, lw=1.5, color='0.2',
-                               label='arena walls'))
         points = np.array([[0.0, 0.0], arena.size])
     else:
         curves = [p.curve.sample(CURVE_SAMPLES)[1] for p in experiment.phases]

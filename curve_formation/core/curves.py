@@ -193,6 +193,13 @@ class Curve:
         return (self.basis.describe() == other.basis.describe()
                 and np.allclose(self.xi, other.xi, rtol=0.0, atol=atol))
 
+    def outline(self, count: int = 400) -> FloatArray:
+        """(count or count + 1, 2) points to draw the curve through: `sample`'s, a closed
+        curve's first point repeated last so that the line closes (m).
+        """
+        _, pts = self.sample(count)
+        return np.vstack([pts, pts[:1]]) if self.basis.closed else pts
+
     def sample(self, count: int = 400) -> tuple[FloatArray, FloatArray]:
         """count points evenly spaced in s (closed curves exclude s = 1): (s, points)."""
         s = np.linspace(0.0, 1.0, count, endpoint=not self.basis.closed)

@@ -110,6 +110,10 @@ class Experiment:
     def n(self) -> int:
         return self.graph.n
 
+    def tolerance(self, k: int = 0) -> float:
+        """Phase k's settling tolerance (m): metrics.tolerance times its curve's size."""
+        return self.spec.metrics.tolerance * self.phases[k].curve.size()
+
     @property
     def name(self) -> str:
         return self.spec.name

@@ -64,18 +64,34 @@ def _figure(width=6.5, height=3.2):
     return fig, ax
 
 
-def _legend_outside(ax, **kwargs):
+def _legend_outside(ax):
     """The legend right of the axes, never over the data."""
     handles, labels = ax.get_legend_handles_labels()
     if handles:
         ax.legend(handles, labels, loc='upper left', bbox_to_anchor=(1.02, 1.0),
-                  borderaxespad=0.0, fontsize=STYLE['legend.fontsize'], **kwargs)
+                  borderaxespad=0.0, fontsize=STYLE['legend.fontsize'])
 
 
-def _mark_switches(ax, experiment, label=True):
+def _mark_switches(ax, experiment):
     """A dotted line at each curve switch."""
     for k, p in enumerate(experiment.phases[1:]):
-        ax.axvline(p.start, **SWITCH_STYLE, label='curve switch' if label and k == 0 else None)
+        ax.axvline(p.start, **SWITCH_STYLE, label='curve switch' if k == 0 else None)
+
+
+def draw_arena(ax, arena):
+    """The arena's walls (ArenaSpec, or None for none), to scale in the arena frame (m)."""
+    if arena is not None:
+        ax.add_patch(Rectangle((0.0, 0.0), *arena.size, fill=False, lw=1.5, color='0.2',
+                               label='arena walls'))
+
+
+def _semilogy(ax, t, values, **style):
+    """values against t on a log axis, through thin(len(t)) samples; values <= 0 (an exact
+    formation) left out rather than clamped.
+    """
+    rows = thin(len(t))
+    shown = np.asarray(values)[rows]
+    ax.semilogy(np.asarray(t)[rows], np.where(shown > 0, shown, np.nan), lw=1.0, **style)
 
 
 def _time_axes(fig, ax, experiment, ylabel, title, path):
@@ -89,10 +105,14 @@ def _time_axes(fig, ax, experiment, ylabel, title, path):
 
 
 def _robot_entries(ax, colors, n):
-    if n <= LEGEND_LIMIT:
-        return [ax.plot([], [], color=colors[i], lw=1.2, label=f'robot {i + 1}')[0]
-                for i in range(n)]
-    return [ax.plot([], [], color=colors[n // 2], lw=1.2, label=f'robots 1-{n}')[0]]
+    """Legend entries naming each robot in its colour (one entry for them all past
+    LEGEND_LIMIT).
+    """
+    if n > LEGEND_LIMIT:
+        ax.plot([], [], color=colors[n // 2], lw=1.2, label=f'robots 1-{n}')
+        return
+    for i in range(n):
+        ax.plot([], [], color=colors[i], lw=1.2, label=f'robot {i + 1}')
 
 
 @_styled
@@ -115,13 +135,10 @@ def plot_paths(path, experiment, poses, phase, title=None, overlay=None):
                + (arena is not None) + (overlay is not None))
     # axes about 4.3 in wide; tall enough for the legend beside them
     fig, ax = _figure(6.5, max(4.3 * aspect + 1.0, 0.19 * entries + 0.7))
-    if arena is not None:
-        ax.add_patch(Rectangle((0.0, 0.0), *arena.size, fill=False, lw=1.5, color='0.2',
-                               label='arena walls'))
+    draw_arena(ax, arena)
     for k, p in enumerate(experiment.phases):
-        _, pts = p.curve.sample(600)
-        closed = np.vstack([pts, pts[:1]]) if p.curve.basis.closed else pts
-        ax.plot(closed[:, 0], closed[:, 1], color='0.15', lw=1.1,
+        line = p.curve.outline(600)
+        ax.plot(line[:, 0], line[:, 1], color='0.15', lw=1.1,
                 ls=('--', '-.', ':')[k % 3], label=f'curve {p.index} (from {p.start:g} s)')
         ax.plot(p.targets[:, 0], p.targets[:, 1], '*', color='0.15', ms=7, ls='none',
                 label='targets' if k == len(experiment.phases) - 1 else None)
@@ -168,9 +185,7 @@ def plot_error_norm(path, experiment, series, tolerance=None, title=None, settle
     """
     fig, ax = _figure()
     for label, t, norm in series:
-        rows = thin(len(t))
-        norm = np.asarray(norm)[rows]
-        ax.semilogy(np.asarray(t)[rows], np.where(norm > 0, norm, np.nan), lw=1.0, label=label)
+        _semilogy(ax, t, norm, label=label)
     if tolerance is not None:
         ax.axhline(tolerance, **TOLERANCE_STYLE, label=f'tolerance ({tolerance:.2g} m)')
     for k, (label, when) in enumerate(settled):
@@ -198,10 +213,7 @@ def plot_orientations(path, experiment, t, poses, title=None):
 def plot_lyapunov(path, experiment, t, value, title=None):
     """The law's Lyapunov function V (m^2) against time (s), log scale."""
     fig, ax = _figure()
-    rows = thin(len(t))
-    value = np.asarray(value)[rows]
-    ax.semilogy(np.asarray(t)[rows], np.where(value > 0, value, np.nan), lw=1.0, color='0.15',
-                label='V')
+    _semilogy(ax, t, value, color='0.15', label='V')
     return _time_axes(fig, ax, experiment, r'Lyapunov function $V$ (m$^2$)',
                       title or f'{experiment.name}: Lyapunov function', path)
 
@@ -221,9 +233,9 @@ def run_figures(out_dir, experiment, t, poses, phase, dhat=None, label='run', re
     out = Path(out_dir)
     errors = metrics.target_errors(poses, phase, experiment, t=t)
     norm = metrics.error_norm(errors)
-    tol = experiment.spec.metrics.tolerance * experiment.phases[0].curve.size()
     written = [plot_paths(out / 'paths.png', experiment, poses, phase),
-               plot_error_norm(out / 'error_norm.png', experiment, [(label, t, norm)], tol,
+               plot_error_norm(out / 'error_norm.png', experiment, [(label, t, norm)],
+                               experiment.tolerance(),
                                settled=settle_marks(result)),
                plot_orientations(out / 'orientations.png', experiment, t, poses)]
     if dhat is not None:

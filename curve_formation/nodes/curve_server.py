@@ -292,9 +292,7 @@ class CurveServer(Node):
         self.current = (curve, curve_id, s, rate, clock or self._curve_clock(now_seconds(self)))
         self._send_current()
         stamp = self.get_clock().now().to_msg()
-        _, pts = curve.sample(self.params.path_samples)
-        if curve.basis.closed:
-            pts = np.vstack([pts, pts[:1]])
+        pts = curve.outline(self.params.path_samples)
         path = Path()
         path.header.stamp, path.header.frame_id = stamp, self.params.frame_id
         for x, y in pts:
