@@ -1,7 +1,7 @@
 """The formation over a link with latency, jitter and loss, the latency untold, told or
 estimated online, from random starts.
 
-Run: scripts/bench link            (20 random starts of each arena file; ~12 min)
+Run: scripts/bench link            (20 random starts of each arena file; ~15 min)
      scripts/bench link --seeds 3  (a quick look)
 
 Each start runs the nodes' tick pipeline (core.pipeline: unsynchronised controllers, 30 Hz
@@ -11,10 +11,10 @@ poses, the paper's unicycles, bodies and avoidance as the file says) over core.p
   told (command_latency 0);
 - estimated: the same link, each controller estimating its latency online
   (controller.estimate_latency, core.link_estimate.OnlineLatency), starting from 0;
-- told 250: commands 250 ms late, the controllers told (the most controller.command_latency
-  takes; the issue asks for 300 ms).
+- told 300: commands 300 ms late, the controllers told;
+- estimated 300: the same link, each controller estimating it online from 0.
 Goals (issue #41): untold/estimated within 1.3x of none, every phase settled, no contact;
-told up to 300 ms within 1.5x; the online estimate within 20 ms of the truth.
+told or estimated up to 300 ms within 1.5x; the online estimate within 20 ms of the truth.
 Prints, per case, settled starts, the slowest settling against none, contacts and (estimated)
 the latency each controller ended with; JSON to --out (default out/bench/link).
 """
@@ -42,9 +42,12 @@ CASES = {
     'untold': (Link(command_latency=0.1, command_jitter=0.03, command_loss=0.1), {}),
     'estimated': (Link(command_latency=0.1, command_jitter=0.03, command_loss=0.1),
                   {'estimate_latency': True}),
-    'told 250': (Link(command_latency=0.25), {'command_latency': 0.25, 'predict_pose': True}),
+    'told 300': (Link(command_latency=0.3), {'command_latency': 0.3, 'predict_pose': True}),
+    'estimated 300': (Link(command_latency=0.3), {'estimate_latency': True,
+                                                  'predict_pose': True}),
 }
-GOALS = {'untold': 1.3, 'estimated': 1.3, 'told 250': 1.5}
+GOALS = {'untold': 1.3, 'estimated': 1.3, 'told 300': 1.5, 'estimated 300': 1.5}
+TRUTH = {'estimated': 'truth 100 +- 30 ms, 10 % lost', 'estimated 300': 'truth 300 ms'}
 
 
 def experiment(name, seed, controller):
@@ -95,10 +98,13 @@ def main():
                     f'{GOALS[case]}x); largest final error '
                     f'{max(max(r["final_mm"]) for r in runs):.3f} mm; contacts '
                     f'{sum(r["contacts"] for r in runs):g}')
-            if case == 'estimated':
+            if case in TRUTH:
                 ends = np.array([r['latencies'] for r in runs]).ravel()
+                truth = CASES[case][0].command_latency
+                near = np.mean(np.abs(ends - truth) <= 0.02)
                 line += (f'; latencies estimated {1000 * ends.min():.0f}-'
-                         f'{1000 * ends.max():.0f} ms (truth 100 +- 30 ms, 10 % lost)')
+                         f'{1000 * ends.max():.0f} ms, {100 * near:.0f} % within 20 ms '
+                         f'({TRUTH[case]})')
             print(line, flush=True)
 
 

@@ -70,6 +70,8 @@ NO_OTHERS = np.zeros((0, 3))
 # Longest a pose is carried forward (s): a camera pipeline's latency is well below it, a
 # stamp older than it says the clocks disagree (predict_pose).
 MAX_PREDICTION = 0.25
+# How far back (s) the other robots' poses are kept to measure their velocities (others_ahead)
+OTHERS_KEPT = 0.2
 
 
 def agent_configs(experiment: 'Experiment', rate_hz: float) -> list['AgentConfig']:
@@ -180,8 +182,7 @@ class AgentConfig:
     @cached_property
     def law(self) -> Law:
         """The control.Law of this agent's ticks (built once: the settings are frozen)."""
-        return self.gains.tick_law(self.rate_hz, on_pc=any(self.pc_disturbance),
-                                   command_latency=self.command_latency)
+        return self.gains.tick_law(self.rate_hz, on_pc=any(self.pc_disturbance))
 
 
 @dataclass
@@ -230,6 +231,7 @@ class Sent(NamedTuple):
     shift: Command
     limited: bool
     driven: bool
+    estimate: int = 0   # the observer's updates made before it (AgentController.updates)
 
 
 @dataclass
@@ -323,6 +325,9 @@ class AgentController:
         self.box = plausible_box(self.config.geofence)   # where a measured pose may lie (m)
         self.others: FloatArray = NO_OTHERS   # every robot's pose (n, 3), for the safety filter
         self.others_received: float | None = None
+        # (when taken (s, this controller's clock), poses (n, 3)) of the last OTHERS_KEPT s:
+        # the others' velocities, to carry them to when a late command acts (others_ahead)
+        self.others_seen: deque[tuple[float, FloatArray]] = deque()
         self.filtered = 0           # ticks whose command the safety filter changed
         # when the newest news of the leader was made, our clock
         self.leader_heard: float | None = None
@@ -360,6 +365,10 @@ class AgentController:
         # observer_order 2: how fast the estimate changes (per s)
         self.dhat_rate: tuple[float, float] = (0.0, 0.0)
         self.tracking = 0   # observer updates since the wheel limits last cut a command
+        # the observer's updates so far, and when the last one's motion ended (s, this
+        # controller's clock; None: none since the robot last stopped)
+        self.updates = 0
+        self.observed_until: float | None = None
 
     def set_curve(self, curve: Curve, curve_id: int,
                   s_all: Sequence[float] | FloatArray | None, rate: Curve | None = None,
@@ -481,10 +490,37 @@ class AgentController:
             self.rejected += 1
             return False
         # A robot not seen now keeps its last known pose: unseen, its controller stops it.
+        seen = np.isfinite(given)
         if self.others is not NO_OTHERS:
-            given = np.where(np.isfinite(given), given, self.others)
+            given = np.where(seen, given, self.others)
         self.others, self.others_received = given, at
+        taken = self._taken_at(stamp, at)
+        kept = self.others_seen
+        if kept and taken <= kept[-1][0]:
+            kept.clear()   # a pose older than the last: start again
+        kept.append((taken, np.where(seen, given, np.nan)))
+        while taken - kept[0][0] > OTHERS_KEPT:
+            kept.popleft()
         return True
+
+    def others_ahead(self, at: float) -> FloatArray:
+        """Every robot's pose (n, 3) carried from when it was taken to `at` (s, this
+        controller's clock) at its velocity over the last OTHERS_KEPT s (no faster than
+        the wheel limit; zero for a robot not seen at both ends), for the safety filter
+        when commands act a latency after they leave.
+        """
+        kept = self.others_seen
+        if len(kept) < 2 or kept[-1][0] - kept[0][0] <= 0.0:
+            return self.others
+        (start, first), (end, last) = kept[0], kept[-1]
+        velocity = np.nan_to_num((last[:, :2] - first[:, :2]) / (end - start))
+        top = self.config.limits.max_wheel_speed
+        if 0.0 < top < math.inf:
+            speed = np.linalg.norm(velocity, axis=1, keepdims=True)
+            velocity *= np.minimum(1.0, top / np.maximum(speed, 1e-12))
+        ahead = self.others.copy()
+        ahead[:, :2] += velocity * min(max(at - end, 0.0), MAX_PREDICTION + self.latency)
+        return ahead
 
     def reject(self, why: str) -> bool:
         """Count a rejected input and keep why; False (what the on_* methods return)."""
@@ -552,7 +588,7 @@ class AgentController:
             self.latency = self.link.update(now)
         tick = self._tick(now)
         self.sent.append(Sent(now, tick.v, tick.w, self.reference, self.shift, self.limited,
-                              tick.stopped is None and not self.idle))
+                              tick.stopped is None and not self.idle, self.updates))
         if self.link is not None:
             self.link.sent(now, tick.v, tick.w)
         return tick
@@ -655,7 +691,8 @@ class AgentController:
             dhat_w += self.dhat_rate[1] * ahead_by
         v, w, ref_v, ref_w, ddv, ddw, code, shift_v, shift_w, limited = self.command(
             fx, fy, *ahead, ex, ey, *pose, dhat_v, dhat_w, *self.last_command,
-            *self.pc_disturbance, steered_law(law, self.front), cfg.limits, self.others,
+            *self.pc_disturbance, steered_law(law, self.front), cfg.limits,
+            self.others_ahead(aim) if cfg.predict_pose and self.latency > 0.0 else self.others,
             cfg.index - 1, cfg.avoidance)
         if law.code != OBSERVER:
             self.dhat[0] += law.period * ddv
@@ -708,26 +745,36 @@ class AgentController:
         """Observer law: move dhat towards (motion measured since the last tick - command) / k2.
 
         The motion is the constant (v, w) that carries the previous tick's pose to the current
-        one over the difference of their stamps; the command is the one acting on the robot
-        from the previous tick on (sent then, or a command latency before), or with a motor
-        time constant what the commands realised over that motion (_realised); nothing is
-        learnt while the motors were off. The motion's part before the safety filter (the motion
+        one over the difference of their stamps; the command is the one sent at the previous
+        tick, or with a command latency or a motor time constant what the commands realised
+        over that motion (_realised); nothing is learnt while the motors were off. With a
+        command latency the observer waits for a motion made wholly under commands sent after
+        its last update (their `estimate`), and blends over the time since that update: no
+        delay enters the estimate's loop (docs/control-laws.md). The motion's part before the safety filter (the motion
         minus what the filter changed) is scaled along its ray when saturated
         (control.ray_growth); without a newer pose nothing is updated.
         """
-        if self.anchor is None or self.pose is None or self.pose_stamp is None:
+        if (self.anchor is None or self.pose is None or self.pose_stamp is None
+                or self.pose_received is None):
             return
         (x0, y0, th0), stamp0, ticked = self.anchor
         elapsed = self.pose_stamp - stamp0
         if elapsed <= 0.0:
             return
-        if self.config.motor_time_constant > 0.0:
+        waits = self.latency > 0.0
+        if self.config.motor_time_constant > 0.0 or waits:
             acting = self._realised(elapsed)
         else:
             acting = self._acting(ticked)
         if acting is None or not acting.driven:
             return
+        if waits and acting.estimate < self.updates:
+            return   # the motion does not answer the current estimate yet
         measured_v, measured_w = body_velocity(x0, y0, th0, *self.pose, elapsed)
+        ended = self._taken_at(self.pose_stamp, self.pose_received)
+        if waits and self.observed_until is not None:   # blended over the time since the last
+            elapsed = max(elapsed, ended - self.observed_until)
+        self.observed_until = ended
         blend = 1.0 - math.exp(-self.config.gains.observer_rate * elapsed)
         second = self.config.observer_order == 2
         rate_v, rate_w = self.dhat_rate
@@ -743,6 +790,7 @@ class AgentController:
             self.tracking = 0 if searching else self.tracking + 1
         self.dhat[:] = (dhat_v, dhat_w)
         self.ray = (ray[0], ray[1], ray[2])
+        self.updates += 1
 
     def _realised(self, elapsed: float) -> Sent | None:
         """What the wheels did on average over the `elapsed` s up to the current pose: the
@@ -758,15 +806,14 @@ class AgentController:
         assert self.pose_stamp is not None and self.pose_received is not None
         cfg = self.config
         tau, delay = cfg.motor_time_constant, self.latency
-        age = self.pose_received - self.pose_stamp
-        end = self.pose_stamp if 0.0 <= age <= MAX_PREDICTION else self.pose_received
+        end = self._taken_at(self.pose_stamp, self.pose_received)
         begin = end - elapsed
         sent = list(self.sent)
         if not sent or sent[0].at + delay > begin:
             return None
         lag = np.array([*sent[0].reference, *sent[0].shift])   # the wheels' state
         total = np.zeros(4)
-        limited, driven = False, True
+        limited, driven, estimate = False, True, self.updates
         for k, command in enumerate(sent):
             start = command.at + delay
             if start >= end:
@@ -774,8 +821,15 @@ class AgentController:
             stop = min(sent[k + 1].at + delay, end) if k + 1 < len(sent) else end
             target = np.array([*command.reference, *command.shift])
             before = min(max(begin, start), stop)   # the part before the interval
-            lag = target + (lag - target) * math.exp(-(before - start) / tau)
             span = stop - before
+            if tau <= 0.0:   # no lag: each command for the time it acts
+                total += target * max(span, 0.0)
+                if span > 0.0:
+                    limited = limited or command.limited
+                    driven = driven and command.driven
+                    estimate = min(estimate, command.estimate)
+                continue
+            lag = target + (lag - target) * math.exp(-(before - start) / tau)
             if span <= 0.0:
                 continue
             decay = math.exp(-span / tau)
@@ -783,13 +837,15 @@ class AgentController:
             lag = target + (lag - target) * decay
             limited = limited or command.limited
             driven = driven and command.driven
+            estimate = min(estimate, command.estimate)
         mean = total / elapsed
         return Sent(end, 0.0, 0.0, (float(mean[0]), float(mean[1])),
-                    (float(mean[2]), float(mean[3])), limited, driven)
+                    (float(mean[2]), float(mean[3])), limited, driven, estimate)
 
     def _stop(self, reason: str, base: Tick | None = None) -> Tick:
         tick = base or Tick()
         self.anchor = None
+        self.observed_until = None
         self.reference = self.shift = (0.0, 0.0)
         self.limited = False
         self.ray = (1.0, 0.0, 0.0)

@@ -122,7 +122,7 @@ class ControllerSpec(Strict):
         'along that direction, its step doubling each tick up to this factor '
         '(control.ray_growth; needs limits.wheel_base and max_wheel_speed); 1 = off')
     estimate_latency: bool = Field(
-        False, description='estimate command_latency online, every 2 s from the last 6 s of '
+        False, description='estimate command_latency online, every 1 s from the last 6 s of '
         'commands and poses (core.link_estimate), starting from command_latency; a new value '
         'is taken when 3 estimates in a row agree within 20 ms; in the nodes and their tick '
         'pipeline')
@@ -142,11 +142,11 @@ class ControllerSpec(Strict):
         '(capture time) to the tick, through the commands sent since, so a pose that is '
         '80 ms old does not make an 80 ms old command (PCs with synchronised clocks)')
     command_latency: float = Field(
-        0.0, ge=0, le=0.25, allow_inf_nan=False, description="ROS controllers: the delay (s) "
+        0.0, ge=0, le=0.5, allow_inf_nan=False, description="ROS controllers: the delay (s) "
         "from a command leaving the PC to the robot's wheels (the link's, e.g. Wi-Fi and the "
-        'bridge): with predict_pose the pose is carried forward to when the command acts, '
-        'the observer compares the motion with the command acting on it, and its search '
-        '(observer_growth) waits for the motion to answer')
+        'bridge): with predict_pose the pose (and the other robots, for the safety filter) is '
+        'carried forward to when the command acts; the observer compares each motion with '
+        'the commands acting over it and waits for the motion that answers its estimate')
     feed_forward: bool = Field(
         True, description="a moving curve's velocity at each target, G(s_i) xi-dot, is added "
         'to the command, so the formation keeps up instead of lagging (curves[].motion)')

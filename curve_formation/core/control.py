@@ -38,10 +38,12 @@ FEEDBACK_HEADROOM = 0.98
 # command at FEEDBACK_HEADROOM only a few % past them (mona_arena seed 3 through the fake
 # camera: with any cut counted, 43.3 s against 22.2 s simulated). Two clipped motions lie
 # along one ray when their wheel speeds point within acos(RAY_ALIGNED) (18 degrees) of each
-# other; a reversal shrinks the growth by RAY_SHRINK.
+# other; each such motion doubles the growth (RAY_GROWTH), a reversal shrinks it by
+# RAY_SHRINK.
 RAY_CLIPPED = 1.05
 RAY_ALIGNED = 0.95
 RAY_SHRINK = 0.25
+RAY_GROWTH = 2.0
 
 
 @dataclass(frozen=True)
@@ -91,19 +93,13 @@ class Gains:
         """(gamma_v, gamma_w): per-channel multipliers of the paper's estimator rate."""
         return self.adaptation if self.law == 'adaptive' else (1.0, 1.0)
 
-    def tick_law(self, rate_hz: float | None, on_pc: bool = False,
-                 command_latency: float = 0.0) -> 'Law':
-        """The Law of one control tick at rate_hz (None: continuous control), its commands
-        acting command_latency (s) after they leave.
-        """
+    def tick_law(self, rate_hz: float | None, on_pc: bool = False) -> 'Law':
+        """The Law of one control tick at rate_hz (None: continuous control)."""
         gamma_v, gamma_w = self.estimator_gains()
-        # ray_growth doubles its factor once per tick and the latency in ticks that its
-        # effect takes to show in the motion (a doubling a tick overshoots and cycles then)
-        growth_step = 2.0 ** (1.0 / (1.0 + command_latency * rate_hz)) if rate_hz else 2.0
         return Law(self.law_code, self.k1, self.k2, self.offset, gamma_v, gamma_w,
                    self.hold_period(rate_hz), 1.0 / rate_hz if rate_hz else 0.0,
                    self.observer_rate, on_pc, self.tail_radius, self.tail_gain, self.reverse,
-                   self.observer_growth, growth_step)
+                   self.observer_growth)
 
 
 class Law(NamedTuple):
@@ -113,8 +109,7 @@ class Law(NamedTuple):
     the sampled heading (s; 0: the paper's heading), period: the control period (s; 0:
     continuous), observer_rate (1/s), on_pc: the disturbance is added on the PC,
     tail_radius (m), tail_gain: tail_feedback's, reverse: driving.drive_direction may
-    choose to drive backwards, max_growth: ray_growth's largest factor (1: off),
-    growth_step: its factor's growth a tick (2; less with a command latency).
+    choose to drive backwards, max_growth: ray_growth's largest factor (1: off).
     """
 
     code: int
@@ -131,7 +126,6 @@ class Law(NamedTuple):
     tail_gain: float
     reverse: bool
     max_growth: float
-    growth_step: float
 
 
 class WheelLimits(NamedTuple):
@@ -435,7 +429,7 @@ def ray_growth(growth: float, last_right: float, last_left: float, measured_v: f
     s * measured - reference, s >= 1), and observer_step, taking s = 1, moves the estimate at
     most the limits' width a tick (in the paper's arena d is 20x the limit). While the
     commands stay clipped and their motions lie along one ray, the factor s grows by
-    law.growth_step each tick (doubles, or slower with a command latency) up to
+    RAY_GROWTH each update (doubles) up to
     law.max_growth (a search along the ray); a reversal (the estimate overshot) divides it by
     1 / RAY_SHRINK; a command the limits did not cut by more than RAY_CLIPPED resets it to 1.
     Off (always 1) with
@@ -460,7 +454,7 @@ def ray_growth(growth: float, last_right: float, last_left: float, measured_v: f
                   / math.sqrt((right * right + left * left)
                               * (last_right * last_right + last_left * last_left)))
         if cosine > RAY_ALIGNED:
-            growth = min(law.max_growth, law.growth_step * growth)
+            growth = min(law.max_growth, RAY_GROWTH * growth)
         elif cosine < 0.0:
             growth = max(1.0, RAY_SHRINK * growth)
     return growth, right, left

@@ -166,7 +166,7 @@ def _excited(tc: FloatArray, cmd: FloatArray, begin: float, end: float) -> bool:
 # over how much of the past (s) a controller estimates, how many estimates in a row must agree
 # and within what (s) before one is taken.
 ONLINE_LAGS = np.arange(0.0, 0.5001, 0.01)
-ONLINE_EVERY = 2.0
+ONLINE_EVERY = 1.0
 ONLINE_SPAN = 6.0
 AGREEING = 3
 AGREEMENT = 0.02

@@ -60,7 +60,7 @@ PARAMETERS = (
     Param('adaptation', 'double[]', [1.0, 1.0], 'law adaptive: [gamma_v, gamma_w] '
           "multiplying the paper's estimator rate per channel"),
     Param('estimate_latency', 'bool', False, 'estimate command_latency online from the '
-          'commands sent and the poses measured (every 2 s over the last 6 s; a value taken '
+          'commands sent and the poses measured (every 1 s over the last 6 s; a value taken '
           'when 3 in a row agree within 20 ms)'),
     Param('observer_order', 'int', 1, 'law observer: 2 = it also estimates how fast the '
           'disturbance changes (alpha-beta filter) and predicts it over the coming period; '
@@ -115,9 +115,9 @@ PARAMETERS = (
     Param('predict_pose', 'bool', False, 'carry the pose forward from its stamp to the tick '
           'through the commands sent since (clocks of pose source and this PC in sync)'),
     Param('command_latency', 'double', 0.0, "delay (s) from a command leaving to the robot's "
-          'wheels: predict_pose carries the pose to when the command acts, the observer '
-          'compares the motion with the command acting on it and searches no faster than '
-          'the motion answers', low=0.0, high=0.25),
+          'wheels: predict_pose carries the pose (and the other robots) to when the command '
+          'acts, the observer compares each motion with the commands acting over it and '
+          'waits for the motion that answers its estimate', low=0.0, high=0.5),
     Param('min_wheel_speed', 'double', 0.0, "the slowest wheel speed (m/s) the robot's motors "
           'turn at (their dead band): the observer expects no motion from a smaller command; '
           '0 = none', low=0.0),
