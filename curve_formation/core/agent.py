@@ -750,9 +750,9 @@ class AgentController:
         over that motion (_realised); nothing is learnt while the motors were off. With a
         command latency the observer waits for a motion made wholly under commands sent after
         its last update (their `estimate`), and blends over the time since that update: no
-        delay enters the estimate's loop (docs/control-laws.md). The motion's part before the safety filter (the motion
-        minus what the filter changed) is scaled along its ray when saturated
-        (control.ray_growth); without a newer pose nothing is updated.
+        delay enters the estimate's loop (docs/control-laws.md). The motion's part before the
+        safety filter (the motion minus what the filter changed) is scaled along its ray when
+        saturated (control.ray_growth); without a newer pose nothing is updated.
         """
         if (self.anchor is None or self.pose is None or self.pose_stamp is None
                 or self.pose_received is None):

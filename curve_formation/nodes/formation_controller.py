@@ -54,7 +54,7 @@ PARAMETERS = (
     Param('offset', 'double', 0.01, 'offset l of the control point ahead of the axle (m), '
           'non-zero'),
     Param('rate_hz', 'double', 10.0, 'control rate (Hz)', positive=True),
-    Param('law', 'string', 'observer', "disturbance estimator: paper (the paper's adaptive "
+    Param('law', 'string', 'paper', "disturbance estimator: paper (the paper's adaptive "
           'law), adaptive (per-channel gains) or observer (from the measured motion)',
           choices=tuple(LAWS)),
     Param('adaptation', 'double[]', [1.0, 1.0], 'law adaptive: [gamma_v, gamma_w] '
@@ -75,7 +75,7 @@ PARAMETERS = (
     Param('tail_gain', 'double', 1.0, 'cap on the finite-time speed-up', low=1.0),
     Param('reverse', 'bool', False, 'drive backwards (steering the point behind the axle) '
           'when that reaches the target sooner; needs wheel_base and max_wheel_speed'),
-    Param('heading', 'string', 'sampled', 'sampled: each command turns as the continuous law '
+    Param('heading', 'string', 'paper', 'sampled: each command turns as the continuous law '
           'would over one period; paper: holds its instantaneous turn rate',
           choices=('paper', 'sampled')),
     Param('wheel_base', 'double', 0.0, 'distance between the wheels (m); 0 = no wheel limit',
@@ -136,6 +136,35 @@ PARAMETERS = (
           'the batch simulator does (the same source): ~15x faster a tick, ~0.7 s and ~65 MB '
           'more to start; the runner sets it when every node shares one process'),
 )
+
+# Where each parameter comes from in an experiment file (core.config_schema's key): its
+# default, range and choices are the schema's (test_settings proves it). 'optional': the key
+# may be left out (null in the schema), which the parameter writes as 0 (none, unlimited);
+# 'the wheel limit' keys are required within `limits:`, and the parameter is 0 without them.
+SCHEMA_KEYS = {
+    'pinning': 'graph.pinning', 'k1': 'controller.k1', 'k2': 'controller.k2',
+    'offset': 'controller.offset', 'law': 'controller.law',
+    'adaptation': 'controller.adaptation', 'estimate_latency': 'controller.estimate_latency',
+    'observer_order': 'controller.observer_order', 'observer_rate': 'controller.observer_rate',
+    'observer_growth': 'controller.observer_growth', 'tail_radius': 'controller.tail.radius',
+    'tail_gain': 'controller.tail.gain', 'reverse': 'controller.reverse',
+    'heading': 'controller.heading', 'wheel_base': 'limits.wheel_base',
+    'max_wheel_speed': 'limits.max_wheel_speed', 'max_angular_rate': 'limits.max_angular_rate',
+    'pose_timeout': 'safety.pose_timeout', 'neighbour_timeout': 'safety.neighbour_timeout',
+    'leader_timeout': 'safety.leader_timeout', 'max_linear_accel': 'limits.max_linear_accel',
+    'max_angular_accel': 'limits.max_angular_accel', 'radius': 'robots.radius',
+    'avoidance_margin': 'avoidance.margin', 'avoidance_rate': 'avoidance.rate',
+    'avoidance_drift': 'avoidance.drift', 'passing': 'avoidance.passing',
+    'passing_range': 'avoidance.passing_range', 'feed_forward': 'controller.feed_forward',
+    'predict_pose': 'controller.predict_pose', 'command_latency': 'controller.command_latency',
+    'min_wheel_speed': 'limits.min_wheel_speed',
+    'motor_time_constant': 'limits.motor_time_constant',
+}
+# Parameters computed from several keys (agents, graph, arena, disturbance; core.agent.
+# agent_configs) or that only a node has.
+DERIVED = ('index', 'agent_count', 'role', 'in_neighbours', 'weights', 'rate_hz', 'geofence',
+           'avoidance', 'arena', 'pc_disturbance', 'disturbance_varies')
+NODE_ONLY = ('frame_id', 'compiled_law', 'fault_state_drop')
 
 
 def node_parameters(config):
@@ -223,6 +252,10 @@ def agent_config(p):
     if p.reverse and not timed_by(limits):
         raise ParameterError("parameter 'reverse' needs 'wheel_base' and 'max_wheel_speed' "
                              '(> 0) to time a trip forwards and backwards')
+    if p.tail_radius > 0 and p.k1 * p.tail_gain >= p.rate_hz:
+        raise ParameterError(f"parameter 'tail_gain' ({p.tail_gain:g}) times 'k1' ({p.k1:g}) "
+                             f"must stay below 'rate_hz' ({p.rate_hz:g}): a sampled command "
+                             'would overshoot the target')
     if p.observer_growth > 1 and not timed_by(limits):
         raise ParameterError("parameter 'observer_growth' needs 'wheel_base' and "
                              "'max_wheel_speed' (> 0): it acts while the wheel limits saturate "
