@@ -3,6 +3,8 @@ starts, against the same starts under the constant disturbance.
 
 Run: scripts/bench changing_disturbance            (20 random starts of each case; ~6 min)
      scripts/bench changing_disturbance --seeds 3  (a quick look)
+     scripts/bench changing_disturbance --pose-noise 0.2,3  (poses through a camera's noise:
+         0.2 mm in x and y, 3 mrad in heading, standard deviations)
 
 Cases (issue goals): the arena demo's drift on the robots varying +-50 % with a 10 s period
 (every phase settles), and mona_arena's disturbance on the PC varying +-10 % (settles), also
@@ -25,7 +27,7 @@ import yaml
 
 from curve_formation.core import metrics
 from curve_formation.core.experiment import build_experiment, seeded_start, with_start
-from curve_formation.core.pipeline import simulate_pipeline
+from curve_formation.core.pipeline import Link, simulate_pipeline
 from curve_formation.paths import resolve_config
 
 
@@ -57,9 +59,11 @@ def experiment(name, seed, amplitude, controller=()):
 
 
 def one_run(job):
-    name, seed, amplitude, controller = job
+    name, seed, amplitude, controller, noise = job
     begin = time.perf_counter()
-    result = simulate_pipeline(experiment(name, seed, amplitude, controller), 'kinematic')
+    link = None if noise is None else Link(pose_noise=noise, seed=seed)
+    result = simulate_pipeline(experiment(name, seed, amplitude, controller), 'kinematic',
+                               link=link)
     data = metrics.result_metrics(result)
     return {'case': name, 'seed': seed, 'amplitude': amplitude, 'controller': controller,
             'settle': [p['settle_time'] for p in data['phases']],
@@ -71,8 +75,12 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--seeds', type=int, default=20)
     parser.add_argument('--out', type=Path, default=Path('out/bench/changing_disturbance'))
+    parser.add_argument('--pose-noise', default=None, metavar='MM,MRAD',
+                        help='Gaussian noise on every pose (mm in x and y, mrad in heading)')
     args = parser.parse_args()
-    jobs = [job for _, name, amplitude, controller in CASES
+    noise = (None if args.pose_noise is None else
+             tuple(float(v) / 1000 for v in args.pose_noise.split(',')))
+    jobs = [(*job, noise) for _, name, amplitude, controller in CASES
             for seed in range(1, args.seeds + 1)
             for job in ((name, seed, 0.0, ()), (name, seed, amplitude, controller))]
     jobs = list(dict.fromkeys(jobs))   # the file's constant run once per start

@@ -59,15 +59,12 @@ def test_a_robot_whose_commands_do_not_change_tells_no_latency():
     assert found.latency is None and found.windows == 0
 
 
-@pytest.mark.parametrize('latency', [0.1, 0.25])
-def test_a_controller_estimates_its_latency_online_and_takes_it_once_settled(latency):
+def online_run(latency, jitter, loss, seed):
     """OnlineLatency fed as a controller feeds it (each command at its tick, each pose as it
-    comes): from 0 it takes the latency within 20 ms (100 ms +- 30 ms jitter and 10 % loss; or
-    250 ms) once three estimates in a row agree, and holds it.
+    comes) on driven_robot's 30 s: the latency used at each tick (s) and the ticks' times.
     """
     from curve_formation.core.link_estimate import OnlineLatency
-    sent, commands, seen, poses = driven_robot(latency, 0.03 if latency < 0.2 else 0.0,
-                                               0.1 if latency < 0.2 else 0.0, seed=3)
+    sent, commands, seen, poses = driven_robot(latency, jitter, loss, seed=seed)
     online = OnlineLatency(0.0, 10.0)
     k = 0
     used = []
@@ -77,12 +74,32 @@ def test_a_controller_estimates_its_latency_online_and_takes_it_once_settled(lat
             k += 1
         used.append(online.update(t))
         online.sent(t, v, w)
-    assert used[0] == 0.0 and online.taken, online.recent
-    first = online.taken[0][0]
-    assert first <= 10.0   # three estimates, 2 s apart, after the first 2 s
-    assert online.latency == pytest.approx(latency, abs=0.02)
-    late = np.array(used)[sent > first]
-    assert np.abs(late - latency).max() <= 0.02
+    return sent, np.array(used), online
+
+
+@pytest.mark.parametrize('latency, jitter, loss, first_by, near, mean_near', [
+    (0.25, 0.0, 0.0, 15.0, 0.02, 0.95),
+    (0.1, 0.03, 0.1, 25.0, 0.03, 0.8)], ids=['250 ms', '100 +- 30 ms, 10 % lost'])
+def test_a_controller_estimates_its_latency_online_and_takes_it_once_settled(
+        latency, jitter, loss, first_by, near, mean_near):
+    """From 0, over 10 seeded robots (camera noise, drift): every controller takes a value
+    once three estimates in a row (one a second) agree within 20 ms, by first_by s, and ends
+    within `near` of the truth; after its first, the value it uses is within 20 ms for
+    `mean_near` of the time on average. Measured over 20 seeds: 250 ms, every value taken
+    within 12 s and ending at 235-266 ms, within 20 ms 99 % of the time (85 % at worst);
+    100 +- 30 ms with 10 % of the commands lost, ending at 85-128 ms, within 20 ms 86 % of
+    the time (20 % at worst). With an estimate every 2 s one robot of 20 took no value at
+    all in 30 s.
+    """
+    shares = []
+    for seed in range(1, 11):
+        sent, used, online = online_run(latency, jitter, loss, seed)
+        assert used[0] == 0.0 and online.taken, (seed, online.recent)
+        first = online.taken[0][0]
+        assert first <= first_by, (seed, first)
+        assert online.latency == pytest.approx(latency, abs=near), seed
+        shares.append(np.mean(np.abs(used[sent > first] - latency) <= 0.02))
+    assert np.mean(shares) >= mean_near, shares
 
 
 @pytest.mark.ros

@@ -47,7 +47,8 @@ class Link:
     command_latency (s) plus a uniform jitter of +-command_jitter (s) after it was sent (never
     before the one sent before it: the newest wins), or is lost (command_loss, a
     probability); each pose reaches its controller pose_latency (s) after it was taken, or is
-    lost (pose_loss). seed: the draws.
+    lost (pose_loss), off the truth by Gaussian noise of pose_noise standard deviations (m in
+    x and y, rad in heading; a camera's). seed: the draws.
     """
 
     command_latency: float = 0.0
@@ -55,6 +56,7 @@ class Link:
     command_loss: float = 0.0
     pose_latency: float = 0.0
     pose_loss: float = 0.0
+    pose_noise: tuple[float, float] = (0.0, 0.0)
     seed: int = 0
 
 
@@ -149,6 +151,9 @@ class Pipeline:
         """
         poses = self.world.poses().copy()
         arrives = self.rng.random(len(poses)) >= self.link.pose_loss
+        if any(self.link.pose_noise):
+            xy, heading = self.link.pose_noise
+            poses += self.rng.normal(size=poses.shape) * (xy, xy, heading)
         if self.link.pose_latency <= 0.0:
             self.deliver_poses(now, poses, arrives, now)
             return []
