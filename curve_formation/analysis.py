@@ -63,12 +63,12 @@ class BagRun:
     dhat: np.ndarray       # (R, n, 2)
     phase: np.ndarray      # (R,)
     counts: dict           # {topic: messages read}
-    contacts: dict = None  # fake_arena's last contact report, if the bag has one
-    estops: list = None    # [(start, stop or None)] s while a node held the e-stop
-    deaths: list = None    # [(t s, node, how)] nodes of the run that died
-    pose_stamps: np.ndarray = None   # (R, n) s since t = 0: when each sampled pose was taken
-    provenance: dict = None          # of the run that wrote the bag (provenance.py), if told
-    experiment_text: str = None      # the experiment as the bag carries it (or the file's)
+    contacts: dict | None = None  # fake_arena's last contact report, if the bag has one
+    estops: list | None = None    # [(start, stop or None)] s while a node held the e-stop
+    deaths: list | None = None    # [(t s, node, how)] nodes of the run that died
+    pose_stamps: np.ndarray | None = None   # (R, n) s since t = 0: when each pose was taken
+    provenance: dict | None = None   # of the run that wrote the bag (provenance.py), if told
+    experiment_text: str | None = None   # the experiment as the bag carries it (or the file's)
 
 
 PROGRESS_PERIOD = 2.0   # s between progress lines while a bag is read
@@ -100,10 +100,17 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0, progress=None):
     else:
         raise BagError(f'{path}: the bag does not carry its experiment; pass --experiment')
     n = experiment.n
-    events = {'pose': [[] for _ in range(n)], 'cmd_vel': [[] for _ in range(n)],
-              'disturbance_estimate': [[] for _ in range(n)]}
-    curves, counts, contacts, estop_events, death_events = [], {}, None, [], []
-    stamps = [[] for _ in range(n)]   # per robot: (received s, (pose stamp s,))
+    # per kind, per robot: (received s, value)
+    events: dict[str, list[list[tuple[float, tuple[float, ...]]]]] = {
+        'pose': [[] for _ in range(n)], 'cmd_vel': [[] for _ in range(n)],
+        'disturbance_estimate': [[] for _ in range(n)]}
+    curves: list = []
+    counts: dict[str, int] = {}
+    contacts = None
+    estop_events: list = []
+    death_events: list = []
+    # per robot: (received s, (pose stamp s,))
+    stamps: list[list[tuple[float, tuple[float, ...]]]] = [[] for _ in range(n)]
     read = [topic for topic in topics if topic in (ESTOP_STATE, '/diagnostics', CURVE_TOPIC)
             or _ROBOT_TOPIC.match(topic)]   # a topic of another tool may be of any type
     total, done, said = sum(topics[topic][1] for topic in read), 0, time.monotonic()
@@ -143,6 +150,7 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0, progress=None):
         if not match or not 1 <= int(match.group(1)) <= n:
             continue
         kind, i = match.group(2), int(match.group(1)) - 1
+        value: tuple[float, ...]
         if kind == 'pose':
             q = msg.pose.orientation
             value = (msg.pose.position.x, msg.pose.position.y,
@@ -320,7 +328,8 @@ def bag_accounting(bag_path, publications_dir, streams, best_effort=()):
     the reliable topics; `lost_best_effort`: the same over the `best_effort` topics (poses,
     images), whose samples DDS may drop by design.
     """
-    published, writers = {}, {}
+    published: dict[str, int] = {}
+    writers: dict[str, int] = {}
     for path in Path(publications_dir).glob('*.json'):
         for key, count in json.loads(path.read_text()).items():
             published[key] = published.get(key, 0) + count

@@ -14,6 +14,7 @@ import os
 from pathlib import Path, PurePath
 import sqlite3
 import time
+from typing import Any
 
 from rosbags.interfaces import (
     Qos,
@@ -99,7 +100,9 @@ class BagWriter:
 
     def commit(self):
         """Make everything written so far durable (survives a hard kill)."""
-        storage = self._writer.storage
+        # the storage plugin's own state (sqlite3's connection, MCAP's open chunk), which
+        # rosbags' StorageWriter protocol does not declare
+        storage: Any = self._writer.storage
         if self.storage == 'sqlite3':
             storage.conn.commit()
         else:

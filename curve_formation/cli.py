@@ -14,6 +14,7 @@ import math
 import os
 from pathlib import Path
 import sys
+from typing import Any
 
 from curve_formation.bag import BagError, DEFAULT_STORAGE, STORAGES
 from curve_formation.core.aruco import MARKER_IDS
@@ -126,7 +127,7 @@ def _animate_option(parser):
 
 
 def _cmd_sim(args):
-    rate = 'config'
+    rate: str | float | None = 'config'
     if args.continuous:
         rate = None
     elif args.rate is not None:
@@ -155,7 +156,7 @@ def _cmd_demo(args):
     from curve_formation.runner import run_experiment
     out = Path(args.out)
     _output_folder(out)
-    summary = {'paper_cases_batch_simulation': {}}
+    summary: dict[str, Any] = {'paper_cases_batch_simulation': {}}
     print("1/3 batch simulation of the paper's cases, with the paper's law and with ours")
     for name in PAPER_CASES:
         for law, heading in (('paper', 'paper'), ('observer', 'sampled')):
@@ -250,7 +251,7 @@ def _agents(text):
     """The frozenset of agents `--agents` names ('1-5,9'), or None for every agent."""
     if text is None:
         return None
-    agents = set()
+    agents: set[int] = set()
     try:
         for item in text.split(','):
             low, _, high = item.strip().partition('-')

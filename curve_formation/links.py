@@ -47,7 +47,8 @@ def _datagram_lines(sock, lines):
     """(complete lines, last sender) of every datagram waiting on non-blocking `sock`, fed to
     `lines` (a _Lines); a datagram ends its line even without a terminator.
     """
-    out, sender = [], None
+    out: list[bytes] = []
+    sender = None
     while True:
         try:
             data, sender = sock.recvfrom(65536)
@@ -123,8 +124,10 @@ class SerialLink:
     def send(self, data):
         if self.port is None:
             self._open()
+        port = self.port
+        assert port is not None   # _open opened it or raised LinkError
         try:
-            self.port.write(data)
+            port.write(data)
         except (OSError, serial.SerialException) as exc:
             self.close()
             self.error = f'serial {self.device}: {exc}'
@@ -211,7 +214,7 @@ class PtyEndpoint:
         self._lines = _Lines()
 
     def lines(self):
-        out = []
+        out: list[bytes] = []
         while True:
             try:
                 data = os.read(self.master, 65536)

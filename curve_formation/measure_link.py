@@ -21,9 +21,12 @@ def measure_bag(path):
     'latency': the median over the robots that told one (s, or None)} of a bag.
     """
     topics = [t for t in bag_summary(path) if _TOPIC.match(t)]
-    commands, poses = {}, {}
+    commands: dict[int, list] = {}
+    poses: dict[int, list] = {}
     for topic, _, stamp, msg in read_messages(path, topics):
-        i, kind = _TOPIC.match(topic).groups()
+        match = _TOPIC.match(topic)
+        assert match is not None   # the topics were chosen by it
+        i, kind = match.groups()
         if kind == 'cmd_vel':
             commands.setdefault(int(i), []).append((stamp * 1e-9, msg.linear.x, msg.angular.z))
         else:

@@ -88,10 +88,15 @@ class Observers:
             self.drain()
         self._stack.close()   # executor, nodes, bag, context: the reverse of their opening
 
+    def _executor(self):
+        if self.executor is None:
+            raise RuntimeError('the observers are not open (enter them as a context manager)')
+        return self.executor
+
     def add_node(self, node):
         """Spin a node of the run here (single process); it is destroyed on exit."""
         self.hosted.append(node)
-        self.executor.add_node(node)
+        self._executor().add_node(node)
 
     def _destroy_hosted(self):
         for node in self.hosted:
@@ -99,7 +104,7 @@ class Observers:
         self.hosted = []
 
     def spin_once(self, timeout=0.02):
-        self.executor.spin_once(timeout_sec=timeout)
+        self._executor().spin_once(timeout_sec=timeout)
 
     def drain(self):
         """Spin until the recorder has taken what already arrived."""

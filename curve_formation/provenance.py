@@ -72,7 +72,7 @@ def git_commit(folder=None):
     return head.stdout.strip() + ('-dirty' if dirty else '')
 
 
-_command = []   # the command line, when told (command_line); else sys.argv
+_command: list[str] = []   # the command line, when told (command_line); else sys.argv
 
 
 def command_line(argv):

@@ -7,6 +7,7 @@ so nodes started with `use_sim_time:=true` see recorded stamps as fresh and tick
 
 import importlib
 import time
+from typing import Any
 
 from rclpy.duration import Duration
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -63,13 +64,15 @@ def qos_profile(connection):
     if reliable and not latched:
         return QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=reliability,
                           durability=durability)
-    depth = max(1, q.depth) if latched else max(10, q.depth if q is not None else 0)
+    depth = max(1, q.depth) if q is not None and latched else max(10, q.depth if q is not None
+                                                                     else 0)
     return QoSProfile(depth=depth, reliability=reliability, durability=durability)
 
 
 def load(path, topics=None, start=0.0):
     """[(stamp_ns, topic, cdr)] and {topic: connection} from `start` s into the bag."""
-    records, connections = [], {}
+    records: list[tuple[int, str, bytes]] = []
+    connections: dict[str, Any] = {}
     for conn, stamp, raw in read_raw(path, topics):
         connections.setdefault(conn.topic, conn)
         records.append((stamp, conn.topic, bytes(raw)))

@@ -105,7 +105,8 @@ class Run:
         self.bag_writer = (None if options.bag_path is None
                            else BagWriter(options.bag_path, options.bag_storage))
         self.stop_requested = threading.Event()   # set by run_experiment's signal handlers
-        self.observers = self.graph = None        # set by start()
+        self.observers: Observers | None = None   # set by start()
+        self.graph: NodeGraph | None = None
         self._stack = ExitStack()
 
     # -- lifecycle -------------------------------------------------------------------------
@@ -141,7 +142,7 @@ class Run:
             options.single_process, self.publications_dir if recording else None))
         self.graph.on_death = self._on_death
         if recording:
-            self.log(f'recording {self.bag_writer.path}')
+            self.log(f'recording {options.bag_path}')
         self.log(f'{self.where()}{" (isolated)" if options.isolated else ""}; parameters in '
                  f'{self.out / "params"}, start scripts in {self.out}')
         server, *others = self.launches
@@ -191,24 +192,30 @@ class Run:
             now = self.monitor.get_clock().now().nanoseconds
             self.bag_writer.set_custom(RUN_END_KEY, str(now))
 
+    def _started(self) -> tuple[Observers, NodeGraph]:
+        """The run's observers and node graph; RuntimeError before start()."""
+        if self.observers is None or self.graph is None:
+            raise RuntimeError('the run has not started (Run.start, or enter it)')
+        return self.observers, self.graph
+
     @property
     def monitor(self):
-        return self.observers.monitor
+        return self._started()[0].monitor
 
     @property
     def recorder(self):
-        return self.observers.recorder
+        return self._started()[0].recorder
 
     @property
     def processes(self):
-        return self.graph.processes
+        return self._started()[1].processes
 
     def kill(self, key, sig=signal.SIGKILL):
         """Kill one node process (fault injection)."""
-        return self.graph.kill(key, sig)
+        return self._started()[1].kill(key, sig)
 
     def restart(self, key):
-        self.graph.restart(key)
+        self._started()[1].restart(key)
 
     def _on_death(self, death):
         """A node process ended on its own: said now, written into the bag (a /diagnostics
@@ -259,10 +266,12 @@ class Run:
         looked = [time.monotonic()]
         ours = self.options.runs('curve_server')
 
+        _, graph = self._started()
+
         def ready():
-            self.graph.check_processes()
-            if self.graph.deaths:   # a node that cannot start: a set-up error, not a run's
-                death = self.graph.deaths[0]
+            graph.check_processes()
+            if graph.deaths:   # a node that cannot start: a set-up error, not a run's
+                death = graph.deaths[0]
                 raise RuntimeError(f'node {death.key} ended while starting ({death.how}):\n'
                                    f'{death.log_tail}')
             now = time.monotonic()
@@ -326,7 +335,7 @@ class Run:
                 raise KeyboardInterrupt('stop requested')
             if time.monotonic() > deadline:
                 raise TimeoutError(f'timed out after {timeout:g} s waiting for {what}')
-            self.observers.spin_once()
+            self._started()[0].spin_once()
 
     def spin_for(self, seconds, status_every=None):
         """Spin `seconds`; with status_every (s), log status() that often."""
@@ -339,7 +348,7 @@ class Run:
                 line = self.status()
                 if line:
                     self.log(line)
-            return time.monotonic() >= end or self.graph.check_processes()
+            return time.monotonic() >= end or self._started()[1].check_processes()
         self.spin_until(done, seconds + 5)
 
     # -- results ---------------------------------------------------------------------------
@@ -384,7 +393,7 @@ class Run:
     def bag_accounting(self):
         """analysis.bag_accounting of the run's bag, once stopped: what was lost per topic."""
         return bag_accounting(self.options.bag_path, self.publications_dir,
-                              self.recorder.streams, self.observers.best_effort_topics)
+                              self.recorder.streams, self._started()[0].best_effort_topics)
 
     def followed(self, t):
         """(experiment, phase): the experiment with the phases the run followed, i.e. the
@@ -453,6 +462,7 @@ def run_experiment(config, out_dir, duration=None, options=DEFAULTS, log=print):
     if failure is not None:
         result['runner_error'] = f'{type(failure).__name__}: {failure}'
     if options.bag_path is not None:
+        assert run.bag_writer is not None   # a run with a bag_path writes one
         result['bag'] = {'path': str(options.bag_path), 'messages': run.bag_writer.count,
                          **run.bag_accounting()}
     write_metrics(run.out, result, run.experiment_path)

@@ -184,6 +184,7 @@ class CameraTracker(Node):
         self.targets = None if s is None or len(s) != self.n else curve.points(s)
 
     def _on_capture(self):
+        assert self.capture is not None   # the capture timer runs only with a capture
         ok, frame = self.capture.read()
         if not ok:
             self.get_logger().warning('no frame from the camera source',
@@ -228,9 +229,10 @@ class CameraTracker(Node):
             self.get_logger().warning(
                 f'not calibrated: {frame.corners_seen} corner markers seen, need 2',
                 throttle_duration_sec=5.0)
-        if (frame.recalibrated and self.calibration_path is not None
+        calibration = self.tracker.calibration
+        if (frame.recalibrated and calibration is not None and self.calibration_path is not None
                 and now - self.last_saved > SAVE_INTERVAL):
-            self.tracker.calibration.save(self.calibration_path)
+            calibration.save(self.calibration_path)
             self.last_saved = now
         if (self.params.debug_rate_hz > 0 and self.debug_pub.get_subscription_count() > 0
                 and now - self.last_debug >= 1.0 / self.params.debug_rate_hz):
@@ -239,6 +241,7 @@ class CameraTracker(Node):
 
     def _find_curve(self, gray, frame, stamp):
         """Search the frame for the drawn curve; publish it when first seen or moved."""
+        assert self.curve_finder is not None   # called only when the drawn curve is sought
         self.positions.update({agent: pose[:2] for agent, pose in frame.poses.items()})
         found = self.curve_finder.find(gray, list(self.positions.values()))
         publish = self.curve_watch.offer(found)
@@ -295,7 +298,8 @@ class CameraTracker(Node):
                                       else f'{now - seen:.3f}')]
             msg.status.append(status)
         camera = DiagnosticStatus(name='camera_tracker: camera', hardware_id='camera')
-        calibrated = self.tracker.calibration is not None
+        calibration = self.tracker.calibration
+        calibrated = calibration is not None
         camera.level = DiagnosticStatus.OK if calibrated and self.frames else DiagnosticStatus.WARN
         camera.message = (f'{self.frames} frames' if self.frames else 'no frames') + (
             '' if calibrated else ', not calibrated')
@@ -306,8 +310,8 @@ class CameraTracker(Node):
             KeyValue(key='latency_p50_s', value=f'{np.median(latency):.4f}'),
             KeyValue(key='latency_max_s', value=f'{np.max(latency):.4f}'),
             KeyValue(key='processing_p50_s', value=f'{np.median(processing):.4f}'),
-            KeyValue(key='calibration_rms_px', value='none' if not calibrated
-                     else f'{self.tracker.calibration.rms_px:.3f}')]
+            KeyValue(key='calibration_rms_px', value='none' if calibration is None
+                     else f'{calibration.rms_px:.3f}')]
         msg.status.append(camera)
         self.diag_pub.publish(msg)
         self.seen_counts[:] = 0

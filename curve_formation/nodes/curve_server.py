@@ -244,6 +244,7 @@ class CurveServer(Node):
 
     def _send_current(self):
         """Publish the current curve message; the refresh waits a whole period from now."""
+        assert self.current is not None   # called once a curve was published
         curve, curve_id, s, rate, clock = self.current
         if self.refresh_timer is not None:
             self.refresh_timer.reset()

@@ -58,7 +58,7 @@ def nodes_markdown():
     """
     parts = []
     for name, module in NODES:
-        summary = module.__doc__.strip().split('\n', 1)[1].strip().replace('\n', ' ')
+        summary = (module.__doc__ or '').strip().split('\n', 1)[1].strip().replace('\n', ' ')
         parts.append(f'### `{name}`\n\n{summary}\n\n{topic_table(module.TOPICS)}\n\n'
                      f'{markdown_table(module.PARAMETERS)}')
     return '\n\n'.join(parts)

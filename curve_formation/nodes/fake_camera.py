@@ -135,7 +135,7 @@ class FakeCamera(Node):
         now = now_seconds(self)
         faulty = self.faulty(now)
         hidden = tuple(self.params.hide) if faulty else ()
-        extra = ()
+        extra: tuple[tuple[int, float, float, float], ...] = ()
         if faulty and self.params.duplicate_of:
             x, y = self.params.duplicate_at
             extra = ((self.layout.robot_ids[self.params.duplicate_of - 1], x, y, 0.0),)

@@ -382,7 +382,8 @@ class FormationController(Node):
                                    f's_i = {self.controller.s:.4f}')
 
     def _on_pose(self, msg):
-        if not self.controller.on_pose(*messages.pose_from_msg(msg), now_seconds(self)):
+        x, y, theta, stamp = messages.pose_from_msg(msg)
+        if not self.controller.on_pose(x, y, theta, stamp, now_seconds(self)):
             self.rejections.reject(self.pose_topic, self.controller.rejection)
             return
         state = self.controller.state()
@@ -392,7 +393,8 @@ class FormationController(Node):
 
     def _on_neighbour(self, j, msg):
         try:
-            accepted = self.controller.on_neighbour(j, *messages.state_from_msg(msg),
+            ex, ey, curve_id, stamp, leader_age = messages.state_from_msg(msg)
+            accepted = self.controller.on_neighbour(j, ex, ey, curve_id, stamp, leader_age,
                                                     now_seconds(self))
         except messages.MessageError as exc:
             accepted = self.controller.reject(f'state of neighbour {j}: {exc}')

@@ -65,7 +65,8 @@ class Monitor(Node):
         # per robot, its last two true poses [(stamp s, x, y, theta)]; over every tick that
         # drove, how far (m) the pose its law used was from the truth then: how many ticks,
         # the sum of squares (m^2)
-        self.true_history = [[] for _ in range(n)]
+        self.true_history: list[list[tuple[float, float, float, float]]] = [
+            [] for _ in range(n)]
         self.law_pose_tally = [0, 0.0]
         self.pose_stamps = np.full(n, np.nan)
         self.commands = np.full((n, 2), np.nan)
@@ -88,9 +89,11 @@ class Monitor(Node):
         self.command_sources = {}
         # Per robot, one (published, received, handled) row per command (s, system clock):
         # the DDS source timestamp, the time DDS received it here, the time this callback ran.
-        self.command_arrivals = [deque(maxlen=TIMING_WINDOW) for _ in range(n)]
+        self.command_arrivals: list[deque[tuple[float, float, float]]] = [
+            deque(maxlen=TIMING_WINDOW) for _ in range(n)]
         # estimate arrival - pose stamp (s)
-        self.tick_latencies = [deque(maxlen=TIMING_WINDOW) for _ in range(n)]
+        self.tick_latencies: list[deque[float]] = [deque(maxlen=TIMING_WINDOW)
+                                                   for _ in range(n)]
         # (robot, curve id) -> DDS source timestamp of its first state on that curve (s)
         self.adopted = {}
         self.recording = SampleLog(recording_fields(n, ground_truth))
@@ -130,6 +133,7 @@ class Monitor(Node):
 
     def _on_true_pose(self, i, msg):
         x, y, theta, stamp = messages.pose_from_msg(msg)
+        assert self.true_poses is not None   # subscribed with ground truth only
         self.true_poses[i - 1] = (x, y, theta)
         history = self.true_history[i - 1]
         history.append((stamp, x, y, theta))

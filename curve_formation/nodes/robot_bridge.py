@@ -106,13 +106,14 @@ class RobotBridge(Node):
         self.command_time = None
         # write times of the last lines (s, perf counter), as many as one window allows
         self.window = max(1, round(p.rate_hz))
-        self.written = collections.deque(maxlen=self.window + SPARE_LINES)
+        self.written: collections.deque[float] = collections.deque(
+            maxlen=self.window + SPARE_LINES)
         self.seq = 0
         self.counts = {'sent': 0, 'failed': 0, 'stops': 0, 'replies': 0, 'malformed': 0}
         self.last_error = ''          # the latest send error, kept for the diagnostics
         self.failing = False          # the latest send failed
         self.last_reply = None
-        self.latencies = collections.deque(maxlen=LATENCY_WINDOW)
+        self.latencies: collections.deque[float] = collections.deque(maxlen=LATENCY_WINDOW)
         self.diag_pub = topics.publisher(self, topics.DIAGNOSTICS)
         topics.subscription(self, topics.CMD_VEL, self._on_cmd)
         self.estop = EstopHolder(self, self._robot_name(), on_change=self._stop_if_held)
@@ -178,7 +179,7 @@ class RobotBridge(Node):
         and a strict one locked later commands into waits of their own. A runaway publisher
         gets (N + 2) / N x rate_hz lines a second, at most three back to back.
         """
-        if len(self.written) < self.written.maxlen:
+        if len(self.written) < self.window + SPARE_LINES:
             return True
         return time.perf_counter() - self.written[0] >= self.window / self.params.rate_hz
 
@@ -192,6 +193,7 @@ class RobotBridge(Node):
             self._send_command()
 
     def _send_command(self):
+        assert self.command is not None   # _on_timer sends only a command it holds
         left, right, received = self.command
         self.command = None
         data = wire.encode(self.format, left, right, self._next_seq(), self.params.wheel_radius)

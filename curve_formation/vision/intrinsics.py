@@ -90,6 +90,7 @@ def calibrate(images, spec=BoardSpec(), max_rms=MAX_RMS, min_views=MIN_VIEWS):
         raise IntrinsicsError(f'the board was found in {len(objects)} of {seen} images; at '
                                f'least {min_views} views are needed (tilt the board, cover '
                                'the whole frame)')
+    assert size is not None   # min_views >= 1 images were read
     rms, k, dist, _, _ = cv2.calibrateCamera(objects, pixels, size, None, None)
     if not rms <= max_rms:
         raise IntrinsicsError(f'reprojection error {rms:.2f} px is above {max_rms:g} px: '
@@ -129,7 +130,7 @@ def read_intrinsics(path, resolution=None):
     except ValidationError as exc:
         key, message = validation_problem(exc)
         raise IntrinsicsError(f'{path}: {key}: {message}') from None
-    size = tuple(spec.image_size)
+    size = (int(spec.image_size[0]), int(spec.image_size[1]))
     if resolution is not None and size != tuple(resolution):
         raise IntrinsicsError(f'{path} was calibrated at {size[0]}x{size[1]}, the camera '
                               f'delivers {resolution[0]}x{resolution[1]} (camera.resolution)')

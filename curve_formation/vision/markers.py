@@ -118,5 +118,5 @@ class MarkerLayout:
 
     def corner_points(self, ids):
         """(4 k, 2) arena corners (m) of the corner markers `ids`, in cv2.aruco order."""
-        return np.concatenate([marker_corners(*self.corners[i], 0.0, self.corner_size)
-                               for i in ids])
+        return np.concatenate([marker_corners(self.corners[i][0], self.corners[i][1], 0.0,
+                                              self.corner_size) for i in ids])

@@ -41,8 +41,9 @@ class PatternFit:
         # the black square's corners in pattern pixels
         self._square = np.array([[edge_low, edge_low], [edge_high, edge_low],
                                  [edge_high, edge_high], [edge_low, edge_high]], np.float32)
-        self._patterns = {}
-        self.misses = collections.Counter()   # marker id -> alignments not used, since reset
+        self._patterns: dict[int, np.ndarray] = {}
+        # marker id -> alignments not used, since reset
+        self.misses: collections.Counter[int] = collections.Counter()
 
     def pattern(self, marker_id):
         """Marker `marker_id` in a white margin of QUIET_PX, float32 (0 black, 255 white)."""
@@ -69,7 +70,8 @@ class PatternFit:
         warp = cv2.getPerspectiveTransform(self._square,
                                            (corners - low).astype(np.float32))
         try:
-            correlation, warp = cv2.findTransformECC(
+            # OpenCV's stubs do not take a None mask with gaussFiltSize; OpenCV does
+            correlation, warp = cv2.findTransformECC(  # type: ignore[call-overload]
                 self.pattern(marker_id), window, warp.astype(np.float32),
                 cv2.MOTION_HOMOGRAPHY,
                 (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, ITERATIONS, EPSILON), None, 1)

@@ -78,7 +78,7 @@ class ImageEffects:
         if opts.noise > 0:
             if self._noise is None:
                 self._noise = np.empty(image.shape, np.int16)
-            cv2.randn(self._noise, 0.0, opts.noise)
+            cv2.randn(self._noise, 0.0, opts.noise)  # type: ignore[call-overload]  # scalars
             image = np.clip(cv2.add(image.astype(np.int16), self._noise), 0, 255).astype(np.uint8)
         return image
 
@@ -246,8 +246,8 @@ class BoardRenderer:
                                            marginSize=0, borderBits=1)
         # a white quiet zone of half a square around the board
         self._margin = BOARD_SQUARE_PX // 2
-        self._board = cv2.copyMakeBorder(board, *(4 * [self._margin]), cv2.BORDER_CONSTANT,
-                                         value=255)
+        m = self._margin
+        self._board = cv2.copyMakeBorder(board, m, m, m, m, cv2.BORDER_CONSTANT, value=255)
         self._effects = ImageEffects(options)
         cv2.setRNGSeed(seed)
 
@@ -270,9 +270,13 @@ class BoardRenderer:
         """`count` board poses spread over the frame, each tilted up to max_tilt_deg."""
         rng = np.random.default_rng(seed)
         width, height = self.camera.width, self.camera.height
-        return [self.pose_at((rng.uniform(0.1, 0.9) * width, rng.uniform(0.1, 0.9) * height),
-                             rng.uniform(*distance), *rng.uniform(-max_tilt_deg, max_tilt_deg, 2),
-                             rng.uniform(-30.0, 30.0)) for _ in range(count)]
+        poses = []
+        for _ in range(count):
+            pixel = (rng.uniform(0.1, 0.9) * width, rng.uniform(0.1, 0.9) * height)
+            depth = rng.uniform(*distance)
+            tilt_x, tilt_y = rng.uniform(-max_tilt_deg, max_tilt_deg, 2)
+            poses.append(self.pose_at(pixel, depth, tilt_x, tilt_y, rng.uniform(-30.0, 30.0)))
+        return poses
 
     def render(self, rotation, translation):
         """One frame (height x width uint8) of the board at (R, t), board -> camera (m)."""

@@ -119,7 +119,7 @@ class MarkerTracker:
             raise ValueError(f"refinement: expected 'pattern' or 'contour', got {refinement!r}")
         self.pattern_fit = PatternFit(layout.dictionary_name) if refinement == 'pattern' else None
         self.agent_of = layout.agent_of
-        self.intrinsics = None
+        self.intrinsics: tuple[np.ndarray, np.ndarray] | None = None
         if intrinsics is not None:
             k, dist = intrinsics
             self.intrinsics = (np.asarray(k, float).reshape(3, 3),
@@ -128,13 +128,15 @@ class MarkerTracker:
         if self.raise_by != 0.0 and self.intrinsics is None:
             raise ValueError(f'markers {self.raise_by:g} m above the corner markers need the '
                              'camera matrix (intrinsics) to be mapped on their plane')
-        self._raised = None   # (Calibration, its homography for the markers' plane)
-        self._corner_pixels = {}   # corner marker id -> its (4, 2) pixels averaged over frames
+        # (Calibration, its homography for the markers' plane)
+        self._raised: tuple[Calibration, np.ndarray] | None = None
+        # corner marker id -> its (4, 2) pixels averaged over frames
+        self._corner_pixels: dict[int, np.ndarray] = {}
 
     def detect(self, gray):
         """{marker id: [(4, 2) pixel corners, ...]} of every marker found (undistorted)."""
         corners, ids, _ = self.detector.detectMarkers(gray)
-        found = {}
+        found: dict[int, list[np.ndarray]] = {}
         if ids is None:
             return found
         for quad, marker_id in zip(corners, ids.ravel(), strict=True):
@@ -148,6 +150,8 @@ class MarkerTracker:
 
     def undistorted(self, pixels):
         """(k, 2) pixels as an ideal lens would show them (with the lens calibration)."""
+        if self.intrinsics is None:
+            raise ValueError('undistorting pixels needs the camera matrix (intrinsics)')
         k, dist = self.intrinsics
         return cv2.undistortPoints(np.asarray(pixels, float).reshape(-1, 1, 2), k, dist,
                                    P=k).reshape(-1, 2)
@@ -197,11 +201,15 @@ class MarkerTracker:
 
     def marker_homography(self):
         """Undistorted pixels -> arena (m) on the plane of the robots' markers."""
+        calibration = self.calibration
+        if calibration is None:
+            raise ValueError('not calibrated yet: no corner markers fitted')
         if self.raise_by == 0.0:
-            return self.calibration.homography
-        if self._raised is None or self._raised[0] is not self.calibration:
-            self._raised = (self.calibration, raised_plane_homography(
-                self.calibration.homography, self.intrinsics[0], self.raise_by))
+            return calibration.homography
+        if self._raised is None or self._raised[0] is not calibration:
+            assert self.intrinsics is not None   # __init__ refuses raise_by without them
+            self._raised = (calibration, raised_plane_homography(
+                calibration.homography, self.intrinsics[0], self.raise_by))
         return self._raised[1]
 
 
