@@ -4,7 +4,9 @@ valid 1000-agent experiment.
 
 Run: scripts/bench bad_input
 Goal (issue): each refused within 5 s and 1 GB with one line under 500 characters; no
-traceback; check of 1000 agents within 30 s.
+traceback; check of 1000 agents within 30 s. Also a 5000-agent file with a 5-function
+basis, refused by Assumption 2 before Theorem 1's O(n^3) certificate is computed (it took
+over a minute when the certificate came first).
 """
 
 from pathlib import Path
@@ -52,6 +54,20 @@ def thousand_agents(folder):
     return path
 
 
+def too_few_functions(folder, n=5000):
+    path = Path(folder) / 'agents_5000_basis_5.yaml'
+    path.write_text(yaml.safe_dump({
+        'name': 'agents_5000_basis_5',
+        'agents': {'count': n, 'initial': {'random': {'seed': 1, 'center': [0, 0],
+                                                      'half_width': [50, 50]}}},
+        'graph': {'edges': [{'from': i, 'to': i + 1} for i in range(1, n)]},
+        'controller': {'k1': 1.0, 'k2': 1.0, 'offset': 0.01, 'rate_hz': 10.0},
+        'curves': [{'basis': 'fourier', 'harmonics': 2,
+                    'x': '40*cos(2*pi*s)', 'y': '40*sin(2*pi*s)'}],
+        'simulation': {'duration': 10.0}}))
+    return path
+
+
 def main():
     sys.path.insert(0, str(TEST_DIR))
     from test_bad_input import BAD
@@ -71,9 +87,12 @@ def main():
                   f'{(lines[0] if lines else "")[:70]}'
                   + ('  TRACEBACK' if traceback or len(lines) != 1 else ''))
         seconds, peak, status, err = check(thousand_agents(folder))
+        few = check(too_few_functions(folder))
     print(f'\nworst: {worst["seconds"]:.2f} s, line {worst["line"]} characters (peak memory of '
           'any one check: see the column; limit 1 GB)')
     print(f'check of 1000 agents: {seconds:.1f} s, exit {status}, peak {peak:.0f} MB')
+    print(f'5000 agents, a 5-function basis: refused in {few[0]:.1f} s, exit {few[2]}, peak '
+          f'{few[1]:.0f} MB: {few[3].strip().splitlines()[-1][:120] if few[3] else ""}')
 
 
 if __name__ == '__main__':

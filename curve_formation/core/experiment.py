@@ -298,7 +298,6 @@ def _build(spec: ExperimentSpec, source: str) -> Experiment:
     try:
         graph = DirectedGraph(n, [Edge(e.source, e.target, e.weight) for e in spec.graph.edges],
                               leader=spec.graph.leader, follower_pinning=spec.graph.pinning)
-        graph.certificate()
     except GraphError as exc:
         raise ConfigError(source, 'graph', str(exc)) from None
     if spec.graph.leader != 1:
@@ -326,6 +325,10 @@ def _build(spec: ExperimentSpec, source: str) -> Experiment:
     phases = tuple(_build_phases(spec, source, offset_points(initial, gains.offset)))
     avoidance = _avoidance(spec, source)
     _check_bodies(spec, source, initial, phases)
+    try:   # Theorem 1's certificate, O(n^3): after the cheap checks
+        graph.certificate()
+    except GraphError as exc:
+        raise ConfigError(source, 'graph', str(exc)) from None
     return Experiment(spec=spec, source=source, graph=graph, gains=gains,
                       limits=limits, disturbance=_disturbance(spec, source),
                       initial_poses=initial, phases=phases, radius=spec.robots.radius,
