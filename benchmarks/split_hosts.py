@@ -24,7 +24,9 @@ import time
 from node_graph import experiment_file
 import numpy as np
 
-from curve_formation.netns_hosts import available, Hosts, stop_groups
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'test'))
+from netns_hosts import available, Hosts, stop_groups  # noqa: E402 (test support)
 
 
 CLI = str(Path(sys.executable).parent / 'curve-formation')

@@ -166,31 +166,31 @@ def test_every_module_compiled_into_the_simulator_is_watched_for_changes():
     """A core module whose functions the kernels compile in must be among the SOURCES whose
     change drops numba's cache (else an edit of it would leave the old code running).
     """
-    from curve_formation.core import simulator
+    from curve_formation.core import jit, simulator  # noqa: F401 (compiles its kernels)
     compiled_in = {function.__module__.rsplit('.', 1)[1] + '.py'
-                   for function in simulator._COMPILED}
+                   for function in jit._COMPILED}
     assert 'driving.py' in compiled_in
-    assert compiled_in <= set(simulator.SOURCES)
+    assert compiled_in <= set(jit.SOURCES)
 
 
 def test_compiled_cache_is_dropped_when_a_law_source_changes(tmp_path):
     """numba would keep running a stepping loop compiled from an older control.py."""
     import shutil
 
-    from curve_formation.core import simulator
-    here = Path(simulator.__file__).parent
-    for name in simulator.SOURCES:
+    from curve_formation.core import jit
+    here = Path(jit.__file__).parent
+    for name in jit.SOURCES:
         shutil.copy(here / name, tmp_path / name)
-    cache = simulator.cache_folder(tmp_path)   # NUMBA_CACHE_DIR's, as bootstrap.sh sets it
+    cache = jit.cache_folder(tmp_path)   # NUMBA_CACHE_DIR's, as bootstrap.sh sets it
     cache.mkdir(parents=True)
     (cache / 'simulator._run-1.py311.nbi').write_text('compiled')
-    assert simulator.drop_stale_cache(tmp_path)            # no record of the sources yet
+    assert jit.drop_stale_cache(tmp_path)            # no record of the sources yet
     assert not list(cache.glob('*.nbi'))
     (cache / 'simulator._run-1.py311.nbi').write_text('compiled')
-    assert not simulator.drop_stale_cache(tmp_path)        # unchanged: the cache stays
+    assert not jit.drop_stale_cache(tmp_path)        # unchanged: the cache stays
     with open(tmp_path / 'control.py', 'a') as f:
         f.write('# edited\n')
-    assert simulator.drop_stale_cache(tmp_path)
+    assert jit.drop_stale_cache(tmp_path)
     assert not list(cache.glob('*.nbi'))
     shutil.rmtree(cache)
 

@@ -10,10 +10,9 @@ import sys
 import threading
 import time
 
+from netns_hosts import available, Hosts, stop_groups
 import numpy as np
 import pytest
-
-from curve_formation.netns_hosts import available, Hosts, stop_groups
 
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]

@@ -287,10 +287,10 @@ class _CurveTargets:
 
 
 def compiled_command(config: AgentConfig) -> Callable[..., tuple]:
-    """control.agent_command compiled (core.simulator.compiled) and called once with the
+    """control.agent_command compiled (core.jit.compiled) and called once with the
     argument types of config's ticks, so that no tick waits for numba.
     """
-    from curve_formation.core.simulator import compiled
+    from curve_formation.core.jit import compiled
     command = compiled(agent_command)
     command(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
             *config.pc_disturbance, config.law, config.limits, NO_OTHERS, config.index - 1,

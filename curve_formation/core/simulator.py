@@ -17,11 +17,8 @@ controller (core.control), and its cost is linear in agents plus edges.
 from collections.abc import Callable
 import dataclasses
 from dataclasses import dataclass
-import hashlib
 import math
-from pathlib import Path
-import types
-from typing import Any, cast, Literal, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import numba
 import numpy as np
@@ -33,71 +30,9 @@ from curve_formation.core.control import Gains, Law, WheelLimits
 from curve_formation.core.disturbance import disturbance_at
 from curve_formation.core.driving import REVERSE_HYSTERESIS
 from curve_formation.core.experiment import ConfigError, Experiment, Phase, whole_steps
+from curve_formation.core.jit import compiled
 from curve_formation.core.safety import Avoidance
 from curve_formation.core.shapes import BoolArray, FloatArray, IntArray
-
-
-SOURCES = ('control.py', 'driving.py', 'dynamics.py', 'safety.py', 'bodies.py', 'simulator.py')
-
-
-def cache_folder(folder: Path) -> Path:
-    """Where numba caches what it compiles from the sources in `folder`: __pycache__ beside
-    them, or under NUMBA_CACHE_DIR when that is set (as scripts/bootstrap.sh does), in the
-    subfolder numba itself derives from the sources' folder.
-    """
-    from numba.core import caching, config
-    if config.CACHE_DIR:
-        return Path(config.CACHE_DIR) / caching._CacheLocator.get_suitable_cache_subpath(
-            str(folder / 'simulator.py'))
-    return folder / '__pycache__'
-
-
-def drop_stale_cache(folder: Path = Path(__file__).parent) -> bool:
-    """Delete numba's compiled cache when a source it compiles in (SOURCES) changed.
-
-    numba checks a cached function against its own source file only, not against the
-    functions it compiled in from other modules: after an edit of control.py the stepping loop
-    would run the old law. Installed copies never change; an unwritable cache is left alone.
-    """
-    sources = b''.join((folder / name).read_bytes() for name in SOURCES)
-    digest = hashlib.sha256(sources).hexdigest()
-    cache = cache_folder(folder)
-    stamp = cache / 'simulator.sources.sha256'
-    try:
-        if stamp.read_text() == digest:
-            return False
-    except OSError:
-        pass
-    try:
-        for path in cache.glob('*.nb[ic]'):
-            path.unlink()
-        cache.mkdir(parents=True, exist_ok=True)
-        stamp.write_text(digest)
-    except OSError:
-        return False
-    return True
-
-
-drop_stale_cache()
-
-_COMPILED: dict[types.FunctionType, Callable[..., Any]] = {}
-
-
-def compiled(function: Callable[..., Any]) -> Callable[..., Any]:
-    """numba-compile a core function, after the core functions it calls (compiled in)."""
-    source = cast(types.FunctionType, function)   # a plain Python function of the core
-    if source in _COMPILED:
-        return _COMPILED[source]
-    callees: dict[str, Callable[..., Any]] = {}
-    for name in source.__code__.co_names:
-        value = source.__globals__.get(name)
-        if (isinstance(value, types.FunctionType)
-                and value.__module__.startswith('curve_formation.core.')):
-            callees[name] = compiled(value)
-    scope = dict(source.__globals__, **callees)
-    copy = types.FunctionType(source.__code__, scope, source.__name__, source.__defaults__)
-    _COMPILED[source] = numba.njit(cache=True)(copy)
-    return _COMPILED[source]
 
 
 _agent_command = compiled(control.agent_command)
