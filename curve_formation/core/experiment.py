@@ -40,6 +40,10 @@ from curve_formation.core.safety import Avoidance, AVOIDANCE_OFF
 from curve_formation.core.shapes import FloatArray, Point
 
 
+# How long (s) before its start a curve that only begins to move where it is gets published
+# (Experiment.announce_lead; the curve server's announce_ahead default).
+ANNOUNCE_AHEAD = 0.2
+
 class ConfigError(ValueError):
     """An experiment file that cannot be used; the message names file, key and expectation."""
 
@@ -127,6 +131,23 @@ class Experiment:
         if reassigned and self.spec.agents.assignment == 'nearest':
             return phase.assigned_from(targets)
         return phase
+
+    def announce_lead(self, k: int, current: tuple[Curve, FloatArray] | None, moving: bool,
+                      reassigned: bool, targets: FloatArray,
+                      ahead: float = ANNOUNCE_AHEAD) -> float:
+        """How long (s) before its start phase k is published: `ahead` if it only sets the
+        current curve moving (its switched curve and s those of `current`, the (curve, s)
+        last published, nothing moving now), so that every controller has it before it
+        begins to move; else 0. The curve server and the nodes' pipeline both ask here.
+        """
+        phase = self.phases[k]
+        if ahead <= 0 or phase.motion is None or current is None or moving:
+            return 0.0
+        switched = self.switched_to(phase, reassigned, targets)
+        curve, s = current
+        same = (curve.matches(switched.curve)
+                and np.allclose(s, switched.s, rtol=0.0, atol=1e-9))
+        return ahead if same else 0.0
 
     def report(self) -> dict[str, Any]:
         """What was checked, as a JSON-ready dict: graph, Theorem 1, Assumptions 1-2, fits."""

@@ -27,7 +27,8 @@ import numpy as np
 from curve_formation.core import metrics
 from curve_formation.core.agent import agent_configs, AgentController
 from curve_formation.core.assignment import reassigned
-from curve_formation.core.experiment import control_rate, Experiment, Phase
+from curve_formation.core.curves import Curve
+from curve_formation.core.experiment import ANNOUNCE_AHEAD, control_rate, Experiment, Phase
 from curve_formation.core.shapes import BoolArray, FloatArray
 from curve_formation.core.simulator import SimResult
 from curve_formation.core.worlds import make_world, World
@@ -38,7 +39,7 @@ MOVING_RATE = 10.0
 # Poses per second (Hz) when the experiment has no camera (the fake arena's default).
 POSE_RATE = 30.0
 # Event kinds, in their order at equal times.
-CURVE, REASSIGN, POSE, TICK, RECORD = range(5)
+ANNOUNCE, CURVE, REASSIGN, POSE, TICK, RECORD = range(6)
 
 
 @dataclass(frozen=True)
@@ -97,13 +98,33 @@ class Pipeline:
         self.changes: list[tuple[float, FloatArray, FloatArray]] = []
         self.sent = experiment.phases[0].targets   # the targets last sent (m)
         self.reassigned = False
+        self.published: tuple[Curve, FloatArray] | None = None   # the last curve and s sent
+        self.announced: set[int] = set()   # phases published ahead of their start
 
-    def _publish(self, now: float, curve, s: FloatArray, rate=None) -> None:
+    def _publish(self, now: float, curve, s: FloatArray, rate=None,
+                 valid_at: float | None = None) -> None:
+        self.published = (curve, s)
         for controller in self.controllers:
-            controller.set_curve(curve, self.curve_id, s, rate, received=now)
+            controller.set_curve(curve, self.curve_id, s, rate, received=now,
+                                 valid_at=valid_at)
 
-    def start_phase(self, index: int, now: float) -> None:
-        """The curve server's switch to phase `index` at `now` (s)."""
+    def announce(self, index: int, now: float) -> None:
+        """The curve server's look ahead, ANNOUNCE_AHEAD before phase `index` starts: a curve
+        that only begins to move where it is gets published now, dated to begin at its start
+        (Experiment.announce_lead).
+        """
+        moving = self.phase is not None and self.phase.motion is not None
+        if self.experiment.announce_lead(index, self.published, moving, self.reassigned,
+                                         self.sent) > 0:
+            self.start_phase(index, now, self.experiment.phases[index].start)
+            self.announced.add(index)
+
+    def start_phase(self, index: int, now: float, begins: float | None = None) -> None:
+        """The curve server's switch to phase `index` at `now` (s); begins: when the curve
+        begins to move (s; None: now).
+        """
+        if index in self.announced:
+            return
         self._close_phase()
         phase = self.experiment.switched_to(self.experiment.phases[index], self.reassigned,
                                             self.sent)
@@ -112,7 +133,7 @@ class Pipeline:
         self.curve_id += 1
         rate = None if phase.motion is None else phase.motion.rate(phase.curve, 0.0)
         self.sent = phase.targets
-        self._publish(now, phase.curve, phase.s, rate)
+        self._publish(now, phase.curve, phase.s, rate, begins)
 
     def renew(self, now: float) -> None:
         """A moving curve published where it is now, with its rate (same id)."""
@@ -207,6 +228,8 @@ class Pipeline:
         for index, phase in enumerate(self.experiment.phases):
             if phase.start < duration:
                 events.append((phase.start, CURVE, index))
+            if phase.motion is not None and index > 0 and phase.start < duration:
+                events.append((phase.start - ANNOUNCE_AHEAD, ANNOUNCE, index))
             if phase.motion is not None:
                 end = (self.experiment.phases[index + 1].start
                        if index + 1 < len(self.experiment.phases) else duration)
@@ -230,7 +253,9 @@ class Pipeline:
         while events:
             now, kind, index = heapq.heappop(events)
             self.world.advance(now)
-            if kind == CURVE:
+            if kind == ANNOUNCE:
+                self.announce(index, now)
+            elif kind == CURVE:
                 self.start_phase(index, now) if index >= 0 else self.renew(now)
             elif kind == REASSIGN:
                 self.reassign(now)

@@ -27,7 +27,7 @@ from curve_formation.core.assignment import AssignmentError, phase_parameters, r
 from curve_formation.core.curve_codec import CurveClock
 from curve_formation.core.curve_sources import fit_points
 from curve_formation.core.curves import CurveError, make_basis
-from curve_formation.core.experiment import points_outside_arena
+from curve_formation.core.experiment import ANNOUNCE_AHEAD, points_outside_arena
 from curve_formation.core.metrics import offset_points
 from curve_formation.core.plausibility import MAX_COORDINATE
 from curve_formation.nodes import messages, topics
@@ -54,11 +54,11 @@ PARAMETERS = (
           'observed curves', low=1),
     Param('moving_rate_hz', 'double', 10.0, 'how often a moving curve (curves[].motion) is '
           'published again, with its coefficients and their rate', positive=True),
-    Param('announce_ahead', 'double', 0.2, 'a curve that begins to move where it is (the '
-          "next phase's curve and targets are the current ones, with a motion) is published "
-          "this long (s) before its start, dated by its clock to begin moving then: every "
-          "controller's tick before the start already has it, and the robots move off with "
-          'the curve instead of up to a control period after it (0 = at the start)',
+    Param('announce_ahead', 'double', ANNOUNCE_AHEAD, 'a curve that begins to move where it '
+          "is (the next phase's curve and targets are the current ones, with a motion) is "
+          'published this long (s) before its start, dated by its clock to begin moving then: '
+          "every controller's tick before the start already has it, and the robots move off "
+          'with the curve instead of up to a control period after it (0 = at the start)',
           low=0.0),
     Param('schedule', 'bool', True, "publish the experiment's `curves` on their schedule; "
           'false = only observed curves (a curve drawn on the floor)'),
@@ -211,15 +211,10 @@ class CurveServer(Node):
         """How long (s) before its start scheduled phase k is published: announce_ahead if
         it only sets the current curve moving (same curve, same targets), else 0.
         """
-        phase = self.experiment.phases[k]
-        if (self.params.announce_ahead <= 0 or phase.motion is None or self.current is None
-                or self.moving is not None):
-            return 0.0
-        curve, _, s, _, _ = self.current
-        switched = self.experiment.switched_to(phase, self.reassigned, self.targets)
-        same = (curve.matches(switched.curve)
-                and np.allclose(s, switched.s, rtol=0.0, atol=1e-9))
-        return self.params.announce_ahead if same else 0.0
+        current = None if self.current is None else (self.current[0], self.current[2])
+        return self.experiment.announce_lead(k, current, self.moving is not None,
+                                             self.reassigned, self.targets,
+                                             self.params.announce_ahead)
 
     def _renew_moving(self):
         """Publish the moving phase's curve where it is now, with its rate (same id)."""
