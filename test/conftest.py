@@ -27,10 +27,16 @@ def pytest_collection_modifyitems(items):
     """A test on a ROS context or domain of its own is a `ros` test, whether or not its module
     says so: the default run (scripts/test) spreads the tests marked `not ros` over the cores
     and runs the `ros` ones one at a time, their nodes having the machine to themselves.
+    Within them, the tiers: `in_process` (rclpy nodes on a context of the test's own, the
+    `ros` fixture) and `processes` (the others: node processes on a private domain).
     """
     for item in items:
-        if {'ros', 'ros_domain'} & set(getattr(item, 'fixturenames', ())):
+        fixtures = set(getattr(item, 'fixturenames', ()))
+        if {'ros', 'ros_domain'} & fixtures:
             item.add_marker(pytest.mark.ros)
+        if item.get_closest_marker('ros') is not None:
+            item.add_marker(pytest.mark.in_process if 'ros' in fixtures
+                            else pytest.mark.processes)
 
 
 @pytest.fixture
