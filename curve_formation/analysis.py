@@ -9,7 +9,6 @@ value, NaN before the first) from t = 0 at the first curve message.
 from dataclasses import dataclass, replace
 import json
 from pathlib import Path
-import re
 import time
 
 import numpy as np
@@ -30,6 +29,16 @@ from curve_formation.core.experiment import (
     parse_experiment_text,
     received_phases,
 )
+from curve_formation.interface import (
+    CMD_VEL,
+    CURVE,
+    DIAGNOSTICS,
+    ESTIMATE,
+    ESTOP_STATE,
+    POSE,
+    robot_of,
+    type_name,
+)
 from curve_formation.outputs import write_outputs
 from curve_formation.paths import resolve_config
 from curve_formation.streams import stream_topic
@@ -43,13 +52,14 @@ PARAMETERS_KEY = 'curve_formation.parameters'
 # while stopping is not the run.
 RUN_END_KEY = 'curve_formation.run_end_ns'
 PROVENANCE_KEY = 'curve_formation.provenance'   # JSON: provenance.provenance() of the run
-ESTOP_STATE = '/formation/estop_state'
-CURVE_TOPIC = '/formation/curve'
-_ROBOT_TOPIC = re.compile(r'^/robot_(\d+)/(pose|cmd_vel|disturbance_estimate)$')
-# The message type each topic the analysis reads must have (a bag of another tool may differ).
-TYPES = {'curve': 'std_msgs/msg/Float64MultiArray', 'pose': 'geometry_msgs/msg/PoseStamped',
-         'cmd_vel': 'geometry_msgs/msg/Twist',
-         'disturbance_estimate': 'geometry_msgs/msg/Vector3Stamped'}
+# The per-robot topics the analysis samples (interface names).
+SAMPLED = (POSE, CMD_VEL, ESTIMATE)
+
+
+def _sampled(topic):
+    """(robot index, name) of a per-robot topic the analysis samples, else None."""
+    placed = robot_of(topic)
+    return placed if placed is not None and placed[1] in SAMPLED else None
 
 
 @dataclass
@@ -83,10 +93,10 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0, progress=None):
     path = Path(path)
     topics, custom = bag_info(path)
     for topic, (msgtype, _) in topics.items():
-        match = _ROBOT_TOPIC.match(topic)
-        kind = 'curve' if topic == CURVE_TOPIC else match and match.group(2)
-        if kind and msgtype != TYPES[kind]:
-            raise BagError(f'{path}: {topic} holds {msgtype}, expected {TYPES[kind]}: not a '
+        # the message type each topic the analysis reads must have (another tool's may differ)
+        wanted = type_name(topic) if topic == CURVE or _sampled(topic) else None
+        if wanted is not None and msgtype != wanted:
+            raise BagError(f'{path}: {topic} holds {msgtype}, expected {wanted}: not a '
                            "bag of this package's run (record one with `curve-formation run "
                            '--bag`)')
     if experiment_path is not None:
@@ -102,8 +112,7 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0, progress=None):
     n = experiment.n
     # per kind, per robot: (received s, value)
     events: dict[str, list[list[tuple[float, tuple[float, ...]]]]] = {
-        'pose': [[] for _ in range(n)], 'cmd_vel': [[] for _ in range(n)],
-        'disturbance_estimate': [[] for _ in range(n)]}
+        kind: [[] for _ in range(n)] for kind in SAMPLED}
     curves: list = []
     counts: dict[str, int] = {}
     contacts = None
@@ -111,8 +120,8 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0, progress=None):
     death_events: list = []
     # per robot: (received s, (pose stamp s,))
     stamps: list[list[tuple[float, tuple[float, ...]]]] = [[] for _ in range(n)]
-    read = [topic for topic in topics if topic in (ESTOP_STATE, '/diagnostics', CURVE_TOPIC)
-            or _ROBOT_TOPIC.match(topic)]   # a topic of another tool may be of any type
+    read = [topic for topic in topics if topic in (ESTOP_STATE, DIAGNOSTICS, CURVE)
+            or _sampled(topic)]   # a topic of another tool may be of any type
     total, done, said = sum(topics[topic][1] for topic in read), 0, time.monotonic()
     for topic, _, stamp, msg in read_messages(path, read):
         counts[topic] = counts.get(topic, 0) + 1
@@ -129,7 +138,7 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0, progress=None):
                 continue
             estop_events.append((t, report.holder, report.engaged))
             continue
-        if topic == '/diagnostics':
+        if topic == DIAGNOSTICS:
             for status in msg.status:
                 values = {kv.key: kv.value for kv in status.values}
                 if status.hardware_id == metrics.CONTACT_REPORTER:
@@ -137,7 +146,7 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0, progress=None):
                 elif status.hardware_id == metrics.NODE_DEATH_REPORTER:
                     death_events.append((t, values.get('node', '?'), values.get('how', '?')))
             continue
-        if topic == CURVE_TOPIC:
+        if topic == CURVE:
             dims = [(d.label, d.size) for d in msg.layout.dim]
             curve, curve_id = decode_curve(dims, msg.data)
             s = decode_agent_parameters(dims, msg.data)
@@ -146,18 +155,18 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0, progress=None):
                                f'{n} agents: cannot tell which robot goes where')
             curves.append((t, curve_id, curve, s, decode_curve_clock(dims, msg.data)))
             continue
-        match = _ROBOT_TOPIC.match(topic)
-        if not match or not 1 <= int(match.group(1)) <= n:
+        placed = _sampled(topic)
+        if placed is None or not 1 <= placed[0] <= n:
             continue
-        kind, i = match.group(2), int(match.group(1)) - 1
+        i, kind = placed[0] - 1, placed[1]
         value: tuple[float, ...]
-        if kind == 'pose':
+        if kind == POSE:
             q = msg.pose.orientation
             value = (msg.pose.position.x, msg.pose.position.y,
                      yaw_from_quaternion(q.x, q.y, q.z, q.w))
             stamp_s = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
             stamps[i].append((t, (stamp_s,)))
-        elif kind == 'cmd_vel':
+        elif kind == CMD_VEL:
             value = (msg.linear.x, msg.angular.z)
         else:
             value = (msg.vector.x, msg.vector.y)
@@ -165,7 +174,7 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0, progress=None):
     if not curves:
         raise BagError(f'{path}: no /formation/curve message: nothing to measure against')
     t0 = curves[0][0]
-    end = max((ev[-1][0] for ev in events['pose'] if ev), default=t0)
+    end = max((ev[-1][0] for ev in events[POSE] if ev), default=t0)
     if RUN_END_KEY in custom:
         end = min(end, int(custom[RUN_END_KEY]) * 1e-9)
     if end - t0 < 2.0 / sample_hz:
@@ -179,8 +188,8 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0, progress=None):
     estops = stopped_intervals([(t - t0, holder, engaged)
                                 for t, holder, engaged in estop_events], end - t0)
     return BagRun(replace(experiment, phases=phases), grid - t0,
-                  _sample(events['pose'], grid, 3), _sample(events['cmd_vel'], grid, 2),
-                  _sample(events['disturbance_estimate'], grid, 2), phase, counts, contacts,
+                  _sample(events[POSE], grid, 3), _sample(events[CMD_VEL], grid, 2),
+                  _sample(events[ESTIMATE], grid, 2), phase, counts, contacts,
                   estops, [(t - t0, node, how) for t, node, how in death_events],
                   _sample(stamps, grid, 1)[..., 0] - t0, _run_provenance(custom),
                   experiment_text)

@@ -20,6 +20,7 @@ from curve_formation.core.experiment import (
     wheel_base,
     wheel_radius,
 )
+from curve_formation.interface import robot_namespace
 from curve_formation.nodes.formation_controller import node_parameters
 from curve_formation.nodes.params import limit_parameter
 from curve_formation.run_options import DEFAULTS
@@ -77,7 +78,7 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None,
                             # a drawn curve comes from the camera, not from the schedule
                             'schedule': not (cameras and spec.camera.drawn_curve is not None)})]
     for i, config in enumerate(agent_configs(experiment, rate), 1):
-        ns = f'/robot_{i}'
+        ns = robot_namespace(i)
         d = [float(v) for v in experiment.disturbance[i - 1]]
         controller = {**node_parameters(config),
                       'disturbance_varies': varies if on_pc else '',

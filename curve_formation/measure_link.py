@@ -4,35 +4,39 @@ camera saw them), by core.link_estimate. What `curve-formation measure-link` pri
 experiment setting it suggests (controller.command_latency).
 """
 
-import re
+
 
 import numpy as np
 
 from curve_formation.bag import bag_summary, BagError, read_messages
 from curve_formation.core.curve_codec import yaw_from_quaternion
 from curve_formation.core.link_estimate import estimate_latency
+from curve_formation.interface import CMD_VEL, POSE, robot_of
 
 
-_TOPIC = re.compile(r'^/robot_(\d+)/(pose|cmd_vel)$')
+def _placed(topic):
+    """(robot index, 'pose' or 'cmd_vel') of a robot's pose or command topic, else None."""
+    placed = robot_of(topic)
+    return placed if placed is not None and placed[1] in (POSE, CMD_VEL) else None
 
 
 def measure_bag(path):
     """{'robots': {i: {'latency', 'spread', 'windows', 'residual', 'commands', 'poses'}},
     'latency': the median over the robots that told one (s, or None)} of a bag.
     """
-    topics = [t for t in bag_summary(path) if _TOPIC.match(t)]
+    topics = [t for t in bag_summary(path) if _placed(t) is not None]
     commands: dict[int, list] = {}
     poses: dict[int, list] = {}
     for topic, _, stamp, msg in read_messages(path, topics):
-        match = _TOPIC.match(topic)
-        assert match is not None   # the topics were chosen by it
-        i, kind = match.groups()
-        if kind == 'cmd_vel':
-            commands.setdefault(int(i), []).append((stamp * 1e-9, msg.linear.x, msg.angular.z))
+        placed = _placed(topic)
+        assert placed is not None   # the topics were chosen by it
+        i, kind = placed
+        if kind == CMD_VEL:
+            commands.setdefault(i, []).append((stamp * 1e-9, msg.linear.x, msg.angular.z))
         else:
             q = msg.pose.orientation
             taken = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-            poses.setdefault(int(i), []).append(
+            poses.setdefault(i, []).append(
                 (taken, msg.pose.position.x, msg.pose.position.y,
                  yaw_from_quaternion(q.x, q.y, q.z, q.w)))
     robots = sorted(set(commands) & set(poses))

@@ -44,7 +44,6 @@ class Observers:
     def _open(self):
         import rclpy
         from rclpy.context import Context
-        from rclpy.qos import ReliabilityPolicy
         from rclpy.signals import SignalHandlerOptions
 
         from curve_formation.nodes import topics
@@ -62,9 +61,7 @@ class Observers:
             for key, text in self.metadata.items():
                 self.bag_writer.set_custom(key, text)
             recorded = topics.recorded(self.experiment.n, self.images)
-            self.best_effort_topics = {t.name for t in recorded
-                                       if t.reader_profile.reliability
-                                       == ReliabilityPolicy.BEST_EFFORT}
+            self.best_effort_topics = {t.name for t in recorded if not t.reader_qos.reliable}
         # The same executor as every node process (callbacks dispatched from C++). Python
         # callbacks share the GIL: more executor threads would not run them faster.
         self.executor = make_executor(self.context)

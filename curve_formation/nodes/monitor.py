@@ -290,8 +290,9 @@ class Monitor(Node):
         return not self.missing()
 
     def missing(self):
-        return ([f'/robot_{i + 1}/pose' for i in np.flatnonzero(np.isnan(self.pose_stamps))]
-                + [f'/robot_{i + 1}/cmd_vel'
+        return ([topics.robot_topic(int(i) + 1, topics.POSE)
+                 for i in np.flatnonzero(np.isnan(self.pose_stamps))]
+                + [topics.robot_topic(int(i) + 1, topics.CMD_VEL)
                    for i in np.flatnonzero(np.isnan(self.command_times))])
 
     def _sample(self):

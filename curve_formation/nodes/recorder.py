@@ -7,7 +7,7 @@ and at the end of the run; killed hard, it loses at most the last second.
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import QoSProfile
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Image
 
@@ -23,13 +23,6 @@ from curve_formation.nodes.runtime import (
     WithMessageInfo,
     writer_key,
 )
-
-
-def bag_qos(profile):
-    """The rosbags Qos record of an rclpy QoSProfile."""
-    return bag.qos(reliable=profile.reliability == ReliabilityPolicy.RELIABLE,
-                   transient_local=profile.durability == DurabilityPolicy.TRANSIENT_LOCAL,
-                   depth=profile.depth)
 
 
 # The recorder's own queue: deep, so a busy executor does not overwrite unread messages.
@@ -53,7 +46,9 @@ class Recorder(Node):
         for recorded in topic_list:
             topic, msg_class, profile = (recorded.name, recorded.msg_class,
                                          recorded.reader_profile)
-            writer.add_topic(topic, recorded.type_name, bag_qos(profile))
+            wanted = recorded.reader_qos
+            writer.add_topic(topic, recorded.type_name,
+                             bag.qos(wanted.reliable, wanted.transient_local, wanted.depth or 0))
             self.received[topic] = 0
             deep = QoSProfile(depth=RECORD_DEPTH, reliability=profile.reliability,
                               durability=profile.durability)

@@ -1,0 +1,176 @@
+"""The formation's ROS interface as plain data, without ROS: every topic's name, message type,
+QoS and meaning, the QoS profiles, and the per-robot names.
+
+The nodes attach rclpy's classes to these records (nodes/topics.py, nodes/qos.py); the
+recorder, the bag reader and the analysis build from the same records without importing rclpy.
+Per-robot topics have relative names, so a robot is placed by its namespace /robot_<i>.
+"""
+
+from dataclasses import dataclass
+import re
+
+
+CURVE = '/formation/curve'
+OBSERVED_CURVE = '/formation/observed_curve'
+ESTOP = '/formation/estop'
+ESTOP_STATE = '/formation/estop_state'
+READY = '/formation/ready'
+CURVE_PATH = '/formation/curve_path'
+CURVE_MARKERS = '/formation/markers'
+ROBOT_POSES = '/formation/robot_poses'
+CAMERA_IMAGE = '/camera/image_raw'
+CAMERA_POSES = '/camera/robot_poses'
+CAMERA_DEBUG = '/camera/debug_image'
+DIAGNOSTICS = '/diagnostics'
+POSE = 'pose'
+TRUE_POSE = 'true_pose'
+CMD_VEL = 'cmd_vel'
+STATE = 'formation_state'
+ESTIMATE = 'disturbance_estimate'
+TICK = 'control_tick'
+
+# Which bags record a topic (nodes/recorder.py).
+EVERY_BAG = 'every bag'
+WITH_IMAGES = 'with images'
+
+
+@dataclass(frozen=True)
+class QosSpec:
+    """A QoS profile as data: reliable (else best effort), transient local (else volatile),
+    and the history's depth (None: keep all).
+    """
+
+    reliable: bool
+    transient_local: bool = False
+    depth: int | None = 1
+
+
+# Each profile, chosen for the data it carries.
+QOS = {
+    # Poses: latest wins, drops are fine (rclpy's qos_profile_sensor_data).
+    'SENSOR': QosSpec(reliable=False, depth=5),
+    # Velocity commands: reliable, only the newest matters.
+    'COMMAND': QosSpec(reliable=True, depth=1),
+    # A neighbour's state: reliable and shallow; stale values are rejected by stamp anyway.
+    'STATE': QosSpec(reliable=True, depth=2),
+    # The curve and its visualisation: latched, so a late joiner gets the current one.
+    'LATCHED': QosSpec(reliable=True, transient_local=True, depth=1),
+    # The start-up handshake (readiness.py): one message from each of many writers, all kept
+    # (a reader's history is shared by every writer of a topic, so a shallow one would drop
+    # some), and latched for a curve server that starts late.
+    'ROLL_CALL': QosSpec(reliable=True, transient_local=True, depth=None),
+    # Diagnostics and the e-stop: reliable, a few deep.
+    'EVENTS': QosSpec(reliable=True, depth=5),
+    # E-stop commands as read: best effort and volatile, which every writer matches (volatile
+    # or transient-local, reliable or best-effort: `ros2 topic pub`, an RViz or Foxglove
+    # button, a foot-pedal script). Nodes that act on the e-stop also read them with
+    # ESTOP_RELIABLE, so a reliable sender's retransmissions reach them (nodes/estop.py).
+    'ANY_PUBLISHER': QosSpec(reliable=False, depth=10),
+    'ESTOP_RELIABLE': QosSpec(reliable=True, depth=10),
+    # Camera frames: only the newest is worth processing; an older one would only add latency.
+    'IMAGE': QosSpec(reliable=False, depth=1),
+}
+
+
+@dataclass(frozen=True)
+class TopicSpec:
+    """One topic: name (absolute, or relative for a per-robot topic), message type
+    ('geometry_msgs/msg/PoseStamped', as bags and `ros2 topic` name it), QoS (a name in QOS:
+    what our publishers offer and, unless reader_qos_name says otherwise, what our
+    subscriptions ask), meaning, and which bags record it (or None).
+    """
+
+    name: str
+    type_name: str
+    qos_name: str
+    meaning: str
+    recorded: str | None = None
+    reader_qos_name: str | None = None
+
+    @property
+    def qos(self) -> QosSpec:
+        return QOS[self.qos_name]
+
+    @property
+    def per_robot(self) -> bool:
+        return not self.name.startswith('/')
+
+
+TOPICS = {t.name: t for t in (
+    TopicSpec(CURVE, 'std_msgs/msg/Float64MultiArray', 'LATCHED',
+              "the active curve: coefficients xi, for a moving curve their rate xi_dot, its "
+              "clock (when it holds, s on the server's ROS clock; how long it has moved, s), "
+              "then each agent's s_i; layout labels: basis kind and size, curve id, sizes of "
+              'each part (core/curve_codec.py)', EVERY_BAG),
+    TopicSpec(ESTOP, 'std_msgs/msg/Bool', 'LATCHED', 'true stops every robot at once, false '
+              'releases; read from any publisher (any reliability, any durability)', EVERY_BAG,
+              reader_qos_name='ANY_PUBLISHER'),
+    TopicSpec(ESTOP_STATE, 'diagnostic_msgs/msg/DiagnosticStatus', 'LATCHED',
+              "each node's e-stop state, latched for nodes that start while stopped: name = "
+              'the node, hardware_id = its robot, values engaged, by, robots', EVERY_BAG,
+              # read keeping all: a change reaches every holder at once, and a shallow
+              # reader's history, shared by all writers, would drop some of their
+              # announcements
+              reader_qos_name='ROLL_CALL'),
+    TopicSpec(CURVE_PATH, 'nav_msgs/msg/Path', 'LATCHED', 'the curve, sampled, for RViz',
+              EVERY_BAG),
+    TopicSpec(DIAGNOSTICS, 'diagnostic_msgs/msg/DiagnosticArray', 'EVENTS',
+              "every node's status (1 Hz)", EVERY_BAG),
+    TopicSpec(POSE, 'geometry_msgs/msg/PoseStamped', 'SENSOR', "a robot's pose, arena frame",
+              EVERY_BAG),
+    TopicSpec(CMD_VEL, 'geometry_msgs/msg/Twist', 'COMMAND',
+              "a robot's velocity command (m/s, rad/s)", EVERY_BAG),
+    TopicSpec(STATE, 'sensor_msgs/msg/JointState', 'STATE',
+              "a controller's state for its out-neighbours: e_x, e_y, curve_id, leader_age",
+              EVERY_BAG),
+    TopicSpec(ESTIMATE, 'geometry_msgs/msg/Vector3Stamped', 'STATE',
+              'disturbance estimate (x = d_v, y = d_w) every tick, stamped with the pose used',
+              EVERY_BAG),
+    TopicSpec(TICK, 'sensor_msgs/msg/JointState', 'STATE',
+              'every tick: the command sent (v, w) and the stamps of the inputs it came from',
+              EVERY_BAG),
+    TopicSpec(CAMERA_IMAGE, 'sensor_msgs/msg/Image', 'IMAGE', 'overhead camera frames',
+              WITH_IMAGES),
+    TopicSpec(CAMERA_POSES, 'geometry_msgs/msg/PoseArray', 'SENSOR',
+              'every tracked robot in agent order, NaN when not seen', WITH_IMAGES),
+    TopicSpec(CAMERA_DEBUG, 'sensor_msgs/msg/Image', 'IMAGE', 'annotated camera frame (bgr8)'),
+    TopicSpec(TRUE_POSE, 'geometry_msgs/msg/PoseStamped', 'SENSOR',
+              "a fake robot's ground-truth pose"),
+    TopicSpec(ROBOT_POSES, 'sensor_msgs/msg/JointState', 'SENSOR',
+              "every robot's pose in one message (x, y, theta per robot)", EVERY_BAG),
+    TopicSpec(OBSERVED_CURVE, 'geometry_msgs/msg/PolygonStamped', 'EVENTS',
+              'a newly observed curve as ordered points (arena frame, m)'),
+    TopicSpec(CURVE_MARKERS, 'visualization_msgs/msg/MarkerArray', 'LATCHED',
+              "curve line and each agent's target point", EVERY_BAG),
+    TopicSpec(READY, 'std_msgs/msg/String', 'ROLL_CALL',
+              'names of the nodes that can receive /formation/curve (start-up handshake)'),
+)}
+
+_ROBOT_TOPIC = re.compile(r'^/robot_(\d+)/([A-Za-z0-9_]+)$')
+
+
+def robot_namespace(index: int) -> str:
+    """Namespace of robot `index` (1-based): /robot_<i>."""
+    return f'/robot_{index}'
+
+
+def robot_topic(index: int, name: str) -> str:
+    """Absolute name of a per-robot topic, e.g. /robot_3/pose."""
+    return f'{robot_namespace(index)}/{name}'
+
+
+def robot_of(topic: str) -> tuple[int, str] | None:
+    """(robot index, per-robot name) of an absolute per-robot topic, e.g. (3, 'pose') of
+    /robot_3/pose; None for any other name.
+    """
+    match = _ROBOT_TOPIC.match(topic)
+    return None if match is None else (int(match.group(1)), match.group(2))
+
+
+def type_name(topic: str) -> str | None:
+    """The message type of a topic by its absolute name (a per-robot one of any robot), or
+    None if it is not one of the formation's.
+    """
+    placed = robot_of(topic)
+    spec = TOPICS.get(placed[1] if placed is not None else topic)
+    return None if spec is None or (placed is None and spec.per_robot) else spec.type_name
