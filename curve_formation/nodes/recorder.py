@@ -12,6 +12,7 @@ from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Image
 
 from curve_formation import bag
+from curve_formation.interface import TopicSpec
 from curve_formation.nodes import qos, topics
 from curve_formation.nodes.guard import Guarded
 from curve_formation.nodes.params import declare_parameters, Param, ParameterError
@@ -107,7 +108,8 @@ class RecorderNode(Recorder):
             raise ParameterError(f"parameter 'bag': {exc}") from None
         writer.__enter__()
         try:   # a signal may come while the node is built: the bag is closed even then
-            extra = [topics.Topic(t, Image, 'SENSOR', 'a camera image') for t in p.image_topics]
+            extra = [topics.Topic(TopicSpec(t, 'sensor_msgs/msg/Image', 'SENSOR',
+                                            'a camera image'), Image) for t in p.image_topics]
             super().__init__(writer, topics.recorded(p.agent_count) + extra, **kwargs)
         except BaseException:
             writer.close()

@@ -51,43 +51,50 @@ def message_class(type_name):
 
 @dataclass(frozen=True)
 class Topic:
-    """One topic of interface.TOPICS with its message class: name (absolute, or relative for
-    a per-robot topic), message class, QoS (the name of a profile in nodes/qos.py: what our
-    publishers offer and, unless reader_qos_name says otherwise, what our subscriptions ask),
-    meaning, and which bags record it (or None).
+    """A topic of interface.TOPICS (its name, type, QoS, meaning and recording) with its rclpy
+    message class, under the name it is placed at (a per-robot topic's absolute name in
+    `recorded`; default the spec's).
     """
 
-    name: str
+    spec: TopicSpec
     msg_class: type
-    qos_name: str
-    meaning: str
-    recorded: str | None = None
-    reader_qos_name: str | None = None
+    placed: str | None = None
 
     @classmethod
-    def of(cls, spec: TopicSpec, name: str | None = None) -> 'Topic':
-        return cls(name or spec.name, message_class(spec.type_name), spec.qos_name,
-                   spec.meaning, spec.recorded, spec.reader_qos_name)
+    def of(cls, spec: TopicSpec, placed: str | None = None) -> 'Topic':
+        return cls(spec, message_class(spec.type_name), placed)
+
+    @property
+    def name(self) -> str:
+        return self.placed or self.spec.name
+
+    @property
+    def meaning(self) -> str:
+        return self.spec.meaning
+
+    @property
+    def recorded(self) -> str | None:
+        return self.spec.recorded
 
     @property
     def profile(self):
-        return getattr(qos, self.qos_name)
+        return getattr(qos, self.spec.qos_name)
 
     @property
     def reader_profile(self):
-        return getattr(qos, self.reader_qos_name or self.qos_name)
+        return getattr(qos, self.spec.reader_qos_name or self.spec.qos_name)
 
     @property
     def reader_qos(self) -> QosSpec:
         """The QoS our subscriptions ask, as data (interface.QOS)."""
-        return QOS[self.reader_qos_name or self.qos_name]
+        return QOS[self.spec.reader_qos_name or self.spec.qos_name]
 
     @property
-    def per_robot(self):
+    def per_robot(self) -> bool:
         return not self.name.startswith('/')
 
     @property
-    def type_name(self):
+    def type_name(self) -> str:
         """'geometry_msgs/msg/PoseStamped', as bags and `ros2 topic` name it."""
         return f'{self.msg_class.__module__.split(".")[0]}/msg/{self.msg_class.__name__}'
 
@@ -122,8 +129,8 @@ def recorded(n, images=False):
     chosen = [t for t in REGISTRY.values() if t.recorded in kinds]
     out = [t for t in chosen if not t.per_robot]
     for i in range(1, n + 1):
-        out += [Topic(robot_topic(i, t.name), t.msg_class, t.qos_name, t.meaning, t.recorded,
-                      t.reader_qos_name) for t in chosen if t.per_robot]
+        out += [Topic(t.spec, t.msg_class, robot_topic(i, t.name)) for t in chosen
+                if t.per_robot]
     return out
 
 
