@@ -14,7 +14,7 @@ import time
 import numpy as np
 
 from curve_formation.bag import bag_info, bag_summary, BagError, read_messages
-from curve_formation.core import metrics, plots
+from curve_formation.core import diagnostics, metrics, plots
 from curve_formation.core.curve_codec import (
     decode_agent_parameters,
     decode_curve,
@@ -141,9 +141,9 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0, progress=None):
         if topic == DIAGNOSTICS:
             for status in msg.status:
                 values = {kv.key: kv.value for kv in status.values}
-                if status.hardware_id == metrics.CONTACT_REPORTER:
-                    contacts = metrics.contacts_from_report(values)
-                elif status.hardware_id == metrics.NODE_DEATH_REPORTER:
+                if status.hardware_id == diagnostics.CONTACT_REPORTER:
+                    contacts = diagnostics.contacts_from_report(values)
+                elif status.hardware_id == diagnostics.NODE_DEATH_REPORTER:
                     death_events.append((t, values.get('node', '?'), values.get('how', '?')))
             continue
         if topic == CURVE:

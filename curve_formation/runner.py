@@ -22,7 +22,7 @@ from rclpy.serialization import serialize_message
 
 from curve_formation.analysis import bag_accounting, RUN_END_KEY
 from curve_formation.bag import BagWriter
-from curve_formation.core import metrics
+from curve_formation.core import diagnostics, metrics
 from curve_formation.core.experiment import control_rate, load_experiment
 from curve_formation.launches import node_launches, part_of
 from curve_formation.node_graph import NodeGraph
@@ -219,7 +219,7 @@ class Run:
 
     def _on_death(self, death):
         """A node process ended on its own: said now, written into the bag (a /diagnostics
-        message, metrics.NODE_DEATH_REPORTER) and later into metrics.json; the run goes on
+        message, diagnostics.NODE_DEATH_REPORTER) and later into metrics.json; the run goes on
         without it.
         """
         t, report = self.monitor.report_death(death.key, death.how)
@@ -376,7 +376,7 @@ class Run:
                                                     self.monitor.contacts,
                                                     data['unseen'] if camera else None)
         if self.monitor.links:   # robot_bridge's link reports, per robot
-            result['links'] = {name.strip('/').split('/')[0]: metrics.link_summary(reports)
+            result['links'] = {name.strip('/').split('/')[0]: diagnostics.link_summary(reports)
                                for name, reports in sorted(self.monitor.links.items())}
         # robot -> [[from, to or null (s), nodes]] while its cmd_vel had several publishers
         result['command_sources'] = self.monitor.command_sources

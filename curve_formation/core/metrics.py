@@ -263,50 +263,6 @@ def markers_covered(poses, radius, marker_offset, marker_size):
     return near.any(axis=(1, 2))
 
 
-# The hardware id under which fake_arena reports its contact tally on /diagnostics.
-CONTACT_REPORTER = 'fake_arena'
-# The hardware id under which the runner reports a node of the run that died (values: node,
-# how), so that a bag carries it.
-NODE_DEATH_REPORTER = 'node_death'
-
-
-# The node name under which each robot_bridge reports its link on /diagnostics.
-LINK_REPORTER = '/robot_bridge'
-LINK_COUNTS = ('sent', 'failed', 'stops', 'replies', 'malformed', 'dropped_lines')
-
-
-def link_summary(reports):
-    """One robot link from its robot_bridge's reports [(t s, level, message, {key: text})]
-    (every report, or the newest and those that began a loss): the counts and latency
-    percentiles (ms) of the last report, and the times (s) at which the link was lost or an
-    error began (level 2 after a lower level).
-    """
-    last = reports[-1][3]
-    summary: dict[str, object] = {key: int(last[key]) for key in LINK_COUNTS if key in last}
-    for key in ('latency_ms_p50', 'latency_ms_p99'):
-        if key in last:
-            summary[key] = float(last[key])
-    summary['last_error'] = last.get('last_error', '')
-    levels = [0] + [level for _, level, _, _ in reports]
-    summary['lost_at'] = [round(t, 3) for k, (t, level, _, _) in enumerate(reports)
-                          if level >= 2 > levels[k]]
-    return summary
-
-
-def contacts_from_report(values):
-    """The contact tally {'count', 'time', 'smallest_gap'} (and from MuJoCo 'walls',
-    'largest_push') of a fake_arena diagnostic status given as {key: text} (None for a value
-    it reports as None).
-    """
-    return {key: None if values[key] == 'None' else float(values[key])
-            for key in CONTACT_KEYS if key in values}
-
-
-# A world's contact tally: new robot-robot contacts, time with any (s), smallest gap between
-# two bodies (m); from MuJoCo also new robot-wall contacts and the largest contact force (N).
-CONTACT_KEYS = ('count', 'time', 'smallest_gap', 'walls', 'largest_push')
-
-
 def body_metrics(experiment, t, poses, contacts=None, unseen=None):
     """Bodies in the arena: contacts (count and total time, counted where the bodies are
     simulated: `contacts`), the smallest gap between two surfaces (exact from `contacts`,

@@ -26,7 +26,7 @@ import numpy as np
 from rclpy.duration import Duration
 from rclpy.node import Node
 
-from curve_formation.core import metrics, wire
+from curve_formation.core import diagnostics, wire
 from curve_formation.core.disturbance import RunTime
 from curve_formation.core.experiment import wheel_base
 from curve_formation.core.worlds import ENGINES, make_world
@@ -235,7 +235,7 @@ class FakeArena(Node):
         summary = self.contact_summary()
         status = DiagnosticStatus(
             level=DiagnosticStatus.WARN if summary['count'] else DiagnosticStatus.OK,
-            name=self.get_fully_qualified_name(), hardware_id=metrics.CONTACT_REPORTER,
+            name=self.get_fully_qualified_name(), hardware_id=diagnostics.CONTACT_REPORTER,
             message=f'{summary["count"]} contacts' if summary['count'] else 'no contact',
             values=[KeyValue(key=key, value=repr(value)) for key, value in summary.items()])
         msg = DiagnosticArray(status=[status])

@@ -13,7 +13,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 from rclpy.node import Node
 
-from curve_formation.core import metrics
+from curve_formation.core import diagnostics
 from curve_formation.core.estop import stopped_intervals
 from curve_formation.core.experiment import ReceivedPhases
 from curve_formation.core.sample_log import SampleLog
@@ -232,7 +232,7 @@ class Monitor(Node):
 
     def report_death(self, key, how):
         """A node of the run died: kept (node_deaths). Returns (its t, s since t = 0 or None;
-        the /diagnostics message that tells it, stamped now: metrics.NODE_DEATH_REPORTER).
+        the /diagnostics message that tells it, stamped now: diagnostics.NODE_DEATH_REPORTER).
 
         The message is not published: the runner writes it into its bag. A publisher of its
         own in this process was seen to hang in Fast DDS when destroyed at the run's end.
@@ -242,7 +242,7 @@ class Monitor(Node):
         self.node_deaths.append((t, key, how))
         status = DiagnosticStatus(
             level=DiagnosticStatus.ERROR, name=self.get_fully_qualified_name(),
-            hardware_id=metrics.NODE_DEATH_REPORTER, message=f'node {key} died: {how}',
+            hardware_id=diagnostics.NODE_DEATH_REPORTER, message=f'node {key} died: {how}',
             values=[KeyValue(key='node', value=key), KeyValue(key='how', value=how)])
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = messages.seconds_to_stamp(now)
@@ -262,10 +262,10 @@ class Monitor(Node):
 
     def _on_diagnostics(self, msg):
         for status in msg.status:
-            if status.hardware_id == metrics.CONTACT_REPORTER:
-                self.contacts = metrics.contacts_from_report(
+            if status.hardware_id == diagnostics.CONTACT_REPORTER:
+                self.contacts = diagnostics.contacts_from_report(
                     {kv.key: kv.value for kv in status.values})
-            elif status.name.endswith(metrics.LINK_REPORTER) and self.t0 is not None:
+            elif status.name.endswith(diagnostics.LINK_REPORTER) and self.t0 is not None:
                 level = status.level[0] if isinstance(status.level, bytes) else status.level
                 report = (messages.stamp_to_seconds(msg.header.stamp) - self.t0, int(level),
                           status.message, {kv.key: kv.value for kv in status.values})
