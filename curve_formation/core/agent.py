@@ -74,6 +74,17 @@ MAX_PREDICTION = 0.25
 OTHERS_KEPT = 0.2
 
 
+def geofence(experiment: 'Experiment') -> 'Fence':
+    """(xmin, ymin, xmax, ymax) (m, arena frame) outside which a robot is stopped: the
+    arena grown by safety.geofence_margin; None without an arena.
+    """
+    spec = experiment.spec
+    if spec.arena is None:
+        return None
+    m = spec.safety.geofence_margin
+    return (-m, -m, spec.arena.size[0] + m, spec.arena.size[1] + m)
+
+
 def agent_configs(experiment: 'Experiment', rate_hz: float) -> list['AgentConfig']:
     """Every agent's AgentConfig (agent 1 first) from an experiment, controlled at rate_hz:
     its graph neighbours, gains, limits, safety timeouts and geofence, PC-injected
@@ -81,10 +92,7 @@ def agent_configs(experiment: 'Experiment', rate_hz: float) -> list['AgentConfig
     """
     spec = experiment.spec
     on_pc = spec.disturbance.injected == 'on_pc'
-    fence: Fence = None
-    if spec.arena is not None:
-        m = spec.safety.geofence_margin
-        fence = (-m, -m, spec.arena.size[0] + m, spec.arena.size[1] + m)
+    fence = geofence(experiment)
     return [AgentConfig(
         index=i, agent_count=experiment.n, neighbours=tuple(experiment.graph.in_neighbours(i)),
         pinning=experiment.graph.follower_pinning, gains=experiment.gains,

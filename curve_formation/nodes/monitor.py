@@ -14,8 +14,10 @@ import numpy as np
 from rclpy.node import Node
 
 from curve_formation.core import diagnostics
+from curve_formation.core.agent import geofence
 from curve_formation.core.estop import stopped_intervals
 from curve_formation.core.experiment import ReceivedPhases
+from curve_formation.core.plausibility import plausible_box, position_problem
 from curve_formation.core.sample_log import SampleLog
 from curve_formation.nodes import messages, qos, topics
 from curve_formation.nodes.command_source import command_publishers, WATCH_PERIOD
@@ -60,6 +62,9 @@ class Monitor(Node):
         """
         super().__init__('formation_monitor', start_parameter_services=False, **kwargs)
         self.n = n
+        # where a measured pose may lie (m): as the controllers judge it (core.plausibility)
+        self.box = plausible_box(None if experiment is None else geofence(experiment))
+        self.unbelievable_poses = 0
         self.poses = np.full((n, 3), np.nan)
         self.true_poses = np.full((n, 3), np.nan) if ground_truth else None
         # per robot, its last two true poses [(stamp s, x, y, theta)]; over every tick that
@@ -128,6 +133,9 @@ class Monitor(Node):
 
     def _on_pose(self, i, msg):
         x, y, th, stamp = messages.pose_from_msg(msg)
+        if position_problem(x, y, self.box) is not None or not math.isfinite(th):
+            self.unbelievable_poses += 1   # refused as the controllers refuse it
+            return
         self.poses[i - 1] = (x, y, th)
         self.pose_stamps[i - 1] = stamp
 
