@@ -64,8 +64,8 @@ def qos_profile(connection):
     if reliable and not latched:
         return QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=reliability,
                           durability=durability)
-    depth = max(1, q.depth) if q is not None and latched else max(10, q.depth if q is not None
-                                                                     else 0)
+    offered_depth = q.depth if q is not None else 0
+    depth = max(1, offered_depth) if latched else max(10, offered_depth)
     return QoSProfile(depth=depth, reliability=reliability, durability=durability)
 
 

@@ -830,19 +830,16 @@ class AgentController:
             target = np.array([*command.reference, *command.shift])
             before = min(max(begin, start), stop)   # the part before the interval
             span = stop - before
-            if tau <= 0.0:   # no lag: each command for the time it acts
-                total += target * max(span, 0.0)
-                if span > 0.0:
-                    limited = limited or command.limited
-                    driven = driven and command.driven
-                    estimate = min(estimate, command.estimate)
-                continue
-            lag = target + (lag - target) * math.exp(-(before - start) / tau)
+            if tau > 0.0:
+                lag = target + (lag - target) * math.exp(-(before - start) / tau)
             if span <= 0.0:
                 continue
-            decay = math.exp(-span / tau)
-            total += target * span + (lag - target) * tau * (1.0 - decay)
-            lag = target + (lag - target) * decay
+            if tau > 0.0:
+                decay = math.exp(-span / tau)
+                total += target * span + (lag - target) * tau * (1.0 - decay)
+                lag = target + (lag - target) * decay
+            else:   # no lag: each command for the time it acts
+                total += target * span
             limited = limited or command.limited
             driven = driven and command.driven
             estimate = min(estimate, command.estimate)

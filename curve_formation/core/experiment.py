@@ -44,6 +44,7 @@ from curve_formation.core.shapes import FloatArray, Point
 # (Experiment.announce_lead; the curve server's announce_ahead default).
 ANNOUNCE_AHEAD = 0.2
 
+
 class ConfigError(ValueError):
     """An experiment file that cannot be used; the message names file, key and expectation."""
 

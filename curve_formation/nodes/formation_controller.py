@@ -138,9 +138,9 @@ PARAMETERS = (
 )
 
 # Where each parameter comes from in an experiment file (core.config_schema's key): its
-# default, range and choices are the schema's (test_settings proves it). 'optional': the key
-# may be left out (null in the schema), which the parameter writes as 0 (none, unlimited);
-# 'the wheel limit' keys are required within `limits:`, and the parameter is 0 without them.
+# default, range and choices are the schema's (test_settings proves it). A key that may be
+# left out (null in the schema, or in a section that may be, as `limits:`) is 0 as a
+# parameter when it is: none, unlimited.
 SCHEMA_KEYS = {
     'pinning': 'graph.pinning', 'k1': 'controller.k1', 'k2': 'controller.k2',
     'offset': 'controller.offset', 'law': 'controller.law',
