@@ -56,12 +56,6 @@ PROVENANCE_KEY = 'curve_formation.provenance'   # JSON: provenance.provenance() 
 SAMPLED = (POSE, CMD_VEL, ESTIMATE)
 
 
-def _sampled(topic):
-    """(robot index, name) of a per-robot topic the analysis samples, else None."""
-    placed = robot_of(topic)
-    return placed if placed is not None and placed[1] in SAMPLED else None
-
-
 @dataclass
 class BagRun:
     """A run read from a bag: the experiment (phases from the bag's curves) and series."""
@@ -94,7 +88,7 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0, progress=None):
     topics, custom = bag_info(path)
     for topic, (msgtype, _) in topics.items():
         # the message type each topic the analysis reads must have (another tool's may differ)
-        wanted = type_name(topic) if topic == CURVE or _sampled(topic) else None
+        wanted = type_name(topic) if topic == CURVE or robot_of(topic, SAMPLED) else None
         if wanted is not None and msgtype != wanted:
             raise BagError(f'{path}: {topic} holds {msgtype}, expected {wanted}: not a '
                            "bag of this package's run (record one with `curve-formation run "
@@ -121,7 +115,7 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0, progress=None):
     # per robot: (received s, (pose stamp s,))
     stamps: list[list[tuple[float, tuple[float, ...]]]] = [[] for _ in range(n)]
     read = [topic for topic in topics if topic in (ESTOP_STATE, DIAGNOSTICS, CURVE)
-            or _sampled(topic)]   # a topic of another tool may be of any type
+            or robot_of(topic, SAMPLED)]   # a topic of another tool may be of any type
     total, done, said = sum(topics[topic][1] for topic in read), 0, time.monotonic()
     for topic, _, stamp, msg in read_messages(path, read):
         counts[topic] = counts.get(topic, 0) + 1
@@ -155,7 +149,7 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0, progress=None):
                                f'{n} agents: cannot tell which robot goes where')
             curves.append((t, curve_id, curve, s, decode_curve_clock(dims, msg.data)))
             continue
-        placed = _sampled(topic)
+        placed = robot_of(topic, SAMPLED)
         if placed is None or not 1 <= placed[0] <= n:
             continue
         i, kind = placed[0] - 1, placed[1]

@@ -92,6 +92,11 @@ class TopicSpec:
         return QOS[self.qos_name]
 
     @property
+    def reader_qos_key(self) -> str:
+        """The QOS name our subscriptions ask for."""
+        return self.reader_qos_name or self.qos_name
+
+    @property
     def per_robot(self) -> bool:
         return not self.name.startswith('/')
 
@@ -159,12 +164,14 @@ def robot_topic(index: int, name: str) -> str:
     return f'{robot_namespace(index)}/{name}'
 
 
-def robot_of(topic: str) -> tuple[int, str] | None:
+def robot_of(topic: str, among: tuple[str, ...] | None = None) -> tuple[int, str] | None:
     """(robot index, per-robot name) of an absolute per-robot topic, e.g. (3, 'pose') of
-    /robot_3/pose; None for any other name.
+    /robot_3/pose; None for any other name, or for a name not `among` those given.
     """
     match = _ROBOT_TOPIC.match(topic)
-    return None if match is None else (int(match.group(1)), match.group(2))
+    if match is None or (among is not None and match.group(2) not in among):
+        return None
+    return int(match.group(1)), match.group(2)
 
 
 def type_name(topic: str) -> str | None:

@@ -4,8 +4,6 @@ camera saw them), by core.link_estimate. What `curve-formation measure-link` pri
 experiment setting it suggests (controller.command_latency).
 """
 
-
-
 import numpy as np
 
 from curve_formation.bag import bag_summary, BagError, read_messages
@@ -14,21 +12,19 @@ from curve_formation.core.link_estimate import estimate_latency
 from curve_formation.interface import CMD_VEL, POSE, robot_of
 
 
-def _placed(topic):
-    """(robot index, 'pose' or 'cmd_vel') of a robot's pose or command topic, else None."""
-    placed = robot_of(topic)
-    return placed if placed is not None and placed[1] in (POSE, CMD_VEL) else None
+# The per-robot topics the link is measured from (interface names).
+MEASURED = (POSE, CMD_VEL)
 
 
 def measure_bag(path):
     """{'robots': {i: {'latency', 'spread', 'windows', 'residual', 'commands', 'poses'}},
     'latency': the median over the robots that told one (s, or None)} of a bag.
     """
-    topics = [t for t in bag_summary(path) if _placed(t) is not None]
+    topics = [t for t in bag_summary(path) if robot_of(t, MEASURED) is not None]
     commands: dict[int, list] = {}
     poses: dict[int, list] = {}
     for topic, _, stamp, msg in read_messages(path, topics):
-        placed = _placed(topic)
+        placed = robot_of(topic, MEASURED)
         assert placed is not None   # the topics were chosen by it
         i, kind = placed
         if kind == CMD_VEL:

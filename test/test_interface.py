@@ -48,6 +48,8 @@ def test_per_robot_names_are_placed_and_read_back():
     assert interface.robot_of('/robot_12/cmd_vel') == (12, 'cmd_vel')
     assert interface.robot_of('/formation/curve') is None
     assert interface.robot_of('/robot_x/pose') is None
+    assert interface.robot_of('/robot_2/pose', among=(interface.POSE,)) == (2, 'pose')
+    assert interface.robot_of('/robot_2/cmd_vel', among=(interface.POSE,)) is None
     assert interface.type_name('/robot_4/disturbance_estimate') == \
         'geometry_msgs/msg/Vector3Stamped'
     assert interface.type_name(interface.CURVE) == 'std_msgs/msg/Float64MultiArray'

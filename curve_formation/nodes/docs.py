@@ -45,9 +45,7 @@ def topic_table(uses):
         topic = topics.REGISTRY[use.name]
         meaning = (use.meaning or topic.meaning).replace('|', '\\|')
         shown_type = topic.type_name.replace('/msg/', '/')
-        spec = topic.spec
-        profile = (spec.qos_name if use.direction == 'pub'
-                   else spec.reader_qos_name or spec.qos_name)
+        profile = topic.spec.qos_name if use.direction == 'pub' else topic.spec.reader_qos_key
         rows.append(f'| {use.direction} | `{use.shown_name}` | {shown_type} | '
                     f'{QOS_TEXT[profile]} | {meaning} |')
     return '\n'.join(rows)

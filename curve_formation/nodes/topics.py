@@ -82,12 +82,12 @@ class Topic:
 
     @property
     def reader_profile(self):
-        return getattr(qos, self.spec.reader_qos_name or self.spec.qos_name)
+        return getattr(qos, self.spec.reader_qos_key)
 
     @property
     def reader_qos(self) -> QosSpec:
         """The QoS our subscriptions ask, as data (interface.QOS)."""
-        return QOS[self.spec.reader_qos_name or self.spec.qos_name]
+        return QOS[self.spec.reader_qos_key]
 
     @property
     def per_robot(self) -> bool:
