@@ -44,10 +44,10 @@ def main():
         write_outputs(folder, experiment, record, result, path)   # warm: fonts, imports
         found = {
             'samples': len(sim.t), 'robots': experiment.n, 'run_seconds': float(sim.t[-1]),
-            'figures_s': best_time(lambda: plots.run_figures(folder, experiment, sim.t, sim.poses,
-                                                         sim.phase, sim.dhat, result=result), 3),
-            'animation_s': best_time(lambda: animate(folder / 'animation.mp4', experiment, sim.t,
-                                                 sim.poses, sim.phase), 3),
+            'figures_s': best_time(lambda: plots.run_figures(
+                folder, experiment, sim.t, sim.poses, sim.phase, sim.dhat, result=result), 3),
+            'animation_s': best_time(lambda: animate(
+                folder / 'animation.mp4', experiment, sim.t, sim.poses, sim.phase), 3),
             'report_s': best_time(lambda: write_report(folder), 3),
             'report_bytes': (folder / 'report.html').stat().st_size,
         }
