@@ -89,15 +89,22 @@ def still_standing(run, robots, still, seconds=0.0):
     assert np.all(run.monitor.pose_stamps[rows] > stamps), 'no new pose came'
     np.testing.assert_allclose(run.monitor.poses[rows], poses, atol=1e-9)
 
+
+PUBLISHED_WITHIN = PERIOD / 4   # s: a tick's clock reading to its command's publication, at most
+
+
 def assert_first_tick_past(commands, robot, stopped_at, age, limit):
     """A robot's controller stopped at its first tick past an input's time limit: the input
     was `age` s old at the stop (log time `stopped_at`, s), at least `limit`, and the robot
     sent no driving command between the input going stale and that stop. That is one period
     plus the input's own period after the limit, usually; later when the whole process
     stalled, as Fast DDS's shared-memory port check after a kill can make it for 1-2 s
-    (docs/limitations.md), and then it must not have driven meanwhile either.
+    (docs/limitations.md), and then it must not have driven meanwhile either. A command is
+    timed when it was published (its DDS source time), after its tick read the clock, and the
+    logged age is rounded to 10 ms: the tick before the stop may have seen the input a hair
+    under the limit and published it a few ms past; PUBLISHED_WITHIN allows for both.
     """
-    stale_at = stopped_at - age + limit
+    stale_at = stopped_at - age + limit + PUBLISHED_WITHIN
     driving = [row for row in commands.rows if row[0] == robot and (row[2] or row[3])
                and stale_at < row[1] < stopped_at - PERIOD / 2]
     assert age >= limit and not driving, (robot, age, limit, driving[:3])
@@ -323,6 +330,46 @@ def test_a_node_that_starts_while_stopped_stays_stopped_without_a_command(ros):
     late = _holders(context, add, 1, first=5)[0]
     spin_until(lambda: late.engaged, timeout=5.0)
     assert late.latch.by == '/formation_estop'
+
+
+def test_a_node_that_has_discovered_another_holder_waits_for_its_state_past_the_silence(ros):
+    """Silence means 'not stopped' only to a node alone on the domain. A controller restarted
+    under load while the e-stop was held found its peers only after nodes.estop.HEAR_WAIT s
+    and drove once: a holder discovered but not yet heard keeps the node stopped past
+    HEAR_WAIT, and its state, once it comes, decides.
+    """
+    from rclpy.node import Node
+
+    from curve_formation.nodes import messages
+    from curve_formation.nodes.estop import EstopHolder, HEAR_WAIT
+    context, add, spin_until = ros
+    peer = add(rclpy.create_node('slow_peer', context=context))
+    state = topics.publisher(peer, topics.ESTOP_STATE)   # publishes when told, below
+    told = []
+    node = add(Node('formation_controller', namespace='/robot_1', context=context))
+    holder = EstopHolder(node, 'robot_1', 9, on_change=told.append)
+    spin_until(lambda: node.count_publishers(topics.ESTOP_STATE) >= 2, timeout=10.0)
+    waited = time.monotonic() + 2.5 * HEAR_WAIT
+    spin_until(lambda: time.monotonic() > waited, timeout=3 * HEAR_WAIT)
+    assert not holder.heard and told == []
+    state.publish(messages.estop_state_to_msg('/slow_peer', 'slow_peer', '', True,
+                                              '/formation_estop', time.time(), 9))
+    spin_until(lambda: holder.heard, timeout=5.0)
+    assert told == [True] and holder.engaged
+
+
+def test_a_node_alone_takes_the_silence_as_not_stopped(ros):
+    """With no other holder discovered, HEAR_WAIT s of silence release a node that waits."""
+    from rclpy.node import Node
+
+    from curve_formation.nodes.estop import EstopHolder, HEAR_WAIT
+    context, add, spin_until = ros
+    told = []
+    node = add(Node('formation_controller', namespace='/robot_1', context=context))
+    started = time.monotonic()
+    EstopHolder(node, 'robot_1', 9, on_change=told.append)
+    spin_until(lambda: told, timeout=3 * HEAR_WAIT)
+    assert told == [False] and time.monotonic() - started >= HEAR_WAIT
 
 
 def test_fake_robots_stand_still_while_stopped_whatever_cmd_vel_says(ros):

@@ -26,7 +26,9 @@ from curve_formation.nodes.topics import Use
 
 ANNOUNCE_PERIOD = 1.0   # s between two announcements of an unchanged state
 # s a node waits, at its start, to hear another node's e-stop state (or a command) before it
-# takes the formation as not stopped: alone on the domain, nobody can hold a stop.
+# takes the formation as not stopped: alone on the domain, nobody can hold a stop. A node that
+# has discovered another holder by then waits on for that holder's state (latched, and
+# announced every second), however long discovery takes.
 HEAR_WAIT = 2.0
 UNNAMED = 'a publisher not yet named by discovery'
 
@@ -43,8 +45,8 @@ def estop_uses(on_stop):
 class EstopHolder:
     """A node's e-stop. on_change(engaged) runs at every change, before it is announced, and
     on_change(False) once the node has heard the e-stop state (a command, another node's state,
-    or HEAR_WAIT s of silence) and it is not engaged: a node that must not move before then
-    (a controller) starts stopped and waits for that call.
+    or HEAR_WAIT s of silence with no other holder discovered) and it is not engaged: a node
+    that must not move before then (a controller) starts stopped and waits for that call.
     """
 
     def __init__(self, node, robot='', robots=0, on_change=None):
@@ -67,12 +69,25 @@ class EstopHolder:
                                  event_callbacks=qos.observer_events())
         topics.subscription(node, topics.ESTOP_STATE, self._on_peer)
         node.create_timer(ANNOUNCE_PERIOD, self.announce)
-        self._hear_timer = node.create_timer(HEAR_WAIT, self._hear)
+        self._hear_timer = node.create_timer(HEAR_WAIT, self._silence)
         self.announce()
 
     @property
     def engaged(self):
         return self.latch.engaged
+
+    def _silence(self):
+        """HEAR_WAIT s have passed (and every HEAR_WAIT s after until heard): silence tells
+        the state only when no other holder is discovered. One that is has a state on its way
+        (a restarted controller under load was seen to find its peers only after 2 s).
+        """
+        others = self.node.count_publishers(topics.ESTOP_STATE) - 1
+        if others > 0:
+            self.node.get_logger().info(
+                f'waiting for the e-stop state of {others} other holder(s) discovered',
+                throttle_duration_sec=10.0)
+            return
+        self._hear()
 
     def _hear(self):
         """The e-stop state is known from now on; on_change if that releases the robot."""
