@@ -70,11 +70,19 @@ def no_history_qos():
                       durability=DurabilityPolicy.VOLATILE)
 
 
+def private_domain():
+    """A random ROS_DOMAIN_ID for one test's nodes, from TEST_DOMAINS ('LOW-HIGH', default
+    1-101): scripts/test gives each of the streams of `ros` tests it runs at once a range of
+    its own, so that two tests running at the same time never share a domain.
+    """
+    low, high = map(int, os.environ.get('TEST_DOMAINS', '1-101').split('-'))
+    return random.SystemRandom().randint(low, high)
+
+
 @pytest.fixture
 def ros_domain(monkeypatch):
     """A private ROS_DOMAIN_ID for this test, DDS discovery on this machine only."""
-    import random
-    domain = random.SystemRandom().randint(1, 101)
+    domain = private_domain()
     monkeypatch.setenv('ROS_DOMAIN_ID', str(domain))
     monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     return domain

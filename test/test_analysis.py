@@ -4,7 +4,6 @@ readable by an independent MCAP reader, bag info, and the run against its simula
 
 import json
 import os
-import random
 import subprocess
 import sys
 
@@ -12,7 +11,7 @@ import numpy as np
 import pytest
 import yaml
 
-from conftest import DATA_DIR
+from conftest import DATA_DIR, private_domain
 from curve_formation.analysis import analyze_bag, load_bag_run
 from curve_formation.run_options import RunOptions
 from curve_formation.runner import Run
@@ -28,7 +27,7 @@ def switched(tmp_path_factory):
     """A 12 s run with nearest assignment and a curve switch at 6 s, recorded to MCAP."""
     folder = tmp_path_factory.mktemp('switched')
     saved = os.environ['ROS_DOMAIN_ID']   # conftest's, for this test session
-    os.environ['ROS_DOMAIN_ID'] = str(random.SystemRandom().randint(1, 101))
+    os.environ['ROS_DOMAIN_ID'] = str(private_domain())
     try:
         with Run(DATA_DIR / 'nearest_switch.yaml', folder / 'run',
                  RunOptions(bag_path=folder / 'bag'), log=lambda *_: None) as run:

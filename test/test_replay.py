@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import rclpy
 
-from conftest import DATA_DIR
+from conftest import DATA_DIR, private_domain
 from curve_formation.analysis import analyze_bag, load_bag_run
 from curve_formation.bag import BagError, read_messages
 from curve_formation.core import metrics
@@ -27,10 +27,9 @@ def recorded(tmp_path_factory):
     """A 6 s run of the fast closed-curve experiment, recorded to a sqlite3 bag (the MCAP
     default is recorded by test_analysis).
     """
-    import random
     folder = tmp_path_factory.mktemp('recorded')
     saved = os.environ['ROS_DOMAIN_ID']   # conftest's, for this test session
-    os.environ['ROS_DOMAIN_ID'] = str(random.SystemRandom().randint(1, 101))
+    os.environ['ROS_DOMAIN_ID'] = str(private_domain())
     options = RunOptions(bag_path=folder / 'bag', bag_storage='sqlite3')
     with Run(DATA_DIR / 'fast_closed.yaml', folder / 'run', options, log=lambda *_: None) as run:
         run.spin_for(6.0)
