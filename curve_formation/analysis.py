@@ -3,7 +3,8 @@
 The bag's metadata carries the experiment file (written by `curve-formation run --bag`); the
 curves are taken from the recorded /formation/curve messages, so a curve that was observed at
 run time is measured too. Poses, commands and estimates are sampled on a uniform grid (latest
-value, NaN before the first) from t = 0 at the first curve message.
+value, NaN before the first) from t = 0 at the first curve message, by the live monitor's
+sampler (core.sampling), which refuses the poses the controllers refuse.
 """
 
 from dataclasses import dataclass, replace
@@ -15,28 +16,33 @@ import numpy as np
 
 from curve_formation.bag import bag_info, bag_summary, BagError, read_messages
 from curve_formation.core import diagnostics, metrics, plots
-from curve_formation.core.curve_codec import (
-    decode_agent_parameters,
-    decode_curve,
-    decode_curve_clock,
-    yaw_from_quaternion,
-)
-from curve_formation.core.estop import parse_report, stopped_intervals
+from curve_formation.core.agent import geofence
+from curve_formation.core.curve_codec import CodecError
+from curve_formation.core.estop import stopped_intervals
 from curve_formation.core.experiment import (
     build_experiment,
     control_rate,
     load_experiment,
     parse_experiment_text,
+    phase_index,
     received_phases,
 )
+from curve_formation.core.plausibility import plausible_box
+from curve_formation.core.sampling import GridSampler, LatestValues
 from curve_formation.interface import (
+    agent_parameters_from_msg,
     CMD_VEL,
     CURVE,
+    curve_clock_from_msg,
+    curve_from_msg,
     DIAGNOSTICS,
     ESTIMATE,
     ESTOP_STATE,
+    estop_state_from_msg,
     POSE,
+    pose_from_msg,
     robot_of,
+    twist_from_msg,
     type_name,
 )
 from curve_formation.outputs import write_outputs
@@ -104,16 +110,15 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0, progress=None):
     else:
         raise BagError(f'{path}: the bag does not carry its experiment; pass --experiment')
     n = experiment.n
-    # per kind, per robot: (received s, value)
-    events: dict[str, list[list[tuple[float, tuple[float, ...]]]]] = {
-        kind: [[] for _ in range(n)] for kind in SAMPLED}
+    # each robot's latest values, sampled from the first curve on as the live monitor does
+    latest = LatestValues(n, plausible_box(geofence(experiment)))
+    sampler = GridSampler(latest, sample_hz)
+    last_pose = None   # when the last pose was received (s)
     curves: list = []
     counts: dict[str, int] = {}
     contacts = None
     estop_events: list = []
     death_events: list = []
-    # per robot: (received s, (pose stamp s,))
-    stamps: list[list[tuple[float, tuple[float, ...]]]] = [[] for _ in range(n)]
     read = [topic for topic in topics if topic in (ESTOP_STATE, DIAGNOSTICS, CURVE)
             or robot_of(topic, SAMPLED)]   # a topic of another tool may be of any type
     total, done, said = sum(topics[topic][1] for topic in read), 0, time.monotonic()
@@ -124,11 +129,11 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0, progress=None):
             said = time.monotonic()
             progress(f'read {done} of {total} messages ({100 * done / max(total, 1):.0f} %)')
         t = stamp * 1e-9
+        sampler.until(t)   # the rows due before this message
         if topic == ESTOP_STATE:
             try:
-                report = parse_report(msg.name, msg.hardware_id,
-                                      {kv.key: kv.value for kv in msg.values})
-            except (ValueError, AttributeError):
+                report = estop_state_from_msg(msg)
+            except (CodecError, AttributeError):
                 continue
             estop_events.append((t, report.holder, report.engaged))
             continue
@@ -141,52 +146,48 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0, progress=None):
                     death_events.append((t, values.get('node', '?'), values.get('how', '?')))
             continue
         if topic == CURVE:
-            dims = [(d.label, d.size) for d in msg.layout.dim]
-            curve, curve_id = decode_curve(dims, msg.data)
-            s = decode_agent_parameters(dims, msg.data)
+            curve, curve_id = curve_from_msg(msg)
+            s = agent_parameters_from_msg(msg)
             if s is None or len(s) != n:
                 raise BagError(f"{path}: curve {curve_id} carries no agents' parameters for "
                                f'{n} agents: cannot tell which robot goes where')
-            curves.append((t, curve_id, curve, s, decode_curve_clock(dims, msg.data)))
+            if not curves:
+                sampler.start(t)   # t = 0
+            curves.append((t, curve_id, curve, s, curve_clock_from_msg(msg)))
             continue
         placed = robot_of(topic, SAMPLED)
         if placed is None or not 1 <= placed[0] <= n:
             continue
-        i, kind = placed[0] - 1, placed[1]
-        value: tuple[float, ...]
+        robot, kind = placed
         if kind == POSE:
-            q = msg.pose.orientation
-            value = (msg.pose.position.x, msg.pose.position.y,
-                     yaw_from_quaternion(q.x, q.y, q.z, q.w))
-            stamp_s = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-            stamps[i].append((t, (stamp_s,)))
+            last_pose = t
+            try:
+                latest.pose(robot, *pose_from_msg(msg))
+            except CodecError:   # as the monitor, which does not take it either
+                latest.refused += 1
         elif kind == CMD_VEL:
-            value = (msg.linear.x, msg.angular.z)
+            latest.command(robot, *twist_from_msg(msg))
         else:
-            value = (msg.vector.x, msg.vector.y)
-        events[kind][i].append((t, value))
+            latest.estimate(robot, msg.vector.x, msg.vector.y)
     if not curves:
         raise BagError(f'{path}: no /formation/curve message: nothing to measure against')
     t0 = curves[0][0]
-    end = max((ev[-1][0] for ev in events[POSE] if ev), default=t0)
+    end = t0 if last_pose is None else max(last_pose, t0)
     if RUN_END_KEY in custom:
         end = min(end, int(custom[RUN_END_KEY]) * 1e-9)
     if end - t0 < 2.0 / sample_hz:
         raise BagError(f'{path}: less than two samples of poses after the first curve')
-    grid = t0 + np.arange(0.0, end - t0, 1.0 / sample_hz)
+    record = sampler.finish(end)
     phases = received_phases(experiment, [(t - t0, k, curve, s, None if clock is None
                                            else clock.since(t0))
                                           for t, k, curve, s, clock in curves])
-    starts = np.array([p.start for p in phases]) + t0
-    phase = np.searchsorted(starts, grid, side='right') - 1
     estops = stopped_intervals([(t - t0, holder, engaged)
                                 for t, holder, engaged in estop_events], end - t0)
-    return BagRun(replace(experiment, phases=phases), grid - t0,
-                  _sample(events[POSE], grid, 3), _sample(events[CMD_VEL], grid, 2),
-                  _sample(events[ESTIMATE], grid, 2), phase, counts, contacts,
+    return BagRun(replace(experiment, phases=phases), record['t'], record['poses'],
+                  record['commands'], record['dhat'],
+                  phase_index([p.start for p in phases], record['t']), counts, contacts,
                   estops, [(t - t0, node, how) for t, node, how in death_events],
-                  _sample(stamps, grid, 1)[..., 0] - t0, _run_provenance(custom),
-                  experiment_text)
+                  record['pose_stamps'], _run_provenance(custom), experiment_text)
 
 
 def _run_provenance(custom):
@@ -194,20 +195,6 @@ def _run_provenance(custom):
         return json.loads(custom[PROVENANCE_KEY])
     except (KeyError, ValueError):
         return None   # a bag of an older version, or of another tool
-
-
-def _sample(per_robot, grid, width):
-    """(R, n, width): each robot's latest value at each grid time, NaN before its first."""
-    out = np.full((len(grid), len(per_robot), width), np.nan)
-    for i, events in enumerate(per_robot):
-        if not events:
-            continue
-        times = np.array([t for t, _ in events])
-        values = np.array([v for _, v in events], dtype=float)
-        index = np.searchsorted(times, grid, side='right') - 1
-        valid = index >= 0
-        out[valid, i] = values[index[valid]]
-    return out
 
 
 def analyze_bag(path, out_dir, experiment_path=None, compare=None, compare_sim=False,

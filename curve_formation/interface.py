@@ -1,5 +1,5 @@
 """The formation's ROS interface as plain data, without ROS: every topic's name, message type,
-QoS and meaning, the QoS profiles, and the per-robot names.
+QoS and meaning, the QoS profiles, the per-robot names, and the readers of the messages.
 
 The nodes attach rclpy's classes to these records (nodes/topics.py, nodes/qos.py); the
 recorder, the bag reader and the analysis build from the same records without importing rclpy.
@@ -8,6 +8,21 @@ Per-robot topics have relative names, so a robot is placed by its namespace /rob
 
 from dataclasses import dataclass
 import re
+from typing import Any
+
+from curve_formation.core.curve_codec import (
+    CodecError,
+    CurveClock,
+    decode_agent_parameters,
+    decode_curve,
+    decode_curve_clock,
+    decode_curve_rate,
+    yaw_from_quaternion,
+)
+from curve_formation.core.curves import Curve
+from curve_formation.core.estop import EstopReport, parse_report
+from curve_formation.core.plausibility import quaternion_problem
+from curve_formation.core.shapes import FloatArray
 
 
 CURVE = '/formation/curve'
@@ -181,3 +196,61 @@ def type_name(topic: str) -> str | None:
     placed = robot_of(topic)
     spec = TOPICS.get(placed[1] if placed is not None else topic)
     return None if spec is None or (placed is None and spec.per_robot) else spec.type_name
+
+
+# Readers of the formation's messages into core values. They use attribute access only, so
+# they read rclpy's message objects (nodes/messages.py) and those rosbags deserialises from a
+# bag (analysis.py) alike; a malformed message raises CodecError.
+
+def stamp_to_seconds(stamp: Any) -> float:
+    """A builtin_interfaces/Time as s."""
+    return stamp.sec + stamp.nanosec * 1e-9
+
+
+def pose_from_msg(msg: Any) -> tuple[float, float, float, float]:
+    """(x, y, theta, stamp s) from a PoseStamped (m, m, rad; planar: heading from the
+    quaternion); CodecError if the quaternion is not unit (core.plausibility).
+    """
+    q = msg.pose.orientation
+    problem = quaternion_problem(q.x, q.y, q.z, q.w)
+    if problem is not None:
+        raise CodecError(f'pose with a {problem}')
+    return (msg.pose.position.x, msg.pose.position.y, yaw_from_quaternion(q.x, q.y, q.z, q.w),
+            stamp_to_seconds(msg.header.stamp))
+
+
+def twist_from_msg(msg: Any) -> tuple[float, float]:
+    """(v m/s, omega rad/s) of a Twist."""
+    return msg.linear.x, msg.angular.z
+
+
+def _curve_dims(msg: Any) -> list[tuple[str, int]]:
+    return [(d.label, d.size) for d in msg.layout.dim]
+
+
+def curve_from_msg(msg: Any) -> tuple[Curve, int]:
+    """(Curve, curve id) from a curve message (core.curve_codec's layout)."""
+    return decode_curve(_curve_dims(msg), msg.data)
+
+
+def curve_rate_from_msg(msg: Any) -> Curve | None:
+    """A moving curve's coefficient rate (Curve; points(s) in m/s), or None."""
+    return decode_curve_rate(_curve_dims(msg), msg.data)
+
+
+def curve_clock_from_msg(msg: Any) -> CurveClock | None:
+    """When a curve message's coefficients hold (CurveClock), or None."""
+    return decode_curve_clock(_curve_dims(msg), msg.data)
+
+
+def agent_parameters_from_msg(msg: Any) -> FloatArray | None:
+    """The agents' parameters s (n,) a curve message carries, or None."""
+    return decode_agent_parameters(_curve_dims(msg), msg.data)
+
+
+def estop_state_from_msg(msg: Any) -> EstopReport:
+    """core.estop.EstopReport of a node's e-stop state (DiagnosticStatus)."""
+    try:
+        return parse_report(msg.name, msg.hardware_id, {kv.key: kv.value for kv in msg.values})
+    except ValueError as exc:
+        raise CodecError(str(exc)) from None

@@ -7,6 +7,8 @@ import subprocess
 import sys
 import time
 
+import yaml
+
 from curve_formation.launches import node_class
 from curve_formation.nodes.runtime import PublicationCounter, PUBLICATIONS_ENV
 
@@ -66,13 +68,17 @@ class NodeGraph:
     def __exit__(self, *exc):
         self.stop()
 
-    def start(self, launch, mode='w'):
-        """Start one node; its output goes to logs_dir/<key>.log (mode 'a': appended)."""
+    def start(self, launch, mode='w', overrides=None):
+        """Start one node; its output goes to logs_dir/<key>.log (mode 'a': appended).
+        overrides: {parameter: value} set over its parameters file for this start only.
+        """
+        overrides = overrides or {}
         if self.single_process:
             from rclpy.parameter import Parameter
             node = node_class(launch.module)(
                 context=self.host.context, namespace=launch.namespace,
-                parameter_overrides=[Parameter(k, value=v) for k, v in launch.parameters.items()])
+                parameter_overrides=[Parameter(k, value=v) for k, v
+                                     in {**launch.parameters, **overrides}.items()])
             counter = PublicationCounter(node) if self.publications_dir is not None else None
             self.in_process.append((node, counter))
             self.host.add_node(node)
@@ -83,6 +89,8 @@ class NodeGraph:
             env[PUBLICATIONS_ENV] = str(self.publications_dir)
         cmd = [sys.executable, '-m', launch.module, '--ros-args', '-r',
                f'__ns:={launch.namespace}', '--params-file', str(self.params_files[launch.key])]
+        for key, value in overrides.items():
+            cmd += ['-p', f'{key}:={yaml.safe_dump(value).splitlines()[0]}']
         with open(self.logs_dir / f'{launch.key}.log', mode) as log_file:
             self.processes[launch.key] = subprocess.Popen(
                 cmd, env=env, stdout=log_file, stderr=subprocess.STDOUT,

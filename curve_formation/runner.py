@@ -23,7 +23,7 @@ from rclpy.serialization import serialize_message
 from curve_formation.analysis import bag_accounting, RUN_END_KEY
 from curve_formation.bag import BagWriter
 from curve_formation.core import diagnostics, metrics
-from curve_formation.core.experiment import control_rate, load_experiment
+from curve_formation.core.experiment import control_rate, load_experiment, phase_index
 from curve_formation.launches import node_launches, part_of
 from curve_formation.node_graph import NodeGraph
 from curve_formation.nodes.runtime import now_seconds
@@ -164,7 +164,10 @@ class Run:
             self.graph.start(launch)
         if options.runs('curve_server'):
             self._wait_ready()
-            self.graph.start(server)
+            # Every robot's pose has come (the monitor's): the server need not wait for them
+            # again (its own subscriptions found the robots 2-3 s later, measured), as it does
+            # started by hand from its parameters file.
+            self.graph.start(server, overrides={'wait_for_poses': False})
         self.spin_until(lambda: self.monitor.t0 is not None, READY_TIMEOUT, 'the first curve')
         self.log('curve server started: t = 0' if options.runs('curve_server')
                  else 'first curve received: t = 0')
@@ -401,15 +404,9 @@ class Run:
         re-assignments included), and the phase index of each sample time t (R,) s.
         """
         phases = self.monitor.followed_phases()
-        starts = np.array([p.start for p in phases])
-        phase = np.clip(np.searchsorted(starts, t, side='right') - 1, 0, len(phases) - 1)
-        return dataclasses.replace(self.experiment, phases=phases), phase
+        return (dataclasses.replace(self.experiment, phases=phases),
+                phase_index([p.start for p in phases], t))
 
-
-
-def phases_of(curve_ids, phase_count):
-    """Phase index per sample from the curve id seen (ids count up with the schedule)."""
-    return np.clip(np.asarray(curve_ids, dtype=int), 0, phase_count - 1)
 
 
 def run_experiment(config, out_dir, duration=None, options=DEFAULTS, log=print):

@@ -11,7 +11,7 @@ from conftest import DATA_DIR
 from curve_formation.core import metrics
 from curve_formation.core.simulator import simulate
 from curve_formation.run_options import RunOptions
-from curve_formation.runner import phases_of, Run
+from curve_formation.runner import Run
 
 
 pytestmark = pytest.mark.ros
@@ -24,8 +24,8 @@ def quiet(*_):
 
 
 def error_norms(run, data, key):
-    phase = phases_of(data['curve_id'], len(run.experiment.phases))
-    return metrics.error_norm(metrics.target_errors(data[key], phase, run.experiment))
+    followed, phase = run.followed(data['t'])
+    return metrics.error_norm(metrics.target_errors(data[key], phase, followed, t=data['t']))
 
 
 # About a minute: slow, so that the default run stays under 10 minutes (the camera nodes are

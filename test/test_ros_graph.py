@@ -10,15 +10,16 @@ from conftest import DATA_DIR
 from curve_formation.core import metrics
 from curve_formation.core.simulator import simulate
 from curve_formation.run_options import RunOptions
-from curve_formation.runner import phases_of, Run, run_experiment
+from curve_formation.runner import Run, run_experiment
 
 
 pytestmark = pytest.mark.ros
 
 
 def ros_error_norm(run, data):
-    phase = phases_of(data['curve_id'], len(run.experiment.phases))
-    return metrics.error_norm(metrics.target_errors(data['poses'], phase, run.experiment))
+    followed, phase = run.followed(data['t'])
+    return metrics.error_norm(metrics.target_errors(data['poses'], phase, followed,
+                                                    t=data['t']))
 
 
 def quiet(*_):

@@ -184,6 +184,15 @@ MAX_STEPS = 100_000_000
 MAX_RECORDED = 18_000_000
 
 
+def phase_index(starts: ArrayLike, t: ArrayLike) -> np.ndarray:
+    """The phase followed at each time t (R,) s: the index of the last phase begun by then,
+    from the phases' start times `starts` (s, ascending, on t's clock); 0 before the first.
+    The one rule of the simulators, the live run and the analysis of its bag.
+    """
+    starts = np.asarray(starts, dtype=float)
+    return np.clip(np.searchsorted(starts, t, side='right') - 1, 0, max(len(starts) - 1, 0))
+
+
 def whole_steps(interval: float, dt: float, what: str) -> int:
     """interval (s) as a whole number (>= 1) of steps dt (s); ValueError naming `what`."""
     steps = interval / dt

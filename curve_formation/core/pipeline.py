@@ -28,7 +28,13 @@ from curve_formation.core import metrics
 from curve_formation.core.agent import agent_configs, AgentController
 from curve_formation.core.assignment import reassigned
 from curve_formation.core.curves import Curve
-from curve_formation.core.experiment import ANNOUNCE_AHEAD, control_rate, Experiment, Phase
+from curve_formation.core.experiment import (
+    ANNOUNCE_AHEAD,
+    control_rate,
+    Experiment,
+    Phase,
+    phase_index,
+)
 from curve_formation.core.shapes import BoolArray, FloatArray
 from curve_formation.core.simulator import SimResult
 from curve_formation.core.worlds import make_world, World
@@ -301,13 +307,12 @@ def simulate_pipeline(experiment: Experiment, engine: Literal['kinematic', 'mujo
     pipeline = Pipeline(experiment, world, rate, phases, pose_rate, link)
     t, poses, dhat, commands = pipeline.run(duration, record_dt,
                                             spec.agents.reassign_every)
-    starts = np.array([p.start for p in experiment.phases[1:]])
-    phase_index = np.searchsorted(starts, t, side='right')
+    sample_phase = phase_index([p.start for p in experiment.phases], t)
     followed = tuple(pipeline.followed)
     return SimResult(dataclasses.replace(experiment, phases=followed
                                          + experiment.phases[len(followed):]),
                      rate, experiment.gains, experiment.limits,
                      experiment.disturbance_at(t) if experiment.variations
                      else np.asarray(experiment.disturbance, float), t, poses, dhat, commands,
-                     phase_index, experiment.radius, world.contact_summary(),
+                     sample_phase, experiment.radius, world.contact_summary(),
                      [c.latency for c in pipeline.controllers])

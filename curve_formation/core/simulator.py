@@ -29,7 +29,13 @@ from curve_formation.core.assignment import reassigned
 from curve_formation.core.control import Gains, Law, WheelLimits
 from curve_formation.core.disturbance import disturbance_at
 from curve_formation.core.driving import REVERSE_HYSTERESIS
-from curve_formation.core.experiment import ConfigError, Experiment, Phase, whole_steps
+from curve_formation.core.experiment import (
+    ConfigError,
+    Experiment,
+    Phase,
+    phase_index,
+    whole_steps,
+)
 from curve_formation.core.jit import compiled
 from curve_formation.core.safety import Avoidance
 from curve_formation.core.shapes import BoolArray, FloatArray, IntArray
@@ -483,12 +489,12 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
                  contacts, record)
         followed.append(dataclasses.replace(phase, changes=tuple(changes)))
     t = np.arange(n_rec) * record_every * dt
-    phase_index = np.searchsorted(np.array(starts[1:-1]) * dt, t, side='right')
+    sample_phase = phase_index(np.array(starts[:-1]) * dt, t)
     if varies:   # the disturbance at each recorded sample
         dist = disturbance_at(dist, experiment.variations, t)
     new, steps, gap = contacts.tally
     return SimResult(dataclasses.replace(experiment, phases=tuple(followed)
                                          + experiment.phases[len(followed):]),
-                     rate_hz, gains, limits, dist, t, *record, phase_index,
+                     rate_hz, gains, limits, dist, t, *record, sample_phase,
                      radius, {'count': int(new), 'time': float(steps * dt),
                               'smallest_gap': float(gap) if radius > 0 else None})

@@ -34,23 +34,25 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from curve_formation.core.curve_codec import (
     CodecError,
     curve_id_from_float,
-    decode_agent_parameters,
-    decode_curve,
-    decode_curve_clock,
-    decode_curve_rate,
     encode_curve,
     quaternion_from_yaw,
-    yaw_from_quaternion,
 )
-from curve_formation.core.estop import estop_fields, parse_report
-from curve_formation.core.plausibility import quaternion_problem
+from curve_formation.core.estop import estop_fields
+from curve_formation.interface import (  # noqa: F401 (the readers, for the nodes)
+    agent_parameters_from_msg,
+    curve_clock_from_msg,
+    curve_from_msg,
+    curve_rate_from_msg,
+    estop_state_from_msg,
+    pose_from_msg,
+    stamp_to_seconds,
+    twist_from_msg,
+)
 
 
 MessageError = CodecError
 
 
-def stamp_to_seconds(stamp):
-    return stamp.sec + stamp.nanosec * 1e-9
 
 
 def seconds_to_stamp(seconds):
@@ -70,36 +72,14 @@ def curve_to_msg(curve, curve_id, s=None, rate=None, clock=None):
     return msg
 
 
-def curve_from_msg(msg):
-    """(Curve, curve_id) from a curve message; MessageError if malformed."""
-    return decode_curve([(d.label, d.size) for d in msg.layout.dim], msg.data)
 
 
-def curve_rate_from_msg(msg):
-    """A moving curve's coefficient rate (Curve; points(s) in m/s), or None; MessageError."""
-    return decode_curve_rate([(d.label, d.size) for d in msg.layout.dim], msg.data)
 
 
-def curve_clock_from_msg(msg):
-    """When a curve message's coefficients hold (CurveClock), or None; MessageError."""
-    return decode_curve_clock([(d.label, d.size) for d in msg.layout.dim], msg.data)
 
 
-def agent_parameters_from_msg(msg):
-    """The agents' parameters s (n,) a curve message carries, or None."""
-    return decode_agent_parameters([(d.label, d.size) for d in msg.layout.dim], msg.data)
 
 
-def pose_from_msg(msg):
-    """(x, y, theta, stamp_s) from a PoseStamped (planar: heading from the quaternion);
-    MessageError if the quaternion is not unit (core.plausibility.QUATERNION_TOLERANCE).
-    """
-    q = msg.pose.orientation
-    problem = quaternion_problem(q.x, q.y, q.z, q.w)
-    if problem is not None:
-        raise MessageError(f'pose with a {problem}')
-    return (msg.pose.position.x, msg.pose.position.y, yaw_from_quaternion(q.x, q.y, q.z, q.w),
-            stamp_to_seconds(msg.header.stamp))
 
 
 def pose_to_msg(x, y, theta, stamp_s, frame_id='arena', msg=None):
@@ -120,8 +100,6 @@ def twist_to_msg(v, w):
     return msg
 
 
-def twist_from_msg(msg):
-    return msg.linear.x, msg.angular.z
 
 
 STATE_FIELDS = ('e_x', 'e_y', 'curve_id', 'leader_age')
@@ -297,12 +275,3 @@ def estop_state_to_msg(holder, role, robot, engaged, by, since, robots=0):
         values=[KeyValue(key=key, value=value)
                 for key, value in estop_fields(engaged, role, by, since, robots).items()])
 
-
-def estop_state_from_msg(msg):
-    """core.estop.EstopReport of a DiagnosticStatus (an rclpy or a rosbags message);
-    MessageError if it is not one.
-    """
-    try:
-        return parse_report(msg.name, msg.hardware_id, {kv.key: kv.value for kv in msg.values})
-    except ValueError as exc:
-        raise MessageError(str(exc)) from None

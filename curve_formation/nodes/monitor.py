@@ -1,7 +1,8 @@
 """Monitor: samples every robot's pose, command and estimate, as the runner's observer.
 
 t = 0 is when the first curve arrives. Rows are sampled at `record_hz` from the latest values
-(NaN until a value is seen); a sample due while the process was held up is skipped (_sample).
+(core.sampling, as the analysis of the run's bag samples them; NaN until a value is seen); a
+sample due while the process was held up is skipped (_sample).
 Not a console script: the runner and tests create it in-process.
 """
 
@@ -17,8 +18,9 @@ from curve_formation.core import diagnostics
 from curve_formation.core.agent import geofence
 from curve_formation.core.estop import stopped_intervals
 from curve_formation.core.experiment import ReceivedPhases
-from curve_formation.core.plausibility import plausible_box, position_problem
+from curve_formation.core.plausibility import plausible_box
 from curve_formation.core.sample_log import SampleLog
+from curve_formation.core.sampling import LatestValues
 from curve_formation.nodes import messages, qos, topics
 from curve_formation.nodes.command_source import command_publishers, WATCH_PERIOD
 from curve_formation.nodes.readiness import subscribe_to_curve
@@ -62,10 +64,10 @@ class Monitor(Node):
         """
         super().__init__('formation_monitor', start_parameter_services=False, **kwargs)
         self.n = n
-        # where a measured pose may lie (m): as the controllers judge it (core.plausibility)
-        self.box = plausible_box(None if experiment is None else geofence(experiment))
-        self.unbelievable_poses = 0
-        self.poses = np.full((n, 3), np.nan)
+        # Each robot's latest pose, command and estimate, sampled as the bag analysis samples
+        # them; a pose is refused where the controllers would refuse it (core.plausibility).
+        self.latest = LatestValues(
+            n, plausible_box(None if experiment is None else geofence(experiment)))
         self.true_poses = np.full((n, 3), np.nan) if ground_truth else None
         # per robot, its last two true poses [(stamp s, x, y, theta)]; over every tick that
         # drove, how far (m) the pose its law used was from the truth then: how many ticks,
@@ -73,10 +75,7 @@ class Monitor(Node):
         self.true_history: list[list[tuple[float, float, float, float]]] = [
             [] for _ in range(n)]
         self.law_pose_tally = [0, 0.0]
-        self.pose_stamps = np.full(n, np.nan)
-        self.commands = np.full((n, 2), np.nan)
         self.command_times = np.full(n, np.nan)
-        self.dhat = np.full((n, 2), np.nan)
         self.curve_id = None
         self.t0 = None
         self.curve_times = {}      # curve id -> DDS source timestamp of its first message (s)
@@ -127,17 +126,32 @@ class Monitor(Node):
         self.closed = False        # the run is over (close): nothing more is sampled
         self._skipped_last = False
 
+    @property
+    def poses(self):
+        """(n, 3) each robot's latest pose (m, m, rad; world frame), NaN before one."""
+        return self.latest.poses
+
+    @property
+    def pose_stamps(self):
+        """(n,) when each latest pose was taken (s, the sender's clock)."""
+        return self.latest.pose_stamps
+
+    @property
+    def commands(self):
+        """(n, 2) each robot's latest command (m/s, rad/s)."""
+        return self.latest.commands
+
+    @property
+    def unbelievable_poses(self):
+        """How many poses were refused as the controllers refuse them."""
+        return self.latest.refused
+
     def _subscribe(self, name, callback, robot=None):
         return topics.subscription(self, name, callback, robot,
                                    event_callbacks=qos.observer_events())
 
     def _on_pose(self, i, msg):
-        x, y, th, stamp = messages.pose_from_msg(msg)
-        if position_problem(x, y, self.box) is not None or not math.isfinite(th):
-            self.unbelievable_poses += 1   # refused as the controllers refuse it
-            return
-        self.poses[i - 1] = (x, y, th)
-        self.pose_stamps[i - 1] = stamp
+        self.latest.pose(i, *messages.pose_from_msg(msg))
 
     def _on_true_pose(self, i, msg):
         x, y, theta, stamp = messages.pose_from_msg(msg)
@@ -171,14 +185,14 @@ class Monitor(Node):
         return math.sqrt(squares / count) if count else None
 
     def _on_cmd(self, i, msg, info):
-        self.commands[i - 1] = messages.twist_from_msg(msg)
+        self.latest.command(i, *messages.twist_from_msg(msg))
         self.command_times[i - 1] = now_seconds(self)
         self.command_arrivals[i - 1].append((info['source_timestamp'] * 1e-9,
                                              info['received_timestamp'] * 1e-9,
                                              time.time()))
 
     def _on_estimate(self, i, msg):
-        self.dhat[i - 1] = (msg.vector.x, msg.vector.y)
+        self.latest.estimate(i, msg.vector.x, msg.vector.y)
         if self.t0 is not None:
             self.tick_latencies[i - 1].append(
                 now_seconds(self) - messages.stamp_to_seconds(msg.header.stamp))
@@ -195,10 +209,12 @@ class Monitor(Node):
         self.curve_times.setdefault(self.curve_id, info['source_timestamp'] * 1e-9)
         if self.t0 is None:
             self.t0 = now
-        if self.followed is not None:
+        given = messages.agent_parameters_from_msg(msg)
+        # a curve without the agents' parameters tells nobody's target: no phase (the
+        # analysis refuses a bag of one)
+        if self.followed is not None and given is not None:
             clock = messages.curve_clock_from_msg(msg)
-            self.followed.add(now - self.t0, self.curve_id, curve,
-                              messages.agent_parameters_from_msg(msg),
+            self.followed.add(now - self.t0, self.curve_id, curve, given,
                               None if clock is None else clock.since(self.t0))
 
     def _watch_command_sources(self):
@@ -318,9 +334,8 @@ class Monitor(Node):
         self._skipped_last = False
         if self.t0 is None or self.closed:
             return
-        row = {'t': now_seconds(self) - self.t0, 'pose_stamps': self.pose_stamps - self.t0,
-               'poses': self.poses, 'commands': self.commands, 'dhat': self.dhat,
-               'curve_id': self.curve_id, 'unseen': self.unseen}
+        row = self.latest.row(now_seconds(self), self.t0)
+        row.update(curve_id=self.curve_id, unseen=self.unseen)
         if self.true_poses is not None:
             row['true_poses'] = self.true_poses
         self.recording.append(**row)
