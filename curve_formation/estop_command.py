@@ -3,8 +3,10 @@ it reached.
 
 The command sends the e-stop on /formation/estop again every RESEND_PERIOD until every
 expected robot's controller has confirmed it in its own state on /formation/estop_state
-(nodes/estop.py), and every other holder heard there (robot bridges, fake robots or arena,
-the curve server) says the same, or `wait` seconds have passed. The robots expected are
+(nodes/estop.py), and every other holder (robot bridges, fake robots or arena, the curve
+server) discovered on that topic or heard there says the same, or `wait` seconds have passed:
+a release that reached every controller, but not the fake arena the command had not heard
+yet, left the arena's robots stopped once the command was gone. The robots expected are
 `expect` (from --expect or --experiment), else as many as the controllers and the curve server
 on the domain say the formation has. It reports how many confirmed and how fast, names the
 ones that did not, and returns 0 only when all did. Each node holds the state it was given
@@ -22,6 +24,7 @@ from curve_formation.paths import discovery_text
 
 RESEND_PERIOD = 0.1   # s between two sends while robots have not confirmed
 HOLD_PERIOD = 1.0     # s between two sends with --hold, once confirmed
+LOOK_PERIOD = 0.2     # s between two looks at which nodes publish e-stop states
 CONTROLLER = 'formation_controller'
 
 
@@ -35,6 +38,7 @@ class Tally:
     expect: int | None = None
     reports: dict = field(default_factory=dict)      # holder -> messages.EstopReport
     confirmed: dict = field(default_factory=dict)    # robot -> s since the first send
+    discovered: set = field(default_factory=set)     # other holders publishing their state
 
     def add(self, report, elapsed):
         self.reports[report.holder] = report
@@ -56,12 +60,13 @@ class Tally:
         return None if expected is None else [r for r in expected if r not in self.confirmed]
 
     def others_missing(self):
-        """The other holders heard (robot bridges, fake robots or arena, the curve server)
-        whose last state is not the wanted one: a release that reached every controller but
-        not the arena's robots leaves them stopped.
+        """The other holders (robot bridges, fake robots or arena, the curve server) heard
+        with another state than the wanted one, or discovered and not heard yet: a release
+        that reached every controller but not the arena's robots leaves them stopped.
         """
-        return sorted(holder for holder, report in self.reports.items()
-                      if report.role != CONTROLLER and report.engaged != self.engage)
+        wrong = {holder for holder, report in self.reports.items()
+                 if report.role != CONTROLLER and report.engaged != self.engage}
+        return sorted(wrong | (self.discovered - set(self.reports)))
 
     def done(self):
         return self.missing() == [] and not self.others_missing()
@@ -96,12 +101,16 @@ def send_estop(engage, expect=None, wait=10.0, hold=False, log=None):
         message = Bool(data=engage)
         first_send = time.monotonic()
         pub.publish(message)
-        last_send = first_send
+        last_send = last_look = first_send
+        tally.discovered = other_holders(node, topics.ESTOP_STATE)
         while not tally.done() and time.monotonic() - start < wait:
             rclpy.spin_once(node, timeout_sec=0.01)
             if time.monotonic() - last_send >= RESEND_PERIOD:
                 pub.publish(message)
                 last_send = time.monotonic()
+            if time.monotonic() - last_look >= LOOK_PERIOD:
+                tally.discovered = other_holders(node, topics.ESTOP_STATE)
+                last_look = time.monotonic()
         status = _report(tally, word, wait, log)
         if hold:
             log(f'e-stop {word}: sending it every {HOLD_PERIOD:g} s; Ctrl-C to quit', True)
@@ -116,6 +125,17 @@ def send_estop(engage, expect=None, wait=10.0, hold=False, log=None):
         node.destroy_node()
         rclpy.try_shutdown()
     return status
+
+
+def other_holders(node, topic):
+    """The fully qualified names of the nodes other than controllers that publish `topic`
+    (their e-stop state), as discovery knows them now: a publisher whose node discovery has
+    not named (rmw's _NODE_NAME_UNKNOWN_; one stayed so for the whole 5 s of a test's
+    command) is left out, as no state can be told to be its.
+    """
+    return {f"{info.node_namespace.rstrip('/')}/{info.node_name}"
+            for info in node.get_publishers_info_by_topic(topic)
+            if info.node_name != CONTROLLER and not info.node_name.startswith('_NODE_')}
 
 
 def _report(tally, word, wait, log):

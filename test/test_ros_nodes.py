@@ -79,7 +79,7 @@ def test_late_starting_controller_still_receives_the_current_curve(ros, tmp_path
     context, add, spin_until = ros
     server = add(CurveServer(context=context, parameter_overrides=overrides(
         experiment='closed_curve')))
-    spin_until(lambda: server.next_id == 1)
+    spin_until(lambda: server.schedule.next_id == 1)
     time.sleep(0.5)   # the curve is long published when the controller starts
     ctrl = add(FormationController(context=context, namespace='/robot_1', parameter_overrides=(
         overrides(index=1, agent_count=6, role='leader'))))
@@ -107,10 +107,10 @@ def test_curve_server_starts_once_the_awaited_subscribers_say_they_receive(ros):
     deadline = time.monotonic() + 1.0
     spin_until(lambda: time.monotonic() > deadline)
     assert server.ready.names == {'/first'}
-    assert server.next_id == 0 and received == []   # one of two: not started
+    assert server.schedule.next_id == 0 and received == []   # one of two: not started
     reader('second')
     spin_until(lambda: sorted(received) == ['first', 'second'])
-    assert server.ready.names == {'/first', '/second'} and server.next_id == 1
+    assert server.ready.names == {'/first', '/second'} and server.schedule.next_id == 1
 
 
 def test_curve_server_also_waits_until_its_publisher_reaches_that_many_readers(ros):
@@ -127,12 +127,12 @@ def test_curve_server_also_waits_until_its_publisher_reaches_that_many_readers(r
     spin_until(lambda: server.ready.names == {'/reporter'})
     deadline = time.monotonic() + 1.0
     spin_until(lambda: time.monotonic() > deadline)
-    assert server.next_id == 0   # reported, but no reader of the curve: not started
+    assert server.schedule.next_id == 0   # reported, but no reader of the curve: not started
     node = add(rclpy.create_node('reader', context=context))
     received = []
     node.create_subscription(Float64MultiArray, topics.CURVE, received.append, qos.LATCHED)
     spin_until(lambda: received)
-    assert server.next_id == 1
+    assert server.schedule.next_id == 1
 
 
 @pytest.mark.parametrize('period', [0.4, 0.0])
@@ -144,7 +144,7 @@ def test_curve_server_publishes_its_curve_again_for_a_reader_that_missed_it(ros,
     context, add, spin_until = ros
     server = add(CurveServer(context=context, parameter_overrides=overrides(
         experiment='closed_curve', refresh_period=period)))
-    spin_until(lambda: server.next_id == 1)
+    spin_until(lambda: server.schedule.next_id == 1)
     node = add(rclpy.create_node('late', context=context))
     received = []
     node.create_subscription(Float64MultiArray, topics.CURVE,
@@ -153,7 +153,7 @@ def test_curve_server_publishes_its_curve_again_for_a_reader_that_missed_it(ros,
     deadline = time.monotonic() + 3.0
     spin_until(lambda: len(received) >= 2 or time.monotonic() > deadline)
     if period:
-        assert received[:2] == [0, 0] and server.next_id == 1
+        assert received[:2] == [0, 0] and server.schedule.next_id == 1
     else:
         assert received == []
 
@@ -297,7 +297,7 @@ def test_curve_server_fits_and_publishes_an_observed_curve(ros):
     context, add, spin_until = ros
     server = add(CurveServer(context=context, parameter_overrides=overrides(
         experiment='closed_curve', observed_basis='fourier', observed_size=6)))
-    spin_until(lambda: server.next_id == 1)
+    spin_until(lambda: server.schedule.next_id == 1)
     probe = add(rclpy.create_node('observer', context=context))
     received = []
     probe.create_subscription(Float64MultiArray, topics.CURVE,
@@ -330,11 +330,11 @@ def test_curve_server_fits_and_publishes_an_observed_curve(ros):
         pub.publish(msg)
     deadline = time.monotonic() + 2.0
     spin_until(lambda: time.monotonic() > deadline)
-    assert server.next_id == 2
+    assert server.schedule.next_id == 2
     msg.polygon.points = good   # the same line seen again later (another stamp) is taken
     msg.header.stamp.sec = 5
     pub.publish(msg)
-    spin_until(lambda: server.next_id == 3)
+    spin_until(lambda: server.schedule.next_id == 3)
 
 
 def test_curve_message_round_trip_with_and_without_agent_parameters():

@@ -550,3 +550,21 @@ def test_a_release_is_done_only_when_the_nodes_that_move_the_robots_have_it_too(
     tally.add(EstopReport('/fake_arena', 'fake_arena', '', False, '/formation_estop', 1.0, 2),
               0.9)
     assert tally.done()
+    # Once more, with the arena's state not heard yet at all (the command a new participant,
+    # the arena's announcement still on its way): discovered, it is waited for as well.
+    tally.discovered = {'/fake_arena', '/robot_1/fake_robot'}
+    assert not tally.done() and tally.others_missing() == ['/robot_1/fake_robot']
+
+
+def test_the_command_discovers_the_holders_that_are_not_controllers(ros):
+    from rclpy.node import Node
+
+    from curve_formation.estop_command import other_holders
+    from curve_formation.nodes.estop import EstopHolder
+    context, add, spin_until = ros
+    for name, namespace in (('fake_arena', '/'), ('fake_robot', '/robot_2'),
+                            ('formation_controller', '/robot_1')):
+        EstopHolder(add(Node(name, namespace=namespace, context=context)))
+    probe = add(Node('formation_estop', context=context))
+    spin_until(lambda: len(probe.get_publishers_info_by_topic(topics.ESTOP_STATE)) == 3)
+    assert other_holders(probe, topics.ESTOP_STATE) == {'/fake_arena', '/robot_2/fake_robot'}

@@ -1,8 +1,8 @@
 """The ROS graph's tick pipeline without ROS: what the nodes do, in one process, in time order.
 
 One agent.AgentController per robot, as each formation_controller node runs it; the curve
-schedule as the curve server publishes it (each phase at its start, a moving curve renewed
-at MOVING_RATE, targets re-assigned every agents.reassign_every from the robots' poses);
+schedule the curve server steps (core.schedule: each phase at its start, a moving curve
+renewed at MOVING_RATE, targets re-assigned every agents.reassign_every from the robots' poses);
 poses sampled from the world at the camera's rate and handed to every controller, each
 controller's state passed on to its out-neighbours when its pose comes (as the node
 publishes it); every controller ticking at the control rate at its own phase of the period
@@ -26,8 +26,6 @@ import numpy as np
 
 from curve_formation.core import metrics
 from curve_formation.core.agent import agent_configs, AgentController
-from curve_formation.core.assignment import reassigned
-from curve_formation.core.curves import Curve
 from curve_formation.core.experiment import (
     ANNOUNCE_AHEAD,
     control_rate,
@@ -35,6 +33,7 @@ from curve_formation.core.experiment import (
     Phase,
     phase_index,
 )
+from curve_formation.core.schedule import CurveSchedule, Publication
 from curve_formation.core.shapes import BoolArray, FloatArray
 from curve_formation.core.simulator import SimResult
 from curve_formation.core.worlds import make_world, World
@@ -45,7 +44,7 @@ MOVING_RATE = 10.0
 # Poses per second (Hz) when the experiment has no camera (the fake arena's default).
 POSE_RATE = 30.0
 # Event kinds, in their order at equal times.
-ANNOUNCE, CURVE, REASSIGN, POSE, TICK, RECORD = range(6)
+CURVE, REASSIGN, POSE, TICK, RECORD = range(5)
 
 
 @dataclass(frozen=True)
@@ -97,80 +96,36 @@ class Pipeline:
         self.tick_phases = tick_phases
         self.pose_rate = pose_rate
         self.commands = np.zeros((n, 2))
-        self.followed: list[Phase] = []
-        self.phase: Phase | None = None
-        self.curve_id = -1
-        self.s: FloatArray | None = None
-        self.changes: list[tuple[float, FloatArray, FloatArray]] = []
-        self.sent = experiment.phases[0].targets   # the targets last sent (m)
-        self.reassigned = False
-        self.published: tuple[Curve, FloatArray] | None = None   # the last curve and s sent
-        self.announced: set[int] = set()   # phases published ahead of their start
+        self.schedule = CurveSchedule(experiment)
+        self.schedule.begin(0.0)
+        self.followed: tuple[Phase, ...] = ()   # the phases as followed, once run
 
-    def _publish(self, now: float, curve, s: FloatArray, rate=None,
-                 valid_at: float | None = None) -> None:
-        self.published = (curve, s)
-        for controller in self.controllers:
-            controller.set_curve(curve, self.curve_id, s, rate, received=now,
-                                 valid_at=valid_at)
-
-    def announce(self, index: int, now: float) -> None:
-        """The curve server's look ahead, ANNOUNCE_AHEAD before phase `index` starts: a curve
-        that only begins to move where it is gets published now, dated to begin at its start
-        (Experiment.announce_lead).
+    def publish_due(self, now: float) -> None:
+        """The curve server's scheduled curves due by `now` (s), a curve that only begins to
+        move ANNOUNCE_AHEAD before its start (core.schedule).
         """
-        moving = self.phase is not None and self.phase.motion is not None
-        if self.experiment.announce_lead(index, self.published, moving, self.reassigned,
-                                         self.sent) > 0:
-            self.start_phase(index, now, self.experiment.phases[index].start)
-            self.announced.add(index)
-
-    def start_phase(self, index: int, now: float, begins: float | None = None) -> None:
-        """The curve server's switch to phase `index` at `now` (s); begins: when the curve
-        begins to move (s; None: now).
-        """
-        if index in self.announced:
-            return
-        self._close_phase()
-        phase = self.experiment.switched_to(self.experiment.phases[index], self.reassigned,
-                                            self.sent)
-        self.reassigned = False
-        self.phase, self.s, self.changes = phase, phase.s, []
-        self.curve_id += 1
-        rate = None if phase.motion is None else phase.motion.rate(phase.curve, 0.0)
-        self.sent = phase.targets
-        self._publish(now, phase.curve, phase.s, rate, begins)
+        for publication in self.schedule.due(now):
+            self._hand_out(now, publication)
 
     def renew(self, now: float) -> None:
         """A moving curve published where it is now, with its rate (same id)."""
-        phase = self.phase
-        if phase is None or phase.motion is None or self.s is None:
-            return
-        tau = now - phase.start
-        curve = phase.motion.curve(phase.curve, tau)
-        self.sent = curve.points(self.s)
-        self._publish(now, curve, self.s, phase.motion.rate(phase.curve, tau))
+        publication = self.schedule.renewal(now)
+        if publication is not None:
+            self._hand_out(now, publication)
 
     def reassign(self, now: float) -> None:
         """The curve server's re-assignment from the robots' poses (same id)."""
-        phase = self.phase
-        if phase is None or self.s is None:
-            return
-        curve = phase.curve_at(now)
         points = metrics.offset_points(self.world.poses(), self.experiment.gains.offset)
-        new = reassigned(curve, self.s, points)
-        if new is self.s:
-            return
-        self.s, self.reassigned = new, True
-        self.changes.append((now, new, phase.curve.points(new)))
-        self.sent = curve.points(new)
-        rate = None if phase.motion is None else phase.motion.rate(phase.curve,
-                                                                     now - phase.start)
-        self._publish(now, curve, new, rate)
+        publication = self.schedule.reassign(points, now)
+        if publication is not None:
+            self._hand_out(now, publication)
 
-    def _close_phase(self) -> None:
-        if self.phase is not None:
-            self.followed.append(dataclasses.replace(self.phase, changes=tuple(self.changes)))
+    def _hand_out(self, now: float, publication: Publication) -> None:
+        """A curve message reaches every controller at `now` (s)."""
+        for controller in self.controllers:
+            controller.set_curve(publication.curve, publication.curve_id, publication.s,
+                                 publication.rate, received=now,
+                                 valid_at=publication.valid_at)
 
     def poses_taken(self, now: float) -> list[tuple[float, int, int]]:
         """Every robot's pose taken at `now`: delivered at once, or (with the link's pose
@@ -235,7 +190,7 @@ class Pipeline:
             if phase.start < duration:
                 events.append((phase.start, CURVE, index))
             if phase.motion is not None and index > 0 and phase.start < duration:
-                events.append((phase.start - ANNOUNCE_AHEAD, ANNOUNCE, index))
+                events.append((phase.start - ANNOUNCE_AHEAD, CURVE, index))   # if announced
             if phase.motion is not None:
                 end = (self.experiment.phases[index + 1].start
                        if index + 1 < len(self.experiment.phases) else duration)
@@ -259,10 +214,8 @@ class Pipeline:
         while events:
             now, kind, index = heapq.heappop(events)
             self.world.advance(now)
-            if kind == ANNOUNCE:
-                self.announce(index, now)
-            elif kind == CURVE:
-                self.start_phase(index, now) if index >= 0 else self.renew(now)
+            if kind == CURVE:
+                self.publish_due(now) if index >= 0 else self.renew(now)
             elif kind == REASSIGN:
                 self.reassign(now)
             elif kind == POSE and index < 0:
@@ -276,7 +229,7 @@ class Pipeline:
                 rec_poses[index] = self.world.poses()
                 rec_dhat[index] = [c.dhat for c in self.controllers]
                 rec_cmd[index] = self.commands
-        self._close_phase()
+        self.followed = self.schedule.close()
         return np.asarray(records), rec_poses, rec_dhat, rec_cmd
 
 

@@ -25,19 +25,18 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from curve_formation.core import bodies, control, driving, dynamics, metrics
-from curve_formation.core.assignment import reassigned
 from curve_formation.core.control import Gains, Law, WheelLimits
 from curve_formation.core.disturbance import disturbance_at
 from curve_formation.core.driving import REVERSE_HYSTERESIS
 from curve_formation.core.experiment import (
     ConfigError,
     Experiment,
-    Phase,
     phase_index,
     whole_steps,
 )
 from curve_formation.core.jit import compiled
 from curve_formation.core.safety import Avoidance
+from curve_formation.core.schedule import CurveSchedule
 from curve_formation.core.shapes import BoolArray, FloatArray, IntArray
 
 
@@ -442,20 +441,26 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
     feed_forward = spec.controller.feed_forward
     graph = (*experiment.graph.edge_arrays(), experiment.graph.pins)
     clock = Clock(dt, control_every, record_every)
-    schedule = (tick_offsets, start_steps)
+    ticks = (tick_offsets, start_steps)
     every = experiment.spec.agents.reassign_every
     period = 0 if every is None else whole_steps(every, dt, 'agents.reassign_every')
     # A phase begins at the first step at or after its start (a recorded run's switch falls
     # between steps): no sample before a phase's start carries its targets.
     starts = [int(math.ceil(p.start / dt - 1e-9)) for p in experiment.phases] + [total]
-    followed: list[Phase] = []
-    sent = experiment.phases[0].targets   # the targets last sent (m, arena frame)
-    for phase, a, b in zip(experiment.phases, starts[:-1], starts[1:], strict=True):
+    # The curve server's schedule (core.schedule: switches, re-assignments, the phases as
+    # followed), stepped here; a moving curve is renewed where the schedule needs it (each
+    # renewal is a fit): at a re-assignment, and at the phase's last cut (where the next
+    # switch assigns from).
+    schedule = CurveSchedule(experiment, announce_ahead=0.0)
+    schedule.begin(0.0)
+    for k, (a, b) in enumerate(zip(starts[:-1], starts[1:], strict=True)):
         if a >= total:
             break
         b = min(b, total)
-        phase = experiment.switched_to(phase, bool(followed and followed[-1].changes), sent)
-        s, targets, changes = phase.s, phase.targets, []
+        schedule.due(experiment.phases[k].start)   # phase k: switched to from step a on
+        phase = schedule.phase
+        assert phase is not None
+        targets = phase.targets
         # The curve server's re-assignment instants, k * period from t = 0.
         reassign = set() if not period else set(range((a // period + 1) * period, b, period))
         # A moving curve's targets are taken afresh at every tick (every MOVING_STEP s
@@ -466,28 +471,28 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
                                   if moving or varies else set()))
         still: FloatArray = np.zeros((n, 2))
         for begin, end in zip([a] + cuts, cuts + [b], strict=True):
+            if moving is not None and (begin in reassign or end == b):
+                schedule.renewal(begin * dt)
             if begin in reassign:
                 points = metrics.offset_points(poses, gains.offset)
-                new = reassigned(phase.curve_at(begin * dt), s, points)
-                if new is not s:
-                    s, targets = new, phase.curve.points(new)
-                    changes.append((begin * dt, s, targets))
+                publication = schedule.reassign(points, begin * dt)
+                if publication is not None:
+                    targets = phase.curve.points(publication.s)
             now, ahead = targets, still
             if moving is not None:
                 tau = begin * dt - phase.start
                 now = moving.points(targets, tau)
                 if feed_forward:
                     ahead = moving.velocities(targets, tau)
-            sent = now
             if varies:   # held over each control period (MOVING_STEP without a rate)
                 d_pc, d_robot = _split(disturbance_at(dist, experiment.variations, begin * dt),
                                        on_pc)
             if begin == a:   # a curve's first pose: the sooner way outright
                 _choose_directions(state, now, law, limits)
             _run(state, np.ascontiguousarray(now), np.ascontiguousarray(ahead), graph, law,
-                 limits, avoidance, d_pc, d_robot, clock, begin, end - begin, schedule,
+                 limits, avoidance, d_pc, d_robot, clock, begin, end - begin, ticks,
                  contacts, record)
-        followed.append(dataclasses.replace(phase, changes=tuple(changes)))
+    followed = schedule.close()
     t = np.arange(n_rec) * record_every * dt
     sample_phase = phase_index(np.array(starts[:-1]) * dt, t)
     if varies:   # the disturbance at each recorded sample

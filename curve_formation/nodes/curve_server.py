@@ -12,7 +12,8 @@ curve's targets). The current curve is published again every `refresh_period` s 
 readers that missed it; with `reassign_every`, the current curve is published again (same id)
 whenever re-assigning its targets among the robots, from their poses on /formation/robot_poses,
 shortens their squared trips by 10 %; the next scheduled curve is then assigned from the targets as
-re-assigned (Phase.assigned_from), as the simulator does.
+re-assigned (Phase.assigned_from), as the simulator does. What is published when is
+core.schedule's, which the nodes' pipeline steps too.
 """
 
 from geometry_msgs.msg import Point, PoseStamped
@@ -23,13 +24,14 @@ from rclpy.node import Node
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
-from curve_formation.core.assignment import AssignmentError, phase_parameters, reassigned
+from curve_formation.core.assignment import AssignmentError, phase_parameters
 from curve_formation.core.curve_codec import CurveClock
 from curve_formation.core.curve_sources import fit_points
 from curve_formation.core.curves import CurveError, make_basis
 from curve_formation.core.experiment import ANNOUNCE_AHEAD, points_outside_arena
 from curve_formation.core.metrics import offset_points
 from curve_formation.core.plausibility import MAX_COORDINATE
+from curve_formation.core.schedule import CurveSchedule
 from curve_formation.nodes import messages, topics
 from curve_formation.nodes.estop import estop_uses, EstopHolder
 from curve_formation.nodes.params import (
@@ -115,20 +117,14 @@ class CurveServer(Node):
         topics.subscription(self, topics.OBSERVED_CURVE, self._on_observed)
         # Holds the e-stop for controllers and bridges that (re)start while it is engaged.
         self.estop = EstopHolder(self, robots=self.experiment.n)
-        self.next_id = 0
-        self.next_phase = 0
-        # Where the agents are headed: the last published targets (m, arena frame), from
-        # which an observed curve's points are assigned; before any curve, the start poses.
-        self.targets = offset_points(self.experiment.initial_poses,
-                                     self.experiment.gains.offset)
+        # What is published when, on this node's clock (core.schedule, as the nodes'
+        # pipeline steps it); its last publication is the current curve.
+        self.schedule = CurveSchedule(self.experiment, self.params.schedule,
+                                      self.params.announce_ahead)
         self.start = None
-        self.current = None   # (curve, curve id, s, rate, CurveClock) last published
         self.refresh_timer = None   # fires refresh_period after the last curve message
         self.last_observed = None   # (stamp s, closed, points bytes) of the last observed curve
-        self.moving = None    # the Phase being published as it moves
-        self.moving_since = 0.0   # when it began moving (s, this node's clock)
         self.poses = None     # (poses (n, 3), stamp s) last received
-        self.reassigned = False   # targets re-assigned since the last scheduled curve
         every = self.params.reassign_every
         if every < 0:
             every = self.experiment.spec.agents.reassign_every or 0.0
@@ -168,82 +164,42 @@ class CurveServer(Node):
                 self.destroy_subscription(subscription)
             self.pose_waits = []
             self.start = now_seconds(self)
+            self.schedule.begin(self.start)
             if self.reassign_every > 0:
                 self.create_timer(self.reassign_every, self._reassign)
             self.create_timer(1.0 / self.params.moving_rate_hz, self._renew_moving)
             if self.params.refresh_period > 0:
                 self.refresh_timer = self.create_timer(self.params.refresh_period,
                                                        self._refresh)
-        phases = self.experiment.phases if self.params.schedule else ()
-        elapsed = now_seconds(self) - self.start
-        lead = 0.0
-        while self.next_phase < len(phases):
-            lead = self._lead(self.next_phase)   # of the phase due next, as things are now
-            if phases[self.next_phase].start - lead > elapsed:
-                break
-            phase = phases[self.next_phase]
-            self.next_phase += 1
-            phase = self.experiment.switched_to(phase, self.reassigned, self.targets)
-            self.reassigned = False
-            # A moving curve begins to move when it is published (the timer may fire late),
-            # or, announced ahead, at its scheduled start.
-            self.moving = phase if phase.motion is not None else None
-            self.moving_since = (self.start + phase.start if lead > 0
-                                 else now_seconds(self))
-            rate = None if phase.motion is None else phase.motion.rate(phase.curve, 0.0)
-            self.publish_curve(phase.curve, phase.s, rate=rate,
-                               clock=self._curve_clock(self.moving_since))
-        if self.next_phase == len(phases):
+        for publication in self.schedule.due(now_seconds(self)):
+            self.publish_curve(publication)
+        due = self.schedule.next_due()
+        if due is None:
             self.timer.cancel()
             return
-        wait = phases[self.next_phase].start - lead - (now_seconds(self) - self.start)
-        self.timer.timer_period_ns = max(1_000_000, int(wait * 1e9))
+        self.timer.timer_period_ns = max(1_000_000, int((due - now_seconds(self)) * 1e9))
         self.timer.reset()
 
-    def _curve_clock(self, valid_at, moving_for=0.0):
-        """A CurveClock of a curve as it holds at valid_at (s, this node's clock), moving for
-        moving_for (s), dated in the run's time too (s since the first curve was sent).
-        """
-        run_time = None if self.start is None else max(valid_at - self.start, 0.0)
-        return CurveClock(valid_at, moving_for, run_time)
-
-    def _lead(self, k):
-        """How long (s) before its start scheduled phase k is published: announce_ahead if
-        it only sets the current curve moving (same curve, same targets), else 0.
-        """
-        current = None if self.current is None else (self.current[0], self.current[2])
-        return self.experiment.announce_lead(k, current, self.moving is not None,
-                                             self.reassigned, self.targets,
-                                             self.params.announce_ahead)
-
     def _renew_moving(self):
-        """Publish the moving phase's curve where it is now, with its rate (same id)."""
-        phase = self.moving
-        if phase is None or self.current is None:
-            return
-        _, curve_id, s, _, _ = self.current
-        now = now_seconds(self)
-        tau = now - self.moving_since
-        if tau < 0:   # announced ahead: still until it begins
-            return
-        self.publish_curve(phase.motion.curve(phase.curve, tau), s, curve_id,
-                           phase.motion.rate(phase.curve, tau), quiet=True,
-                           clock=self._curve_clock(now, tau))
+        """Publish the moving curve where it is now, with its rate (same id)."""
+        publication = self.schedule.renewal(now_seconds(self))
+        if publication is not None:
+            self.publish_curve(publication, quiet=True)
 
     def _refresh(self):
         """Publish the current curve message again: refresh_period has passed without one
         (a moving curve is renewed more often than that anyway).
         """
-        if self.current is not None and self.moving is None:
-            self._send_current()
+        if self.schedule.last is not None and self.schedule.moving_since is None:
+            self._send(self.schedule.last)
 
-    def _send_current(self):
-        """Publish the current curve message; the refresh waits a whole period from now."""
-        assert self.current is not None   # called once a curve was published
-        curve, curve_id, s, rate, clock = self.current
+    def _send(self, publication):
+        """Publish a curve message; the refresh waits a whole period from now."""
         if self.refresh_timer is not None:
             self.refresh_timer.reset()
-        self.curve_pub.publish(messages.curve_to_msg(curve, curve_id, s, rate, clock))
+        self.curve_pub.publish(messages.curve_to_msg(
+            publication.curve, publication.curve_id, publication.s, publication.rate,
+            CurveClock(publication.valid_at, publication.moving_for, publication.run_time)))
 
     def on_shutdown(self):
         """Wait (0.5 s at most) until the last curve message is acknowledged, so that a
@@ -261,32 +217,25 @@ class CurveServer(Node):
         """Give robots whose ways have come to cross each other's targets (the curve as it
         is, same id, with the agents' parameters permuted).
         """
-        if self.current is None or self.poses is None:
+        if self.poses is None:
             return
         poses, stamp = self.poses
         if (len(poses) != self.experiment.n or not np.isfinite(poses).all()
                 or now_seconds(self) - stamp > self.params.pose_timeout):
             return
-        curve, curve_id, s, rate, clock = self.current
-        new = reassigned(curve, s, offset_points(poses, self.experiment.gains.offset))
-        if new is not s:
-            self.reassigned = True
-            # The curve as it was renewed (a moving one has moved on since): dated then.
-            self.publish_curve(curve, new, curve_id, rate, clock=clock)
-            self.get_logger().info(f'curve {curve_id}: targets re-assigned')
+        publication = self.schedule.reassign(
+            offset_points(poses, self.experiment.gains.offset), now_seconds(self))
+        if publication is not None:
+            self.publish_curve(publication)
+            self.get_logger().info(f'curve {publication.curve_id}: targets re-assigned')
 
-    def publish_curve(self, curve, s, curve_id=None, rate=None, quiet=False, clock=None):
-        """Publish a curve with the agents' parameters s (n,) (and a moving curve's rate),
-        dated by `clock` (CurveClock; default: now, still), its path and its markers: the next
-        curve, or with `curve_id` the current one with its agents re-assigned or moved on.
+    def publish_curve(self, publication, quiet=False):
+        """Publish a curve message of the schedule (core.schedule.Publication) with its path
+        and its markers: the next curve, or the current one with its agents re-assigned or
+        moved on.
         """
-        if curve_id is None:
-            curve_id = self.next_id
-            self.next_id += 1
-        targets = curve.points(s)
-        self.targets = targets
-        self.current = (curve, curve_id, s, rate, clock or self._curve_clock(now_seconds(self)))
-        self._send_current()
+        self._send(publication)
+        curve = publication.curve
         stamp = self.get_clock().now().to_msg()
         pts = curve.outline(self.params.path_samples)
         path = Path()
@@ -298,9 +247,10 @@ class CurveServer(Node):
             pose.pose.orientation.w = 1.0
             path.poses.append(pose)
         self.path_pub.publish(path)
-        self.marker_pub.publish(self._markers(pts, targets, stamp))
+        self.marker_pub.publish(self._markers(pts, curve.points(publication.s), stamp))
         if not quiet:
-            self.get_logger().info(f'published curve {curve_id} ({curve.basis.describe()})')
+            self.get_logger().info(f'published curve {publication.curve_id} '
+                                   f'({curve.basis.describe()})')
 
     def _markers(self, pts, targets, stamp):
         line = Marker(ns='curve', id=0, type=Marker.LINE_STRIP, action=Marker.ADD)
@@ -340,14 +290,13 @@ class CurveServer(Node):
             self._check_in_arena(fit.curve)
             agents = self.experiment.spec.agents
             s = phase_parameters(fit.curve, self.experiment.n, agents.spacing,
-                                 agents.assignment, self.targets)
+                                 agents.assignment, self.schedule.targets)
         except (CurveError, AssignmentError) as exc:
             self.get_logger().error(f'observed curve refused ({len(points)} points): {exc}')
             return
         self.get_logger().info(f'observed curve fitted from {len(points)} points, rms '
                                f'residual {fit.rms_residual:.3g}')
-        self.moving = None   # an observed curve replaces a moving one
-        self.publish_curve(fit.curve, s)
+        self.publish_curve(self.schedule.observed(fit.curve, s, now_seconds(self)))
 
     def _check_in_arena(self, curve):
         """CurveError unless the curve lies in the arena as a curve of the experiment file must
