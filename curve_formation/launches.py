@@ -14,6 +14,7 @@ import socket
 import yaml
 
 from curve_formation.core.agent import agent_configs
+from curve_formation.core.agent_parameters import limit_parameter, node_parameters
 from curve_formation.core.experiment import (
     control_rate,
     variations_text,
@@ -21,8 +22,6 @@ from curve_formation.core.experiment import (
     wheel_radius,
 )
 from curve_formation.interface import robot_namespace
-from curve_formation.nodes.formation_controller import node_parameters
-from curve_formation.nodes.params import limit_parameter
 from curve_formation.run_options import DEFAULTS
 
 
@@ -77,6 +76,7 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None,
                             'wait_for_poses': True,
                             # a drawn curve comes from the camera, not from the schedule
                             'schedule': not (cameras and spec.camera.drawn_curve is not None)})]
+    bridges = [bridge_parameters(experiment, rate, link) for link in links]
     for i, config in enumerate(agent_configs(experiment, rate), 1):
         ns = robot_namespace(i)
         d = [float(v) for v in experiment.disturbance[i - 1]]
@@ -88,8 +88,7 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None,
                                    'formation_controller', controller))
         if links:
             launches.append(NodeLaunch('curve_formation.nodes.robot_bridge', ns,
-                                       'robot_bridge', bridge_parameters(experiment, rate,
-                                                                         links[i - 1])))
+                                       'robot_bridge', bridges[i - 1]))
         if with_robots and not one_world:
             launches.append(NodeLaunch('curve_formation.nodes.fake_robot', ns, 'fake_robot', {
                 'index': i,

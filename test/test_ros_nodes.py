@@ -550,7 +550,8 @@ def test_agent_settings_survive_the_trip_through_node_parameters(ros, name):
     from rclpy.parameter import Parameter
 
     from curve_formation.core.agent import agent_configs
-    from curve_formation.nodes.formation_controller import agent_config, node_parameters
+    from curve_formation.core.agent_parameters import node_parameters
+    from curve_formation.nodes.formation_controller import agent_config
     from curve_formation.paths import resolve_config
     context, add, _ = ros
     import dataclasses

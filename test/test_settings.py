@@ -125,9 +125,10 @@ def arena_demo():
 
 def the_leaders_parameters():
     from curve_formation.core.agent import agent_configs
+    from curve_formation.core.agent_parameters import node_parameters
     from curve_formation.core.experiment import build_experiment
     experiment = build_experiment(arena_demo(), 'arena_demo.yaml')
-    return node.node_parameters(agent_configs(experiment, 10.0)[0])
+    return node_parameters(agent_configs(experiment, 10.0)[0])
 
 
 def without_limits(data):

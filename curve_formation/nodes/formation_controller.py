@@ -17,6 +17,7 @@ from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 
 from curve_formation.core.agent import AgentConfig, AgentController
+from curve_formation.core.agent_parameters import limit_value
 from curve_formation.core.assignment import AssignmentError
 from curve_formation.core.control import Gains, LAWS, timed_by, WheelLimits
 from curve_formation.core.disturbance import RunTime, varied
@@ -28,7 +29,6 @@ from curve_formation.nodes.estop import estop_uses, EstopHolder
 from curve_formation.nodes.guard import rejections
 from curve_formation.nodes.params import (
     declare_parameters,
-    limit_parameter,
     node_variations,
     Param,
     ParameterError,
@@ -167,57 +167,10 @@ DERIVED = ('index', 'agent_count', 'role', 'in_neighbours', 'weights', 'rate_hz'
 NODE_ONLY = ('frame_id', 'compiled_law', 'fault_state_drop')
 
 
-def node_parameters(config):
-    """The parameters {name: value} of a node that runs AgentConfig `config`: agent_config of
-    them gives `config` back (a test checks it for every agent of every shipped experiment).
-    Unlimited values are written as 0; empty lists are left out (a ROS parameter needs a type).
-    """
-    gains, limits, av = config.gains, config.limits, config.avoidance
-
-    limit = limit_parameter
-    params = {
-        'index': config.index, 'agent_count': config.agent_count,
-        'role': 'leader' if config.is_leader else 'follower',
-        'pinning': float(config.pinning),
-        'k1': float(gains.k1), 'k2': float(gains.k2), 'offset': float(gains.offset),
-        'rate_hz': float(config.rate_hz), 'law': gains.law,
-        'adaptation': [float(g) for g in gains.adaptation],
-        'observer_rate': float(gains.observer_rate),
-        'observer_growth': float(gains.observer_growth),
-        'tail_radius': float(gains.tail_radius), 'tail_gain': float(gains.tail_gain),
-        'reverse': bool(gains.reverse),
-        'heading': 'sampled' if gains.sampled_heading else 'paper',
-        'wheel_base': float(limits.wheel_base), 'max_wheel_speed': limit(limits.max_wheel_speed),
-        'max_angular_rate': limit(limits.max_angular_rate),
-        'max_linear_accel': limit(limits.max_linear_accel),
-        'max_angular_accel': limit(limits.max_angular_accel),
-        'pose_timeout': float(config.pose_timeout),
-        'neighbour_timeout': float(config.neighbour_timeout),
-        'leader_timeout': float(config.leader_timeout),
-        'geofence': [float(v) for v in config.geofence or ()],
-        'pc_disturbance': [float(v) for v in config.pc_disturbance],
-        'in_neighbours': [int(j) for j, _ in config.neighbours],
-        'weights': [float(w) for _, w in config.neighbours],
-        'predict_pose': bool(config.predict_pose),
-        'command_latency': float(config.command_latency),
-        'feed_forward': bool(config.feed_forward),
-        'min_wheel_speed': float(config.min_wheel_speed),
-        'motor_time_constant': float(config.motor_time_constant),
-        'observer_order': int(config.observer_order),
-        'estimate_latency': bool(config.estimate_latency),
-        'compiled_law': bool(config.compiled),
-    }
-    if av.on:
-        params.update({'avoidance': True, 'radius': float(av.radius),
-                       'avoidance_margin': float(av.margin), 'avoidance_rate': float(av.alpha),
-                       'passing': float(av.bias), 'passing_range': float(av.bias_range),
-                       'avoidance_drift': float(av.drift),
-                       'arena': [float(av.width), float(av.height)] if av.width > 0 else []})
-    return {name: value for name, value in params.items() if value != []}
-
-
 def agent_config(p):
-    """AgentConfig from validated parameters; ParameterError on inconsistent ones."""
+    """AgentConfig from validated parameters (core.agent_parameters.node_parameters gives
+    them from one); ParameterError on inconsistent ones.
+    """
     if p.offset == 0:
         raise ParameterError("parameter 'offset' must be non-zero")
     if p.index > p.agent_count:
@@ -246,9 +199,9 @@ def agent_config(p):
     if fence is not None and (len(fence) != 4 or fence[0] >= fence[2] or fence[1] >= fence[3]):
         raise ParameterError(f"parameter 'geofence' must be [xmin, ymin, xmax, ymax] with "
                              f'xmin < xmax and ymin < ymax, got {p.geofence}')
-    inf = float('inf')
-    limits = WheelLimits(p.wheel_base, p.max_wheel_speed or inf, p.max_angular_rate or inf,
-                         p.max_linear_accel or inf, p.max_angular_accel or inf)
+    limits = WheelLimits(p.wheel_base, limit_value(p.max_wheel_speed),
+                         limit_value(p.max_angular_rate), limit_value(p.max_linear_accel),
+                         limit_value(p.max_angular_accel))
     if p.reverse and not timed_by(limits):
         raise ParameterError("parameter 'reverse' needs 'wheel_base' and 'max_wheel_speed' "
                              '(> 0) to time a trip forwards and backwards')

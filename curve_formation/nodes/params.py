@@ -69,11 +69,6 @@ class Param:
         return repr(self.default)
 
 
-def limit_parameter(value):
-    """A limit as a node parameter value: an unlimited one (inf) is written as 0."""
-    return float(value) if math.isfinite(value) else 0.0
-
-
 def declare_parameters(node, table):
     """Declare every Param of table on node; returns a namespace of validated values.
 
