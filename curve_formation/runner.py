@@ -29,10 +29,9 @@ from curve_formation.node_graph import NodeGraph
 from curve_formation.nodes.runtime import now_seconds
 from curve_formation.nodes.topics import CURVE, DIAGNOSTICS
 from curve_formation.observers import Observers
-from curve_formation.outputs import write_metrics, write_outputs
+from curve_formation.outputs import write_outputs
 from curve_formation.paths import discovery_text, resolve_config, ros_environment
 from curve_formation.provenance import provenance_text
-from curve_formation.report import write_report
 from curve_formation.run_options import DEFAULTS
 from curve_formation.start_scripts import write_node_files
 
@@ -360,7 +359,16 @@ class Run:
 
     def write_results(self, label='ROS run'):
         """The run's folder (outputs.write_outputs: metrics.json, figures, trajectory.npz,
-        report.html) from what the monitor recorded; the run ends first (end).
+        report.html) from what the monitor recorded (measure); returns its metrics.
+        """
+        experiment, record, result = self.measure()
+        write_outputs(self.out, experiment, record, result, self.experiment_path, label=label,
+                      animate=self.options.animate)
+        return result
+
+    def measure(self):
+        """(experiment as followed, record, metrics) of what the monitor recorded, for
+        outputs.write_outputs; the run ends first (end). RuntimeError if nothing was.
         """
         self.end()
         data = self.recording()
@@ -389,9 +397,7 @@ class Run:
         if camera:
             result['ground_truth'] = metrics.ground_truth_metrics(
                 experiment, data, phase, self.monitor.law_pose_rms(), estops, deaths)
-        write_outputs(self.out, experiment, {'phase': phase, **data}, result,
-                      self.experiment_path, label=label, animate=self.options.animate)
-        return result
+        return experiment, {'phase': phase, **data}, result
 
     def bag_accounting(self):
         """analysis.bag_accounting of the run's bag, once stopped: what was lost per topic."""
@@ -448,7 +454,7 @@ def run_experiment(config, out_dir, duration=None, options=DEFAULTS, log=print):
         return {'experiment': run.experiment.name, 'interrupted': interrupted,
                 'parts': sorted(options.only or ())}
     try:
-        result = run.write_results()
+        experiment, record, result = run.measure()
     except RuntimeError:
         if failure is None:
             raise
@@ -462,8 +468,8 @@ def run_experiment(config, out_dir, duration=None, options=DEFAULTS, log=print):
         assert run.bag_writer is not None   # a run with a bag_path writes one
         result['bag'] = {'path': str(options.bag_path), 'messages': run.bag_writer.count,
                          **run.bag_accounting()}
-    write_metrics(run.out, result, run.experiment_path)
-    write_report(run.out)   # with what was added since write_results
+    write_outputs(run.out, experiment, record, result, run.experiment_path, label='ROS run',
+                  animate=options.animate)
     if failure is not None:
         raise failure
     return result
