@@ -29,8 +29,8 @@ from rclpy.node import Node
 from curve_formation.nodes import qos, topics
 from curve_formation.nodes.runtime import WithMessageInfo
 from curve_formation.paths import resolve_config
-from curve_formation.run_options import RunOptions
-from curve_formation.runner import Run
+from curve_formation.run.run_options import RunOptions
+from curve_formation.run.runner import Run
 
 
 ROBOTS = 9

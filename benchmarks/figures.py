@@ -20,8 +20,8 @@ from simulation_speed import best_time  # benchmarks/ is the script's folder
 from curve_formation.core import metrics
 from curve_formation.core.experiment import load_experiment
 from curve_formation.core.simulator import simulate
-from curve_formation.outputs import write_outputs
 from curve_formation.paths import resolve_config
+from curve_formation.results.outputs import write_outputs
 
 
 GOAL = 30.0   # s, figures and animation together
@@ -40,7 +40,7 @@ def main():
     try:
         from curve_formation.core import plots
         from curve_formation.core.animation import animate
-        from curve_formation.report import write_report
+        from curve_formation.results.report import write_report
         write_outputs(folder, experiment, record, result, path)   # warm: fonts, imports
         found = {
             'samples': len(sim.t), 'robots': experiment.n, 'run_seconds': float(sim.t[-1]),

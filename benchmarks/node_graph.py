@@ -28,8 +28,8 @@ import tempfile
 import numpy as np
 import yaml
 
-from curve_formation.run_options import RunOptions
-from curve_formation.runner import Run
+from curve_formation.run.run_options import RunOptions
+from curve_formation.run.runner import Run
 
 
 def experiment_file(n, folder, avoidance=False):

@@ -123,7 +123,7 @@ def measure(storage, duration, resolution, images):
     import rclpy
     from rclpy.context import Context
 
-    from curve_formation.bag import bag_summary, BagWriter
+    from curve_formation.bags.bag import bag_summary, BagWriter
     from curve_formation.nodes import topics
     from curve_formation.nodes.recorder import Recorder
     from curve_formation.nodes.runtime import make_executor

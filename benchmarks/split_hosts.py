@@ -34,8 +34,8 @@ CLI = str(Path(sys.executable).parent / 'curve-formation')
 
 def inner(n, seconds, folder):
     """On host 1: curve server, robots and observer; prints the measurement as JSON."""
-    from curve_formation.run_options import RunOptions
-    from curve_formation.runner import Run
+    from curve_formation.run.run_options import RunOptions
+    from curve_formation.run.runner import Run
     options = RunOptions(only=frozenset({'curve_server', 'robots', 'observer'}))
     with Run(experiment_file(n, folder), Path(folder) / f'observer_{n}', options,
              log=lambda *_: None) as run:

@@ -16,11 +16,11 @@ from pathlib import Path
 import sys
 from typing import Any
 
-from curve_formation.bag import BagError, DEFAULT_STORAGE, STORAGES
+from curve_formation.bags.bag import BagError, DEFAULT_STORAGE, STORAGES
 from curve_formation.core.aruco import MARKER_IDS
 from curve_formation.core.experiment import check_rate_override, ConfigError, load_experiment
 from curve_formation.paths import resolve_config, use_dds_profile
-from curve_formation.provenance import command_line
+from curve_formation.results.provenance import command_line
 
 
 def _write_json(path, data):
@@ -40,7 +40,7 @@ def simulate_to_dir(config, out_dir, rate='config', law=None, heading=None, phys
     """
     from curve_formation.core import metrics
     from curve_formation.core.simulator import pipeline_only, simulate
-    from curve_formation.outputs import write_outputs
+    from curve_formation.results.outputs import write_outputs
 
     path = resolve_config(config)
     experiment = load_experiment(path)
@@ -150,10 +150,10 @@ def _cmd_demo(args):
 
     import numpy as np
 
-    from curve_formation.outputs import write_law_comparison
-    from curve_formation.report import write_report
-    from curve_formation.run_options import RunOptions
-    from curve_formation.runner import run_experiment
+    from curve_formation.results.outputs import write_law_comparison
+    from curve_formation.results.report import write_report
+    from curve_formation.run.run_options import RunOptions
+    from curve_formation.run.runner import run_experiment
     out = Path(args.out)
     _output_folder(out)
     summary: dict[str, Any] = {'paper_cases_batch_simulation': {}}
@@ -191,8 +191,8 @@ def _cmd_demo(args):
 
 
 def _cmd_run(args):
-    from curve_formation.run_options import RunOptions
-    from curve_formation.runner import run_experiment
+    from curve_formation.run.run_options import RunOptions
+    from curve_formation.run.runner import run_experiment
     _bridge_needs_simulated_robots(args)
     _warn(load_experiment(resolve_config(args.config)))
     only = _parts(args.only)
@@ -225,7 +225,7 @@ def _bridge_needs_simulated_robots(args):
 
 
 def _cmd_params(args):
-    from curve_formation.start_scripts import graph_launches, write_node_files
+    from curve_formation.run.start_scripts import graph_launches, write_node_files
     _bridge_needs_simulated_robots(args)
     path = resolve_config(args.config)
     out = _output_folder(args.out, args.force)
@@ -266,7 +266,7 @@ def _agents(text):
 
 def _parts(text):
     """The frozenset of graph parts `--only` names, or None for the whole graph."""
-    from curve_formation.run_options import PARTS
+    from curve_formation.run.run_options import PARTS
     if text is None:
         return None
     parts = frozenset(p.strip() for p in text.split(',') if p.strip())
@@ -280,7 +280,7 @@ def _parts(text):
 
 
 def _cmd_analyze(args):
-    from curve_formation.analysis import analyze_bag
+    from curve_formation.bags.analysis import analyze_bag
     _output_folder(args.out, args.force)
     result = analyze_bag(args.bag, args.out, args.experiment, args.compare, args.compare_sim,
                          progress=lambda line: print(line, file=sys.stderr, flush=True),
@@ -299,7 +299,7 @@ def _cmd_analyze(args):
 
 
 def _cmd_animate(args):
-    from curve_formation.analysis import load_run
+    from curve_formation.bags.analysis import load_run
     from curve_formation.core.animation import animate
     out = Path(args.out)
     if out.exists() and not args.force:
@@ -315,7 +315,7 @@ def _cmd_animate(args):
 
 
 def _cmd_measure_link(args):
-    from curve_formation.measure_link import measure_bag
+    from curve_formation.bags.measure_link import measure_bag
     found = measure_bag(args.bag)
     print(f'{"robot":>5s} {"latency (ms)":>12s} {"spread (ms)":>11s} {"windows":>7s} '
           f'{"commands":>8s} {"poses":>6s}')
@@ -349,13 +349,13 @@ def _number(value):
 
 
 def _cmd_bag_info(args):
-    from curve_formation.bag import describe_bag, format_bag_info
+    from curve_formation.bags.bag import describe_bag, format_bag_info
     info = describe_bag(args.bag)
     print(json.dumps(info, indent=2) if args.json else format_bag_info(info))
 
 
 def _cmd_bag_repair(args):
-    from curve_formation.bag import repair
+    from curve_formation.bags.bag import repair
     out, count = repair(args.bag, args.out)
     print(f'wrote {out}: {count} messages')
 
@@ -364,7 +364,7 @@ def _cmd_replay(args):
     import rclpy
     from rclpy.signals import SignalHandlerOptions
 
-    from curve_formation.replay import replay
+    from curve_formation.bags.replay import replay
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     node = rclpy.create_node('bag_replay')
     try:
@@ -399,7 +399,7 @@ def _cmd_clean_shm(args):
 
 
 def _cmd_estop(args):
-    from curve_formation.estop_command import send_estop
+    from curve_formation.run.estop_command import send_estop
     expect = args.expect
     if args.experiment is not None:
         expect = load_experiment(resolve_config(args.experiment)).n

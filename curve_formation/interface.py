@@ -200,7 +200,7 @@ def type_name(topic: str) -> str | None:
 
 # Readers of the formation's messages into core values. They use attribute access only, so
 # they read rclpy's message objects (nodes/messages.py) and those rosbags deserialises from a
-# bag (analysis.py) alike; a malformed message raises CodecError.
+# bag (bags/analysis.py) alike; a malformed message raises CodecError.
 
 def stamp_to_seconds(stamp: Any) -> float:
     """A builtin_interfaces/Time as s."""

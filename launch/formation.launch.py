@@ -6,7 +6,7 @@ go; default /tmp/curve_formation/<experiment>), sim (true: fake robots; false: r
 publish /robot_<i>/pose), camera (true: poses from camera_tracker), bridge ('', udp or pty),
 observer (true: `curve-formation run --only observer` measures the run into OUT/run and the
 curve server waits for it). The nodes and their parameters come from the same generator as
-`curve-formation params` and `run` (curve_formation.start_scripts.graph_starts).
+`curve-formation params` and `run` (curve_formation.run.start_scripts.graph_starts).
 """
 
 from pathlib import Path
@@ -16,7 +16,7 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 from launch_ros.substitutions import ExecutableInPackage
 
-from curve_formation.start_scripts import graph_starts
+from curve_formation.run.start_scripts import graph_starts
 from launch import LaunchDescription
 
 

@@ -12,9 +12,9 @@ import pytest
 import yaml
 
 from conftest import DATA_DIR, private_domain
-from curve_formation.analysis import analyze_bag, load_bag_run
-from curve_formation.run_options import RunOptions
-from curve_formation.runner import Run
+from curve_formation.bags.analysis import analyze_bag, load_bag_run
+from curve_formation.run.run_options import RunOptions
+from curve_formation.run.runner import Run
 
 
 pytestmark = pytest.mark.ros

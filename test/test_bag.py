@@ -15,8 +15,8 @@ import rclpy
 from rclpy.serialization import serialize_message
 
 from conftest import DATA_DIR
-from curve_formation.analysis import bag_accounting
-from curve_formation.bag import bag_summary, BagError, BagWriter, qos, read_messages
+from curve_formation.bags.analysis import bag_accounting
+from curve_formation.bags.bag import bag_summary, BagError, BagWriter, qos, read_messages
 from curve_formation.nodes.runtime import PublicationCounter
 
 

@@ -10,8 +10,8 @@ import pytest
 from conftest import DATA_DIR
 from curve_formation.core import metrics
 from curve_formation.core.simulator import simulate
-from curve_formation.run_options import RunOptions
-from curve_formation.runner import Run
+from curve_formation.run.run_options import RunOptions
+from curve_formation.run.runner import Run
 
 
 pytestmark = pytest.mark.ros

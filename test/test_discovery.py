@@ -85,7 +85,7 @@ def test_a_late_participant_discovers_34_others(ros):
 # test of that process a client of a server that is gone.
 UNSERVED_RUN = """
 import sys
-from curve_formation import runner
+from curve_formation.run import runner
 runner.READY_TIMEOUT = 8.0
 try:
     with runner.Run(sys.argv[1], sys.argv[2], log=lambda *_: None):
@@ -170,7 +170,7 @@ def test_a_runs_environment_is_given_back_after_it(monkeypatch):
 
 
 def test_a_run_takes_the_callers_domain_and_an_isolated_one_a_private_domain(monkeypatch):
-    from curve_formation.runner import run_domain_id
+    from curve_formation.run.runner import run_domain_id
     monkeypatch.delenv('ROS_DOMAIN_ID')
     assert run_domain_id(False) == 0          # ROS's default, where the lab's tools are
     monkeypatch.setenv('ROS_DOMAIN_ID', '42')

@@ -140,8 +140,8 @@ def test_over_dds_the_disturbance_changes_on_the_runs_clock_and_the_nodes_learn_
     controllers are told; measure-link finds that in the run's bag, for every robot.
     """
     from curve_formation.cli import main
-    from curve_formation.run_options import RunOptions
-    from curve_formation.runner import Run
+    from curve_formation.run.run_options import RunOptions
+    from curve_formation.run.runner import Run
     data = yaml.safe_load((DATA_DIR / 'fast_disturbed.yaml').read_text())
     data['disturbance'].update(injected=injected, varies=[
         {'kind': 'step', 'at': 4.0, 'change': -0.5, 'agents': [1, 2, 3]}])

@@ -7,8 +7,8 @@ import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 
-from curve_formation.launches import node_class
 from curve_formation.nodes import docs, qos, topics
+from curve_formation.run.launches import node_class
 
 
 NODE_REFERENCE = Path(__file__).resolve().parent.parent / 'docs' / 'nodes.md'

@@ -18,8 +18,8 @@ from conftest import DATA_DIR
 from curve_formation.core import metrics
 from curve_formation.core.curves import Curve, make_basis
 from curve_formation.nodes import messages, qos, topics
-from curve_formation.run_options import RunOptions
-from curve_formation.runner import Run
+from curve_formation.run.run_options import RunOptions
+from curve_formation.run.runner import Run
 
 
 pytestmark = pytest.mark.ros

@@ -9,8 +9,8 @@ from curve_formation import interface
 
 
 def test_the_interface_the_analysis_and_measure_link_import_no_rclpy():
-    code = ('import sys; import curve_formation.interface, curve_formation.analysis, '
-            'curve_formation.measure_link; '
+    code = ('import sys; import curve_formation.interface, curve_formation.bags.analysis, '
+            'curve_formation.bags.measure_link; '
             "print(sorted(m for m in sys.modules "
             "if m.split('.')[0] in ('rclpy', 'rosidl_runtime_py')))")
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,

@@ -113,13 +113,13 @@ def test_the_ros_loop_over_a_jittered_link_settles_with_the_latency_estimated_on
     """
     import yaml
 
-    from curve_formation.bag import read_messages
+    from curve_formation.bags.bag import read_messages
     from curve_formation.core.experiment import build_experiment
     from curve_formation.core.metrics import result_metrics
     from curve_formation.core.simulator import simulate
     from curve_formation.paths import resolve_config
-    from curve_formation.run_options import RunOptions
-    from curve_formation.runner import Run
+    from curve_formation.run.run_options import RunOptions
+    from curve_formation.run.runner import Run
     data = yaml.safe_load(resolve_config('arena_demo').read_text())
     data['controller'].update(estimate_latency=True, predict_pose=True)
     path = tmp_path / 'estimated.yaml'

@@ -7,10 +7,10 @@ Slow (about 2 minutes a run): `scripts/test -m slow -k moving_curves`.
 import pytest
 
 from conftest import CONFIG_DIR
-from curve_formation.analysis import analyze_bag
+from curve_formation.bags.analysis import analyze_bag
 from curve_formation.cli import simulate_to_dir
-from curve_formation.run_options import RunOptions
-from curve_formation.runner import Run
+from curve_formation.run.run_options import RunOptions
+from curve_formation.run.runner import Run
 
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]

@@ -12,11 +12,11 @@ import pytest
 import rclpy
 
 from conftest import DATA_DIR, private_domain
-from curve_formation.analysis import analyze_bag, load_bag_run
-from curve_formation.bag import BagError, read_messages
+from curve_formation.bags.analysis import analyze_bag, load_bag_run
+from curve_formation.bags.bag import BagError, read_messages
 from curve_formation.core import metrics
-from curve_formation.run_options import RunOptions
-from curve_formation.runner import Run
+from curve_formation.run.run_options import RunOptions
+from curve_formation.run.runner import Run
 
 
 pytestmark = pytest.mark.ros
@@ -111,7 +111,7 @@ def test_a_topic_of_a_type_unknown_here_does_not_stop_the_analysis(recorded, tmp
     """
     from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 
-    from curve_formation.bag import TYPESTORE
+    from curve_formation.bags.bag import TYPESTORE
     folder, _ = recorded
     mixed = tmp_path / 'mixed'
     with Reader(folder / 'bag') as reader, \
@@ -290,7 +290,7 @@ def tiny_bag(path, count=5, period_ms=20):
     from rclpy.serialization import serialize_message
     from std_msgs.msg import Bool
 
-    from curve_formation.bag import BagWriter, qos
+    from curve_formation.bags.bag import BagWriter, qos
     with BagWriter(path) as writer:
         writer.add_topic('/replay_test', 'std_msgs/msg/Bool', qos(reliable=True))
         for k in range(count):
@@ -300,7 +300,7 @@ def tiny_bag(path, count=5, period_ms=20):
 
 
 def test_replay_start_skips_the_beginning(tmp_path):
-    from curve_formation.replay import load
+    from curve_formation.bags.replay import load
     bag = tiny_bag(tmp_path / 'bag', count=10, period_ms=100)
     records, _ = load(bag, start=0.45)
     assert len(records) == 5
@@ -310,7 +310,7 @@ def test_replay_start_skips_the_beginning(tmp_path):
 def test_replay_loops_until_stopped(tmp_path, ros):
     from std_msgs.msg import Bool
 
-    from curve_formation.replay import replay
+    from curve_formation.bags.replay import replay
     context, add, spin_until = ros
     bag = tiny_bag(tmp_path / 'bag')
     node = add(rclpy.create_node('player', context=context))
@@ -339,7 +339,7 @@ def test_a_bag_of_another_tool_says_what_is_missing(tmp_path):
     from rclpy.serialization import serialize_message
     from std_msgs.msg import String
 
-    from curve_formation.bag import BagWriter, qos
+    from curve_formation.bags.bag import BagWriter, qos
     other = tmp_path / 'other'
     with BagWriter(other) as writer:      # /formation/curve of another type
         writer.add_topic('/formation/curve', 'std_msgs/msg/String', qos())

@@ -8,7 +8,7 @@ import shutil
 
 import pytest
 
-from curve_formation.report import verdicts
+from curve_formation.results.report import verdicts
 
 
 CHROMIUM_ARGS = ['--no-sandbox', '--disable-gpu', '--disable-quic', '--no-first-run',

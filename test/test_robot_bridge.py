@@ -19,14 +19,15 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import Bool
 
 from conftest import no_history_qos
-from curve_formation import launches, links
+from curve_formation import links
 from curve_formation.core import wire
 from curve_formation.core.experiment import load_experiment
 from curve_formation.nodes import qos, topics
 from curve_formation.nodes.params import ParameterError
 from curve_formation.nodes.robot_bridge import RobotBridge
 from curve_formation.nodes.runtime import realtime_priority
-from curve_formation.run_options import RunOptions
+from curve_formation.run import launches
+from curve_formation.run.run_options import RunOptions
 
 
 pytestmark = pytest.mark.ros

@@ -9,8 +9,8 @@ import pytest
 from conftest import DATA_DIR
 from curve_formation.core import metrics
 from curve_formation.core.simulator import simulate
-from curve_formation.run_options import RunOptions
-from curve_formation.runner import Run, run_experiment
+from curve_formation.run.run_options import RunOptions
+from curve_formation.run.runner import Run, run_experiment
 
 
 pytestmark = pytest.mark.ros
@@ -179,7 +179,7 @@ def test_a_start_that_times_out_stops_the_nodes_it_started(tmp_path, ros_domain,
     """
     import subprocess
 
-    from curve_formation import node_graph, runner
+    from curve_formation.run import node_graph, runner
     monkeypatch.setattr(runner, 'READY_TIMEOUT', 8.0)
     monkeypatch.setattr(runner, 'STATUS_PERIOD', 3.0)
     monkeypatch.setattr(runner, 'FORMATION_CHECK', 0.5)

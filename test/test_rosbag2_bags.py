@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 from conftest import DATA_DIR
-from curve_formation.bag import (
+from curve_formation.bags.bag import (
     BagError,
     describe_bag,
     format_bag_info,

@@ -20,8 +20,8 @@ from conftest import CONFIG_DIR, DATA_DIR, no_history_qos
 from curve_formation.core import metrics
 from curve_formation.core.simulator import simulate
 from curve_formation.nodes import qos, topics
-from curve_formation.run_options import RunOptions
-from curve_formation.runner import Run
+from curve_formation.run.run_options import RunOptions
+from curve_formation.run.runner import Run
 
 
 pytestmark = pytest.mark.ros
@@ -514,7 +514,7 @@ def test_estop_cli_stops_all_nine_robots_at_once_holds_them_and_releases(ros_dom
     (start, stop), = result['estop']['intervals']
     assert 4.5 < start < 9.0 and released - 1.0 < stop <= released + 1.0, result['estop']
     # The bag says the same: the e-stop states are recorded.
-    from curve_formation.analysis import analyze_bag
+    from curve_formation.bags.analysis import analyze_bag
     bagged = analyze_bag(tmp_path / 'bag', tmp_path / 'analysis')
     # and what RViz or Foxglove draw from: the arena's poses (~30 Hz) and the curve's markers
     import yaml
@@ -534,7 +534,7 @@ def test_a_release_is_done_only_when_the_nodes_that_move_the_robots_have_it_too(
     holder it has heard, and names one that did not confirm.
     """
     from curve_formation.core.estop import EstopReport
-    from curve_formation.estop_command import _report, Tally
+    from curve_formation.run.estop_command import _report, Tally
 
     tally = Tally(engage=False, expect=2)
     for robot in ('robot_1', 'robot_2'):
@@ -559,8 +559,8 @@ def test_a_release_is_done_only_when_the_nodes_that_move_the_robots_have_it_too(
 def test_the_command_discovers_the_holders_that_are_not_controllers(ros):
     from rclpy.node import Node
 
-    from curve_formation.estop_command import other_holders
     from curve_formation.nodes.estop import EstopHolder
+    from curve_formation.run.estop_command import other_holders
     context, add, spin_until = ros
     for name, namespace in (('fake_arena', '/'), ('fake_robot', '/robot_2'),
                             ('formation_controller', '/robot_1')):

@@ -11,9 +11,9 @@ import time
 import pytest
 
 from conftest import DATA_DIR
-from curve_formation.analysis import analyze_bag
+from curve_formation.bags.analysis import analyze_bag
 from curve_formation.dds_shm import files_in_use
-from curve_formation.run_options import RunOptions
+from curve_formation.run.run_options import RunOptions
 
 
 pytestmark = pytest.mark.ros
@@ -86,7 +86,7 @@ def test_a_controller_killed_hard_leaves_metrics_a_bag_and_an_exit_status_naming
 
 def test_an_unexpected_error_in_the_runner_still_writes_what_was_measured(ros_domain, tmp_path,
                                                                         monkeypatch):
-    from curve_formation.runner import Run, run_experiment
+    from curve_formation.run.runner import Run, run_experiment
     spin_for = Run.spin_for
 
     def fails_later(run, seconds, status_every=None):

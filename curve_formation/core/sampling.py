@@ -2,7 +2,7 @@
 estimate, taken at sample times.
 
 The live monitor (nodes/monitor.py) feeds a LatestValues from its subscriptions and samples it
-on its timer; the bag analysis (analysis.py) feeds one the recorded messages in the order they
+on its timer; the bag analysis (bags/analysis.py) feeds one the recorded messages in the order they
 were received and samples it on a uniform grid (GridSampler). Both refuse the poses the
 controllers refuse (outside the experiment's geofence, or not finite) and give the same
 fields, so a run and the analysis of its bag measure the same thing.

@@ -202,7 +202,7 @@ class Monitor(Node):
         self.adopted.setdefault((i, curve_id), info['source_timestamp'] * 1e-9)
 
     def _on_curve(self, msg, info):
-        # Dated when received, as the recorder dates it in a bag (analysis.py reads t = 0
+        # Dated when received, as the recorder dates it in a bag (bags/analysis.py reads t = 0
         # from there): both run in the runner's process.
         curve, self.curve_id = messages.curve_from_msg(msg)
         now = now_seconds(self)

@@ -11,7 +11,7 @@ from rclpy.qos import QoSProfile
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Image
 
-from curve_formation import bag
+from curve_formation.bags import bag
 from curve_formation.interface import TopicSpec
 from curve_formation.nodes import qos, topics
 from curve_formation.nodes.guard import Guarded

@@ -16,10 +16,10 @@ import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 
+from curve_formation.bags.streams import stream_key
 from curve_formation.nodes.command_line import check_params_files, help_text, parse
 from curve_formation.nodes.params import ParameterError
 from curve_formation.paths import use_dds_profile
-from curve_formation.streams import stream_key
 
 
 SIGNAL_CHECK_PERIOD = 0.2   # s, longest wait before a signal is acted on

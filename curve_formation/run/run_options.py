@@ -3,7 +3,7 @@
 from dataclasses import dataclass
 from pathlib import Path
 
-from curve_formation.bag import DEFAULT_STORAGE
+from curve_formation.bags.bag import DEFAULT_STORAGE
 
 
 @dataclass(frozen=True)

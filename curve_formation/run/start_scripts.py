@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 import shlex
 
-from curve_formation.launches import executable, part_of, write_params_files
+from curve_formation.run.launches import executable, part_of, write_params_files
 
 
 PACKAGE = 'curve_formation'
@@ -123,8 +123,8 @@ def graph_launches(experiment_path, folder, with_robots=True, camera=False, brid
     (None: the experiment's).
     """
     from curve_formation.core.experiment import load_experiment
-    from curve_formation.launches import node_launches
-    from curve_formation.run_options import RunOptions
+    from curve_formation.run.launches import node_launches
+    from curve_formation.run.run_options import RunOptions
     experiment = load_experiment(experiment_path)
     options = RunOptions(with_robots=with_robots, camera={} if camera else None,
                          bridge=bridge, rate_hz=rate_hz, bag_path=bag_path, physics=physics)

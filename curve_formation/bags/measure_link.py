@@ -6,7 +6,7 @@ experiment setting it suggests (controller.command_latency).
 
 import numpy as np
 
-from curve_formation.bag import bag_summary, BagError, read_messages
+from curve_formation.bags.bag import bag_summary, BagError, read_messages
 from curve_formation.core.curve_codec import yaw_from_quaternion
 from curve_formation.core.link_estimate import estimate_latency
 from curve_formation.interface import CMD_VEL, POSE, robot_of

@@ -9,8 +9,8 @@ import time
 
 import yaml
 
-from curve_formation.launches import node_class
 from curve_formation.nodes.runtime import PublicationCounter, PUBLICATIONS_ENV
+from curve_formation.run.launches import node_class
 
 
 STOP_TIMEOUT = 10.0    # s for a group of nodes to exit after SIGINT before it is killed

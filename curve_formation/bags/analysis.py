@@ -14,7 +14,8 @@ import time
 
 import numpy as np
 
-from curve_formation.bag import bag_info, bag_summary, BagError, read_messages
+from curve_formation.bags.bag import bag_info, bag_summary, BagError, read_messages
+from curve_formation.bags.streams import stream_topic
 from curve_formation.core import diagnostics, metrics, plots
 from curve_formation.core.agent import geofence
 from curve_formation.core.curve_codec import CodecError
@@ -45,9 +46,8 @@ from curve_formation.interface import (
     twist_from_msg,
     type_name,
 )
-from curve_formation.outputs import write_outputs
 from curve_formation.paths import resolve_config
-from curve_formation.streams import stream_topic
+from curve_formation.results.outputs import write_outputs
 
 
 # Keys of the bag metadata (custom_data) that make a bag self-describing: the experiment file

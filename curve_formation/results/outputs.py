@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 
 from curve_formation.core import metrics, plots
-from curve_formation.provenance import described
-from curve_formation.report import write_report
+from curve_formation.results.provenance import described
+from curve_formation.results.report import write_report
 
 
 ANIMATION = 'animation.mp4'

@@ -4,7 +4,7 @@ the recorder, spun by one executor (which also hosts a single-process run's node
 
 from contextlib import ExitStack
 
-from curve_formation.analysis import EXPERIMENT_KEY, PARAMETERS_KEY, PROVENANCE_KEY
+from curve_formation.bags.analysis import EXPERIMENT_KEY, PARAMETERS_KEY, PROVENANCE_KEY
 from curve_formation.nodes.runtime import make_executor, spin_until_quiet
 
 

@@ -22,7 +22,7 @@ from curve_formation.core.experiment import (
     wheel_radius,
 )
 from curve_formation.interface import robot_namespace
-from curve_formation.run_options import DEFAULTS
+from curve_formation.run.run_options import DEFAULTS
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rosbags.interfaces import QosDurability, QosReliability
 from rosgraph_msgs.msg import Clock
 
-from curve_formation.bag import BagError, read_raw
+from curve_formation.bags.bag import BagError, read_raw
 
 
 CLOCK_PERIOD = 0.01   # s of bag time between /clock messages

@@ -20,20 +20,20 @@ import time
 import numpy as np
 from rclpy.serialization import serialize_message
 
-from curve_formation.analysis import bag_accounting, RUN_END_KEY
-from curve_formation.bag import BagWriter
+from curve_formation.bags.analysis import bag_accounting, RUN_END_KEY
+from curve_formation.bags.bag import BagWriter
 from curve_formation.core import diagnostics, metrics
 from curve_formation.core.experiment import control_rate, load_experiment, phase_index
-from curve_formation.launches import node_launches, part_of
-from curve_formation.node_graph import NodeGraph
 from curve_formation.nodes.runtime import now_seconds
 from curve_formation.nodes.topics import CURVE, DIAGNOSTICS
-from curve_formation.observers import Observers
-from curve_formation.outputs import write_outputs
 from curve_formation.paths import discovery_text, resolve_config, ros_environment
-from curve_formation.provenance import provenance_text
-from curve_formation.run_options import DEFAULTS
-from curve_formation.start_scripts import write_node_files
+from curve_formation.results.outputs import write_outputs
+from curve_formation.results.provenance import provenance_text
+from curve_formation.run.launches import node_launches, part_of
+from curve_formation.run.node_graph import NodeGraph
+from curve_formation.run.observers import Observers
+from curve_formation.run.run_options import DEFAULTS
+from curve_formation.run.start_scripts import write_node_files
 
 
 READY_TIMEOUT = 90.0   # s; nine Python processes start in ~10 s on two cores
