@@ -132,8 +132,8 @@ def test_bad_messages_of_every_family_kill_no_node_and_the_formation_goes_on(ros
         # its cmd_vel publisher made robot 4's command two-sourced: held until it goes
         fuzzer.destroy_publisher(fuzzer.pubs['/robot_4/cmd_vel'])
         run.spin_for(3.0)
-        commands = run.monitor.commands.copy()
-        refused = run.monitor.unbelievable_poses
+        commands = run.monitor.latest.commands.copy()
+        refused = run.monitor.latest.refused
         result = run.write_results()
         deaths = run.graph.deaths
         data = run.recording()

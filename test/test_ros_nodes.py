@@ -592,7 +592,7 @@ def test_monitor_skips_the_sample_a_stalled_machine_would_take_with_old_poses(ro
             while time.monotonic() < end:
                 executor.spin_once(timeout_sec=0.02)
         deadline = time.monotonic() + 20.0
-        while np.isnan(monitor.pose_stamps[0]):
+        while np.isnan(monitor.latest.pose_stamps[0]):
             assert time.monotonic() < deadline and publisher.poll() is None, 'no pose'
             executor.spin_once(timeout_sec=0.02)
         curve_pub.publish(messages.curve_to_msg(circle_curve(), 0, [0.0]))
@@ -609,7 +609,8 @@ def test_monitor_skips_the_sample_a_stalled_machine_would_take_with_old_poses(ro
         monitor.destroy_node()
         probe.destroy_node()
         rclpy.try_shutdown(context=context)
-    start = monitor.pose_stamps[0] - monitor.poses[0, 0]   # the publisher's time origin
+    latest = monitor.latest
+    start = latest.pose_stamps[0] - latest.poses[0, 0]   # the publisher's time origin
     ages = data['t'] + monitor.t0 - start - data['poses'][:, 0, 0]
     print(f'{len(ages)} rows, pose age at most {1e3 * ages.max():.0f} ms; '
           f'{monitor.late_samples} skipped')

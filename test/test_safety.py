@@ -48,11 +48,12 @@ def logged(tmp_path, node, pattern):
 
 
 def stopped(run, robots):
-    return bool(np.all(run.monitor.commands[[i - 1 for i in robots]] == 0.0))
+    return bool(np.all(run.monitor.latest.commands[[i - 1 for i in robots]] == 0.0))
 
 
 def driving(run, robots):
-    return bool(np.all(np.abs(run.monitor.commands[[i - 1 for i in robots]]).sum(axis=1) > 0))
+    commands = run.monitor.latest.commands[[i - 1 for i in robots]]
+    return bool(np.all(np.abs(commands).sum(axis=1) > 0))
 
 
 def standing_still(run, robots, timeout=5.0):
@@ -61,22 +62,23 @@ def standing_still(run, robots, timeout=5.0):
     load). Returns the robots' poses then ((len(robots), 3) m, m, rad) and their stamps (s).
     """
     rows = [i - 1 for i in robots]
-    seen = {i: (run.monitor.pose_stamps[i], run.monitor.poses[i].copy()) for i in rows}
+    latest = run.monitor.latest
+    seen = {i: (latest.pose_stamps[i], latest.poses[i].copy()) for i in rows}
     still = set()
 
     def all_still():
         for i in rows:
             stamp, pose = seen[i]
-            if run.monitor.pose_stamps[i] > stamp:
-                if np.array_equal(run.monitor.poses[i], pose):
+            if run.monitor.latest.pose_stamps[i] > stamp:
+                if np.array_equal(run.monitor.latest.poses[i], pose):
                     still.add(i)
                 else:
                     still.discard(i)
-                seen[i] = (run.monitor.pose_stamps[i], run.monitor.poses[i].copy())
+                seen[i] = (run.monitor.latest.pose_stamps[i], run.monitor.latest.poses[i].copy())
         return len(still) == len(rows)
 
     run.spin_until(all_still, timeout, f'robots {list(robots)} to stand still')
-    return run.monitor.poses[rows].copy(), run.monitor.pose_stamps[rows].copy()
+    return run.monitor.latest.poses[rows].copy(), run.monitor.latest.pose_stamps[rows].copy()
 
 
 def still_standing(run, robots, still, seconds=0.0):
@@ -86,8 +88,8 @@ def still_standing(run, robots, still, seconds=0.0):
     rows = [i - 1 for i in robots]
     run.spin_for(seconds)
     poses, stamps = still
-    assert np.all(run.monitor.pose_stamps[rows] > stamps), 'no new pose came'
-    np.testing.assert_allclose(run.monitor.poses[rows], poses, atol=1e-9)
+    assert np.all(run.monitor.latest.pose_stamps[rows] > stamps), 'no new pose came'
+    np.testing.assert_allclose(run.monitor.latest.poses[rows], poses, atol=1e-9)
 
 
 PUBLISHED_WITHIN = PERIOD / 4   # s: a tick's clock reading to its command's publication, at most
@@ -489,9 +491,10 @@ def test_estop_cli_stops_all_nine_robots_at_once_holds_them_and_releases(ros_dom
         assert all(row[2] == 0.0 and row[3] == 0.0 for row in held), \
             [row for row in held if row[2] or row[3]][:5]
         still_standing(run, range(1, 10), still)
+        asked = run.monitor.recording.last('t')
         status, out, err = estop_cli(run, 'off', '--experiment', 'arena_demo')   # by name
         assert status == 0 and '9 of 9 robots released' in out, (out, err)
-        released = run.monitor.recording.last('t')
+        released = run.monitor.recording.last('t')   # the command has ended
         # settled ~15 s after the release (measured): spin until 1 s below the tolerance
         tolerance = 1e-3 * run.experiment.phases[0].curve.size()
         run.spin_until(lambda: settled_for(run, released, tolerance, 1.0), 40.0, 'settling')
@@ -510,9 +513,10 @@ def test_estop_cli_stops_all_nine_robots_at_once_holds_them_and_releases(ros_dom
     assert phase['settled'] and phase['interrupted_by_estop'], (
         phase['not_settled_because'], phase['interrupted_by_estop'], phase['final_error_norm'],
         phase['tolerance'], result.get('estop'), result.get('node_deaths'))
-    assert phase['settle_time'] >= released, (phase, released)
     (start, stop), = result['estop']['intervals']
-    assert 4.5 < start < 9.0 and released - 1.0 < stop <= released + 1.0, result['estop']
+    # released while the command ran (it keeps discovering holders for a while after)
+    assert 4.5 < start < 9.0 and asked < stop <= released, (asked, released, result['estop'])
+    assert phase['settle_time'] >= stop, (phase, stop)
     # The bag says the same: the e-stop states are recorded.
     from curve_formation.bags.analysis import analyze_bag
     bagged = analyze_bag(tmp_path / 'bag', tmp_path / 'analysis')
@@ -525,7 +529,7 @@ def test_estop_cli_stops_all_nine_robots_at_once_holds_them_and_releases(ros_dom
         '/formation/markers', 0) >= 1, counts
     (bag_start, bag_stop), = bagged['estop']['intervals']
     assert abs(bag_start - start) < 0.2 and abs(bag_stop - stop) < 0.2, bagged['estop']
-    assert bagged['phases'][0]['settled'] and bagged['phases'][0]['settle_time'] >= released
+    assert bagged['phases'][0]['settled'] and bagged['phases'][0]['settle_time'] >= stop
 
 
 def test_a_release_is_done_only_when_the_nodes_that_move_the_robots_have_it_too():

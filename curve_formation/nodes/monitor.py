@@ -126,26 +126,6 @@ class Monitor(Node):
         self.closed = False        # the run is over (close): nothing more is sampled
         self._skipped_last = False
 
-    @property
-    def poses(self):
-        """(n, 3) each robot's latest pose (m, m, rad; world frame), NaN before one."""
-        return self.latest.poses
-
-    @property
-    def pose_stamps(self):
-        """(n,) when each latest pose was taken (s, the sender's clock)."""
-        return self.latest.pose_stamps
-
-    @property
-    def commands(self):
-        """(n, 2) each robot's latest command (m/s, rad/s)."""
-        return self.latest.commands
-
-    @property
-    def unbelievable_poses(self):
-        """How many poses were refused as the controllers refuse them."""
-        return self.latest.refused
-
     def _subscribe(self, name, callback, robot=None):
         return topics.subscription(self, name, callback, robot,
                                    event_callbacks=qos.observer_events())
@@ -315,7 +295,7 @@ class Monitor(Node):
 
     def missing(self):
         return ([topics.robot_topic(int(i) + 1, topics.POSE)
-                 for i in np.flatnonzero(np.isnan(self.pose_stamps))]
+                 for i in np.flatnonzero(np.isnan(self.latest.pose_stamps))]
                 + [topics.robot_topic(int(i) + 1, topics.CMD_VEL)
                    for i in np.flatnonzero(np.isnan(self.command_times))])
 

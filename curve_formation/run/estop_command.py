@@ -4,7 +4,8 @@ it reached.
 The command sends the e-stop on /formation/estop again every RESEND_PERIOD until every
 expected robot's controller has confirmed it in its own state on /formation/estop_state
 (nodes/estop.py), and every other holder (robot bridges, fake robots or arena, the curve
-server) discovered on that topic or heard there says the same, or `wait` seconds have passed:
+server) discovered on that topic (for DISCOVERY_QUIET s at least) or heard there says the
+same, or `wait` seconds have passed:
 a release that reached every controller, but not the fake arena the command had not heard
 yet, left the arena's robots stopped once the command was gone. The robots expected are
 `expect` (from --expect or --experiment), else as many as the controllers and the curve server
@@ -25,6 +26,12 @@ from curve_formation.paths import discovery_text
 RESEND_PERIOD = 0.1   # s between two sends while robots have not confirmed
 HOLD_PERIOD = 1.0     # s between two sends with --hold, once confirmed
 LOOK_PERIOD = 0.2     # s between two looks at which nodes publish e-stop states
+# s the command keeps discovering after its first send, and after the last holder it
+# discovered, before it believes it knows them all: a holder not discovered yet cannot be
+# waited for (a release reached all nine controllers and the fake arena, not yet the curve
+# server, and the command had ended; a new participant was seen to find its peers only after
+# 2 s under load)
+DISCOVERY_QUIET = 2.0
 CONTROLLER = 'formation_controller'
 
 
@@ -68,8 +75,11 @@ class Tally:
                  if report.role != CONTROLLER and report.engaged != self.engage}
         return sorted(wrong | (self.discovered - set(self.reports)))
 
-    def done(self):
-        return self.missing() == [] and not self.others_missing()
+    def done(self, quiet=True):
+        """Every expected robot and every other holder confirmed; quiet: discovery has had
+        its time (DISCOVERY_QUIET) to show the holders not heard yet.
+        """
+        return quiet and self.missing() == [] and not self.others_missing()
 
 
 def send_estop(engage, expect=None, wait=10.0, hold=False, log=None):
@@ -101,15 +111,21 @@ def send_estop(engage, expect=None, wait=10.0, hold=False, log=None):
         message = Bool(data=engage)
         first_send = time.monotonic()
         pub.publish(message)
-        last_send = last_look = first_send
+        last_send = last_look = last_new = first_send
         tally.discovered = other_holders(node, topics.ESTOP_STATE)
-        while not tally.done() and time.monotonic() - start < wait:
+
+        def quiet():
+            return time.monotonic() - last_new >= DISCOVERY_QUIET
+        while not tally.done(quiet()) and time.monotonic() - start < wait:
             rclpy.spin_once(node, timeout_sec=0.01)
             if time.monotonic() - last_send >= RESEND_PERIOD:
                 pub.publish(message)
                 last_send = time.monotonic()
             if time.monotonic() - last_look >= LOOK_PERIOD:
-                tally.discovered = other_holders(node, topics.ESTOP_STATE)
+                found = other_holders(node, topics.ESTOP_STATE)
+                if found - tally.discovered:
+                    last_new = time.monotonic()
+                tally.discovered = found
                 last_look = time.monotonic()
         status = _report(tally, word, wait, log)
         if hold:

@@ -306,15 +306,15 @@ class Run:
         t = now_seconds(monitor) - monitor.t0
         k = max(p.index for p in phases if p.start <= t) if phases[0].start <= t else 0
         followed = dataclasses.replace(self.experiment, phases=phases)
-        errors = metrics.target_errors(monitor.poses[None], np.array([k]), followed,
+        errors = metrics.target_errors(monitor.latest.poses[None], np.array([k]), followed,
                                        t=np.array([t]),
-                                       stamps=(monitor.pose_stamps - monitor.t0)[None])[0]
+                                       stamps=(monitor.latest.pose_stamps - monitor.t0)[None])[0]
         norm = float(metrics.error_norm(errors[None])[0])
         tolerance = followed.tolerance(k)
         worst = np.nanmax(np.linalg.norm(errors, axis=1)) if np.isfinite(errors).any() \
             else math.nan
         n = self.experiment.n
-        driving = int(np.sum(np.abs(monitor.commands).max(axis=1) > 0))
+        driving = int(np.sum(np.abs(monitor.latest.commands).max(axis=1) > 0))
         held = self.monitor.estop_intervals(t)
         moving = ('all held by the e-stop' if held and held[-1][1] is None
                   else f'{driving} driving, {n - driving} standing')
