@@ -7,9 +7,9 @@ experiment setting it suggests (controller.command_latency).
 import numpy as np
 
 from curve_formation.bags.bag import bag_summary, BagError, read_messages
-from curve_formation.core.curve_codec import yaw_from_quaternion
+from curve_formation.core.curve_codec import CodecError
 from curve_formation.core.link_estimate import estimate_latency
-from curve_formation.interface import CMD_VEL, POSE, robot_of
+from curve_formation.interface import CMD_VEL, POSE, pose_from_msg, robot_of, twist_from_msg
 
 
 # The per-robot topics the link is measured from (interface names).
@@ -28,13 +28,13 @@ def measure_bag(path):
         assert placed is not None   # the topics were chosen by it
         i, kind = placed
         if kind == CMD_VEL:
-            commands.setdefault(i, []).append((stamp * 1e-9, msg.linear.x, msg.angular.z))
-        else:
-            q = msg.pose.orientation
-            taken = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-            poses.setdefault(i, []).append(
-                (taken, msg.pose.position.x, msg.pose.position.y,
-                 yaw_from_quaternion(q.x, q.y, q.z, q.w)))
+            commands.setdefault(i, []).append((stamp * 1e-9, *twist_from_msg(msg)))
+            continue
+        try:
+            x, y, theta, taken = pose_from_msg(msg)
+        except CodecError:   # not a unit quaternion: as the controllers, not taken
+            continue
+        poses.setdefault(i, []).append((taken, x, y, theta))
     robots = sorted(set(commands) & set(poses))
     if not robots:
         raise BagError(f'{path}: no robot with both /robot_<i>/cmd_vel and /robot_<i>/pose: '
