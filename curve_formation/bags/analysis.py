@@ -227,13 +227,15 @@ def analyze_bag(path, out_dir, experiment_path=None, compare=None, compare_sim=F
         result['compare_sim'] = metrics.result_metrics(sim)
         result['compare_sim_table'] = settling_table(result, result['compare_sim'])
         others.append(('simulated', sim.t, sim.poses, sim.phase))
+    # this run's error norm, once, measured as its metrics are (each pose at its stamp)
+    own = (metrics.error_norm(metrics.target_errors(poses, phase, run.experiment, t=t,
+                                                    stamps=stamps)) if others else None)
     for label, o_t, o_poses, o_phase in others:
         stem = 'compare' if label != 'simulated' else 'compare_sim'
-        errors = [metrics.error_norm(metrics.target_errors(r_poses, r_phase, run.experiment,
-                                                           t=r_t))
-                  for r_t, r_poses, r_phase in ((t, poses, phase), (o_t, o_poses, o_phase))]
+        other = metrics.error_norm(metrics.target_errors(o_poses, o_phase, run.experiment,
+                                                         t=o_t))
         plots.plot_error_norm(out / f'{stem}_error_norm.png', run.experiment,
-                              [(Path(path).name, t, errors[0]), (label, o_t, errors[1])])
+                              [(Path(path).name, t, own), (label, o_t, other)])
         plots.plot_paths(out / f'{stem}_paths.png', run.experiment, poses, phase,
                          overlay=(label, o_poses))
     result['run_provenance'] = run.provenance
