@@ -26,12 +26,12 @@ def test_nothing_is_due_before_the_run_begins_then_each_curve_at_its_start():
     assert schedule.due(100.0) == [] and schedule.next_due() is None
     schedule.begin(10.0)
     first, = schedule.due(10.0)
-    assert first.curve_id == 0 and first.run_time == 0.0 and first.rate is None
+    assert first.curve_id == 0 and first.clock.run_time == 0.0 and first.rate is None
     np.testing.assert_array_equal(first.s, experiment.phases[0].s)
     switch_at = 10.0 + experiment.phases[1].start
     assert schedule.next_due() == switch_at and schedule.due(switch_at - 1e-6) == []
     second, = schedule.due(switch_at + 0.3)   # a timer called late publishes it then
-    assert second.curve_id == 1 and second.valid_at == switch_at + 0.3
+    assert second.curve_id == 1 and second.clock.valid_at == switch_at + 0.3
     assert schedule.next_due() is None
     followed = schedule.close()
     assert [p.index for p in followed] == [0, 1]
@@ -45,10 +45,10 @@ def test_a_curve_that_only_begins_to_move_is_announced_ahead_dated_to_its_start(
     assert schedule.next_due() == pytest.approx(1.5 - ANNOUNCE_AHEAD)
     assert schedule.renewal(1.0) is None   # nothing moves yet
     moving, = schedule.due(1.5 - ANNOUNCE_AHEAD)
-    assert moving.curve_id == 1 and moving.valid_at == 1.5 and moving.rate is not None
+    assert moving.curve_id == 1 and moving.clock.valid_at == 1.5 and moving.rate is not None
     assert schedule.renewal(1.4) is None   # announced: still until it begins
     renewed = schedule.renewal(2.5)
-    assert renewed.curve_id == 1 and renewed.moving_for == pytest.approx(1.0)
+    assert renewed.curve_id == 1 and renewed.clock.moving_for == pytest.approx(1.0)
     # moved 1 s at 0.01 m/s in x
     np.testing.assert_allclose(renewed.curve.points(renewed.s) - still.curve.points(still.s),
                                [[0.01, 0.0]] * begins_to_move.n, atol=1e-9)
@@ -61,7 +61,7 @@ def test_without_the_look_ahead_a_moving_curve_begins_when_published(begins_to_m
     schedule.due(0.0)
     assert schedule.due(1.4) == []
     moving, = schedule.due(1.6)
-    assert moving.valid_at == 1.6 and schedule.renewal(1.6).moving_for == 0.0
+    assert moving.clock.valid_at == 1.6 and schedule.renewal(1.6).clock.moving_for == 0.0
 
 
 def test_re_assigned_targets_keep_the_id_and_the_next_switch_assigns_from_them():
@@ -89,7 +89,7 @@ def test_an_observed_curve_takes_over_with_the_next_id_and_stops_a_moving_one(be
     assert schedule.due(5.0) == []
     observed = schedule.observed(begins_to_move.phases[1].curve, begins_to_move.phases[1].s,
                                  3.0)
-    assert observed.curve_id == 0 and observed.run_time is None   # before the run began
+    assert observed.curve_id == 0 and observed.clock.run_time is None   # before the run began
     schedule = CurveSchedule(begins_to_move)
     schedule.begin(0.0)
     schedule.due(2.0)

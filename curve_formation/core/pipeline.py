@@ -125,7 +125,7 @@ class Pipeline:
         for controller in self.controllers:
             controller.set_curve(publication.curve, publication.curve_id, publication.s,
                                  publication.rate, received=now,
-                                 valid_at=publication.valid_at)
+                                 valid_at=publication.clock.valid_at)
 
     def poses_taken(self, now: float) -> list[tuple[float, int, int]]:
         """Every robot's pose taken at `now`: delivered at once, or (with the link's pose

@@ -11,6 +11,7 @@ Times are on the caller's clock (s); the run's t = 0 is when `begin` was called.
 from dataclasses import dataclass, replace
 
 from curve_formation.core.assignment import reassigned
+from curve_formation.core.curve_codec import CurveClock
 from curve_formation.core.curves import Curve
 from curve_formation.core.experiment import ANNOUNCE_AHEAD, Experiment, Phase
 from curve_formation.core.metrics import offset_points
@@ -20,18 +21,15 @@ from curve_formation.core.shapes import FloatArray
 @dataclass(frozen=True)
 class Publication:
     """One curve message: the curve, its id, the agents' parameters s (n,), a moving curve's
-    coefficient rate (Curve; points(s) in m/s; None when still), when the curve is where it
-    is (valid_at, s, the schedule's clock), how long it has moved by then (s), and valid_at
-    in the run's time (s since t = 0; None before the run began).
+    coefficient rate (Curve; points(s) in m/s; None when still) and when the curve is where
+    it is (CurveClock on the schedule's clock; its run_time None before the run began).
     """
 
     curve: Curve
     curve_id: int
     s: FloatArray
     rate: Curve | None
-    valid_at: float
-    moving_for: float = 0.0
-    run_time: float | None = None
+    clock: CurveClock
 
 
 class CurveSchedule:
@@ -91,10 +89,11 @@ class CurveSchedule:
         phase followed before it).
         """
         out = []
-        while (due := self.next_due()) is not None and due <= now:
-            assert self.t0 is not None   # next_due is None before the run began
+        while self.t0 is not None and self.next_phase < len(self.phases):
             k = self.next_phase
             lead = self.lead(k)
+            if self.t0 + self.phases[k].start - lead > now:
+                break
             phase = self.experiment.switched_to(self.phases[k], self.reassigned, self.targets)
             self._close()
             self.next_phase, self.reassigned, self.phase = k + 1, False, phase
@@ -133,8 +132,8 @@ class CurveSchedule:
         self.reassigned = True
         if self.phase is not None:
             self.changes.append((now - (self.t0 or 0.0), new, self.phase.curve.points(new)))
-        return self._publish(last.curve, new, last.rate, last.valid_at, last.moving_for,
-                             last.curve_id)
+        return self._publish(last.curve, new, last.rate, last.clock.valid_at,
+                             last.clock.moving_for, last.curve_id)
 
     def observed(self, curve: Curve, s: FloatArray, now: float) -> Publication:
         """An observed curve (fitted from the camera's view) as the next curve, still: it
@@ -162,5 +161,6 @@ class CurveSchedule:
         if curve_id is None:
             curve_id, self.next_id = self.next_id, self.next_id + 1
         run_time = None if self.t0 is None else max(valid_at - self.t0, 0.0)
-        self.last = Publication(curve, curve_id, s, rate, valid_at, moving_for, run_time)
+        self.last = Publication(curve, curve_id, s, rate,
+                                CurveClock(valid_at, moving_for, run_time))
         return self.last

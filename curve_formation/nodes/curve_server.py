@@ -25,7 +25,6 @@ from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
 from curve_formation.core.assignment import AssignmentError, phase_parameters
-from curve_formation.core.curve_codec import CurveClock
 from curve_formation.core.curve_sources import fit_points
 from curve_formation.core.curves import CurveError, make_basis
 from curve_formation.core.experiment import ANNOUNCE_AHEAD, points_outside_arena
@@ -199,7 +198,7 @@ class CurveServer(Node):
             self.refresh_timer.reset()
         self.curve_pub.publish(messages.curve_to_msg(
             publication.curve, publication.curve_id, publication.s, publication.rate,
-            CurveClock(publication.valid_at, publication.moving_for, publication.run_time)))
+            publication.clock))
 
     def on_shutdown(self):
         """Wait (0.5 s at most) until the last curve message is acknowledged, so that a
