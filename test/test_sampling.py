@@ -64,7 +64,7 @@ def test_values_before_t0_carry_into_the_first_row_and_rows_stop_before_the_end(
 
 @pytest.mark.parametrize('pose', [(5.0, 0.0, 0.0), (0.0, 0.0, np.nan), (np.inf, 0.0, 0.0)])
 def test_a_pose_the_controllers_would_refuse_is_not_taken_and_is_counted(pose):
-    latest = LatestValues(2, box=(-1.0, -1.0, 1.0, 1.0))
+    latest = LatestValues(2, fence=(-1.0, -1.0, 1.0, 1.0))
     assert latest.pose(1, 0.5, 0.5, 0.1, 3.0)
     assert not latest.pose(1, *pose, 4.0)
     assert latest.refused == 1

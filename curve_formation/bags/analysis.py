@@ -28,7 +28,6 @@ from curve_formation.core.experiment import (
     phase_index,
     received_phases,
 )
-from curve_formation.core.plausibility import plausible_box
 from curve_formation.core.sampling import GridSampler, LatestValues
 from curve_formation.interface import (
     agent_parameters_from_msg,
@@ -111,7 +110,7 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0, progress=None):
         raise BagError(f'{path}: the bag does not carry its experiment; pass --experiment')
     n = experiment.n
     # each robot's latest values, sampled from the first curve on as the live monitor does
-    latest = LatestValues(n, plausible_box(geofence(experiment)))
+    latest = LatestValues(n, geofence(experiment))
     sampler = GridSampler(latest, sample_hz)
     last_pose = None   # when the last pose was received (s)
     curves: list = []
@@ -163,8 +162,8 @@ def load_bag_run(path, experiment_path=None, sample_hz=20.0, progress=None):
             last_pose = t
             try:
                 latest.pose(robot, *pose_from_msg(msg))
-            except CodecError:   # as the monitor, which does not take it either
-                latest.refused += 1
+            except CodecError:   # not a pose: the monitor does not take it either
+                pass
         elif kind == CMD_VEL:
             latest.command(robot, *twist_from_msg(msg))
         else:

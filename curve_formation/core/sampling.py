@@ -15,15 +15,19 @@ import numpy as np
 from curve_formation.core.plausibility import plausible_box, position_problem
 
 
+# The fields of a row (LatestValues.row).
+FIELDS = ('t', 'poses', 'commands', 'dhat', 'pose_stamps')
+
+
 class LatestValues:
     """Each of n robots' latest pose (m, m, rad; world frame) with the time it was taken (s,
     the sender's stamp), command (m/s, rad/s) and disturbance estimate (m/s, m/s): NaN until
-    one comes. box: the (xmin, ymin, xmax, ymax) m a pose must lie in (core.plausibility's
-    plausible_box; default: its box without a geofence).
+    one comes. fence: the experiment's geofence (core.agent.geofence; None without one): a
+    pose is believed where the controllers believe it (core.plausibility.plausible_box).
     """
 
-    def __init__(self, n, box=None):
-        self.box = plausible_box(None) if box is None else box
+    def __init__(self, n, fence=None):
+        self.box = plausible_box(fence)
         self.poses = np.full((n, 3), np.nan)
         self.pose_stamps = np.full(n, np.nan)
         self.commands = np.full((n, 2), np.nan)
@@ -82,5 +86,4 @@ class GridSampler:
         self.until(end)
         while self.rows and self.rows[-1]['t'] + self.t0 >= end:
             self.rows.pop()
-        fields = self.latest.row(0.0, 0.0).keys()
-        return {key: np.array([row[key] for row in self.rows]) for key in fields}
+        return {key: np.array([row[key] for row in self.rows]) for key in FIELDS}

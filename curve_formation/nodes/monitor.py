@@ -18,7 +18,6 @@ from curve_formation.core import diagnostics
 from curve_formation.core.agent import geofence
 from curve_formation.core.estop import stopped_intervals
 from curve_formation.core.experiment import ReceivedPhases
-from curve_formation.core.plausibility import plausible_box
 from curve_formation.core.sample_log import SampleLog
 from curve_formation.core.sampling import LatestValues
 from curve_formation.nodes import messages, qos, topics
@@ -66,8 +65,7 @@ class Monitor(Node):
         self.n = n
         # Each robot's latest pose, command and estimate, sampled as the bag analysis samples
         # them; a pose is refused where the controllers would refuse it (core.plausibility).
-        self.latest = LatestValues(
-            n, plausible_box(None if experiment is None else geofence(experiment)))
+        self.latest = LatestValues(n, None if experiment is None else geofence(experiment))
         self.true_poses = np.full((n, 3), np.nan) if ground_truth else None
         # per robot, its last two true poses [(stamp s, x, y, theta)]; over every tick that
         # drove, how far (m) the pose its law used was from the truth then: how many ticks,
