@@ -618,6 +618,42 @@ def test_monitor_skips_the_sample_a_stalled_machine_would_take_with_old_poses(ro
     assert monitor.late_samples >= 1
 
 
+def test_after_a_late_call_the_monitor_waits_for_a_fresh_pose_but_not_forever(ros, monkeypatch):
+    """The sampling clock is driven by hand at 20 Hz. A call 0.4 s late is skipped, and so is
+    every call after it until a pose arrives (a publisher held up with the machine resumes
+    when the scheduler lets it: seen 0.37 s late in CI); then sampling goes on. A robot that
+    fell silent is recorded again WAKE_LIMIT after the late call.
+    """
+    from types import SimpleNamespace
+
+    from curve_formation.nodes import monitor as monitor_module
+    context, add, _ = ros
+    clock = SimpleNamespace(now=0.0)
+    monkeypatch.setattr(monitor_module, 'time', SimpleNamespace(monotonic=lambda: clock.now))
+    monitor = add(monitor_module.Monitor(1, record_hz=20.0, context=context))
+    monitor._on_curve(messages.curve_to_msg(circle_curve(), 0, [0.0]),
+                      {'source_timestamp': 0, 'received_timestamp': 0})
+
+    def tick(at, pose_before=False):
+        clock.now = at - 0.01
+        if pose_before:
+            monitor._on_pose(1, messages.pose_to_msg(at, 0.0, 0.0, at))
+        clock.now = at
+        rows = len(monitor.recording)
+        monitor._sample()
+        return len(monitor.recording) > rows
+    recorded = [tick(0.05 * k, pose_before=True) for k in range(1, 5)]      # 0.05 .. 0.2 s
+    recorded += [tick(0.6), tick(0.65), tick(0.7, pose_before=True), tick(0.75)]
+    assert recorded == [True] * 4 + [False, False, True, True]
+    assert monitor.late_samples == 2
+    # silent from here: late at 1.2 s, then nothing arrives
+    late = 1.2
+    after = [tick(late + 0.05 * k) for k in range(0, 25)]
+    first = after.index(True)
+    assert not any(after[:first]) and all(after[first:])
+    assert 0.05 * first == pytest.approx(monitor_module.WAKE_LIMIT, abs=0.051)
+
+
 def test_only_a_monitor_that_times_curve_switches_reads_every_controllers_state(ros):
     """States come at the pose rate from every robot; a run without a curve switch
     (adoption=False) does not take them in.

@@ -27,6 +27,7 @@ from curve_formation.nodes.runtime import now_seconds, WithMessageInfo
 
 
 TIMING_WINDOW = 3000   # newest command arrivals / tick latencies kept per robot
+WAKE_LIMIT = 1.0       # s after a late timer call that samples wait at most for a fresh pose
 
 
 def recording_fields(n, ground_truth):
@@ -120,15 +121,17 @@ class Monitor(Node):
             self.create_timer(1.0 / record_hz, self._sample)
         self.period = 1.0 / record_hz
         self.last_call = None      # time.monotonic() of the sampling timer's last call
-        self.late_samples = 0      # samples skipped because the timer came late (see _sample)
+        self.late_samples = 0      # samples skipped after the timer came late (see _sample)
         self.closed = False        # the run is over (close): nothing more is sampled
-        self._skipped_last = False
+        self._woke_at = None       # time.monotonic() of a late call whose fresh pose is awaited
+        self._pose_arrival = -np.inf   # time.monotonic() the newest pose message arrived
 
     def _subscribe(self, name, callback, robot=None):
         return topics.subscription(self, name, callback, robot,
                                    event_callbacks=qos.observer_events())
 
     def _on_pose(self, i, msg):
+        self._pose_arrival = time.monotonic()
         self.latest.pose(i, *messages.pose_from_msg(msg))
 
     def _on_true_pose(self, i, msg):
@@ -300,16 +303,22 @@ class Monitor(Node):
     def _sample(self):
         # A call more than half a period late means this process was held up (a stalled
         # machine, a garbage collection): the executor calls the timer before the messages
-        # that queued meanwhile, so the poses held are as old as the delay (at 1 cm/s, a
-        # 0.33 s stall read as a 3.3 mm error of every robot). That sample is skipped; the
-        # next, taken after the queued messages, is not, so a steadily late run still records.
+        # that queued meanwhile, and the publishers held up with it resume when the scheduler
+        # lets them, so the poses held are as old as the delay (at 1 cm/s, a 0.33 s stall read
+        # as a 3.3 mm error of every robot). Samples are skipped from that call until a pose
+        # arrives after it (at most WAKE_LIMIT: a robot that went silent is still recorded);
+        # a steadily late run thus still records every other sample.
         now, last = time.monotonic(), self.last_call
         self.last_call = now
-        if last is not None and now - last > 1.5 * self.period and not self._skipped_last:
-            self._skipped_last = True
+        if self._woke_at is not None:
+            if self._pose_arrival <= self._woke_at and now - self._woke_at < WAKE_LIMIT:
+                self.late_samples += 1
+                return
+            self._woke_at = None
+        elif last is not None and now - last > 1.5 * self.period:
+            self._woke_at = now
             self.late_samples += 1
             return
-        self._skipped_last = False
         if self.t0 is None or self.closed:
             return
         row = self.latest.row(now_seconds(self), self.t0)
