@@ -6,11 +6,17 @@ height <= 0 means no walls. Contacts are resolved by moving bodies apart (positi
 equal robots push each other: each of a touching pair gives way by half the overlap), and a
 body that went through a wall is put back against it. Headings are left alone.
 
-Scalar loops only, so that the same source runs compiled in the batch simulator (numba) and
-as plain Python in the fake_arena node.
+Scalar loops only, so that the same source runs compiled (core.jit) in the batch simulator and
+in the kinematic world of the fake_arena node and the tick pipeline: one rule for contacts and
+one tally of them.
 """
 
 import math
+from typing import NamedTuple
+
+import numpy as np
+
+from curve_formation.core.shapes import BoolArray, FloatArray
 
 
 # Passes over all pairs per resolution: a chain of pushed bodies settles within a few.
@@ -80,6 +86,47 @@ def separate(poses, radius, width, height, touching):
     return new, now, smallest
 
 
+class Contacts(NamedTuple):
+    """Bodies (robots.radius, m; 0: points that pass through each other) in the arena
+    (width, height, m; <= 0: no walls), and the running tally of their contacts: touching
+    (n, n) bool, and tally [new contacts, time with a contact (s), smallest surface gap (m)].
+    """
+
+    radius: float
+    width: float
+    height: float
+    touching: BoolArray
+    tally: FloatArray
+
+
+def contacts_of(n: int, radius: float, width: float, height: float) -> Contacts:
+    """A tally of nothing yet for n bodies."""
+    return Contacts(float(radius), float(width), float(height), np.zeros((n, n), bool),
+                    np.array([0.0, 0.0, math.inf]))
+
+
+def touch(poses, contacts, step):
+    """Resolve contacts after a step of `step` s (bodies only: radius > 0) and keep the tally;
+    the smallest gap between two surfaces (m; -inf while two touch).
+    """
+    if contacts.radius <= 0.0:
+        return math.inf
+    new, now, gap = separate(poses, contacts.radius, contacts.width, contacts.height,
+                             contacts.touching)
+    contacts.tally[0] += new
+    if now:
+        contacts.tally[1] += step
+    contacts.tally[2] = min(contacts.tally[2], gap)
+    return -math.inf if now else gap
+
+
+def contact_summary(contacts: Contacts) -> dict[str, float | int | None]:
+    """{'count', 'time' (s), 'smallest_gap' (m, None without bodies)} of the tally so far."""
+    new, time, gap = contacts.tally
+    return {'count': int(new), 'time': float(time),
+            'smallest_gap': float(gap) if contacts.radius > 0 and math.isfinite(gap) else None}
+
+
 def _inside_walls(poses, i, radius, width, height):
     """Put body i back inside the walls; True if it had to move."""
     moved = False
@@ -96,7 +143,6 @@ def _inside_walls(poses, i, radius, width, height):
 
 def marker_centres(poses, marker_offset):
     """(..., 2) arena-frame centres of markers mounted at marker_offset (robot frame, m)."""
-    import numpy as np
     c, s = np.cos(poses[..., 2]), np.sin(poses[..., 2])
     return np.stack([poses[..., 0] + c * marker_offset[0] - s * marker_offset[1],
                      poses[..., 1] + s * marker_offset[0] + c * marker_offset[1]], axis=-1)

@@ -2,9 +2,10 @@
 
 Each robot moves as a dynamics.DrivenUnicycle under its velocity commands (with the link's
 latency, its watchdog and the experiment's robot-side disturbance). The world advances in
-steps of at most `physics_dt`, and after each step bodies that overlap are pushed apart and
-bodies through a wall put back (core.bodies.separate, as the batch simulator compiles it);
-in one step while no two bodies, nor a body and a wall, can meet before its end.
+steps of at most `physics_dt`, and after each step bodies that overlap are pushed apart,
+bodies through a wall put back and the contacts tallied (core.bodies.touch, compiled as the
+batch simulator runs it); in one step while no two bodies, nor a body and a wall, can meet
+before its end.
 
 The same interface as mujoco_world.MujocoWorld: command(i, v, w, now), advance(until),
 poses(), contact_summary(). Frames and units: arena frame, m, s, rad.
@@ -15,7 +16,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from curve_formation.core import bodies
 from curve_formation.core.dynamics import DrivenUnicycle
+from curve_formation.core.jit import compiled
 from curve_formation.core.shapes import FloatArray
 
 
@@ -42,16 +45,12 @@ class KinematicWorld:
         self.radius = experiment.radius
         self.physics_dt = physics_dt
         self.size = tuple(spec.arena.size) if spec.arena is not None else (0.0, 0.0)
-        self.touching = np.zeros((self.n, self.n), bool)
-        self.contacts = 0
-        self.contact_time = 0.0
-        self.smallest_gap = math.inf
+        self.contacts = bodies.contacts_of(self.n, self.radius, *self.size)
         self.clearance = -math.inf   # the smallest gap, or twice a body's room to a wall (m)
         self.time: float | None = None
-        from curve_formation.core.simulator import separate
-        self.separate = separate
-        if self.radius > 0:
-            separate(np.zeros((0, 3)), 0.0, 0.0, 0.0, self.touching[:0, :0])   # compile now
+        self.touch = compiled(bodies.touch)
+        if self.radius > 0:   # compile now
+            self.touch(np.zeros((0, 3)), bodies.contacts_of(0, 1.0, 0.0, 0.0), 0.0)
 
     def disturb(self, i: int, d: FloatArray) -> None:
         """Robot i's (0-based) disturbance [d_v, d_w] (m/s, rad/s) from its next step on (a
@@ -103,12 +102,7 @@ class KinematicWorld:
         if self.radius <= 0:
             return
         poses = self.poses()
-        new, now, gap = self.separate(poses, self.radius, self.size[0], self.size[1],
-                                      self.touching)
-        self.contacts += new
-        self.contact_time += step if now else 0.0
-        self.smallest_gap = min(self.smallest_gap, gap)
-        self.clearance = -math.inf if now else gap
+        self.clearance = self.touch(poses, self.contacts, step)
         for axis, size in enumerate(self.size):   # walls: 0 <= x <= width, 0 <= y <= height
             if size > 0:
                 room = np.minimum(poses[:, axis], size - poses[:, axis]) - self.radius
@@ -118,6 +112,4 @@ class KinematicWorld:
 
     def contact_summary(self) -> dict[str, float | int | None]:
         """{'count', 'time' (s), 'smallest_gap' (m, None without bodies)} so far."""
-        return {'count': self.contacts, 'time': self.contact_time,
-                'smallest_gap': self.smallest_gap if math.isfinite(self.smallest_gap)
-                else None}
+        return bodies.contact_summary(self.contacts)

@@ -37,7 +37,7 @@ from curve_formation.core.experiment import (
 from curve_formation.core.jit import compiled
 from curve_formation.core.safety import Avoidance
 from curve_formation.core.schedule import CurveSchedule
-from curve_formation.core.shapes import BoolArray, FloatArray, IntArray
+from curve_formation.core.shapes import FloatArray, IntArray
 
 
 _agent_command = compiled(control.agent_command)
@@ -45,7 +45,7 @@ _arc = compiled(dynamics.arc_step)
 _observe = compiled(control.observe)
 _drive_direction = compiled(driving.drive_direction)
 _steered_law = compiled(driving.steered_law)
-separate = compiled(bodies.separate)
+_touch = compiled(bodies.touch)
 OBSERVER = control.LAWS['observer']
 
 # How often (s) a moving curve's targets are renewed under continuous control.
@@ -62,19 +62,6 @@ class Clock(NamedTuple):
     dt: float
     control_every: int
     record_every: int
-
-
-class Contacts(NamedTuple):
-    """Bodies (robots.radius, m; 0: points that pass through each other) in the arena
-    (width, height, m; <= 0: no walls), and the running tally of their contacts: touching
-    (n, n) bool, and tally [new contacts, steps with a contact, smallest surface gap (m)].
-    """
-
-    radius: float
-    width: float
-    height: float
-    touching: BoolArray
-    tally: FloatArray
 
 
 # The graph as the kernels take it: (targets, sources, weights) edge arrays and the pins.
@@ -148,23 +135,10 @@ def _arc_step(poses: FloatArray, motion: FloatArray, dt: float) -> None:
 
 
 @numba.njit(cache=True)
-def _touch(poses: FloatArray, contacts: Contacts) -> None:
-    """Resolve contacts after a step (bodies only) and keep the tally."""
-    if contacts.radius <= 0.0:
-        return
-    new, now, gap = separate(poses, contacts.radius, contacts.width, contacts.height,
-                             contacts.touching)
-    contacts.tally[0] += new
-    if now:
-        contacts.tally[1] += 1
-    contacts.tally[2] = min(contacts.tally[2], gap)
-
-
-@numba.njit(cache=True)
 def _run(state: SimState, targets: FloatArray, ahead: FloatArray, graph: EdgeArrays, law: Law,
          limits: WheelLimits, avoidance: Avoidance, d_pc: FloatArray, d_robot: FloatArray,
          clock: Clock, step0: int, steps: int, schedule: tuple[IntArray, IntArray],
-         contacts: Contacts, record: tuple[FloatArray, FloatArray, FloatArray]) -> None:
+         contacts: bodies.Contacts, record: tuple[FloatArray, FloatArray, FloatArray]) -> None:
     """Advance the state (poses (n, 3), dhat (n, 2), the held motion, cmd, ref (n, 5), the
     steered points' fronts (n,) and the observer's rays (n, 3)) in place by `steps` fine
     steps from `step0`.
@@ -233,7 +207,7 @@ def _run(state: SimState, targets: FloatArray, ahead: FloatArray, graph: EdgeArr
                 rec_dhat[r] = dhat
                 rec_cmd[r] = cmd
             _arc_step(poses, motion, dt)
-            _touch(poses, contacts)
+            _touch(poses, contacts, dt)
         return
     # Continuous control: RK4 on (poses, dhat) with the law evaluated at every stage. The
     # heading turns at up to k1 |e| / l (1000 rad/s at the paper's start), so each step is
@@ -282,7 +256,7 @@ def _run(state: SimState, targets: FloatArray, ahead: FloatArray, graph: EdgeArr
                 for c in range(2):
                     dhat[i, c] += h / 6.0 * (kd[0, i, c] + 2.0 * kd[1, i, c]
                                              + 2.0 * kd[2, i, c] + kd[3, i, c])
-        _touch(poses, contacts)
+        _touch(poses, contacts, dt)
 
 
 def _choose_directions(state: SimState, targets: FloatArray, law: Law,
@@ -435,8 +409,7 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
     state = (poses, np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 5)),
              np.ones(n), np.column_stack([np.ones(n), np.zeros((n, 2))]))
     width, height = spec.arena.size if spec.arena is not None else (0.0, 0.0)
-    contacts = Contacts(float(radius), float(width), float(height), np.zeros((n, n), bool),
-                        np.array([0.0, 0.0, math.inf]))
+    contacts = bodies.contacts_of(n, radius, width, height)
     law = gains.tick_law(rate_hz, on_pc)
     feed_forward = spec.controller.feed_forward
     graph = (*experiment.graph.edge_arrays(), experiment.graph.pins)
@@ -497,9 +470,7 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
     sample_phase = phase_index(np.array(starts[:-1]) * dt, t)
     if varies:   # the disturbance at each recorded sample
         dist = disturbance_at(dist, experiment.variations, t)
-    new, steps, gap = contacts.tally
     return SimResult(dataclasses.replace(experiment, phases=tuple(followed)
                                          + experiment.phases[len(followed):]),
                      rate_hz, gains, limits, dist, t, *record, sample_phase,
-                     radius, {'count': int(new), 'time': float(steps * dt),
-                              'smallest_gap': float(gap) if radius > 0 else None})
+                     radius, bodies.contact_summary(contacts))
