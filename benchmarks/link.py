@@ -3,6 +3,7 @@ estimated online, from random starts.
 
 Run: scripts/bench link            (20 random starts of each arena file; ~15 min)
      scripts/bench link --seeds 3  (a quick look)
+     scripts/bench link --cases estimated 'estimated 300'  (those and none, the reference)
 
 Each start runs the nodes' tick pipeline (core.pipeline: unsynchronised controllers, 30 Hz
 poses, the paper's unicycles, bodies and avoidance as the file says) over core.pipeline.Link:
@@ -76,18 +77,19 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--seeds', type=int, default=20)
     parser.add_argument('--out', type=Path, default=Path('out/bench/link'))
+    parser.add_argument('--cases', nargs='+', choices=list(CASES), default=list(CASES),
+                        help='cases to run (none, the reference, always runs)')
     args = parser.parse_args()
+    cases = ['none'] + [case for case in args.cases if case != 'none']
     jobs = [(name, seed, case) for name in NAMES for seed in range(1, args.seeds + 1)
-            for case in CASES]
+            for case in cases]
     with Pool(2) as pool:
         rows = pool.map(one_run, jobs)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / 'runs.json').write_text(json.dumps(rows, indent=1))
     by = {(r['name'], r['seed'], r['case']): r for r in rows}
     for name in NAMES:
-        for case in CASES:
-            if case == 'none':
-                continue
+        for case in cases[1:]:
             runs = [by[(name, s, case)] for s in range(1, args.seeds + 1)]
             settled = sum(all(t is not None for t in r['settle']) for r in runs)
             ratios = [t / by[(name, r['seed'], 'none')]['settle'][k]

@@ -28,6 +28,7 @@ WINDOW = 4.0   # s of poses per window for the spread
 # across a window for its latency to count: a steady command has none to tell.
 MIN_EXCITATION = 1e-3
 TURN_SCALE = 0.04   # m: turn rates weigh as a point 4 cm from the axle moves
+TRIMMED = 0.05      # share of a fit's intervals of largest residual left out of it
 
 
 @dataclass(frozen=True)
@@ -72,7 +73,10 @@ def _held_means(tc: FloatArray, values: FloatArray, starts: FloatArray, ends: Fl
 
 
 def _residuals(tc, commands, driven, tp, v_meas, w_meas, lags):
-    """(len(lags),) sum of squared residuals of the fit at each lag, and the fit's count."""
+    """(len(lags),) sum of squared residuals of the fit at each lag, its largest TRIMMED
+    share of intervals left out (a lost command leaves the intervals it should have driven
+    fitting no lag).
+    """
     out = np.full(len(lags), np.inf)
     starts, ends = tp[:-1], tp[1:]
     for k, lag in enumerate(lags):
@@ -84,7 +88,9 @@ def _residuals(tc, commands, driven, tp, v_meas, w_meas, lags):
         # the disturbance acting while driven: least squares in each channel
         dv = float(on @ rv) / scale if scale > 0 else 0.0
         dw = float(on @ rw) / scale if scale > 0 else 0.0
-        out[k] = float(((rv - dv * on) ** 2).sum() + ((rw - dw * on) ** 2).sum())
+        squared = (rv - dv * on) ** 2 + (rw - dw * on) ** 2
+        kept = len(squared) - int(TRIMMED * len(squared))
+        out[k] = float(np.partition(squared, kept - 1)[:kept].sum())
     return out
 
 
@@ -99,49 +105,72 @@ def _best_lag(residuals: FloatArray, lags: FloatArray) -> float:
     return float(lags[k])
 
 
+def _cleaned(command_times: ArrayLike, commands: ArrayLike, pose_times: ArrayLike,
+             poses: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Arrays of commands and poses, the poses finite, in time order, one per stamp."""
+    tc = np.asarray(command_times, float)
+    cmd = np.asarray(commands, float).reshape(-1, 2)
+    tp = np.asarray(pose_times, float)
+    pose = np.asarray(poses, float).reshape(-1, 3)
+    keep = np.isfinite(tp) & np.isfinite(pose).all(axis=1)
+    tp, pose = tp[keep], pose[keep]
+    order = np.argsort(tp, kind='stable')
+    tp, pose = tp[order], pose[order]
+    fresh = np.concatenate([[True], np.diff(tp) > 1e-6])
+    return tc, cmd, tp[fresh], pose[fresh]
+
+
+class _Fit:
+    """The intervals between a robot's poses that its commands cover at every candidate lag,
+    ready to be fitted window by window.
+    """
+
+    def __init__(self, tc: FloatArray, cmd: FloatArray, tp: FloatArray, pose: FloatArray,
+                 lags: FloatArray) -> None:
+        self.tc, self.cmd, self.tp, self.lags = tc, cmd, tp, lags
+        self.driven = ((cmd[:, 0] != 0.0) | (cmd[:, 1] != 0.0)).astype(float)
+        self.v_meas, self.w_meas = _measured_rates(tp, pose)
+        self.inside = (tp[:-1] - lags.max() >= tc[0]) & (tp[1:] <= tc[-1] + 1.0)
+
+    def residuals(self, begin: float, end: float,
+                  lags: FloatArray | None = None) -> tuple[FloatArray, int] | None:
+        """The residual curve over the lags of the intervals from begin to end (s) and their
+        count; None if fewer than 5, or if the commands in force then hardly change.
+        """
+        tp = self.tp
+        sel = self.inside & (tp[:-1] >= begin) & (tp[1:] < end)
+        if sel.sum() < 5 or not _excited(self.tc, self.cmd, begin - self.lags.max(), end):
+            return None
+        idx = np.flatnonzero(sel)
+        return _residuals(self.tc, self.cmd, self.driven, np.append(tp[idx], tp[idx[-1] + 1]),
+                          self.v_meas[idx], self.w_meas[idx],
+                          self.lags if lags is None else lags), len(idx)
+
+
 def estimate_latency(command_times: ArrayLike, commands: ArrayLike, pose_times: ArrayLike,
                      poses: ArrayLike, lags: ArrayLike = LAGS, window: float = WINDOW
                      ) -> LinkEstimate:
     """The latency of one robot's commands (see the module): command_times (k,) and commands
     (k, 2) as sent; pose_times (m,) and poses (m, 3) as measured (x, y m; theta rad).
     """
-    tc = np.asarray(command_times, float)
-    cmd = np.asarray(commands, float).reshape(-1, 2)
-    tp = np.asarray(pose_times, float)
-    pose = np.asarray(poses, float).reshape(-1, 3)
+    tc, cmd, tp, pose = _cleaned(command_times, commands, pose_times, poses)
     lags = np.asarray(lags, float)
-    keep = np.isfinite(tp) & np.isfinite(pose).all(axis=1)
-    tp, pose = tp[keep], pose[keep]
-    order = np.argsort(tp, kind='stable')
-    tp, pose = tp[order], pose[order]
-    fresh = np.concatenate([[True], np.diff(tp) > 1e-6])
-    tp, pose = tp[fresh], pose[fresh]
     if len(tc) < 2 or len(tp) < 3:
         return LinkEstimate(None, None, 0, None)
-    driven = ((cmd[:, 0] != 0.0) | (cmd[:, 1] != 0.0)).astype(float)
-    v_meas, w_meas = _measured_rates(tp, pose)
-    # only intervals the commands cover at every candidate lag
-    inside = (tp[:-1] - lags.max() >= tc[0]) & (tp[1:] <= tc[-1] + 1.0)
+    fit = _Fit(tc, cmd, tp, pose, lags)
     lats = []
     for begin in np.arange(tp[0], tp[-1], window):
-        sel = inside & (tp[:-1] >= begin) & (tp[1:] < begin + window)
-        if sel.sum() < 5 or not _excited(tc, cmd, begin - lags.max(), begin + window):
-            continue
-        idx = np.flatnonzero(sel)
-        res = _residuals(tc, cmd, driven, np.append(tp[idx], tp[idx[-1] + 1]),
-                         v_meas[idx], w_meas[idx], lags)
-        if _clear(res, len(idx)):
-            lats.append(_best_lag(res, lags))
+        found = fit.residuals(begin, begin + window)
+        if found is not None and _clear(*found):
+            lats.append(_best_lag(found[0], lags))
     if not lats:
         return LinkEstimate(None, None, 0, None)
     # the windows' median: a window whose disturbance changed (the fit holds it constant)
     # does not pull it, as it would a fit over the whole run
     latency = float(np.median(lats))
-    idx = np.flatnonzero(inside)
-    res = _residuals(tc, cmd, driven, np.append(tp[idx], tp[idx[-1] + 1]), v_meas[idx],
-                     w_meas[idx], np.array([latency]))
-    return LinkEstimate(latency, float(np.std(lats)), len(lats),
-                        math.sqrt(float(res.min()) / max(len(idx), 1)))
+    whole = fit.residuals(-np.inf, np.inf, np.array([latency]))
+    residual = None if whole is None else math.sqrt(float(whole[0][0]) / whole[1])
+    return LinkEstimate(latency, float(np.std(lats)), len(lats), residual)
 
 
 def _clear(residuals: FloatArray, count: int) -> bool:
@@ -163,31 +192,36 @@ def _excited(tc: FloatArray, cmd: FloatArray, begin: float, end: float) -> bool:
 
 
 # Online: candidate latencies on a coarser grid (refined by the parabola), how often (s) and
-# over how much of the past (s) a controller estimates, how many estimates in a row must agree
-# and within what (s) before one is taken.
+# over how much of the past (s) a controller fits, over how long (s) the fits are remembered,
+# how many estimates in a row must agree and within what (s) before one is taken.
 ONLINE_LAGS = np.arange(0.0, 0.5001, 0.01)
 ONLINE_EVERY = 1.0
 ONLINE_SPAN = 6.0
+ONLINE_MEMORY = 50.0
 AGREEING = 3
 AGREEMENT = 0.02
 
 
 class OnlineLatency:
-    """A controller's running estimate of its command latency (estimate_latency over the last
-    ONLINE_SPAN s, every ONLINE_EVERY s): a new value is taken only when AGREEING estimates in
-    a row lie within AGREEMENT of each other (their median), so one that wanders is not.
-    Times in s on the controller's clock.
+    """A controller's running estimate of its command latency. Every ONLINE_EVERY s the last
+    ONLINE_SPAN s of commands and poses are fitted (as estimate_latency fits a window) and the
+    fit's residual curve is added to those before it, which fade over ONLINE_MEMORY s: the
+    estimate is the least of the sum, a least-squares fit over the run's last minute, so one
+    large command change (whose own delay is one draw of the jitter) does not decide it, and
+    overlapping windows that repeat the same data are not taken for agreement. A new value
+    is taken only when AGREEING estimates in a row lie within AGREEMENT of each other (their
+    median), so one that wanders is not. Times in s on the controller's clock.
     """
 
-    def __init__(self, initial: float, rate_hz: float, pose_rate: float = 60.0) -> None:
+    def __init__(self, initial: float, rate_hz: float) -> None:
         from collections import deque
         self.latency = initial
         self.commands: deque[tuple[float, float, float]] = deque(
-            maxlen=int(rate_hz * (ONLINE_SPAN + 1.0)) + 2)
-        self.poses: deque[tuple[float, float, float, float]] = deque(
-            maxlen=int(pose_rate * ONLINE_SPAN) + 2)
+            maxlen=int(rate_hz * (ONLINE_SPAN + ONLINE_LAGS.max() + 1.0)) + 2)
+        self.poses: deque[tuple[float, float, float, float]] = deque()
         self.recent: deque[float] = deque(maxlen=AGREEING)
         self.next_at: float | None = None
+        self.total: FloatArray | None = None   # the remembered residual curve over ONLINE_LAGS
         self.taken: list[tuple[float, float]] = []   # (when, latency) of each value taken
 
     def sent(self, at: float, v: float, w: float) -> None:
@@ -196,6 +230,8 @@ class OnlineLatency:
     def seen(self, stamp: float, x: float, y: float, theta: float) -> None:
         if not self.poses or stamp > self.poses[-1][0]:
             self.poses.append((stamp, x, y, theta))
+            while self.poses[0][0] < stamp - ONLINE_SPAN:
+                self.poses.popleft()
 
     def update(self, now: float) -> float:
         """The latency to use from `now` on (s): a new estimate every ONLINE_EVERY s."""
@@ -206,11 +242,13 @@ class OnlineLatency:
         self.next_at = now + ONLINE_EVERY
         sent = np.array(self.commands)
         seen = np.array(self.poses)
-        found = estimate_latency(sent[:, 0], sent[:, 1:], seen[:, 0], seen[:, 1:],
-                                 ONLINE_LAGS, ONLINE_SPAN)
-        if found.latency is None:
+        tc, cmd, tp, pose = _cleaned(sent[:, 0], sent[:, 1:], seen[:, 0], seen[:, 1:])
+        found = _Fit(tc, cmd, tp, pose, ONLINE_LAGS).residuals(-np.inf, np.inf)
+        if found is None or not _clear(*found):
             return self.latency
-        self.recent.append(found.latency)
+        fade = math.exp(-ONLINE_EVERY / ONLINE_MEMORY)
+        self.total = found[0] if self.total is None else fade * self.total + found[0]
+        self.recent.append(_best_lag(self.total, ONLINE_LAGS))
         if len(self.recent) == AGREEING and max(self.recent) - min(self.recent) <= AGREEMENT:
             latency = float(np.median(self.recent))
             if abs(latency - self.latency) > 1e-3:
