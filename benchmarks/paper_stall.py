@@ -5,8 +5,8 @@ Run: scripts/bench paper_stall [--out docs/figures] [--duration 120]
 Simulates paper case 1 (continuous control, d = [1, 1]) with the paper's law and with the
 observer law from the same start, and plots: the error norm; the forward push p_i = d_v -
 k2 dhat_v,i that the estimate leaves uncancelled, against the instability threshold k1 l
-(docs/control-laws-results.md); the turn-channel estimate error; the fastest heading rate. Prints the
-numbers quoted in the docs.
+(docs/control-laws-results.md); the turn-channel estimate error; the fastest heading rate.
+Prints the numbers quoted in the docs.
 """
 
 import argparse

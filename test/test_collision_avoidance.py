@@ -207,6 +207,18 @@ def test_the_barriers_hold_under_continuous_control_too():
     assert pairs.min() > -1e-6 and walls.min() > -1e-6
 
 
+def test_commands_that_act_late_lower_the_barrier_rate_to_one_over_the_loops_delay():
+    """alpha (T + L) <= 1: unchanged at no latency or where it already holds, capped at
+    1 / (T + L) otherwise (5 /s at T = 0.1 s becomes 2.5 /s at L = 0.3 s).
+    """
+    avoidance = safety.Avoidance(True, radius=0.04, margin=0.02, alpha=5.0)
+    assert safety.with_latency(avoidance, 0.1, 0.0) is avoidance
+    assert safety.with_latency(avoidance, 0.1, 0.1) is avoidance   # 5 * 0.2 = 1
+    late = safety.with_latency(avoidance, 0.1, 0.3)
+    assert late.alpha == pytest.approx(2.5)
+    assert late._replace(alpha=5.0) == avoidance
+
+
 def test_bodies_without_the_filter_push_each_other_but_never_overlap():
     experiment = load_experiment(DATA_DIR / 'head_on.yaml')
     result = simulate(experiment, avoidance=safety.AVOIDANCE_OFF, duration=40.0)

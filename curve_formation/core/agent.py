@@ -57,7 +57,7 @@ from curve_formation.core.plausibility import (
     plausible_box,
     position_problem,
 )
-from curve_formation.core.safety import Avoidance, AVOIDANCE_OFF, STOPPED
+from curve_formation.core.safety import Avoidance, AVOIDANCE_OFF, STOPPED, with_latency
 from curve_formation.core.shapes import Command, FloatArray, Point, Pose
 from curve_formation.core.wire import body_velocity as rim_velocity
 
@@ -701,7 +701,7 @@ class AgentController:
             fx, fy, *ahead, ex, ey, *pose, dhat_v, dhat_w, *self.last_command,
             *self.pc_disturbance, steered_law(law, self.front), cfg.limits,
             self.others_ahead(aim) if cfg.predict_pose and self.latency > 0.0 else self.others,
-            cfg.index - 1, cfg.avoidance)
+            cfg.index - 1, with_latency(cfg.avoidance, 1.0 / cfg.rate_hz, self.latency))
         if law.code != OBSERVER:
             self.dhat[0] += law.period * ddv
             self.dhat[1] += law.period * ddw

@@ -76,6 +76,18 @@ TOLERANCE = 1e-12
 FIXED_CONSTRAINTS = 10
 
 
+def with_latency(avoidance: Avoidance, period: float, latency: float) -> Avoidance:
+    """The filter's settings for commands that act `latency` s after they are sent (period
+    and latency in s): the barrier rate at most 1 / (period + latency). The proof's alpha T <= 1
+    is for a command acting at once; late, a robot's own pose is carried over the latency but
+    the others' are guessed from their last motion, and a pair holding each other at the
+    barrier chatters (docs/collision-avoidance.md, "Commands that act late").
+    """
+    if latency <= 0.0 or avoidance.alpha * (period + latency) <= 1.0:
+        return avoidance
+    return avoidance._replace(alpha=1.0 / (period + latency))
+
+
 def safe_command(v, w, x, y, theta, drift_v, drift_w, others, me, offset, period,
                  avoidance, wheel_base, max_wheel_speed, max_angular_rate):
     """The command closest to (v, w) that keeps bodies apart and inside the arena.
