@@ -105,12 +105,15 @@ def test_a_controller_estimates_its_latency_online_and_takes_it_once_settled(
 
 @pytest.mark.ros
 @pytest.mark.slow
+@pytest.mark.parametrize('camera', [None, {}], ids=['poses', 'camera'])
 def test_the_ros_loop_over_a_jittered_link_settles_with_the_latency_estimated_online(
-        ros_domain, tmp_path):
+        ros_domain, tmp_path, camera):
     """The arena demo's ROS graph, its fake robots' commands 100 ms +- 30 ms late (uniform),
     its controllers not told but estimating the latency online (estimate_latency, from 0):
     the formation settles within 1.3x of the simulator's time with no latency (measured
     1.02x), and every controller reports (on /diagnostics, in the bag) an estimate near 100 ms.
+    Also with the poses from the camera (fake_camera renders the robots, camera_tracker
+    finds their markers; the poses' stamps are the frames' capture times).
     """
     import yaml
 
@@ -126,7 +129,7 @@ def test_the_ros_loop_over_a_jittered_link_settles_with_the_latency_estimated_on
     path = tmp_path / 'estimated.yaml'
     path.write_text(yaml.safe_dump(data))
     with Run(path, tmp_path / 'run', RunOptions(command_latency=0.1, command_jitter=0.03,
-                                                 bag_path=tmp_path / 'bag'),
+                                                 bag_path=tmp_path / 'bag', camera=camera),
              log=lambda *_: None) as run:
         run.spin_for(40.0)
         live = run.write_results()
