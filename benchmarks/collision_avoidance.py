@@ -26,7 +26,7 @@ import time
 import numpy as np
 
 from curve_formation.core import metrics
-from curve_formation.core.agent import agent_configs
+from curve_formation.core.agent_config import agent_configs
 from curve_formation.core.control import agent_command
 from curve_formation.core.experiment import (
     load_experiment,

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from conftest import DATA_DIR, paper_arena
-from curve_formation.core.agent import agent_configs, AgentConfig, AgentController, is_stale
+from curve_formation.core.agent import AgentController, is_stale
+from curve_formation.core.agent_config import agent_configs, AgentConfig
 from curve_formation.core.assignment import AssignmentError, reassigned
 from curve_formation.core.bodies import separate
 from curve_formation.core.control import Gains, WheelLimits

@@ -7,7 +7,8 @@ import sys
 import numpy as np
 import pytest
 
-from curve_formation.core.agent import agent_configs, AgentController
+from curve_formation.core.agent import AgentController
+from curve_formation.core.agent_config import agent_configs
 from curve_formation.core.control import agent_command, Gains, WheelLimits
 from curve_formation.core.driving import drive_direction, steered_law
 from curve_formation.core.dynamics import arc_step

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from conftest import CONFIG_DIR
-from curve_formation.core.agent import agent_configs, AgentController
+from curve_formation.core.agent import AgentController
+from curve_formation.core.agent_config import agent_configs
 from curve_formation.core.curve_codec import CodecError, decode_curve, encode_curve
 from curve_formation.core.curves import Curve, make_basis
 from curve_formation.core.experiment import load_experiment

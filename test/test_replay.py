@@ -248,7 +248,8 @@ def law_on_bag_inputs(bag):
     """law(i, tick) -> (v, w): agent i's law (core) evaluated on the bag's messages whose
     stamps the tick names: its pose and its in-neighbours' states.
     """
-    from curve_formation.core.agent import AgentConfig, AgentController
+    from curve_formation.core.agent import AgentController
+    from curve_formation.core.agent_config import AgentConfig
     from curve_formation.nodes import messages
     run = load_bag_run(bag)
     experiment = run.experiment

@@ -544,12 +544,12 @@ def test_malformed_curve_messages_are_refused_and_the_curve_kept(ros):
 @pytest.mark.parametrize('name', ['closed_curve', 'mona_arena', 'arena_demo',
                                   str(DATA_DIR / 'fast_disturbed.yaml')])
 def test_agent_settings_survive_the_trip_through_node_parameters(ros, name):
-    """Experiment -> AgentConfig (core.agent.agent_configs) -> node parameters (what the runner
-    writes) -> the node's AgentConfig: the same settings, for every agent.
+    """Experiment -> AgentConfig (core.agent_config.agent_configs) -> node parameters (what
+    the runner writes) -> the node's AgentConfig: the same settings, for every agent.
     """
     from rclpy.parameter import Parameter
 
-    from curve_formation.core.agent import agent_configs
+    from curve_formation.core.agent_config import agent_configs
     from curve_formation.core.agent_parameters import node_parameters
     from curve_formation.nodes.formation_controller import agent_config
     from curve_formation.paths import resolve_config

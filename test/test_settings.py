@@ -124,7 +124,7 @@ def arena_demo():
 
 
 def the_leaders_parameters():
-    from curve_formation.core.agent import agent_configs
+    from curve_formation.core.agent_config import agent_configs
     from curve_formation.core.agent_parameters import node_parameters
     from curve_formation.core.experiment import build_experiment
     experiment = build_experiment(arena_demo(), 'arena_demo.yaml')

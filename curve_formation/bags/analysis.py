@@ -17,7 +17,7 @@ import numpy as np
 from curve_formation.bags.bag import bag_info, bag_summary, BagError, read_messages
 from curve_formation.bags.streams import stream_topic
 from curve_formation.core import diagnostics, metrics, plots
-from curve_formation.core.agent import geofence
+from curve_formation.core.agent_config import geofence
 from curve_formation.core.curve_codec import CodecError
 from curve_formation.core.estop import stopped_intervals
 from curve_formation.core.experiment import (

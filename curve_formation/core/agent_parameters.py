@@ -1,4 +1,4 @@
-"""An agent's settings (core.agent.AgentConfig) as the flat parameters of the node that runs
+"""An agent's settings (core.agent_config.AgentConfig) as the flat parameters of the node that runs
 it, ROS-free: what the launcher writes into a controller's parameters file. The node reads
 them back (nodes/formation_controller.agent_config, which validates them); a test checks the
 round trip for every agent of every shipped experiment. A limit that is not set (inf) is the

@@ -25,7 +25,8 @@ from typing import Literal
 import numpy as np
 
 from curve_formation.core import metrics
-from curve_formation.core.agent import agent_configs, AgentController
+from curve_formation.core.agent import AgentController
+from curve_formation.core.agent_config import agent_configs
 from curve_formation.core.experiment import (
     ANNOUNCE_AHEAD,
     control_rate,

@@ -22,7 +22,7 @@ FIELDS = ('t', 'poses', 'commands', 'dhat', 'pose_stamps')
 class LatestValues:
     """Each of n robots' latest pose (m, m, rad; world frame) with the time it was taken (s,
     the sender's stamp), command (m/s, rad/s) and disturbance estimate (m/s, m/s): NaN until
-    one comes. fence: the experiment's geofence (core.agent.geofence; None without one): a
+    one comes. fence: the experiment's geofence (core.agent_config.geofence; None without one): a
     pose is believed where the controllers believe it (core.plausibility.plausible_box).
     """
 

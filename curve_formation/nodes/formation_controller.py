@@ -16,7 +16,8 @@ from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 
-from curve_formation.core.agent import AgentConfig, AgentController
+from curve_formation.core.agent import AgentController
+from curve_formation.core.agent_config import AgentConfig
 from curve_formation.core.agent_parameters import limit_value
 from curve_formation.core.assignment import AssignmentError
 from curve_formation.core.control import Gains, LAWS, timed_by, WheelLimits

@@ -15,7 +15,7 @@ import numpy as np
 from rclpy.node import Node
 
 from curve_formation.core import diagnostics
-from curve_formation.core.agent import geofence
+from curve_formation.core.agent_config import geofence
 from curve_formation.core.estop import stopped_intervals
 from curve_formation.core.experiment import ReceivedPhases
 from curve_formation.core.sample_log import SampleLog

@@ -13,7 +13,7 @@ import socket
 
 import yaml
 
-from curve_formation.core.agent import agent_configs
+from curve_formation.core.agent_config import agent_configs
 from curve_formation.core.agent_parameters import limit_parameter, node_parameters
 from curve_formation.core.experiment import (
     control_rate,
