@@ -80,10 +80,19 @@ class Observers:
                 self.executor.add_node(node)
 
     def __exit__(self, *exc):
-        # Record what is still queued (the nodes' last zero commands among it).
+        self.finish()
+        self._stack.close()   # executor, nodes, context: the reverse of their opening
+
+    def finish(self):
+        """Record what is still queued (the nodes' last zero commands among it) and close the
+        bag, keeping the ROS entities: what was recorded is whole before DDS lets go of
+        anything (letting go can hang: Fast DDS deadlocks at times when an entity is
+        destroyed while a remote participant leaves, eProsima/Fast-DDS#6502). Idempotent.
+        """
         if self.executor is not None:
             self.drain()
-        self._stack.close()   # executor, nodes, bag, context: the reverse of their opening
+        if self.bag_writer is not None:
+            self.bag_writer.close()
 
     def _executor(self):
         if self.executor is None:

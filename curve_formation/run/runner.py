@@ -171,11 +171,22 @@ class Run:
         self.log('curve server started: t = 0' if options.runs('curve_server')
                  else 'first curve received: t = 0')
 
+    def wind_down(self):
+        """Stop every node and close the bag after their last messages, keeping the
+        observers' ROS entities: what the run measured is complete (measure) before stop()
+        lets go of DDS, which can hang (Observers.finish).
+        """
+        self.end()
+        if self.graph is not None:
+            self.graph.stop()
+        if self.observers is not None:
+            self.observers.finish()
+
     def stop(self):
         """Stop every node, then the observers (the bag is closed after the nodes' last
         messages were recorded); give the environment back.
         """
-        self.end()
+        self.wind_down()
         self._stack.close()
         if self.bag_writer is not None:
             self.bag_writer.close()   # also when start() never opened it
@@ -430,6 +441,18 @@ def run_experiment(config, out_dir, duration=None, options=DEFAULTS, log=print):
         duration += SPLIT_GRACE
     previous = {sig: signal.signal(sig, lambda *_: run.stop_requested.set())
                 for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        return _run_and_measure(run, duration, options, log)
+    finally:
+        run.stop()   # after the results are written: letting go of DDS can hang
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def _run_and_measure(run, duration, options, log):
+    """run_experiment's run, then its results written (the nodes stopped and the bag closed
+    in between, Run.wind_down).
+    """
     interrupted = False
     failure = None
     started = False
@@ -447,9 +470,7 @@ def run_experiment(config, out_dir, duration=None, options=DEFAULTS, log=print):
         log(f'error in the runner: {type(exc).__name__}: {exc}; stopping every node and '
             'writing what was measured')
     finally:
-        run.stop()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        run.wind_down()
     if not options.runs('observer'):
         return {'experiment': run.experiment.name, 'interrupted': interrupted,
                 'parts': sorted(options.only or ())}
