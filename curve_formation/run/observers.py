@@ -31,6 +31,7 @@ class Observers:
         self.context = self.executor = self.monitor = self.recorder = None
         self.best_effort_topics = set()
         self.hosted = []   # a single-process run's nodes, destroyed after the executor stops
+        self.finished = False   # finish() has drained and closed the bag
         self._stack = ExitStack()
 
     def __enter__(self):
@@ -89,6 +90,9 @@ class Observers:
         anything (letting go can hang: Fast DDS deadlocks at times when an entity is
         destroyed while a remote participant leaves, eProsima/Fast-DDS#6502). Idempotent.
         """
+        if self.finished:
+            return
+        self.finished = True   # nothing is spun after the bag is closed
         if self.executor is not None:
             self.drain()
         if self.bag_writer is not None:
