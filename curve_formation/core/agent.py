@@ -25,7 +25,7 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 import math
-from typing import NamedTuple, Optional, TYPE_CHECKING
+from typing import NamedTuple, Optional
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -56,10 +56,6 @@ from curve_formation.core.plausibility import (
 from curve_formation.core.safety import STOPPED, with_latency
 from curve_formation.core.shapes import Command, FloatArray, Point, Pose
 from curve_formation.core.wire import body_velocity as rim_velocity
-
-
-if TYPE_CHECKING:
-    pass
 
 
 NO_OTHERS = np.zeros((0, 3))
