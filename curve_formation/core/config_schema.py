@@ -122,10 +122,11 @@ class ControllerSpec(Strict):
         'along that direction, its step doubling each tick up to this factor '
         '(control.ray_growth; needs limits.wheel_base and max_wheel_speed); 1 = off')
     estimate_latency: bool = Field(
-        False, description='estimate command_latency online, every 1 s from the last 6 s of '
-        'commands and poses, each fit added to those of about the last minute '
-        '(core.link_estimate), starting from command_latency; a new value is taken when 3 '
-        'estimates in a row agree within 20 ms; in the nodes and their tick pipeline')
+        False, description='estimate command_latency online, every 1 s (0.5 s until a first '
+        'value) from the last 6 s of commands and poses, each fit added to those of about '
+        'the last minute (core.link_estimate), starting from command_latency; a new value is '
+        'taken when 3 estimates in a row agree within 20 ms; in the nodes and their tick '
+        'pipeline')
     observer_order: Literal[1, 2] = Field(
         1, description='law observer: 2 = it also estimates how fast the disturbance changes '
         '(an alpha-beta filter critically damped at observer_rate) and follows one that '

@@ -191,11 +191,13 @@ def _excited(tc: FloatArray, cmd: FloatArray, begin: float, end: float) -> bool:
     return bool(max(np.ptp(v), np.ptp(w)) >= MIN_EXCITATION)
 
 
-# Online: candidate latencies on a coarser grid (refined by the parabola), how often (s) and
-# over how much of the past (s) a controller fits, over how long (s) the fits are remembered,
-# how many estimates in a row must agree and within what (s) before one is taken.
+# Online: candidate latencies on a coarser grid (refined by the parabola), how often (s) a
+# controller fits (more often until it has taken a first value) and over how much of the
+# past (s), over how long (s) the fits are remembered, how many estimates in a row must agree
+# and within what (s) before one is taken.
 ONLINE_LAGS = np.arange(0.0, 0.5001, 0.01)
 ONLINE_EVERY = 1.0
+ONLINE_FIRST_EVERY = 0.5
 ONLINE_SPAN = 6.0
 ONLINE_MEMORY = 50.0
 AGREEING = 3
@@ -203,9 +205,11 @@ AGREEMENT = 0.02
 
 
 class OnlineLatency:
-    """A controller's running estimate of its command latency. Every ONLINE_EVERY s the last
-    ONLINE_SPAN s of commands and poses are fitted (as estimate_latency fits a window) and the
-    fit's residual curve is added to those before it, which fade over ONLINE_MEMORY s: the
+    """A controller's running estimate of its command latency. Every ONLINE_EVERY s (every
+    ONLINE_FIRST_EVERY s until a first value is taken: the value it starts from is the one
+    most likely wrong) the last ONLINE_SPAN s of commands and poses are fitted (as
+    estimate_latency fits a window) and the fit's residual curve, weighted by the time since
+    the fit before, is added to those before it, which fade over ONLINE_MEMORY s: the
     estimate is the least of the sum, a least-squares fit over the run's last minute, so one
     large command change (whose own delay is one draw of the jitter) does not decide it, and
     overlapping windows that repeat the same data are not taken for agreement. A new value
@@ -221,6 +225,7 @@ class OnlineLatency:
         self.poses: deque[tuple[float, float, float, float]] = deque()
         self.recent: deque[float] = deque(maxlen=AGREEING)
         self.next_at: float | None = None
+        self.cadence = ONLINE_EVERY   # s from the last fit to the next
         self.total: FloatArray | None = None   # the remembered residual curve over ONLINE_LAGS
         self.taken: list[tuple[float, float]] = []   # (when, latency) of each value taken
 
@@ -234,20 +239,23 @@ class OnlineLatency:
                 self.poses.popleft()
 
     def update(self, now: float) -> float:
-        """The latency to use from `now` on (s): a new estimate every ONLINE_EVERY s."""
+        """The latency to use from `now` on (s): a new estimate every cadence s."""
         if self.next_at is None:
-            self.next_at = now + ONLINE_EVERY
+            self.next_at = now + self.cadence
         if now < self.next_at or len(self.commands) < 2 or len(self.poses) < 3:
             return self.latency
-        self.next_at = now + ONLINE_EVERY
+        weight = self.cadence / ONLINE_EVERY   # each second of the run weighs alike
+        fade = math.exp(-self.cadence / ONLINE_MEMORY)
+        self.cadence = ONLINE_EVERY if self.taken else ONLINE_FIRST_EVERY
+        self.next_at = now + self.cadence
         sent = np.array(self.commands)
         seen = np.array(self.poses)
         tc, cmd, tp, pose = _cleaned(sent[:, 0], sent[:, 1:], seen[:, 0], seen[:, 1:])
         found = _Fit(tc, cmd, tp, pose, ONLINE_LAGS).residuals(-np.inf, np.inf)
         if found is None or not _clear(*found):
             return self.latency
-        fade = math.exp(-ONLINE_EVERY / ONLINE_MEMORY)
-        self.total = found[0] if self.total is None else fade * self.total + found[0]
+        self.total = weight * found[0] if self.total is None else (
+            fade * self.total + weight * found[0])
         self.recent.append(_best_lag(self.total, ONLINE_LAGS))
         if len(self.recent) == AGREEING and max(self.recent) - min(self.recent) <= AGREEMENT:
             latency = float(np.median(self.recent))

@@ -61,8 +61,9 @@ PARAMETERS = (
     Param('adaptation', 'double[]', [1.0, 1.0], 'law adaptive: [gamma_v, gamma_w] '
           "multiplying the paper's estimator rate per channel"),
     Param('estimate_latency', 'bool', False, 'estimate command_latency online from the '
-          'commands sent and the poses measured (every 1 s over the last 6 s, the fits summed '
-          'over about the last minute; a value taken when 3 in a row agree within 20 ms)'),
+          'commands sent and the poses measured (every 1 s, 0.5 s until a first value, over '
+          'the last 6 s, the fits summed over about the last minute; a value taken when 3 in '
+          'a row agree within 20 ms)'),
     Param('observer_order', 'int', 1, 'law observer: 2 = it also estimates how fast the '
           'disturbance changes (alpha-beta filter) and predicts it over the coming period; '
           '1 = first-order', low=1, high=2),
