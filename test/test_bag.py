@@ -267,18 +267,16 @@ def test_hard_killed_run_loses_at_most_the_last_second(tmp_path, ros_env, storag
     bag of it that our reader (and, for MCAP, the independent mcap reader) reads whole.
     """
     proc = start_run(tmp_path, ros_env, storage=storage)
-    time.sleep(4.0)
+    bag = tmp_path / 'bag'
+    deadline = time.monotonic() + 60
+    while _stored_messages(bag, storage)[0] <= 1000:   # a few seconds of the run on disk
+        assert time.monotonic() < deadline and proc.poll() is None, 'the bag did not fill'
+        time.sleep(0.2)
     killed_at = time.time()
     proc.kill()
     proc.wait(10)
-    bag = tmp_path / 'bag'
     assert not (bag / 'metadata.yaml').exists()   # never closed
-    if storage == 'sqlite3':
-        with sqlite3.connect(bag / 'bag.db3') as conn:
-            count, newest = conn.execute(
-                'SELECT COUNT(*), MAX(timestamp) FROM messages').fetchone()
-    else:
-        count, newest = _complete_mcap_messages(bag / 'bag.mcap')
+    count, newest = _stored_messages(bag, storage)
     assert count > 1000
     assert killed_at - newest * 1e-9 < 1.5   # commit period 1 s, plus scheduling slack
     with pytest.raises(BagError, match='bag repair'):
@@ -298,6 +296,20 @@ def test_hard_killed_run_loses_at_most_the_last_second(tmp_path, ros_env, storag
                          capture_output=True).returncode == 0:
         assert time.monotonic() < deadline, 'node processes outlived the killed runner'
         time.sleep(0.2)
+
+
+def _stored_messages(bag, storage):
+    """(count, newest timestamp in ns) of the messages a bag being written holds on disk."""
+    if storage == 'mcap':
+        return _complete_mcap_messages(bag / 'bag.mcap') if (bag / 'bag.mcap').exists() else (
+            0, 0)
+    try:
+        with sqlite3.connect(f'file:{bag / "bag.db3"}?mode=ro', uri=True) as conn:
+            count, newest = conn.execute(
+                'SELECT COUNT(*), MAX(timestamp) FROM messages').fetchone()
+    except sqlite3.OperationalError:   # not created yet, or locked by the writer
+        return 0, 0
+    return count, newest or 0
 
 
 def _complete_mcap_messages(path, summary=False):
