@@ -19,7 +19,8 @@ from curve_formation.bags.bag import BagError, read_raw
 
 CLOCK_PERIOD = 0.01   # s of bag time between /clock messages
 MATCH_GRACE = 0.5     # s from the subscribers' discovery to the first message
-ACK_WAIT = 5.0        # s at most, at the end, for reliable readers to acknowledge it all
+ACK_WAIT = 30.0       # s at most, at the end, for reliable readers to acknowledge it all
+# (a loaded machine's readers were seen to take more than 5 s)
 
 
 def message_class(msgtype):
@@ -117,8 +118,13 @@ def replay(node, path, rate=1.0, topics=None, loop=False, start=0.0, clock=True,
         if not loop or (stop is not None and stop.is_set()):
             break
     # What a reliable reader has not yet acknowledged is lost if this process ends now.
-    for publisher in publishers.values():
-        publisher.wait_for_all_acked(Duration(seconds=ACK_WAIT))
+    deadline = time.monotonic() + ACK_WAIT
+    unacked = [topic for topic, publisher in publishers.items()
+               if not publisher.wait_for_all_acked(Duration(
+                   seconds=max(deadline - time.monotonic(), 0.0)))]
+    if unacked:
+        log(f'not acknowledged by every reader within {ACK_WAIT:g} s, so possibly not '
+            f'received: the last messages of {", ".join(unacked)}')
     return sent
 
 

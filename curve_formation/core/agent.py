@@ -653,7 +653,8 @@ class AgentController:
         one over the difference of their stamps; the command is the one sent at the previous
         tick, or with a command latency or a motor time constant what the commands realised
         over that motion (_realised); nothing is learnt while the motors were off. With a
-        command latency the observer waits for a motion made wholly under commands sent after
+        command latency, or a pose taken before the previous tick (a camera's frame older
+        than a period), the observer waits for a motion made wholly under commands sent after
         its last update (their `estimate`), and blends over the time since that update: no
         delay enters the estimate's loop (docs/control-laws.md). The motion's part before the
         safety filter (the motion minus what the filter changed) is scaled along its ray when
@@ -666,7 +667,10 @@ class AgentController:
         elapsed = self.pose_stamp - stamp0
         if elapsed <= 0.0:
             return
-        waits = self.latency > 0.0
+        # A pose taken before the last tick cannot show that tick's command: waiting for one
+        # that can keeps the pose's age out of the estimate's loop as it keeps the latency.
+        waits = (self.latency > 0.0
+                 or self._taken_at(self.pose_stamp, self.pose_received) < ticked)
         if self.config.motor_time_constant > 0.0 or waits:
             acting = self._realised(elapsed)
         else:
