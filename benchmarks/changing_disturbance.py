@@ -47,13 +47,21 @@ CASES = (('arena_demo on the robots +-50 %', 'arena_demo', 0.5, ()),
 PERIOD = 10.0   # s
 
 
-def experiment(name, seed, amplitude, controller=()):
+def experiment_data(name, amplitude, controller=()):
+    """(the shipped file's data with the controller settings changed and the disturbance
+    varying +-amplitude in a PERIOD s sine (0: constant), its path).
+    """
     path = resolve_config(name)
     data = yaml.safe_load(Path(path).read_text())
     data['controller'].update(dict(controller))
     if amplitude:
         data['disturbance']['varies'] = [{'kind': 'sine', 'amplitude': amplitude,
                                           'period': PERIOD}]
+    return data, path
+
+
+def experiment(name, seed, amplitude, controller=()):
+    data, path = experiment_data(name, amplitude, controller)
     case = build_experiment(data, str(path))
     return with_start(case, seeded_start(case, seed))
 

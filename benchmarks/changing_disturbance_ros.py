@@ -22,27 +22,24 @@ from pathlib import Path
 import random
 import tempfile
 
+from changing_disturbance import experiment_data, SECOND_ORDER
 import yaml
 
 from curve_formation.bags.analysis import load_run
 from curve_formation.core.metrics import error_norm, target_errors
-from curve_formation.paths import resolve_config
 from curve_formation.run.run_options import RunOptions
 from curve_formation.run.runner import Run
 
 
-SWING = [{'kind': 'sine', 'amplitude': 0.1, 'period': 10.0}]
-RUNS = (('constant, first-order at 4 /s (the file)', None, {}),
-        ('+-10 %, second-order at 8 /s', SWING, {'observer_order': 2, 'observer_rate': 8.0}),
-        ('+-10 %, first-order at 4 /s', SWING, {}))
+# (label, relative amplitude of the disturbance's 10 s sine, controller settings changed)
+RUNS = (('constant, first-order at 4 /s (the file)', 0.0, ()),
+        ('+-10 %, second-order at 8 /s', 0.1, SECOND_ORDER),
+        ('+-10 %, first-order at 4 /s', 0.1, ()))
 TAIL = 15.0   # s at each phase's end over which the residual error is summarised
 
 
-def one_run(label, varies, controller, camera, folder):
-    data = yaml.safe_load(resolve_config('mona_arena').read_text())
-    data['controller'].update(controller)
-    if varies:
-        data['disturbance']['varies'] = varies
+def one_run(label, amplitude, controller, camera, folder):
+    data, _ = experiment_data('mona_arena', amplitude, controller)
     path = folder / 'experiment.yaml'
     path.write_text(yaml.safe_dump(data))
     duration = data['simulation']['duration']
@@ -73,10 +70,10 @@ def main():
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     rows = []
     with tempfile.TemporaryDirectory() as scratch:
-        for k, (label, varies, controller) in enumerate(RUNS):
+        for k, (label, amplitude, controller) in enumerate(RUNS):
             folder = Path(scratch) / str(k)
             folder.mkdir()
-            rows.append(one_run(label, varies, controller, not args.poses, folder))
+            rows.append(one_run(label, amplitude, controller, not args.poses, folder))
     reference = [p['settle_time'] for p in rows[0]['phases']]
     source = "the fake robots' poses" if args.poses else 'the rendered camera'
     print(f"mona_arena over ROS, poses from {source}, from the file's start:")

@@ -667,10 +667,10 @@ class AgentController:
         elapsed = self.pose_stamp - stamp0
         if elapsed <= 0.0:
             return
+        ended = self._taken_at(self.pose_stamp, self.pose_received)   # the motion's end
         # A pose taken before the last tick cannot show that tick's command: waiting for one
         # that can keeps the pose's age out of the estimate's loop as it keeps the latency.
-        waits = (self.latency > 0.0
-                 or self._taken_at(self.pose_stamp, self.pose_received) < ticked)
+        waits = self.latency > 0.0 or ended < ticked
         if self.config.motor_time_constant > 0.0 or waits:
             acting = self._realised(elapsed)
         else:
@@ -680,7 +680,6 @@ class AgentController:
         if waits and acting.estimate < self.updates:
             return   # the motion does not answer the current estimate yet
         measured_v, measured_w = body_velocity(x0, y0, th0, *self.pose, elapsed)
-        ended = self._taken_at(self.pose_stamp, self.pose_received)
         if waits and self.observed_until is not None:   # blended over the time since the last
             elapsed = max(elapsed, ended - self.observed_until)
         self.observed_until = ended
