@@ -252,6 +252,41 @@ def test_leader_news_propagates_and_its_loss_stops_followers_without_deadlock():
     assert exchange(2.0) == {1: None, 2: None, 3: None}
 
 
+def test_a_state_held_in_a_queue_does_not_revive_a_dead_leader():
+    """Chain 1 -> 2 -> 3, poses stamped on the controllers' clock (30 Hz, 20 ms late). The
+    leader dies at 0.3 s; robot 2's process stalls from 0.4 s to 1.6 s (as Fast DDS can
+    stall a process for 1-2 s after a kill), then sends the state it made at 0.4 s, and a
+    fresh one. The held state's news of the leader is 1.3 s old when it arrives, not 0.1 s:
+    robot 3, whose only in-neighbour is live again, stays stopped for no news of the leader.
+    """
+    ctrls = team({1: (), 2: ((1, 1.0),), 3: ((2, 1.0),)})
+
+    def send(j, i, at):
+        st = ctrls[j].state()
+        ctrls[i].on_neighbour(j, *st.error, st.curve_id, st.stamp, st.leader_age, received=at)
+
+    def poses(t, robots):
+        for i in robots:
+            ctrls[i].on_pose(0.1 * i, 0.0, 0.0, t, received=t + 0.02)
+
+    for t in np.arange(0.0, 0.31, 1 / 30):
+        poses(t, (1, 2, 3))
+        send(1, 2, t + 0.03)
+        send(2, 3, t + 0.03)
+    assert {i: c.tick(0.32).stopped for i, c in ctrls.items()} == {1: None, 2: None, 3: None}
+    poses(0.4, (2, 3))                     # the leader is dead; 2 makes its state, then stalls
+    held = ctrls[2].state()
+    for t in np.arange(0.4, 1.6, 1 / 30):
+        poses(t, (3,))
+    assert ctrls[3].tick(1.55).stopped.startswith('no news from the leader')
+    ctrls[3].on_neighbour(2, *held.error, held.curve_id, held.stamp, held.leader_age,
+                          received=1.6)
+    poses(1.6, (2, 3))
+    send(2, 3, 1.63)
+    stopped = ctrls[3].tick(1.65).stopped
+    assert stopped is not None and stopped.startswith('no news from the leader (1.33 s'), stopped
+
+
 def test_acceleration_limit_ramps_up_but_stops_at_once():
     ctrl = ready(config(limits=WheelLimits(max_linear_accel=0.5, max_angular_accel=1.0),
                         gains=Gains(5.0, 0.0, 0.1)))

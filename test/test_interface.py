@@ -55,3 +55,14 @@ def test_per_robot_names_are_placed_and_read_back():
     assert interface.type_name(interface.CURVE) == 'std_msgs/msg/Float64MultiArray'
     assert interface.type_name('/pose') is None        # per-robot names only under a robot
     assert interface.type_name('/robot_1/lidar') is None
+
+
+def test_a_state_message_carries_news_of_the_leader_that_came_after_the_pose():
+    """leader_age is the news's age when the pose was taken: slightly negative for news that
+    came after it, and NO_NEWS (not a small negative age) before any.
+    """
+    from curve_formation.core.agent import State
+    from curve_formation.nodes import messages
+    for age in (0.4, 0.0, -0.03, None):
+        msg = messages.state_to_msg(State((0.01, -0.02), 3, 12.5, age))
+        assert messages.state_from_msg(msg) == (0.01, -0.02, 3, 12.5, age)

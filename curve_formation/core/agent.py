@@ -13,12 +13,14 @@ another curve. While stopped the disturbance estimate is frozen, so it does not 
 with an acceleration limit the robot ramps up again from rest.
 
 Leader heartbeat: every state carries the age of the newest news of the leader its sender has
-(the leader: 0, its pose just received); a receiver dates that news on its own clock (receipt
-time minus the age) and keeps the newest. Since the leader reaches every agent, each agent
-learns within a few hops when the leader is gone (and stops after `leader_timeout`), and learns
-again when it is back: ages only grow around a cycle of followers (each hop adds the time the
-news was held, and leaves out only the transit, milliseconds), so no stop can lock itself in,
-and no cycle can keep a dead leader alive.
+when its pose was taken (the leader: its pose is the news); a receiver dates that news on its
+own clock (when that pose was taken, by the sender's stamps: StampClock, minus the age) and
+keeps the newest. Since the leader reaches every agent, each agent learns within a few hops
+when the leader is gone (and stops after `leader_timeout`), and learns again when it is back.
+Where the stamps share the controllers' clock (one camera, or one machine) a hop neither adds
+nor loses time, and a state that sat in a queue (a stalled process, a Wi-Fi burst) brings
+news exactly as old as it is: no stall or cycle of followers can revive a dead leader. Where
+they do not, news is dated as if it came as fast as the sender's fastest state.
 """
 
 from collections import deque
@@ -80,6 +82,24 @@ def _receipt(stamp: float, received: float | None) -> float:
     return stamp if received is None else received
 
 
+class StampClock:
+    """A source's stamps on this controller's clock, judged from the smallest lag (receipt
+    minus stamp, s) seen so far: the stamp itself where that lag is 0 to `shared` s (the
+    source shares this clock), else the stamp plus that lag (another clock: dated as if it
+    came as fast as the fastest). A message held in a queue keeps its stamp's date, so it
+    is as old as it is, where a per-message rule could not tell it from another clock.
+    """
+
+    def __init__(self, shared: float) -> None:
+        self.shared = shared
+        self.floor = math.inf
+
+    def date(self, stamp: float, received: float) -> float:
+        """When the stamp was (s, this clock), counting this message's lag."""
+        self.floor = min(self.floor, received - stamp)
+        return stamp if 0.0 <= self.floor <= self.shared else stamp + self.floor
+
+
 def _drive(x: float, y: float, theta: float, v: float, w: float, drift_v: float,
            drift_w: float, dt: float) -> Pose:
     """Pose after dt (s) under command (v, w), plus the drift while driven (m/s, rad/s)."""
@@ -113,7 +133,8 @@ class State:
     """What an agent tells its out-neighbours.
 
     error e_i (m), curve id, pose stamp (s, the pose source's clock), and the age of the newest
-    news of the leader it has (s, when the state was made; None before any news).
+    news of the leader it has (s, when the pose was taken: negative, down to -MAX_PREDICTION,
+    for news that came after; None before any news).
     """
 
     error: Point
@@ -234,8 +255,14 @@ class AgentController:
         # the others' velocities, to carry them to when a late command acts (others_ahead)
         self.others_seen: deque[tuple[float, FloatArray]] = deque()
         self.filtered = 0           # ticks whose command the safety filter changed
-        # when the newest news of the leader was made, our clock
+        # when the newest news of the leader was made, our clock; the clocks of the stamps
+        # it is dated by (own poses, each in-neighbour's states), and when the own pose was
+        # taken by that
         self.leader_heard: float | None = None
+        shared = min(self.config.pose_timeout, MAX_PREDICTION)
+        self.stamp_clocks = {j: StampClock(shared) for j in (self.config.index,
+                                                             *self.neighbours)}
+        self.pose_dated: float | None = None
         self.estop = False
         self.estop_reason = 'e-stop engaged'
         self.last_command: Command = (0.0, 0.0)
@@ -348,6 +375,7 @@ class AgentController:
         if problem is not None:
             return self.reject(f'own pose {problem}')
         self.pose, self.pose_stamp, self.pose_received = (x, y, theta), stamp, at
+        self.pose_dated = self.stamp_clocks[self.config.index].date(stamp, at)
         if self.link is not None:
             self.link.seen(self._taken_at(stamp, at), x, y, theta)
         if self.config.is_leader:
@@ -379,7 +407,7 @@ class AgentController:
             return self.reject(f'state of neighbour {j}: {problem}')
         self.neighbours[j] = _Neighbour((ex, ey), int(curve_id), stamp, at)
         if leader_age is not None:
-            heard = at - max(0.0, leader_age)
+            heard = min(at, self.stamp_clocks[j].date(stamp, at) - leader_age)   # not ahead
             if self.leader_heard is None or heard > self.leader_heard:
                 self.leader_heard = heard
         return True
@@ -442,10 +470,10 @@ class AgentController:
         """This agent's State for its out-neighbours, or None before it has pose and curve."""
         error = self.own_error()
         if (error is None or self.curve_id is None or self.pose_stamp is None
-                or self.pose_received is None):
+                or self.pose_dated is None):
             return None
-        age = (None if self.leader_heard is None
-               else max(0.0, self.pose_received - self.leader_heard))
+        age = (None if self.leader_heard is None   # negative: news that came after the pose
+               else max(-MAX_PREDICTION, self.pose_dated - self.leader_heard))
         return State(error, self.curve_id, self.pose_stamp, age)
 
     def _neighbour_error(self, j: int, nb: _Neighbour) -> Point | None:

@@ -9,9 +9,10 @@ frame; NaN for a robot not seen), no names (a compact vector: 50 robots decode i
 PoseArray of 50 in 630 us).
 Neighbour state (sensor_msgs/JointState on /robot_<i>/formation_state, used as a labelled
 vector with a header): names STATE_FIELDS, positions their values: e_x, e_y (m, arena frame),
-the curve id, and the age of the newest news of the leader the robot has (s, -1 before any;
-an age, not a stamp, so that hosts' clocks need not agree); header.stamp = stamp of the pose
-the error was computed from.
+the curve id, and the age of the newest news of the leader the robot has when its pose was
+taken (s, NO_NEWS before any; slightly negative for news that came after the pose; an age,
+not a stamp, so that hosts' clocks need not agree); header.stamp = stamp of the pose the error
+was computed from.
 """
 
 import math
@@ -103,6 +104,7 @@ def twist_to_msg(v, w):
 
 
 STATE_FIELDS = ('e_x', 'e_y', 'curve_id', 'leader_age')
+NO_NEWS = -1.0   # leader_age before any news of the leader (real ages are above -0.25 s)
 
 
 def state_to_msg(state, frame_id='arena', msg=None):
@@ -112,7 +114,7 @@ def state_to_msg(state, frame_id='arena', msg=None):
         msg.name = list(STATE_FIELDS)
     msg.header.stamp = seconds_to_stamp(state.stamp)
     msg.header.frame_id = frame_id
-    leader = -1.0 if state.leader_age is None else float(state.leader_age)
+    leader = NO_NEWS if state.leader_age is None else float(state.leader_age)
     msg.position = [float(state.error[0]), float(state.error[1]), float(state.curve_id), leader]
     return msg
 
@@ -128,7 +130,7 @@ def state_from_msg(msg):
             and math.isfinite(leader)):
         raise MessageError('formation state has NaN or infinite values')
     return (values['e_x'], values['e_y'], curve_id_from_float(values['curve_id']),
-            stamp_to_seconds(msg.header.stamp), None if leader < 0 else leader)
+            stamp_to_seconds(msg.header.stamp), None if leader <= NO_NEWS else leader)
 
 
 def estimate_to_msg(dhat, stamp_s):
