@@ -301,6 +301,9 @@ class AgentController:
         # controller's clock; None: none since the robot last stopped)
         self.updates = 0
         self.observed_until: float | None = None
+        # when the estimate's disturbance held (s, this controller's clock): the middle of
+        # the motion it was learnt from
+        self.estimated_at = 0.0
 
     def set_curve(self, curve: Curve, curve_id: int,
                   s_all: Sequence[float] | FloatArray | None, rate: Curve | None = None,
@@ -617,9 +620,12 @@ class AgentController:
             ahead = (self.ahead[0] * moving, self.ahead[1] * moving)
         dhat_v, dhat_w = self.dhat
         if cfg.observer_order == 2 and self.tracking >= TRACKING_TICKS:
-            # the estimate is of the last period's mean: carried to the mean of the period
-            # this command holds for, once it acts
-            ahead_by = 1.0 / cfg.rate_hz + self.latency
+            # the estimate carried from the middle of the motion it was learnt from (a pose's
+            # age counts) to the middle of the period this command holds for, once it acts
+            period = 1.0 / cfg.rate_hz
+            acts = now + self.latency + period / 2.0
+            ahead_by = min(max(acts - self.estimated_at, 0.0),
+                           period + self.latency + MAX_PREDICTION)
             dhat_v += self.dhat_rate[0] * ahead_by
             dhat_w += self.dhat_rate[1] * ahead_by
         v, w, ref_v, ref_w, ddv, ddw, code, shift_v, shift_w, limited = self.command(
@@ -679,8 +685,9 @@ class AgentController:
 
         The motion is the constant (v, w) that carries the previous tick's pose to the current
         one over the difference of their stamps; the command is the one sent at the previous
-        tick, or with a command latency or a motor time constant what the commands realised
-        over that motion (_realised); nothing is learnt while the motors were off. With a
+        tick, or with a command latency, a motor time constant or a motion that began before
+        the previous tick (a pose older than the time between poses) what the commands
+        realised over that motion (_realised); nothing is learnt while the motors were off. With a
         command latency, or a pose taken before the previous tick (a camera's frame older
         than a period), the observer waits for a motion made wholly under commands sent after
         its last update (their `estimate`), and blends over the time since that update: no
@@ -699,8 +706,17 @@ class AgentController:
         # A pose taken before the last tick cannot show that tick's command: waiting for one
         # that can keeps the pose's age out of the estimate's loop as it keeps the latency.
         waits = self.latency > 0.0 or ended < ticked
+        # A motion that began before the last tick (its first pose older than that tick) was
+        # partly made under the command before: the commands are weighed by how long each
+        # acted in it, and whether the limits cut is the last tick's command's, as when the
+        # motion is wholly its own (the search along its ray is that command's).
+        mixed = ended - elapsed < ticked - 1e-9
         if self.config.motor_time_constant > 0.0 or waits:
             acting = self._realised(elapsed)
+        elif mixed:
+            acting, last = self._realised(elapsed), self._acting(ticked)
+            if acting is not None and last is not None:
+                acting = acting._replace(limited=last.limited)
         else:
             acting = self._acting(ticked)
         if acting is None or not acting.driven:
@@ -708,6 +724,7 @@ class AgentController:
         if waits and acting.estimate < self.updates:
             return   # the motion does not answer the current estimate yet
         measured_v, measured_w = body_velocity(x0, y0, th0, *self.pose, elapsed)
+        self.estimated_at = ended - elapsed / 2.0
         if waits and self.observed_until is not None:   # blended over the time since the last
             elapsed = max(elapsed, ended - self.observed_until)
         self.observed_until = ended
