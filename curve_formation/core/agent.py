@@ -687,13 +687,13 @@ class AgentController:
         one over the difference of their stamps; the command is the one sent at the previous
         tick, or with a command latency, a motor time constant or a motion that began before
         the previous tick (a pose older than the time between poses) what the commands
-        realised over that motion (_realised); nothing is learnt while the motors were off. With a
-        command latency, or a pose taken before the previous tick (a camera's frame older
-        than a period), the observer waits for a motion made wholly under commands sent after
-        its last update (their `estimate`), and blends over the time since that update: no
-        delay enters the estimate's loop (docs/control-laws.md). The motion's part before the
-        safety filter (the motion minus what the filter changed) is scaled along its ray when
-        saturated (control.ray_growth); without a newer pose nothing is updated.
+        realised over that motion (_realised); nothing is learnt while the motors were off.
+        With a command latency, or a pose taken before the previous tick (a camera's frame
+        older than a period), the observer waits for a motion made wholly under commands sent
+        after its last update (their `estimate`), and blends over the time since that update:
+        no delay enters the estimate's loop (docs/control-laws.md). The motion's part before
+        the safety filter (the motion minus what the filter changed) is scaled along its ray
+        when saturated (control.ray_growth); without a newer pose nothing is updated.
         """
         if (self.anchor is None or self.pose is None or self.pose_stamp is None
                 or self.pose_received is None):
