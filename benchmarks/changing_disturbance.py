@@ -5,6 +5,8 @@ Run: scripts/bench changing_disturbance            (20 random starts of each cas
      scripts/bench changing_disturbance --seeds 3  (a quick look)
      scripts/bench changing_disturbance --pose-noise 0.2,3  (poses through a camera's noise:
          0.2 mm in x and y, 3 mrad in heading, standard deviations)
+     scripts/bench changing_disturbance --pose-latency 0.05  (every pose reaching the
+         controllers 50 ms after it was taken, with its stamp, as a camera's frame)
 
 Cases (issue goals): the arena demo's drift on the robots varying +-50 % with a 10 s period
 (every phase settles), and mona_arena's disturbance on the PC varying +-10 % (settles), also
@@ -67,9 +69,9 @@ def experiment(name, seed, amplitude, controller=()):
 
 
 def one_run(job):
-    name, seed, amplitude, controller, noise = job
+    name, seed, amplitude, controller, noise, pose_latency = job
     begin = time.perf_counter()
-    link = None if noise is None else Link(pose_noise=noise, seed=seed)
+    link = Link(pose_noise=noise or (0.0, 0.0), pose_latency=pose_latency, seed=seed)
     result = simulate_pipeline(experiment(name, seed, amplitude, controller), 'kinematic',
                                link=link)
     data = metrics.result_metrics(result)
@@ -85,10 +87,12 @@ def main():
     parser.add_argument('--out', type=Path, default=Path('out/bench/changing_disturbance'))
     parser.add_argument('--pose-noise', default=None, metavar='MM,MRAD',
                         help='Gaussian noise on every pose (mm in x and y, mrad in heading)')
+    parser.add_argument('--pose-latency', type=float, default=0.0, metavar='S',
+                        help='every pose reaches the controllers S s after it was taken')
     args = parser.parse_args()
     noise = (None if args.pose_noise is None else
              tuple(float(v) / 1000 for v in args.pose_noise.split(',')))
-    jobs = [(*job, noise) for _, name, amplitude, controller in CASES
+    jobs = [(*job, noise, args.pose_latency) for _, name, amplitude, controller in CASES
             for seed in range(1, args.seeds + 1)
             for job in ((name, seed, 0.0, ()), (name, seed, amplitude, controller))]
     jobs = list(dict.fromkeys(jobs))   # the file's constant run once per start
