@@ -301,8 +301,8 @@ def test_hard_killed_run_loses_at_most_the_last_second(tmp_path, ros_env, storag
 def _stored_messages(bag, storage):
     """(count, newest timestamp in ns) of the messages a bag being written holds on disk."""
     if storage == 'mcap':
-        return _complete_mcap_messages(bag / 'bag.mcap') if (bag / 'bag.mcap').exists() else (
-            0, 0)
+        path = bag / 'bag.mcap'
+        return _complete_mcap_messages(path) if path.exists() else (0, 0)
     try:
         with sqlite3.connect(f'file:{bag / "bag.db3"}?mode=ro', uri=True) as conn:
             count, newest = conn.execute(

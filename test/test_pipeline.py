@@ -103,6 +103,21 @@ def test_an_untold_link_delay_is_what_the_nodes_meet(arena_demo):
     assert result_metrics(simulate_pipeline(told, 'kinematic', duration=30.0))['all_settled']
 
 
+def mona_arena_start(seed, **controller):
+    """The shipped mona_arena with these controller settings changed, from random start
+    `seed` (experiment.seeded_start).
+    """
+    import yaml
+
+    from curve_formation.core.experiment import build_experiment, seeded_start, with_start
+    from curve_formation.paths import resolve_config
+    path = resolve_config('mona_arena')
+    data = yaml.safe_load(open(path))
+    data['controller'].update(controller)
+    case = build_experiment(data, str(path))
+    return with_start(case, seeded_start(case, seed))
+
+
 @pytest.mark.parametrize('seed', [1, 13, 20])
 def test_mona_arena_settles_with_commands_300_ms_late_told(seed):
     """mona_arena (d 22x the wheel limit, added on the PC), random starts the files never
@@ -115,18 +130,10 @@ def test_mona_arena_settles_with_commands_300_ms_late_told(seed):
     flipping between forwards and backwards, until the barrier rate was capped at
     1 / (T + L) (safety.with_latency).
     """
-    import yaml
-
-    from curve_formation.core.experiment import build_experiment, seeded_start, with_start
     from curve_formation.core.pipeline import Link
-    from curve_formation.paths import resolve_config
 
     def run(latency):
-        path = resolve_config('mona_arena')
-        data = yaml.safe_load(open(path))
-        data['controller'].update(command_latency=latency, predict_pose=True)
-        case = build_experiment(data, str(path))
-        case = with_start(case, seeded_start(case, seed))
+        case = mona_arena_start(seed, command_latency=latency, predict_pose=True)
         result = simulate_pipeline(case, 'kinematic', seed=seed,
                                    link=Link(command_latency=latency, seed=seed))
         return result_metrics(result), result.contacts['count']
@@ -152,19 +159,11 @@ def test_mona_arena_holds_old_poses(order, pose_latency, seed):
     between poses), it took all of that motion for the last command's: seed 3 took 2.4x,
     and seed 2 of the second-order observer ended 0.5 m off.
     """
-    import yaml
-
-    from curve_formation.core.experiment import build_experiment, seeded_start, with_start
     from curve_formation.core.pipeline import Link
-    from curve_formation.paths import resolve_config
 
     def run(latency):
-        path = resolve_config('mona_arena')
-        data = yaml.safe_load(open(path))
-        if order == 2:
-            data['controller'].update(observer_order=2, observer_rate=8.0)
-        case = build_experiment(data, str(path))
-        case = with_start(case, seeded_start(case, seed))
+        case = mona_arena_start(seed, **({'observer_order': 2, 'observer_rate': 8.0}
+                                         if order == 2 else {}))
         return result_metrics(simulate_pipeline(case, 'kinematic', seed=seed, link=Link(
             pose_latency=latency, seed=seed)))
 
