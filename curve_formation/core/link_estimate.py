@@ -58,40 +58,35 @@ def _measured_rates(tp: FloatArray, poses: FloatArray) -> tuple[FloatArray, Floa
 
 def _held_means(tc: FloatArray, values: FloatArray, starts: FloatArray, ends: FloatArray
                 ) -> FloatArray:
-    """Mean over [starts, ends] of the piecewise-constant signal values[k] from tc[k] (zero
-    before the first command).
+    """Mean over [starts, ends] (arrays of one shape) of the piecewise-constant signal
+    values[k] from tc[k] (zero before the first command).
     """
     knots = np.concatenate([tc, [tc[-1] + 1e9]])
     integral = np.concatenate([[0.0], np.cumsum(values * np.diff(knots))])
     edges = np.concatenate([[tc[0] - 1e9], knots])
     area = np.concatenate([[0.0], integral])
-
-    def cumulative(t):
-        return np.interp(t, edges, area)
-
-    return (cumulative(ends) - cumulative(starts)) / (ends - starts)
+    return (np.interp(ends, edges, area) - np.interp(starts, edges, area)) / (ends - starts)
 
 
 def _residuals(tc, commands, driven, tp, v_meas, w_meas, lags):
     """(len(lags),) sum of squared residuals of the fit at each lag, its largest TRIMMED
     share of intervals left out (a lost command leaves the intervals it should have driven
-    fitting no lag).
+    fitting no lag). Every lag at once: rows are lags, columns the intervals.
     """
-    out = np.full(len(lags), np.inf)
-    starts, ends = tp[:-1], tp[1:]
-    for k, lag in enumerate(lags):
-        v = _held_means(tc, commands[:, 0], starts - lag, ends - lag)
-        w = _held_means(tc, commands[:, 1], starts - lag, ends - lag)
-        on = _held_means(tc, driven, starts - lag, ends - lag)
-        rv, rw = v_meas - v, (w_meas - w) * TURN_SCALE
-        scale = float(on @ on)
-        # the disturbance acting while driven: least squares in each channel
-        dv = float(on @ rv) / scale if scale > 0 else 0.0
-        dw = float(on @ rw) / scale if scale > 0 else 0.0
-        squared = (rv - dv * on) ** 2 + (rw - dw * on) ** 2
-        kept = len(squared) - int(TRIMMED * len(squared))
-        out[k] = float(np.partition(squared, kept - 1)[:kept].sum())
-    return out
+    starts = tp[None, :-1] - lags[:, None]
+    ends = tp[None, 1:] - lags[:, None]
+    v = _held_means(tc, commands[:, 0], starts, ends)
+    w = _held_means(tc, commands[:, 1], starts, ends)
+    on = _held_means(tc, driven, starts, ends)
+    rv, rw = v_meas - v, (w_meas - w) * TURN_SCALE
+    scale = np.einsum('ij,ij->i', on, on)
+    # the disturbance acting while driven: least squares in each channel
+    safe = np.where(scale > 0, scale, 1.0)
+    dv = np.where(scale > 0, np.einsum('ij,ij->i', on, rv) / safe, 0.0)
+    dw = np.where(scale > 0, np.einsum('ij,ij->i', on, rw) / safe, 0.0)
+    squared = (rv - dv[:, None] * on) ** 2 + (rw - dw[:, None] * on) ** 2
+    kept = squared.shape[1] - int(TRIMMED * squared.shape[1])
+    return np.partition(squared, kept - 1, axis=1)[:, :kept].sum(axis=1)
 
 
 def _best_lag(residuals: FloatArray, lags: FloatArray) -> float:
