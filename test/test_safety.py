@@ -144,7 +144,8 @@ def test_estop_a_killed_follower_and_the_killed_leader_each_stop_whom_they_shoul
         wait_for(run, lambda: driving(run, ALL), 'every robot to drive again')
         # 2. a follower killed (SIGKILL: silent at once), then restarted. Not on its first
         # driving tick: a kill in the middle of that publication can deliver the command to
-        # this test's reader and not to the robot, which then never drove (inferred from one failed run)
+        # this test's reader and not to the robot, which then never drove (inferred from
+        # one failed run)
         run.spin_for(0.5)
         run.kill('robot_2.formation_controller')
         wait_for(run, lambda: stopped(run, [3, 4]), 'robots 3 and 4 (out-neighbours of 2) to stop')
