@@ -39,7 +39,6 @@ def simulate_to_dir(config, out_dir, rate='config', law=None, heading=None, phys
     animate: also write animation.mp4. Writes the folder of outputs.write_outputs.
     """
     from curve_formation.core import metrics
-    from curve_formation.core.simulator import pipeline_only, simulate
     from curve_formation.results.outputs import write_outputs
 
     path = resolve_config(config)
@@ -55,22 +54,21 @@ def simulate_to_dir(config, out_dir, rate='config', law=None, heading=None, phys
     engine = physics or experiment.spec.physics.engine
     latency = experiment.spec.controller.command_latency
     order = experiment.spec.controller.observer_order
-    needs = pipeline_only(experiment)
-    if engine == 'mujoco' or needs:
-        # The nodes' tick pipeline: robots in MuJoCo, or controller settings only it models
-        # (a link as slow as the controllers are told, the second-order observer, ...).
+    experiment = dataclasses.replace(experiment, gains=gains)
+    pipeline = (f"the nodes' tick pipeline, {engine} world, commands {latency:g} s late as "
+                f'told, observer of order {order}')
+    if engine == 'mujoco':   # robots in MuJoCo: the nodes' tick pipeline
         from curve_formation.core.pipeline import simulate_pipeline
         if rate is None:
-            why = 'the MuJoCo world' if engine == 'mujoco' else needs[0][0]
-            raise ValueError(f"--continuous: {why} runs the nodes' tick pipeline, at a "
-                             'control rate (--rate, or controller.rate_hz)')
-        result = simulate_pipeline(dataclasses.replace(experiment, gains=gains), engine,
+            raise ValueError("--continuous: the MuJoCo world runs the nodes' tick pipeline, "
+                             'at a control rate (--rate, or controller.rate_hz)')
+        result = simulate_pipeline(experiment, engine,
                                    rate_hz=None if rate == 'config' else rate)
-        simulator = (f"the nodes' tick pipeline, {engine} world, commands {latency:g} s late "
-                     f'as told, observer of order {order}')
-    else:
-        result = simulate(experiment, rate_hz=rate, gains=gains)
-        simulator = 'batch (compiled)'
+        simulator = pipeline
+    else:   # the batch simulator, or the pipeline for settings only it models
+        from curve_formation.core.pipeline import simulate_kinematic
+        result, why = simulate_kinematic(experiment, rate)
+        simulator = 'batch (compiled)' if why is None else f'{pipeline} ({why})'
     data = metrics.result_metrics(result)
     data['simulator'] = simulator
     write_outputs(out_dir, experiment, {'t': result.t, 'poses': result.poses,

@@ -392,12 +392,13 @@ def test_clocks_that_differ_between_hosts_neither_stop_nor_keep_robots_driving()
 
 
 def leader_alone(name, seconds=12.0, pose_latency=0.0, clock_offset=0.0, predict=True,
-                 command_latency=0.0, told=True, pose_noise=(0.0, 0.0)):
+                 command_latency=0.0, told=True, pose_noise=(0.0, 0.0), estimate=False):
     """The leader of shipped experiment `name` alone (no safety filter) at 10 Hz on poses
     captured at 30 Hz and delivered `pose_latency` s late, stamped on a clock `clock_offset`
     s ahead, carried forward to the tick (predict_pose) or not; each command acting on its
     wheels `command_latency` s after it leaves (DrivenUnicycle), the controller told of that
-    (its command_latency) or not; each captured pose off the truth by Gaussian noise of
+    (its command_latency) or not, and estimating it online (estimate_latency, as the arena
+    files ship) only with `estimate`; each captured pose off the truth by Gaussian noise of
     pose_noise = (m in x and y, rad in heading) standard deviations (a seeded draw).
     Returns its error norms (m) and dhat (ticks, 2), and the distances (m) between the pose
     each tick's law used and the robot's true pose when that tick's command acted (NaN
@@ -406,7 +407,8 @@ def leader_alone(name, seconds=12.0, pose_latency=0.0, clock_offset=0.0, predict
     experiment = load_experiment(resolve_config(name))
     config = dataclasses.replace(agent_configs(experiment, 10.0)[0], avoidance=AVOIDANCE_OFF,
                                  predict_pose=predict,
-                                 command_latency=command_latency if told else 0.0)
+                                 command_latency=command_latency if told else 0.0,
+                                 estimate_latency=estimate)
     controller = AgentController(config)
     phase = experiment.phases[0]
     controller.set_curve(phase.curve, 0, phase.s)
@@ -501,7 +503,8 @@ def test_a_stated_command_latency_keeps_the_observers_search_from_cycling():
     (commands sent after its last update acting over the whole interval) before the next
     update: settled at the experiment's tolerance in 28.5, 28.2, 29.1 and 29.0 s at 0.1,
     0.2, 0.25 and 0.3 s against 27.2 s with none. (Before, the step was slowed per tick of
-    latency instead: 250 ms cycled on 5 of 20 arena starts.)
+    latency instead: 250 ms cycled on 5 of 20 arena starts.) Not told but estimating it
+    online from 0, as the file ships (estimate_latency): 27.4, 28.1, 30.2 and 30.1 s.
     """
     seconds = 60.0
     tolerance = load_experiment(resolve_config('mona_arena')).tolerance(0)
@@ -514,6 +517,9 @@ def test_a_stated_command_latency_keeps_the_observers_search_from_cycling():
     for latency in (0.1, 0.2, 0.25, 0.3):
         told = settled(delayed_leader('mona_arena', latency, True, seconds)[0])
         assert told is not None and told < 1.15 * prompt, (latency, told, prompt)
+        estimated = settled(leader_alone('mona_arena', seconds, command_latency=latency,
+                                         told=False, estimate=True)[0])
+        assert estimated is not None and estimated < 1.15 * prompt, (latency, estimated)
     assert settled(delayed_leader('mona_arena', 0.3, False, seconds)[0]) is None
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from curve_formation.core.dynamics import arc_step
-from curve_formation.core.link_estimate import estimate_latency
+from curve_formation.core.link_estimate import estimate_latency, replay_online
 
 
 def driven_robot(latency, jitter=0.0, loss=0.0, seed=0, seconds=30.0, drift=(0.005, 0.1),
@@ -61,20 +61,15 @@ def test_a_robot_whose_commands_do_not_change_tells_no_latency():
 
 def online_run(latency, jitter, loss, seed):
     """OnlineLatency fed as a controller feeds it (each command at its tick, each pose as it
-    comes) on driven_robot's 30 s: the latency used at each tick (s) and the ticks' times.
+    comes) on driven_robot's 30 s: the latency used at each tick (s), the ticks' times and
+    the estimator.
     """
-    from curve_formation.core.link_estimate import OnlineLatency
     sent, commands, seen, poses = driven_robot(latency, jitter, loss, seed=seed)
-    online = OnlineLatency(0.0, 10.0)
-    k = 0
-    used = []
-    for t, (v, w) in zip(sent, commands, strict=True):
-        while k < len(seen) and seen[k] <= t:
-            online.seen(seen[k], *poses[k])
-            k += 1
-        used.append(online.update(t))
-        online.sent(t, v, w)
-    return sent, np.array(used), online
+    online = replay_online(sent, commands, seen, poses, 0.0, 10.0)
+    used = np.zeros(len(sent))
+    for when, value in online.taken:
+        used[sent >= when] = value
+    return sent, used, online
 
 
 @pytest.mark.parametrize('latency, jitter, loss, first_by, near, mean_near, mean_error', [

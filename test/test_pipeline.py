@@ -91,16 +91,28 @@ def test_sim_honours_a_told_command_latency_through_the_pipeline(tmp_path, arena
 
 
 def test_an_untold_link_delay_is_what_the_nodes_meet(arena_demo):
-    """The pipeline's link delays commands as the fake robots do: 100 ms untold keeps
-    arena_demo from settling at its tolerance (as measured over ROS); told, it settles.
+    """The pipeline's link delays commands as the fake robots do: 100 ms untold, with the
+    controllers not estimating it, keeps arena_demo from settling at its tolerance (as
+    measured over ROS); told, it settles; untold with the file as shipped, each controller
+    estimating it online from 0 (estimate_latency), it settles too, every estimate within
+    20 ms of the truth.
     """
     from curve_formation.core.pipeline import Link
-    untold = result_metrics(simulate_pipeline(arena_demo, 'kinematic', duration=30.0,
-                                              link=Link(command_latency=0.1)))
+
+    def with_controller(**settings):
+        return dataclasses.replace(arena_demo, spec=arena_demo.spec.model_copy(update={
+            'controller': arena_demo.spec.controller.model_copy(update=settings)}))
+
+    late = Link(command_latency=0.1)
+    untold = result_metrics(simulate_pipeline(with_controller(estimate_latency=False),
+                                              'kinematic', duration=30.0, link=late))
     assert not untold['all_settled']
-    told = dataclasses.replace(arena_demo, spec=arena_demo.spec.model_copy(update={
-        'controller': arena_demo.spec.controller.model_copy(update={'command_latency': 0.1})}))
+    told = with_controller(command_latency=0.1, estimate_latency=False)
     assert result_metrics(simulate_pipeline(told, 'kinematic', duration=30.0))['all_settled']
+    assert arena_demo.spec.controller.estimate_latency
+    estimated = simulate_pipeline(arena_demo, 'kinematic', duration=30.0, link=late)
+    assert result_metrics(estimated)['all_settled']
+    assert np.allclose(estimated.latencies, 0.1, atol=0.02), estimated.latencies
 
 
 def mona_arena_start(seed, **controller):
@@ -122,8 +134,9 @@ def mona_arena_start(seed, **controller):
 def test_mona_arena_settles_with_commands_300_ms_late_told(seed):
     """mona_arena (d 22x the wheel limit, added on the PC), random starts the files never
     used, the nodes' pipeline with every command acting 300 ms after it leaves, the
-    controllers told: every phase settles at the experiment's tolerance within 1.5x of the
-    same start with no latency, and no robots touch. Seed 1 cycled at 250 ms when the
+    controllers told (and not estimating it): every phase settles at the experiment's
+    tolerance within 1.5x of the same start with no latency, and no robots touch. Seed 1
+    cycled at 250 ms when the
     observer's search only slowed its step; seed 13 touched when the safety filter saw the
     others where the camera had seen them, not where they would be when the command acts;
     seed 20 took 1.55x while two robots held each other at the barrier, their commands
@@ -133,7 +146,8 @@ def test_mona_arena_settles_with_commands_300_ms_late_told(seed):
     from curve_formation.core.pipeline import Link
 
     def run(latency):
-        case = mona_arena_start(seed, command_latency=latency, predict_pose=True)
+        case = mona_arena_start(seed, command_latency=latency, predict_pose=True,
+                                estimate_latency=False)
         result = simulate_pipeline(case, 'kinematic', seed=seed,
                                    link=Link(command_latency=latency, seed=seed))
         return result_metrics(result), result.contacts['count']

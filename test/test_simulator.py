@@ -238,3 +238,44 @@ def test_the_batch_simulator_refuses_a_command_latency_its_robots_do_not_have():
     experiment = build_experiment(data, 'arena_demo.yaml')
     with pytest.raises(ConfigError, match='controller.command_latency.*simulate_pipeline'):
         simulate(experiment, duration=1.0)
+
+
+def test_the_batch_simulator_replays_each_controllers_online_latency_estimate():
+    """The arena files estimate their link's latency online (controller.estimate_latency).
+    The batch simulator's robots act on each command at once: it replays each controller's
+    estimate over the run and reports it (0: none taken, so the run is what estimating
+    controllers do), as the nodes' pipeline with its live estimates ends; under continuous
+    control, with no commands to time, it refuses the setting by name.
+    """
+    from curve_formation.core.experiment import ConfigError
+    from curve_formation.core.pipeline import simulate_pipeline
+    experiment = load_experiment(resolve_config('arena_demo'))
+    assert experiment.spec.controller.estimate_latency
+    assert simulate(experiment, duration=30.0).latencies == [0.0] * experiment.n
+    assert simulate_pipeline(experiment, duration=30.0).latencies == [0.0] * experiment.n
+    with pytest.raises(ConfigError, match='controller.estimate_latency: needs a control rate'):
+        simulate(experiment, rate_hz=None, duration=1.0)
+
+
+@pytest.mark.parametrize('latency', [0.0, 0.1])
+def test_a_batch_run_whose_commands_would_show_a_latency_is_refused_by_name(latency):
+    """held_estimates on one robot's record (100 Hz, ticks at 10 Hz) whose commands act
+    `latency` s late: a controller estimating online would take ~100 ms, which the batch
+    simulator's robots (acting at once) cannot show, so it says which robot and when.
+    """
+    from test_link_estimate import driven_robot
+
+    from curve_formation.core.simulator import Clock, EstimateTakenError, held_estimates
+    experiment = load_experiment(resolve_config('arena_demo'))
+    sent, commands, seen, poses = driven_robot(latency, camera=100.0)
+    held = np.repeat(commands, 10, axis=0)[:len(seen)]
+    schedule = (np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64))
+    args = (experiment, 10.0, Clock(0.001, 100, 10), seen, poses[:, None, :],
+            held[:, None, :], schedule)
+    if latency == 0.0:
+        assert held_estimates(*args) == [0.0]
+    else:
+        with pytest.raises(EstimateTakenError,
+                           match=r'estimate_latency: robot 1 would have taken an estimate '
+                                 r'of 1\d\d ms'):
+            held_estimates(*args)

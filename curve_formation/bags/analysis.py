@@ -260,12 +260,12 @@ def known_samples(run, path):
 
 def simulate_recorded(experiment, t, poses):
     """The batch simulator (the nodes' tick pipeline for settings only it models:
-    simulator.pipeline_only) on a recorded run's experiment (its phases as
+    pipeline.simulate_kinematic) on a recorded run's experiment (its phases as
     the run received them: curves, agents' parameters and switch times) from the run's first
     known poses (t[0], poses[0]); returns a SimResult whose t is on the run's clock (s since
     t = 0).
     """
-    from curve_formation.core.simulator import pipeline_only, simulate
+    from curve_formation.core.pipeline import simulate_kinematic
     begin = float(t[0])
     # A phase that began before the first known poses starts the simulation.
     start_phase = max(0, int(np.searchsorted([p.start for p in experiment.phases], begin,
@@ -277,12 +277,7 @@ def simulate_recorded(experiment, t, poses):
     spec = experiment.spec.simulation
     duration = float(t[-1] - begin)
     duration = round(duration / spec.record_dt) * spec.record_dt
-    if pipeline_only(experiment):   # settings only the nodes' tick pipeline models
-        from curve_formation.core.pipeline import simulate_pipeline
-        result = simulate_pipeline(sim_experiment, 'kinematic', control_rate(experiment),
-                                   duration)
-    else:
-        result = simulate(sim_experiment, rate_hz=control_rate(experiment), duration=duration)
+    result, _ = simulate_kinematic(sim_experiment, control_rate(experiment), duration)
     result.t = result.t + begin
     result.phase = result.phase + start_phase
     # The simulation's own re-assignments, on the run's clock.

@@ -381,12 +381,14 @@ def with_start(experiment: Experiment, poses: ArrayLike) -> Experiment:
 
 def point_robots(experiment: Experiment) -> Experiment:
     """The experiment with the formation law alone, as the paper has it: robots are points
-    that pass through each other (no bodies), no safety filter, no re-assignment.
+    that pass through each other (no bodies), no safety filter, no re-assignment, no online
+    estimate of the link's latency.
     """
     spec = experiment.spec
     agents = spec.agents.model_copy(update={'reassign_every': None})
+    controller = spec.controller.model_copy(update={'estimate_latency': False})
     spec = spec.model_copy(update={'agents': agents, 'avoidance': None,
-                                   'robots': RobotsSpec()})
+                                   'robots': RobotsSpec(), 'controller': controller})
     return dataclasses.replace(experiment, spec=spec, radius=0.0, avoidance=AVOIDANCE_OFF,
                                warnings=())
 

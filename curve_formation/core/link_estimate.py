@@ -244,6 +244,8 @@ class OnlineLatency:
         self.cadence = ONLINE_EVERY if self.taken else ONLINE_FIRST_EVERY
         self.next_at = now + self.cadence
         sent = np.array(self.commands)
+        if not _excited(sent[:, 0], sent[:, 1:], -np.inf, np.inf):
+            return self.latency   # the fit below would tell nothing either: spare it
         seen = np.array(self.poses)
         tc, cmd, tp, pose = _cleaned(sent[:, 0], sent[:, 1:], seen[:, 0], seen[:, 1:])
         found = _Fit(tc, cmd, tp, pose, ONLINE_LAGS).residuals(-np.inf, np.inf)
@@ -258,3 +260,25 @@ class OnlineLatency:
                 self.latency = latency
                 self.taken.append((now, latency))
         return self.latency
+
+
+def replay_online(tick_times: ArrayLike, commands: ArrayLike, pose_times: ArrayLike,
+                  poses: ArrayLike, initial: float, rate_hz: float) -> OnlineLatency:
+    """OnlineLatency fed as a controller feeds it: before each tick (tick_times (k,), s) the
+    poses taken by then (pose_times (m,), poses (m, 3): x, y m, theta rad), then the tick's
+    update, then its command (commands (k, 2): v m/s, w rad/s as sent). Returns it, with
+    every value it took in `taken` (none: it kept `initial` throughout).
+    """
+    ticks = np.asarray(tick_times, float)
+    sent = np.asarray(commands, float).reshape(-1, 2)
+    seen_at = np.asarray(pose_times, float)
+    seen = np.asarray(poses, float).reshape(-1, 3)
+    online = OnlineLatency(initial, rate_hz)
+    k = 0
+    for at, (v, w) in zip(ticks, sent, strict=True):
+        while k < len(seen_at) and seen_at[k] <= at:
+            online.seen(seen_at[k], *seen[k])
+            k += 1
+        online.update(at)
+        online.sent(at, v, w)
+    return online

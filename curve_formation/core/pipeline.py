@@ -36,7 +36,7 @@ from curve_formation.core.experiment import (
 )
 from curve_formation.core.schedule import CurveSchedule, Publication
 from curve_formation.core.shapes import BoolArray, FloatArray
-from curve_formation.core.simulator import SimResult
+from curve_formation.core.simulator import EstimateTakenError, pipeline_only, SimResult, simulate
 from curve_formation.core.worlds import make_world, World
 
 
@@ -270,3 +270,26 @@ def simulate_pipeline(experiment: Experiment, engine: Literal['kinematic', 'mujo
                      else np.asarray(experiment.disturbance, float), t, poses, dhat, commands,
                      sample_phase, experiment.radius, world.contact_summary(),
                      [c.latency for c in pipeline.controllers])
+
+
+def simulate_kinematic(experiment: Experiment,
+                       rate_hz: float | None | Literal['config'] = 'config',
+                       duration: float | None = None) -> tuple[SimResult, str | None]:
+    """The paper's unicycles: the batch simulator where it models every setting of the
+    experiment, else the nodes' tick pipeline, for settings only it models
+    (simulator.pipeline_only) or an online latency estimate that the batch run shows would
+    have been taken (simulator.EstimateTakenError). rate_hz as simulator.simulate takes it.
+    Returns the result and why the pipeline ran (None: the batch simulator ran).
+    """
+    needs = pipeline_only(experiment)
+    why = needs[0][0] if needs else None
+    if why is None:
+        try:
+            return simulate(experiment, rate_hz=rate_hz, duration=duration), None
+        except EstimateTakenError as taken:
+            why = str(taken)
+    if rate_hz is None:
+        raise ValueError(f"--continuous: {why} needs the nodes' tick pipeline, at a control "
+                         'rate (--rate, or controller.rate_hz)')
+    return simulate_pipeline(experiment, 'kinematic', None if rate_hz == 'config' else rate_hz,
+                             duration), why

@@ -35,6 +35,7 @@ from curve_formation.core.experiment import (
     whole_steps,
 )
 from curve_formation.core.jit import compiled
+from curve_formation.core.link_estimate import replay_online
 from curve_formation.core.safety import Avoidance
 from curve_formation.core.schedule import CurveSchedule
 from curve_formation.core.shapes import FloatArray, IntArray
@@ -296,8 +297,8 @@ class SimResult:
     radius: float = 0.0      # bodies (m); 0: points
     # {'count', 'time' (s), 'smallest_gap' (m)} over every fine step
     contacts: dict[str, float | None] | None = None
-    # each controller's command latency at the end (s): the nodes' pipeline, which may
-    # estimate it online (controller.estimate_latency); None from the batch simulator
+    # each controller's command latency at the end (s), where estimated online
+    # (controller.estimate_latency) or in the nodes' pipeline; None otherwise
     latencies: list[float] | None = None
 
     @property
@@ -328,9 +329,6 @@ PIPELINE_ONLY: tuple[tuple[str, Callable[[Any], bool], str], ...] = (
     ('controller.observer_order', lambda c: c.observer_order != 1,
      "the batch simulator's observer is first-order: simulate the second-order one with "
      'core.pipeline.simulate_pipeline (as sim does)'),
-    ('controller.estimate_latency', lambda c: c.estimate_latency,
-     "the batch simulator's robots act on each command at once, with no latency to "
-     'estimate: simulate a link with core.pipeline.simulate_pipeline'),
 )
 
 
@@ -414,6 +412,8 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
     feed_forward = spec.controller.feed_forward
     graph = (*experiment.graph.edge_arrays(), experiment.graph.pins)
     clock = Clock(dt, control_every, record_every)
+    if spec.controller.estimate_latency:
+        check_replayable(experiment, clock)
     ticks = (tick_offsets, start_steps)
     every = experiment.spec.agents.reassign_every
     period = 0 if every is None else whole_steps(every, dt, 'agents.reassign_every')
@@ -468,9 +468,81 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
     followed = schedule.close()
     t = np.arange(n_rec) * record_every * dt
     sample_phase = phase_index(np.array(starts[:-1]) * dt, t)
+    latencies = None
+    if spec.controller.estimate_latency:
+        assert rate_hz is not None   # check_replayable
+        latencies = held_estimates(experiment, rate_hz, clock, t, record[0], record[2],
+                                   (tick_offsets, start_steps))
     if varies:   # the disturbance at each recorded sample
         dist = disturbance_at(dist, experiment.variations, t)
     return SimResult(dataclasses.replace(experiment, phases=tuple(followed)
                                          + experiment.phases[len(followed):]),
                      rate_hz, gains, limits, dist, t, *record, sample_phase,
-                     radius, bodies.contact_summary(contacts))
+                     radius, bodies.contact_summary(contacts), latencies)
+
+
+def _tick_records(tick_offsets: IntArray, start_steps: IntArray, control_every: int,
+                  record_every: int, n_rec: int) -> list[tuple[IntArray, IntArray]]:
+    """Per agent, its ticks' fine steps and the record at or after each, which holds the
+    tick's command (held until the next tick, which no record before it can show: the
+    records are at least as frequent as the ticks, as held_estimates checks).
+    """
+    out = []
+    last = (n_rec - 1) * record_every
+    for offset, start in zip(tick_offsets, start_steps, strict=True):
+        first = int(offset) + max(0, -(-(int(start) - int(offset)) // control_every)) * \
+            control_every
+        steps = np.arange(first, last + 1, control_every, dtype=np.int64)
+        out.append((steps, -(-steps // record_every)))
+    return out
+
+
+class EstimateTakenError(ConfigError):
+    """An online latency estimate (controller.estimate_latency) that a batch run shows would
+    have been taken: the run is not what the estimating controllers would do.
+    """
+
+
+def check_replayable(experiment: Experiment, clock: Clock) -> None:
+    """ConfigError unless held_estimates can replay the online estimate from the batch
+    simulator's record: a control rate, and records at least as frequent as the ticks.
+    """
+    key = 'controller.estimate_latency'
+    if clock.control_every == 0:
+        raise ConfigError(experiment.source, key, 'needs a control rate: continuous control '
+                          'sends no commands to time')
+    if clock.record_every > clock.control_every:
+        raise ConfigError(experiment.source, key, f'the batch simulator replays the estimate '
+                          f'from its record: simulation.record_dt '
+                          f'({clock.record_every * clock.dt:g} s) must not exceed the '
+                          f'control period ({clock.control_every * clock.dt:g} s)')
+
+
+def held_estimates(experiment: Experiment, rate_hz: float, clock: Clock,
+                   t: FloatArray, poses: FloatArray, commands: FloatArray,
+                   schedule: tuple[IntArray, IntArray]) -> list[float]:
+    """Each controller's latency estimated online (controller.estimate_latency) over a batch
+    run: its OnlineLatency replayed on the commands it sent at its ticks and its poses there
+    (t (R,) s; poses (R, n, 3), commands (R, n, 2) as recorded at the clock's records;
+    schedule: the ticks' (tick_offsets, start_steps) as _run takes them).
+    The batch simulator's robots act on each command at once, so the run is what estimating
+    controllers do only while no estimate is taken: ConfigError (naming the setting, the
+    robot and when) if one would have been. Returns each controller's (unchanged) latency.
+    """
+    initial = experiment.spec.controller.command_latency
+    latencies = []
+    ticks = _tick_records(*schedule, clock.control_every, clock.record_every, len(t))
+    for i, (steps, rows) in enumerate(ticks):
+        keep = rows < len(t)
+        steps, rows = steps[keep], rows[keep]
+        online = replay_online(steps * clock.dt, commands[rows, i], t[rows], poses[rows, i],
+                               initial, rate_hz)
+        if online.taken:
+            when, value = online.taken[0]
+            raise EstimateTakenError(experiment.source, 'controller.estimate_latency',
+                                f'robot {i + 1} would have taken an estimate of '
+                                f'{1000 * value:.0f} ms at {when:.1f} s, where the batch '
+                                "simulator's robots act on each command at once: simulate it "
+                                'with core.pipeline.simulate_pipeline (as sim does)')
+        latencies.append(online.latency)
+    return latencies

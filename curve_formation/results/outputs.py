@@ -60,12 +60,14 @@ def write_law_comparison(out, experiment, duration, runs=()):
     """
     import dataclasses
 
-    from curve_formation.core.simulator import simulate
+    from curve_formation.core.pipeline import simulate_kinematic
     paper = dataclasses.replace(experiment.gains, law='paper', sampled_heading=False)
     series, found = [], {}
     for key, label, gains in (('paper', "paper's law (simulated)", paper),
-                              ('ours', f'{experiment.gains.law} law (simulated)', None)):
-        sim = simulate(experiment, duration=duration, gains=gains)
+                              ('ours', f'{experiment.gains.law} law (simulated)',
+                               experiment.gains)):
+        sim, _ = simulate_kinematic(dataclasses.replace(experiment, gains=gains),
+                                    duration=duration)
         series.append((label, sim.t, sim.error_norm))
         found[key] = metrics.result_metrics(sim)
     for label, t, poses, phase in runs:
