@@ -314,7 +314,10 @@ def _cmd_animate(args):
 
 def _cmd_measure_link(args):
     from curve_formation.bags.measure_link import measure_bag
-    found = measure_bag(args.bag)
+    found = measure_bag(args.bag, args.motor_time_constant)
+    if found['motor_time_constant'] > 0:
+        print(f"the commands taken through the motors' {_ms(found['motor_time_constant'])} ms "
+              'lag (limits.motor_time_constant)')
     print(f'{"robot":>5s} {"latency (ms)":>12s} {"spread (ms)":>11s} {"windows":>7s} '
           f'{"commands":>8s} {"poses":>6s}')
     for i, row in found['robots'].items():
@@ -327,8 +330,10 @@ def _cmd_measure_link(args):
         return 1
     print('spread: how much the latency of 4 s windows varies (the jitter, and the '
           "estimate's own noise)")
-    print(f'set in the experiment:\ncontroller: {{command_latency: '
-          f'{found["latency"]:.3f}}}   # the median over the robots, s')
+    print(f'to tell the controllers (the median over the robots, s):\ncontroller: '
+          f'{{command_latency: {found["latency"]:.3f}, estimate_latency: false}}\n'
+          '(with estimate_latency: true they estimate it online, starting from '
+          'command_latency)')
     if args.json:
         _write_json(Path(args.json), found)
     return 0
@@ -597,6 +602,10 @@ def build_parser():
                           'bag (its cmd_vel against its poses), and the experiment setting')
     link.add_argument('bag', help='bag folder of a run in which the robots drive')
     link.add_argument('--json', help='also write the figures to this JSON file')
+    link.add_argument('--motor-time-constant', type=float, metavar='S',
+                      help="the motors' first-order lag (s) the commands act through, not "
+                           "to be read as latency (default: the bag's experiment's "
+                           'limits.motor_time_constant, else 0)')
     link.set_defaults(func=_cmd_measure_link)
     bag = sub.add_parser('bag', help='inspect or repair a bag (no ROS CLI needed)')
     bag_sub = bag.add_subparsers(dest='bag_command', required=True, parser_class=_Parser)

@@ -10,11 +10,12 @@ from curve_formation.core.link_estimate import estimate_latency, replay_online
 
 
 def driven_robot(latency, jitter=0.0, loss=0.0, seed=0, seconds=30.0, drift=(0.005, 0.1),
-                 noise=(0.0002, 0.003), rate=10.0, camera=30.0):
+                 noise=(0.0002, 0.003), rate=10.0, camera=30.0, motor_time_constant=0.0):
     """A Mona-like robot under wandering commands sent at `rate` Hz, each acting `latency`
     s +- a uniform `jitter` after it was sent (never before the one before it) or lost with
-    probability `loss`; with a drift [d_v, d_w] while driven, seen by a camera at `camera`
-    Hz with Gaussian noise (m, rad). Returns (command times, commands, pose times, poses).
+    probability `loss`, through motors with a first-order lag of `motor_time_constant` s
+    (0: none); with a drift [d_v, d_w] while driven, seen by a camera at `camera` Hz with
+    Gaussian noise (m, rad). Returns (command times, commands, pose times, poses).
     """
     rng = np.random.default_rng(seed)
     sent = np.arange(0.0, seconds, 1.0 / rate)
@@ -26,10 +27,18 @@ def driven_robot(latency, jitter=0.0, loss=0.0, seed=0, seconds=30.0, drift=(0.0
     seen = np.arange(0.0, seconds, 1.0 / camera)
     pose, now, command, k, poses = (0.5, 0.4, 0.0), 0.0, (0.0, 0.0), 0, []
 
+    wheels = np.zeros(2)   # the motors' speeds, lagging the command
+
     def move(pose, until):
         if command == (0.0, 0.0):
             return pose
-        return arc_step(*pose, command[0] + drift[0], command[1] + drift[1], until - now)
+        if motor_time_constant <= 0.0:
+            return arc_step(*pose, command[0] + drift[0], command[1] + drift[1], until - now)
+        for a in np.arange(now, until, 0.001):   # 1 ms steps through the lag
+            step = min(0.001, until - a)
+            wheels[:] = command + (wheels - command) * np.exp(-step / motor_time_constant)
+            pose = arc_step(*pose, wheels[0] + drift[0], wheels[1] + drift[1], step)
+        return pose
 
     for t in seen:
         while k < len(changes) and changes[k][0] <= t:
@@ -50,6 +59,18 @@ def test_the_latency_is_found_within_20_ms_under_jitter_loss_drift_and_camera_no
     found = estimate_latency(*driven_robot(latency, jitter, loss))
     assert found.latency == pytest.approx(latency, abs=0.02), found
     assert found.windows >= 1 and found.spread < 0.05
+
+
+@pytest.mark.parametrize('latency', [0.0, 0.1, 0.3])
+def test_the_motors_lag_told_is_not_read_as_latency(latency):
+    """Motors that follow each command through a 50 ms first-order lag (the MuJoCo world's
+    default): the fit that knows the lag (limits.motor_time_constant) finds the latency
+    within 20 ms; one that does not reads the lag as 30-50 ms more latency.
+    """
+    data = driven_robot(latency, motor_time_constant=0.05)
+    assert estimate_latency(*data, motor_time_constant=0.05).latency == pytest.approx(
+        latency, abs=0.02)
+    assert estimate_latency(*data).latency > latency + 0.03
 
 
 def test_a_robot_whose_commands_do_not_change_tells_no_latency():
@@ -152,3 +173,49 @@ def test_the_ros_loop_over_a_jittered_link_settles_with_the_latency_estimated_on
     assert len(latest) == 9
     assert abs(np.median(list(latest.values())) - 0.1) <= 0.015, latest
     assert all(abs(v - 0.1) <= 0.025 for v in latest.values()), latest
+
+
+@pytest.mark.parametrize('given, expected', [(None, 0.1), ('0', None)],
+                         ids=["the bag's experiment", '--motor-time-constant 0'])
+def test_measure_link_takes_the_motors_lag_the_bags_experiment_tells(tmp_path, given,
+                                                                     expected):
+    """A bag of one robot whose commands act 100 ms late through a 50 ms motor lag, its
+    experiment telling limits.motor_time_constant: measure-link times the commands through
+    that lag (100 ms within 20 ms); told none on the command line, it reads the lag as more
+    latency.
+    """
+    import json
+
+    from geometry_msgs.msg import Twist
+    from rclpy.serialization import serialize_message
+
+    from curve_formation.bags.analysis import EXPERIMENT_KEY
+    from curve_formation.bags.bag import BagWriter, qos
+    from curve_formation.cli import main
+    from curve_formation.nodes.messages import pose_to_msg
+    from curve_formation.paths import resolve_config
+    sent, commands, seen, poses = driven_robot(0.1, motor_time_constant=0.05)
+    start = 1_000_000_000.0
+    text = resolve_config('arena_demo').read_text().replace(
+        'limits: {', 'limits: {motor_time_constant: 0.05, ')
+    assert 'motor_time_constant: 0.05' in text
+    with BagWriter(tmp_path / 'bag') as writer:
+        writer.add_topic('/robot_1/cmd_vel', 'geometry_msgs/msg/Twist', qos())
+        writer.add_topic('/robot_1/pose', 'geometry_msgs/msg/PoseStamped', qos())
+        for t, (v, w) in zip(sent, commands, strict=True):
+            msg = Twist()
+            msg.linear.x, msg.angular.z = float(v), float(w)
+            writer.write('/robot_1/cmd_vel', (start + t) * 1e9, serialize_message(msg))
+        for t, pose in zip(seen, poses, strict=True):
+            writer.write('/robot_1/pose', (start + t + 0.05) * 1e9,
+                         serialize_message(pose_to_msg(*pose, start + t)))
+        writer.set_custom(EXPERIMENT_KEY, text)
+    args = ['measure-link', str(tmp_path / 'bag'), '--json', str(tmp_path / 'link.json')]
+    assert main(args + ([] if given is None else ['--motor-time-constant', given])) == 0
+    found = json.loads((tmp_path / 'link.json').read_text())
+    latency = found['robots']['1']['latency']
+    if expected is None:
+        assert found['motor_time_constant'] == 0.0 and latency > 0.13, found
+    else:
+        assert found['motor_time_constant'] == 0.05, found
+        assert latency == pytest.approx(expected, abs=0.02), found

@@ -16,10 +16,30 @@ from curve_formation.interface import CMD_VEL, POSE, pose_from_msg, robot_of, tw
 MEASURED = (POSE, CMD_VEL)
 
 
-def measure_bag(path):
-    """{'robots': {i: {'latency', 'spread', 'windows', 'residual', 'commands', 'poses'}},
-    'latency': the median over the robots that told one (s, or None)} of a bag.
+def told_motor_lag(path):
+    """limits.motor_time_constant (s) of the experiment the bag carries; 0 if it tells none
+    (or carries no experiment).
     """
+    from curve_formation.bags.analysis import EXPERIMENT_KEY
+    from curve_formation.bags.bag import bag_info
+    from curve_formation.core.experiment import parse_experiment_text
+    _, custom = bag_info(path)
+    if EXPERIMENT_KEY not in custom:
+        return 0.0
+    data = parse_experiment_text(custom[EXPERIMENT_KEY], f'{path} (metadata)')
+    limits = data.get('limits') if isinstance(data, dict) else None
+    return float((limits or {}).get('motor_time_constant') or 0.0)
+
+
+def measure_bag(path, motor_time_constant=None):
+    """{'robots': {i: {'latency', 'spread', 'windows', 'residual', 'commands', 'poses'}},
+    'latency': the median over the robots that told one (s, or None), 'motor_time_constant':
+    the motors' lag (s) the fit took the commands through} of a bag; motor_time_constant
+    None: the bag's experiment's (told_motor_lag), so that the motors' lag is not read as
+    latency.
+    """
+    if motor_time_constant is None:
+        motor_time_constant = told_motor_lag(path)
     topics = [t for t in bag_summary(path) if robot_of(t, MEASURED) is not None]
     commands: dict[int, list] = {}
     poses: dict[int, list] = {}
@@ -43,8 +63,10 @@ def measure_bag(path):
     for i in robots:
         sent = np.array(commands[i])
         seen = np.array(poses[i])
-        found = estimate_latency(sent[:, 0], sent[:, 1:], seen[:, 0], seen[:, 1:])
+        found = estimate_latency(sent[:, 0], sent[:, 1:], seen[:, 0], seen[:, 1:],
+                                 motor_time_constant=motor_time_constant)
         out[i] = {'latency': found.latency, 'spread': found.spread, 'windows': found.windows,
                   'residual': found.residual, 'commands': len(sent), 'poses': len(seen)}
     told = [r['latency'] for r in out.values() if r['latency'] is not None]
-    return {'robots': out, 'latency': float(np.median(told)) if told else None}
+    return {'robots': out, 'latency': float(np.median(told)) if told else None,
+            'motor_time_constant': motor_time_constant}

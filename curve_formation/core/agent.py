@@ -289,7 +289,8 @@ class AgentController:
             self.config.rate_hz * (self.config.pose_timeout + longest))) + 2)
         # s from a command leaving to the wheels: as told, or as estimated online
         self.latency = self.config.command_latency
-        self.link = (OnlineLatency(self.latency, self.config.rate_hz)
+        self.link = (OnlineLatency(self.latency, self.config.rate_hz,
+                                   self.config.motor_time_constant)
                      if self.config.estimate_latency else None)
         self.command = compiled_command(self.config) if self.config.compiled else agent_command
         # added to the command before the limits (m/s, rad/s): the config's, or as it varies

@@ -68,15 +68,44 @@ def _held_means(tc: FloatArray, values: FloatArray, starts: FloatArray, ends: Fl
     return (np.interp(ends, edges, area) - np.interp(starts, edges, area)) / (ends - starts)
 
 
-def _residuals(tc, commands, driven, tp, v_meas, w_meas, lags):
+def _lagged_means(tc: FloatArray, values: FloatArray, starts: FloatArray, ends: FloatArray,
+                  tau: float) -> FloatArray:
+    """Mean over [starts, ends] of the piecewise-constant signal values[k] from tc[k] (zero
+    before the first) through a first-order lag of time constant tau (s; the motors'; 0:
+    none): tau y' = u - y, so the mean of y is the mean of u less tau (y(end) - y(start)) /
+    (end - start).
+    """
+    held = _held_means(tc, values, starts, ends)
+    if tau <= 0.0:
+        return held
+    knots = np.empty(len(tc))   # y at each command's start, from 0 before the first
+    y = 0.0
+    for k in range(len(tc)):
+        if k:
+            y = values[k - 1] + (y - values[k - 1]) * math.exp(-(tc[k] - tc[k - 1]) / tau)
+        knots[k] = y
+
+    def lagged(t):
+        k = np.searchsorted(tc, t, side='right') - 1
+        inside = k >= 0
+        k = np.maximum(k, 0)
+        u = values[k]
+        return np.where(inside, u + (knots[k] - u) * np.exp(-np.maximum(t - tc[k], 0.0) / tau),
+                        0.0)
+
+    return held - tau * (lagged(ends) - lagged(starts)) / (ends - starts)
+
+
+def _residuals(tc, commands, driven, tp, v_meas, w_meas, lags, tau=0.0):
     """(len(lags),) sum of squared residuals of the fit at each lag, its largest TRIMMED
     share of intervals left out (a lost command leaves the intervals it should have driven
-    fitting no lag). Every lag at once: rows are lags, columns the intervals.
+    fitting no lag). Every lag at once: rows are lags, columns the intervals. tau: the
+    motors' time constant (s), through which the commands act.
     """
     starts = tp[None, :-1] - lags[:, None]
     ends = tp[None, 1:] - lags[:, None]
-    v = _held_means(tc, commands[:, 0], starts, ends)
-    w = _held_means(tc, commands[:, 1], starts, ends)
+    v = _lagged_means(tc, commands[:, 0], starts, ends, tau)
+    w = _lagged_means(tc, commands[:, 1], starts, ends, tau)
     on = _held_means(tc, driven, starts, ends)
     rv, rw = v_meas - v, (w_meas - w) * TURN_SCALE
     scale = np.einsum('ij,ij->i', on, on)
@@ -121,8 +150,8 @@ class _Fit:
     """
 
     def __init__(self, tc: FloatArray, cmd: FloatArray, tp: FloatArray, pose: FloatArray,
-                 lags: FloatArray) -> None:
-        self.tc, self.cmd, self.tp, self.lags = tc, cmd, tp, lags
+                 lags: FloatArray, tau: float = 0.0) -> None:
+        self.tc, self.cmd, self.tp, self.lags, self.tau = tc, cmd, tp, lags, tau
         self.driven = ((cmd[:, 0] != 0.0) | (cmd[:, 1] != 0.0)).astype(float)
         self.v_meas, self.w_meas = _measured_rates(tp, pose)
         self.inside = (tp[:-1] - lags.max() >= tc[0]) & (tp[1:] <= tc[-1] + 1.0)
@@ -139,20 +168,22 @@ class _Fit:
         idx = np.flatnonzero(sel)
         return _residuals(self.tc, self.cmd, self.driven, np.append(tp[idx], tp[idx[-1] + 1]),
                           self.v_meas[idx], self.w_meas[idx],
-                          self.lags if lags is None else lags), len(idx)
+                          self.lags if lags is None else lags, self.tau), len(idx)
 
 
 def estimate_latency(command_times: ArrayLike, commands: ArrayLike, pose_times: ArrayLike,
-                     poses: ArrayLike, lags: ArrayLike = LAGS, window: float = WINDOW
-                     ) -> LinkEstimate:
+                     poses: ArrayLike, lags: ArrayLike = LAGS, window: float = WINDOW,
+                     motor_time_constant: float = 0.0) -> LinkEstimate:
     """The latency of one robot's commands (see the module): command_times (k,) and commands
-    (k, 2) as sent; pose_times (m,) and poses (m, 3) as measured (x, y m; theta rad).
+    (k, 2) as sent; pose_times (m,) and poses (m, 3) as measured (x, y m; theta rad);
+    motor_time_constant (s): the motors' first-order lag, through which each command acts
+    (told: limits.motor_time_constant), so that the lag is not read as latency.
     """
     tc, cmd, tp, pose = _cleaned(command_times, commands, pose_times, poses)
     lags = np.asarray(lags, float)
     if len(tc) < 2 or len(tp) < 3:
         return LinkEstimate(None, None, 0, None)
-    fit = _Fit(tc, cmd, tp, pose, lags)
+    fit = _Fit(tc, cmd, tp, pose, lags, motor_time_constant)
     lats = []
     for begin in np.arange(tp[0], tp[-1], window):
         found = fit.residuals(begin, begin + window)
@@ -209,12 +240,15 @@ class OnlineLatency:
     large command change (whose own delay is one draw of the jitter) does not decide it, and
     overlapping windows that repeat the same data are not taken for agreement. A new value
     is taken only when AGREEING estimates in a row lie within AGREEMENT of each other (their
-    median), so one that wanders is not. Times in s on the controller's clock.
+    median), so one that wanders is not. Times in s on the controller's clock;
+    motor_time_constant (s) as estimate_latency takes it.
     """
 
-    def __init__(self, initial: float, rate_hz: float) -> None:
+    def __init__(self, initial: float, rate_hz: float, motor_time_constant: float = 0.0
+                 ) -> None:
         from collections import deque
         self.latency = initial
+        self.motor_time_constant = motor_time_constant
         self.commands: deque[tuple[float, float, float]] = deque(
             maxlen=int(rate_hz * (ONLINE_SPAN + ONLINE_LAGS.max() + 1.0)) + 2)
         self.poses: deque[tuple[float, float, float, float]] = deque()
@@ -248,7 +282,8 @@ class OnlineLatency:
             return self.latency   # the fit below would tell nothing either: spare it
         seen = np.array(self.poses)
         tc, cmd, tp, pose = _cleaned(sent[:, 0], sent[:, 1:], seen[:, 0], seen[:, 1:])
-        found = _Fit(tc, cmd, tp, pose, ONLINE_LAGS).residuals(-np.inf, np.inf)
+        found = _Fit(tc, cmd, tp, pose, ONLINE_LAGS,
+                     self.motor_time_constant).residuals(-np.inf, np.inf)
         if found is None or not _clear(*found):
             return self.latency
         self.total = weight * found[0] if self.total is None else (
@@ -263,7 +298,8 @@ class OnlineLatency:
 
 
 def replay_online(tick_times: ArrayLike, commands: ArrayLike, pose_times: ArrayLike,
-                  poses: ArrayLike, initial: float, rate_hz: float) -> OnlineLatency:
+                  poses: ArrayLike, initial: float, rate_hz: float,
+                  motor_time_constant: float = 0.0) -> OnlineLatency:
     """OnlineLatency fed as a controller feeds it: before each tick (tick_times (k,), s) the
     poses taken by then (pose_times (m,), poses (m, 3): x, y m, theta rad), then the tick's
     update, then its command (commands (k, 2): v m/s, w rad/s as sent). Returns it, with
@@ -273,7 +309,7 @@ def replay_online(tick_times: ArrayLike, commands: ArrayLike, pose_times: ArrayL
     sent = np.asarray(commands, float).reshape(-1, 2)
     seen_at = np.asarray(pose_times, float)
     seen = np.asarray(poses, float).reshape(-1, 3)
-    online = OnlineLatency(initial, rate_hz)
+    online = OnlineLatency(initial, rate_hz, motor_time_constant)
     k = 0
     for at, (v, w) in zip(ticks, sent, strict=True):
         while k < len(seen_at) and seen_at[k] <= at:
