@@ -171,6 +171,10 @@ class _Neighbour:
 # observer_order 2 predicts the disturbance over the coming period only after this many
 # updates in a row whose commands the wheel limits did not cut (its rate has settled)
 TRACKING_TICKS = 10
+# The poses an observer keeps to begin a motion at (a second at 30 Hz), and the shortest
+# motion (s) it measures from a later start than the last tick's pose.
+RECENT_POSES = 32
+MIN_OBSERVED = 0.05
 
 
 def _rate_update(rate: tuple[float, float], predicted: tuple[float, float],
@@ -263,6 +267,9 @@ class AgentController:
         self.stamp_clocks = {j: StampClock(shared) for j in (self.config.index,
                                                              *self.neighbours)}
         self.pose_dated: float | None = None
+        # the last poses (stamp, when taken on this clock, pose), where the observer may
+        # begin a motion that answers its estimate (_answering_start)
+        self.recent_poses: deque[tuple[float, float, Pose]] = deque(maxlen=RECENT_POSES)
         self.estop = False
         self.estop_reason = 'e-stop engaged'
         self.last_command: Command = (0.0, 0.0)
@@ -379,6 +386,7 @@ class AgentController:
         if problem is not None:
             return self.reject(f'own pose {problem}')
         self.pose, self.pose_stamp, self.pose_received = (x, y, theta), stamp, at
+        self.recent_poses.append((stamp, self._taken_at(stamp, at), (x, y, theta)))
         self.pose_dated = self.stamp_clocks[self.config.index].date(stamp, at)
         if self.link is not None:
             self.link.seen(self._taken_at(stamp, at), x, y, theta)
@@ -707,23 +715,20 @@ class AgentController:
         # A pose taken before the last tick cannot show that tick's command: waiting for one
         # that can keeps the pose's age out of the estimate's loop as it keeps the latency.
         waits = self.latency > 0.0 or ended < ticked
-        # A motion that began before the last tick (its first pose older than that tick) was
-        # partly made under the command before: the commands are weighed by how long each
-        # acted in it, and whether the limits cut is the last tick's command's, as when the
-        # motion is wholly its own (the search along its ray is that command's).
-        mixed = ended - elapsed < ticked - 1e-9
-        if self.config.motor_time_constant > 0.0 or waits:
-            acting = self._realised(elapsed)
-        elif mixed:
-            acting, last = self._realised(elapsed), self._acting(ticked)
-            if acting is not None and last is not None:
-                acting = acting._replace(limited=last.limited)
-        else:
-            acting = self._acting(ticked)
+        acting = self._commanded(elapsed, ended, ticked, waits)
         if acting is None or not acting.driven:
             return
         if waits and acting.estimate < self.updates:
-            return   # the motion does not answer the current estimate yet
+            # the motion does not answer the current estimate yet: its part from the first
+            # pose that can, if one is held
+            later = self._answering_start(ended - elapsed, ended)
+            if later is None:
+                return
+            (x0, y0, th0), stamp0 = later
+            elapsed = self.pose_stamp - stamp0
+            acting = self._commanded(elapsed, ended, ticked, waits)
+            if acting is None or not acting.driven or acting.estimate < self.updates:
+                return
         measured_v, measured_w = body_velocity(x0, y0, th0, *self.pose, elapsed)
         self.estimated_at = ended - elapsed / 2.0
         if waits and self.observed_until is not None:   # blended over the time since the last
@@ -745,6 +750,40 @@ class AgentController:
         self.dhat[:] = (dhat_v, dhat_w)
         self.ray = (ray[0], ray[1], ray[2])
         self.updates += 1
+
+    def _commanded(self, elapsed: float, ended: float, ticked: float, waits: bool
+                   ) -> Sent | None:
+        """What was commanded over the motion of `elapsed` s ending at `ended` (s, this
+        controller's clock) that the observer measures at the tick after `ticked`.
+        """
+        # A motion that began before the last tick (its first pose older than that tick) was
+        # partly made under the command before: the commands are weighed by how long each
+        # acted in it, and whether the limits cut is the last tick's command's, as when the
+        # motion is wholly its own (the search along its ray is that command's).
+        mixed = ended - elapsed < ticked - 1e-9
+        if self.config.motor_time_constant > 0.0 or waits:
+            return self._realised(elapsed)
+        if mixed:
+            acting, last = self._realised(elapsed), self._acting(ticked)
+            if acting is not None and last is not None:
+                acting = acting._replace(limited=last.limited)
+            return acting
+        return self._acting(ticked)
+
+    def _answering_start(self, begins: float, ends: float) -> tuple[Pose, float] | None:
+        """A later start (pose, stamp) for a motion from `begins` to `ends` (s, this
+        controller's clock) that began before the first command sent after the observer's
+        last update acted: the first pose taken from then on, at least MIN_OBSERVED before
+        the end; None if the motion needs none or no such pose is held.
+        """
+        answering = next((sent.at + self.latency for sent in self.sent
+                          if sent.estimate >= self.updates), None)
+        if answering is None or begins >= answering - 1e-9:
+            return None
+        for stamp, taken, pose in self.recent_poses:
+            if taken >= answering - 1e-9:
+                return (pose, stamp) if taken <= ends - MIN_OBSERVED else None
+        return None
 
     def _realised(self, elapsed: float) -> Sent | None:
         """What the wheels did on average over the `elapsed` s up to the current pose: the
