@@ -265,12 +265,12 @@ def test_a_batch_run_whose_commands_would_show_a_latency_is_refused_by_name(late
     """
     from test_link_estimate import driven_robot
 
-    from curve_formation.core.simulator import Clock, EstimateTakenError, held_estimates
+    from curve_formation.core.estimate_replay import EstimateTakenError, held_estimates
     experiment = load_experiment(resolve_config('arena_demo'))
     sent, commands, seen, poses = driven_robot(latency, camera=100.0)
     held = np.repeat(commands, 10, axis=0)[:len(seen)]
     schedule = (np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64))
-    args = (experiment, 10.0, Clock(0.001, 100, 10), seen, poses[:, None, :],
+    args = (experiment, 10.0, (0.001, 100, 10), seen, poses[:, None, :],
             held[:, None, :], schedule)
     if latency == 0.0:
         assert held_estimates(*args) == [0.0]

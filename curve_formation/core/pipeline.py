@@ -27,6 +27,7 @@ import numpy as np
 from curve_formation.core import metrics
 from curve_formation.core.agent import AgentController
 from curve_formation.core.agent_config import agent_configs
+from curve_formation.core.estimate_replay import EstimateTakenError
 from curve_formation.core.experiment import (
     ANNOUNCE_AHEAD,
     control_rate,
@@ -36,7 +37,7 @@ from curve_formation.core.experiment import (
 )
 from curve_formation.core.schedule import CurveSchedule, Publication
 from curve_formation.core.shapes import BoolArray, FloatArray
-from curve_formation.core.simulator import EstimateTakenError, pipeline_only, SimResult, simulate
+from curve_formation.core.simulator import pipeline_only, SimResult, simulate
 from curve_formation.core.worlds import make_world, World
 
 
@@ -278,7 +279,7 @@ def simulate_kinematic(experiment: Experiment,
     """The paper's unicycles: the batch simulator where it models every setting of the
     experiment, else the nodes' tick pipeline, for settings only it models
     (simulator.pipeline_only) or an online latency estimate that the batch run shows would
-    have been taken (simulator.EstimateTakenError). rate_hz as simulator.simulate takes it.
+    have been taken (estimate_replay.EstimateTakenError). rate_hz as simulator.simulate takes it.
     Returns the result and why the pipeline ran (None: the batch simulator ran).
     """
     needs = pipeline_only(experiment)

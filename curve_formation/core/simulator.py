@@ -28,6 +28,7 @@ from curve_formation.core import bodies, control, driving, dynamics, metrics
 from curve_formation.core.control import Gains, Law, WheelLimits
 from curve_formation.core.disturbance import disturbance_at
 from curve_formation.core.driving import REVERSE_HYSTERESIS
+from curve_formation.core.estimate_replay import check_replayable, held_estimates
 from curve_formation.core.experiment import (
     ConfigError,
     Experiment,
@@ -35,7 +36,6 @@ from curve_formation.core.experiment import (
     whole_steps,
 )
 from curve_formation.core.jit import compiled
-from curve_formation.core.link_estimate import replay_online
 from curve_formation.core.safety import Avoidance
 from curve_formation.core.schedule import CurveSchedule
 from curve_formation.core.shapes import FloatArray, IntArray
@@ -413,7 +413,7 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
     graph = (*experiment.graph.edge_arrays(), experiment.graph.pins)
     clock = Clock(dt, control_every, record_every)
     if spec.controller.estimate_latency:
-        check_replayable(experiment, clock)
+        check_replayable(experiment, control_every, record_every, dt)
     ticks = (tick_offsets, start_steps)
     every = experiment.spec.agents.reassign_every
     period = 0 if every is None else whole_steps(every, dt, 'agents.reassign_every')
@@ -480,69 +480,3 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
                      rate_hz, gains, limits, dist, t, *record, sample_phase,
                      radius, bodies.contact_summary(contacts), latencies)
 
-
-def _tick_records(tick_offsets: IntArray, start_steps: IntArray, control_every: int,
-                  record_every: int, n_rec: int) -> list[tuple[IntArray, IntArray]]:
-    """Per agent, its ticks' fine steps and the record at or after each, which holds the
-    tick's command (held until the next tick, which no record before it can show: the
-    records are at least as frequent as the ticks, as held_estimates checks).
-    """
-    out = []
-    last = (n_rec - 1) * record_every
-    for offset, start in zip(tick_offsets, start_steps, strict=True):
-        first = int(offset) + max(0, -(-(int(start) - int(offset)) // control_every)) * \
-            control_every
-        steps = np.arange(first, last + 1, control_every, dtype=np.int64)
-        out.append((steps, -(-steps // record_every)))
-    return out
-
-
-class EstimateTakenError(ConfigError):
-    """An online latency estimate (controller.estimate_latency) that a batch run shows would
-    have been taken: the run is not what the estimating controllers would do.
-    """
-
-
-def check_replayable(experiment: Experiment, clock: Clock) -> None:
-    """ConfigError unless held_estimates can replay the online estimate from the batch
-    simulator's record: a control rate, and records at least as frequent as the ticks.
-    """
-    key = 'controller.estimate_latency'
-    if clock.control_every == 0:
-        raise ConfigError(experiment.source, key, 'needs a control rate: continuous control '
-                          'sends no commands to time')
-    if clock.record_every > clock.control_every:
-        raise ConfigError(experiment.source, key, f'the batch simulator replays the estimate '
-                          f'from its record: simulation.record_dt '
-                          f'({clock.record_every * clock.dt:g} s) must not exceed the '
-                          f'control period ({clock.control_every * clock.dt:g} s)')
-
-
-def held_estimates(experiment: Experiment, rate_hz: float, clock: Clock,
-                   t: FloatArray, poses: FloatArray, commands: FloatArray,
-                   schedule: tuple[IntArray, IntArray]) -> list[float]:
-    """Each controller's latency estimated online (controller.estimate_latency) over a batch
-    run: its OnlineLatency replayed on the commands it sent at its ticks and its poses there
-    (t (R,) s; poses (R, n, 3), commands (R, n, 2) as recorded at the clock's records;
-    schedule: the ticks' (tick_offsets, start_steps) as _run takes them).
-    The batch simulator's robots act on each command at once, so the run is what estimating
-    controllers do only while no estimate is taken: ConfigError (naming the setting, the
-    robot and when) if one would have been. Returns each controller's (unchanged) latency.
-    """
-    initial = experiment.spec.controller.command_latency
-    latencies = []
-    ticks = _tick_records(*schedule, clock.control_every, clock.record_every, len(t))
-    for i, (steps, rows) in enumerate(ticks):
-        keep = rows < len(t)
-        steps, rows = steps[keep], rows[keep]
-        online = replay_online(steps * clock.dt, commands[rows, i], t[rows], poses[rows, i],
-                               initial, rate_hz)
-        if online.taken:
-            when, value = online.taken[0]
-            raise EstimateTakenError(experiment.source, 'controller.estimate_latency',
-                                f'robot {i + 1} would have taken an estimate of '
-                                f'{1000 * value:.0f} ms at {when:.1f} s, where the batch '
-                                "simulator's robots act on each command at once: simulate it "
-                                'with core.pipeline.simulate_pipeline (as sim does)')
-        latencies.append(online.latency)
-    return latencies
