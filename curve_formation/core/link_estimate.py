@@ -4,8 +4,9 @@ Commands (v, w) sent at times tc and held until the next act L s later; the robo
 measured at times tp (an overhead camera's stamps). Between two poses the robot's mean forward
 speed and turn rate are measured (the displacement along the mean heading, and the heading's
 change, over the interval) and compared with the commands' means over the same interval
-shifted by a candidate L, plus a constant disturbance [d_v, d_w] acting while a command drives
-the motors (fitted by least squares for each L). The latency is the L of least squared
+shifted by a candidate L, plus a disturbance [d_v, d_w] acting while a command drives the
+motors, a quadratic in time over the fit so that one that changes is not read as latency
+(fitted by least squares for each L). The latency is the L of least squared
 residual; its spread over windows of a few seconds tells the jitter (and the estimate's own
 noise). A robot whose commands hardly change tells nothing: then no latency is given.
 
@@ -29,6 +30,7 @@ WINDOW = 4.0   # s of poses per window for the spread
 MIN_EXCITATION = 1e-3
 TURN_SCALE = 0.04   # m: turn rates weigh as a point 4 cm from the axle moves
 TRIMMED = 0.05      # share of a fit's intervals of largest residual left out of it
+DRIFT_DEGREE = 2    # the disturbance over a fit: a polynomial in time of this degree
 
 
 @dataclass(frozen=True)
@@ -108,12 +110,20 @@ def _residuals(tc, commands, driven, tp, v_meas, w_meas, lags, tau=0.0):
     w = _lagged_means(tc, commands[:, 1], starts, ends, tau)
     on = _held_means(tc, driven, starts, ends)
     rv, rw = v_meas - v, (w_meas - w) * TURN_SCALE
-    scale = np.einsum('ij,ij->i', on, on)
-    # the disturbance acting while driven: least squares in each channel
-    safe = np.where(scale > 0, scale, 1.0)
-    dv = np.where(scale > 0, np.einsum('ij,ij->i', on, rv) / safe, 0.0)
-    dw = np.where(scale > 0, np.einsum('ij,ij->i', on, rw) / safe, 0.0)
-    squared = (rv - dv[:, None] * on) ** 2 + (rw - dw[:, None] * on) ** 2
+    # the disturbance acting while driven, drifting over the fit as a polynomial of degree
+    # DRIFT_DEGREE in time (a disturbance that changes is not read as latency): least
+    # squares in each channel, every lag at once
+    mid = 0.5 * (tp[:-1] + tp[1:])
+    span = max(0.5 * float(mid[-1] - mid[0]), 1e-9)
+    tau_k = (mid - 0.5 * (mid[0] + mid[-1])) / span
+    basis = on[:, None, :] * (tau_k[None, None, :] ** np.arange(DRIFT_DEGREE + 1)[None, :,
+                                                                                   None])
+    gram = np.einsum('lai,lbi->lab', basis, basis) + 1e-12 * np.eye(DRIFT_DEGREE + 1)
+    fitted = []
+    for r in (rv, rw):
+        coef = np.linalg.solve(gram, np.einsum('lai,li->la', basis, r)[..., None])[..., 0]
+        fitted.append(r - np.einsum('la,lai->li', coef, basis))
+    squared = fitted[0] ** 2 + fitted[1] ** 2
     kept = squared.shape[1] - int(TRIMMED * squared.shape[1])
     return np.partition(squared, kept - 1, axis=1)[:, :kept].sum(axis=1)
 
