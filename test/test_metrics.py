@@ -16,6 +16,21 @@ def test_settle_time_is_last_entry_below_tolerance():
     assert metrics.settle_time(t, norm, 1.0, 0.0, 4.0) is None      # window ends above
 
 
+def test_a_dip_below_the_tolerance_just_before_the_end_is_not_settling():
+    """An error rippling about the tolerance that happens to be below it in the last samples
+    has not settled: the stretch below must last `hold` s before the window's end (run_metrics
+    asks settle_hold: 5 s, or a tenth of a shorter phase).
+    """
+    t = np.arange(0.0, 60.0, 0.1)
+    norm = 1.0 + 0.2 * np.cos(2 * np.pi * t / 10.0)   # above 1 for 5 s in every 10
+    norm[t >= 59.3] = 0.9
+    assert metrics.settle_time(t, norm, 1.0, 0.0, np.inf) == pytest.approx(59.3)
+    assert metrics.settle_time(t, norm, 1.0, 0.0, np.inf, hold=5.0) is None
+    norm[t >= 50.0] = 0.9   # below for the last 10 s: settled at 50 s
+    assert metrics.settle_time(t, norm, 1.0, 0.0, np.inf, hold=5.0) == pytest.approx(50.0)
+    assert metrics.settle_hold(0.0, 60.0) == 5.0 and metrics.settle_hold(0.0, 8.0) == 0.8
+
+
 def circle():
     s, pts = expression_samples('cos(2*pi*s)', 'sin(2*pi*s)', 100, closed=True)
     return fit_curve(FourierBasis(1), s, pts).curve

@@ -142,8 +142,16 @@ def lyapunov(errors, dhat, experiment, disturbance=None, gains=None):
     return value
 
 
-def settle_time(t, norm, tolerance, start, end):
-    """Time after `start` (s) from which norm stays below tolerance until `end`, else None.
+# A phase settles only if its error stays below the tolerance for at least this long before
+# the phase (or the run) ends: SETTLE_HOLD s, or SETTLE_HOLD_SHARE of a shorter phase. A
+# norm that ripples about the tolerance and dips below it in the last samples has not settled.
+SETTLE_HOLD = 5.0
+SETTLE_HOLD_SHARE = 0.1
+
+
+def settle_time(t, norm, tolerance, start, end, hold=0.0):
+    """Time after `start` (s) from which norm stays below tolerance until `end`, else None;
+    None also if it stays there less than `hold` s before the window's last sample.
 
     Only samples in [start, end) count; None also when the window has no sample.
     """
@@ -155,9 +163,14 @@ def settle_time(t, norm, tolerance, start, end):
     times = t[window]
     if above.size == 0:
         return float(times[0] - start)
-    if above[-1] == len(times) - 1:
+    if above[-1] == len(times) - 1 or times[-1] - times[above[-1] + 1] < hold:
         return None
     return float(times[above[-1] + 1] - start)
+
+
+def settle_hold(start, end):
+    """How long (s) a phase observed from `start` to `end` (s) must stay settled."""
+    return min(SETTLE_HOLD, SETTLE_HOLD_SHARE * max(end - start, 0.0))
 
 
 def estop_hold(intervals, start, end):
@@ -342,7 +355,9 @@ def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance
         settle = None
         lost = [(when, node) for when, node, _ in deaths if when is None or when < end]
         if held != math.inf and not lost:
-            settle = settle_time(t, norm, tolerance * size, max(p.start, held), end)
+            begin = max(p.start, held)
+            settle = settle_time(t, norm, tolerance * size, begin, end,
+                                 settle_hold(begin, min(end, float(t[-1]))))
             settle = None if settle is None else settle + max(held - p.start, 0.0)
         finite = bool(np.isfinite(norm[window]).all())
         phases.append({
@@ -356,7 +371,9 @@ def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance
                                          else f'at t = {lost[0][0]:.1f} s') if lost
                 else 'the e-stop was engaged at the end of the phase' if held == math.inf
                 else 'the error is not finite (NaN or infinite)' if not finite
-                else 'the error does not stay below the tolerance'),
+                else 'the error does not stay below the tolerance (for '
+                f'{settle_hold(max(p.start, held), min(end, float(t[-1]))):g} s before the '
+                'end of the phase)'),
             'interrupted_by_estop': held > -math.inf,
             'initial_error_norm': float(norm[window][0]),
             'final_error_norm': float(norm[last]),
