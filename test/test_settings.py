@@ -1,6 +1,7 @@
 """Every controller setting has one default, range and set of choices: the node's parameter
 table (nodes/formation_controller.py) agrees with the experiment schema (core/config_schema.py)
-for every parameter that comes from an experiment key.
+for every parameter that comes from an experiment key, and AgentConfig's own defaults agree with
+both.
 """
 
 import typing
@@ -169,3 +170,29 @@ def test_a_rule_refuses_the_same_setting_in_a_file_and_in_a_nodes_parameters(
     break_file(data)
     assert not schema_accepts(data), rule
     assert not node_accepts({**params, **break_params}), rule
+
+
+def test_agent_configs_defaults_are_the_schemas():
+    """AgentConfig's own defaults (what a controller built in code gets) are the experiment's:
+    an experiment that leaves every optional controller, safety and limit key out gives each
+    agent the AgentConfig that its required settings alone give.
+    """
+    import dataclasses
+
+    from curve_formation.core.agent_config import agent_configs, AgentConfig
+    from curve_formation.core.experiment import build_experiment
+    experiment = build_experiment({
+        'name': 'defaults', 'agents': {'count': 3, 'initial': {'random': {
+            'seed': 1, 'center': [0.0, 0.0], 'half_width': [1.0, 1.0]}}},
+        'graph': {'edges': [{'from': 1, 'to': 2}, {'from': 2, 'to': 3}]},
+        'controller': {'k1': 1.0, 'k2': 0.5, 'offset': 0.02},
+        'curves': [{'basis': 'fourier', 'harmonics': 2, 'x': 'cos(2*pi*s)',
+                    'y': 'sin(2*pi*s)'}],
+        'simulation': {'duration': 1.0}})
+    for config in agent_configs(experiment, 10.0):
+        required = {f: getattr(config, f) for f in (
+            'index', 'agent_count', 'neighbours', 'pinning', 'gains', 'limits', 'rate_hz',
+            'geofence', 'pc_disturbance', 'avoidance')}
+        assert config == AgentConfig(**required), [
+            (f.name, getattr(config, f.name), f.default) for f in dataclasses.fields(config)
+            if f.name not in required and getattr(config, f.name) != f.default]
