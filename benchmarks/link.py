@@ -101,8 +101,9 @@ def main():
                       for r in runs for k, t in enumerate(r['settle'])
                       if t is not None and by[(name, r['seed'], 'none')]['settle'][k]]
             goal = f'goal {GOALS[case]}x' if case in GOALS else 'the reference'
+            slowest = f'{max(ratios):.2f}x' if ratios else 'none settled'
             line = (f'{name} {case}: {settled}/{len(runs)} settle every phase; slowest '
-                    f'{max(ratios, default=float("nan")):.2f}x none ({goal}); largest final error '
+                    f'{slowest} against no latency ({goal}); largest final error '
                     f'{max(max(r["final_mm"]) for r in runs):.3f} mm; contacts '
                     f'{sum(r["contacts"] for r in runs):g}')
             if case in TRUTH:
