@@ -1,7 +1,7 @@
 """The formation over a link with latency, jitter and loss, the latency untold, told or
 estimated online, from random starts.
 
-Run: scripts/bench link            (20 random starts of each arena file; ~15 min)
+Run: scripts/bench link            (20 random starts of each arena file; ~8 min)
      scripts/bench link --seeds 3  (a quick look)
      scripts/bench link --cases untold 'estimated 300'  (those and none, the reference)
 
@@ -15,7 +15,9 @@ command_latency 0; core.link_estimate.OnlineLatency); the cases:
   nobody tells the controllers the latency;
 - untold, not estimating: the same link, estimate_latency false (the law without it);
 - told 300: commands 300 ms late, the controllers told (command_latency 0.3, not estimating);
-- estimated 300: the same link, the file as shipped (estimating from 0).
+- estimated 300: the same link, the file as shipped (estimating from 0);
+- told 150, estimated 150, told 250, estimated 250 (with --cases only): the same at 150 and
+  250 ms.
 Goals (issue #41): untold within 1.3x of none, every phase settled, no contact; told or
 estimated up to 300 ms within 1.5x; the online estimate within 20 ms of the truth.
 Prints, per case, settled starts, the slowest settling against none, contacts and (estimated)
@@ -47,13 +49,17 @@ CASES = {
     'none, not estimating': (Link(), OFF),
     'untold': (JITTERED, {}),
     'untold, not estimating': (JITTERED, OFF),
-    'told 300': (Link(command_latency=0.3), {**OFF, 'command_latency': 0.3}),
-    'estimated 300': (Link(command_latency=0.3), {}),
+    **{f'{how} {ms}': (Link(command_latency=ms / 1000),
+                       {**OFF, 'command_latency': ms / 1000} if how == 'told' else {})
+       for ms in (300, 150, 250) for how in ('told', 'estimated')},
 }
+DEFAULT_CASES = ('none', 'none, not estimating', 'untold', 'untold, not estimating',
+                 'told 300', 'estimated 300')
 GOALS = {'none, not estimating': 1.3, 'untold': 1.3, 'untold, not estimating': 1.3,
-         'told 300': 1.5, 'estimated 300': 1.5}
+         **{case: 1.5 for case in CASES if case.split()[-1] in ('150', '250', '300')}}
 TRUTH = {'none': 'truth 0 ms', 'untold': 'truth 100 +- 30 ms, 10 % lost',
-         'estimated 300': 'truth 300 ms'}
+         **{case: f'truth {case.split()[-1]} ms' for case in CASES
+            if case.startswith('estimated')}}
 
 
 def experiment(name, seed, controller):
@@ -82,8 +88,9 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--seeds', type=int, default=20)
     parser.add_argument('--out', type=Path, default=Path('out/bench/link'))
-    parser.add_argument('--cases', nargs='+', choices=list(CASES), default=list(CASES),
-                        help='cases to run (none, the reference, always runs)')
+    parser.add_argument('--cases', nargs='+', choices=list(CASES), default=list(DEFAULT_CASES),
+                        help='cases to run (none, the reference, always runs; also told and '
+                             'estimated 150 and 250)')
     args = parser.parse_args()
     cases = ['none'] + [case for case in args.cases if case != 'none']
     jobs = [(name, seed, case) for name in NAMES for seed in range(1, args.seeds + 1)
