@@ -44,22 +44,23 @@ NAMES = ('arena_demo', 'mona_arena')
 # case: (link, controller settings changed from the file's)
 OFF = {'estimate_latency': False}
 JITTERED = Link(command_latency=0.1, command_jitter=0.03, command_loss=0.1)
+# told or estimated latencies: (ms, how) per case; 150 and 250 ms run with --cases only
+LATE = {f'{how} {ms}': (ms, how) for ms in (300, 150, 250) for how in ('told', 'estimated')}
 CASES = {
     'none': (Link(), {}),
     'none, not estimating': (Link(), OFF),
     'untold': (JITTERED, {}),
     'untold, not estimating': (JITTERED, OFF),
-    **{f'{how} {ms}': (Link(command_latency=ms / 1000),
-                       {**OFF, 'command_latency': ms / 1000} if how == 'told' else {})
-       for ms in (300, 150, 250) for how in ('told', 'estimated')},
+    **{case: (Link(command_latency=ms / 1000),
+              {**OFF, 'command_latency': ms / 1000} if how == 'told' else {})
+       for case, (ms, how) in LATE.items()},
 }
 DEFAULT_CASES = ('none', 'none, not estimating', 'untold', 'untold, not estimating',
                  'told 300', 'estimated 300')
 GOALS = {'none, not estimating': 1.3, 'untold': 1.3, 'untold, not estimating': 1.3,
-         **{case: 1.5 for case in CASES if case.split()[-1] in ('150', '250', '300')}}
+         **dict.fromkeys(LATE, 1.5)}
 TRUTH = {'none': 'truth 0 ms', 'untold': 'truth 100 +- 30 ms, 10 % lost',
-         **{case: f'truth {case.split()[-1]} ms' for case in CASES
-            if case.startswith('estimated')}}
+         **{case: f'truth {ms} ms' for case, (ms, how) in LATE.items() if how == 'estimated'}}
 
 
 def experiment(name, seed, controller):
