@@ -19,7 +19,7 @@ import time
 import cv2
 import numpy as np
 
-from curve_formation.core.experiment import load_experiment, random_poses
+from curve_formation.core.config.experiment import load_experiment, random_poses
 from curve_formation.nodes import messages
 from curve_formation.paths import resolve_config
 from curve_formation.vision.camera import overhead_camera

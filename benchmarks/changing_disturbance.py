@@ -13,7 +13,7 @@ Cases (issue goals): the arena demo's drift on the robots varying +-50 % with a 
 +-5 % and +-20 %; each with the file's controller, and with the second-order observer
 (controller.observer_order 2, observer_rate 8). Ratios are against the file's controller under
 the constant disturbance, from the same start. Each start runs the nodes' tick pipeline
-(core.pipeline: unsynchronised controllers, 30 Hz poses, the paper's unicycles), bodies and
+(core.sim.pipeline: unsynchronised controllers, 30 Hz poses, the paper's unicycles), bodies and
 avoidance as the file says.
 Prints settled starts, the slowest settling against the constant disturbance's, and the
 largest final error; writes JSON to --out (default out/bench/changing_disturbance).
@@ -27,9 +27,9 @@ import time
 
 import yaml
 
-from curve_formation.core import metrics
-from curve_formation.core.experiment import build_experiment, seeded_start, with_start
-from curve_formation.core.pipeline import Link, simulate_pipeline
+from curve_formation.core.config.experiment import build_experiment, seeded_start, with_start
+from curve_formation.core.record import metrics
+from curve_formation.core.sim.pipeline import Link, simulate_pipeline
 from curve_formation.paths import resolve_config
 
 

@@ -26,7 +26,7 @@ from changing_disturbance import experiment_data, SECOND_ORDER
 import yaml
 
 from curve_formation.bags.analysis import load_run
-from curve_formation.core.metrics import error_norm, target_errors
+from curve_formation.core.record.metrics import error_norm, target_errors
 from curve_formation.run.run_options import RunOptions
 from curve_formation.run.runner import Run
 

@@ -25,17 +25,17 @@ import time
 
 import numpy as np
 
-from curve_formation.core import metrics
-from curve_formation.core.agent_config import agent_configs
-from curve_formation.core.control import agent_command
-from curve_formation.core.experiment import (
+from curve_formation.core.config.experiment import (
     load_experiment,
     point_robots,
     seeded_start,
     with_start,
 )
-from curve_formation.core.safety import AVOIDANCE_OFF
-from curve_formation.core.simulator import simulate
+from curve_formation.core.controller.agent_config import agent_configs
+from curve_formation.core.controller.control import agent_command
+from curve_formation.core.controller.safety import AVOIDANCE_OFF
+from curve_formation.core.record import metrics
+from curve_formation.core.sim.batch import simulate
 from curve_formation.paths import resolve_config
 
 

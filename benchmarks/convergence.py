@@ -23,15 +23,15 @@ import numpy as np
 from scenarios import scaled_experiment
 import yaml
 
-from curve_formation.core import metrics
-from curve_formation.core.experiment import (
+from curve_formation.core.config.experiment import (
     as_in_the_paper,
     build_experiment,
     load_experiment,
     seeded_start,
     with_start,
 )
-from curve_formation.core.simulator import simulate
+from curve_formation.core.record import metrics
+from curve_formation.core.sim.batch import simulate
 from curve_formation.paths import resolve_config
 
 
@@ -81,7 +81,7 @@ def one_run(case, gains, rate, start, disturbance=None):
 
 def load_case(name):
     """A shipped experiment; 'mona_arena/paper' is the arena case with the paper's agents,
-    graph and law and point robots (core.experiment.as_in_the_paper).
+    graph and law and point robots (core.config.experiment.as_in_the_paper).
     """
     base, _, variant = name.partition('/')
     if not variant:

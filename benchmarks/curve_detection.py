@@ -20,9 +20,9 @@ import time
 import cv2
 import numpy as np
 
-from curve_formation.core.curve_sources import fit_points, polyline_rms_distance
-from curve_formation.core.curves import make_basis
-from curve_formation.core.experiment import load_experiment
+from curve_formation.core.config.experiment import load_experiment
+from curve_formation.core.formation.curve_sources import fit_points, polyline_rms_distance
+from curve_formation.core.formation.curves import make_basis
 from curve_formation.paths import resolve_config
 from curve_formation.vision.camera import overhead_camera
 from curve_formation.vision.curve_detection import finder_for

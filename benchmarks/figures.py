@@ -3,8 +3,8 @@
 Run: scripts/bench figures          (~1 min)
 
 Simulates arena_demo for 120 s (the batch simulator, sampled at 100 Hz: 12,000 samples), then
-times, each three times, core.plots.run_figures (four figures as PNG at 300 dpi and PDF),
-core.animation.animate (MP4, 30 s of film at 15 fps) and report.write_report, and prints the
+times, each three times, figures.plots.run_figures (four figures as PNG at 300 dpi and PDF),
+figures.animation.animate (MP4, 30 s of film at 15 fps) and report.write_report, and prints the
 best of three of each. Goal (issue #43): figures and animation of a 9-robot, 120 s run in
 under 30 s. JSON to --out (default out/bench/figures).
 """
@@ -17,9 +17,9 @@ import tempfile
 
 from simulation_speed import best_time  # benchmarks/ is the script's folder
 
-from curve_formation.core import metrics
-from curve_formation.core.experiment import load_experiment
-from curve_formation.core.simulator import simulate
+from curve_formation.core.config.experiment import load_experiment
+from curve_formation.core.record import metrics
+from curve_formation.core.sim.batch import simulate
 from curve_formation.paths import resolve_config
 from curve_formation.results.outputs import write_outputs
 
@@ -38,8 +38,8 @@ def main():
     result = metrics.result_metrics(sim)
     folder = Path(tempfile.mkdtemp(prefix='bench-figures-'))
     try:
-        from curve_formation.core import plots
-        from curve_formation.core.animation import animate
+        from curve_formation.figures import plots
+        from curve_formation.figures.animation import animate
         from curve_formation.results.report import write_report
         write_outputs(folder, experiment, record, result, path)   # warm: fonts, imports
         found = {

@@ -5,10 +5,10 @@ Run: scripts/bench link            (20 random starts of each arena file; ~8 min)
      scripts/bench link --seeds 3  (a quick look)
      scripts/bench link --cases untold 'estimated 300'  (those and none, the reference)
 
-Each start runs the nodes' tick pipeline (core.pipeline: unsynchronised controllers, 30 Hz
-poses, the paper's unicycles, bodies and avoidance as the file says) over core.pipeline.Link.
+Each start runs the nodes' tick pipeline (core.sim.pipeline: unsynchronised controllers, 30 Hz
+poses, the paper's unicycles, bodies and avoidance as the file says) over core.sim.pipeline.Link.
 The arena files estimate the latency online (controller.estimate_latency, from
-command_latency 0; core.link_estimate.OnlineLatency); the cases:
+command_latency 0; core.controller.link_estimate.OnlineLatency); the cases:
 - none: no latency, the file as shipped (the reference);
 - none, not estimating: no latency, estimate_latency false (what estimating costs);
 - untold: commands 100 ms +- 30 ms (uniform) late and 10 % of them lost, the file as shipped:
@@ -34,9 +34,9 @@ import time
 import numpy as np
 import yaml
 
-from curve_formation.core import metrics
-from curve_formation.core.experiment import build_experiment, seeded_start, with_start
-from curve_formation.core.pipeline import Link, simulate_pipeline
+from curve_formation.core.config.experiment import build_experiment, seeded_start, with_start
+from curve_formation.core.record import metrics
+from curve_formation.core.sim.pipeline import Link, simulate_pipeline
 from curve_formation.paths import resolve_config
 
 

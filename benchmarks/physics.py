@@ -5,7 +5,7 @@ Run: scripts/bench physics            (20 random starts of each arena experiment
      scripts/bench physics --part speed
 
 Part `starts`: for each random start (experiment.seeded_start, seeds 1..N) of arena_demo and
-mona_arena, the nodes' tick pipeline (core.pipeline) runs in three worlds:
+mona_arena, the nodes' tick pipeline (core.sim.pipeline) runs in three worlds:
 - kinematic: the paper's unicycles with the experiment's disturbance (the reference);
 - mujoco: MuJoCo bodies, no imperfection, the experiment's disturbance on the wheel commands,
   the controllers told the motors' time constant (limits.motor_time_constant), as a lab
@@ -30,11 +30,11 @@ import time
 import numpy as np
 import yaml
 
-from curve_formation.core import metrics
-from curve_formation.core.config_schema import PhysicsSpec
-from curve_formation.core.experiment import build_experiment, seeded_start, with_start
-from curve_formation.core.pipeline import simulate_pipeline
-from curve_formation.core.worlds import make_world
+from curve_formation.core.config.experiment import build_experiment, seeded_start, with_start
+from curve_formation.core.config.schema import PhysicsSpec
+from curve_formation.core.record import metrics
+from curve_formation.core.sim.pipeline import simulate_pipeline
+from curve_formation.core.world.worlds import make_world
 from curve_formation.paths import resolve_config
 
 

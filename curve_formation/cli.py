@@ -17,15 +17,19 @@ import sys
 from typing import Any
 
 from curve_formation.bags.bag import BagError, DEFAULT_STORAGE, STORAGES
-from curve_formation.core.aruco import MARKER_IDS
-from curve_formation.core.experiment import check_rate_override, ConfigError, load_experiment
+from curve_formation.core.config.experiment import (
+    check_rate_override,
+    ConfigError,
+    load_experiment,
+)
+from curve_formation.core.config.marker_ids import MARKER_IDS
 from curve_formation.paths import resolve_config, use_dds_profile
 from curve_formation.results.provenance import command_line
 
 
 def _write_json(path, data):
     path.parent.mkdir(parents=True, exist_ok=True)
-    from curve_formation.core.metrics import strict_json
+    from curve_formation.core.record.metrics import strict_json
     path.write_text(strict_json(data))
 
 
@@ -35,10 +39,10 @@ def simulate_to_dir(config, out_dir, rate='config', law=None, heading=None, phys
 
     law ('paper', 'adaptive', 'observer') and heading ('paper', 'sampled') override the file's;
     physics ('kinematic', 'mujoco'; None: the file's physics.engine): the kinematic batch
-    simulator, or the nodes' tick pipeline in the MuJoCo world (core.pipeline).
+    simulator, or the nodes' tick pipeline in the MuJoCo world (core.sim.pipeline).
     animate: also write animation.mp4. Writes the folder of outputs.write_outputs.
     """
-    from curve_formation.core import metrics
+    from curve_formation.core.record import metrics
     from curve_formation.results.outputs import write_outputs
 
     path = resolve_config(config)
@@ -58,7 +62,7 @@ def simulate_to_dir(config, out_dir, rate='config', law=None, heading=None, phys
     pipeline = (f"the nodes' tick pipeline, {engine} world, commands {latency:g} s late as "
                 f'told, observer of order {order}')
     if engine == 'mujoco':   # robots in MuJoCo: the nodes' tick pipeline
-        from curve_formation.core.pipeline import simulate_pipeline
+        from curve_formation.core.sim.pipeline import simulate_pipeline
         if rate is None:
             raise ValueError("--continuous: the MuJoCo world runs the nodes' tick pipeline, "
                              'at a control rate (--rate, or controller.rate_hz)')
@@ -66,7 +70,7 @@ def simulate_to_dir(config, out_dir, rate='config', law=None, heading=None, phys
                                    rate_hz=None if rate == 'config' else rate)
         simulator = pipeline
     else:   # the batch simulator, or the pipeline for settings only it models
-        from curve_formation.core.pipeline import simulate_kinematic
+        from curve_formation.core.sim.pipeline import simulate_kinematic
         result, why = simulate_kinematic(experiment, rate)
         simulator = 'batch (compiled)' if why is None else f'{pipeline} ({why})'
     data = metrics.result_metrics(result)
@@ -298,7 +302,7 @@ def _cmd_analyze(args):
 
 def _cmd_animate(args):
     from curve_formation.bags.analysis import load_run
-    from curve_formation.core.animation import animate
+    from curve_formation.figures.animation import animate
     out = Path(args.out)
     if out.exists() and not args.force:
         raise ValueError(f'{out} exists: choose another --out, or --force to replace it')
@@ -481,7 +485,7 @@ def _at_least_one(text):
 
 def _physics_option(parser, what):
     """--physics: the world the simulated robots live in (default: physics.engine)."""
-    from curve_formation.core.worlds import ENGINES
+    from curve_formation.core.world.worlds import ENGINES
     parser.add_argument('--physics', choices=ENGINES,
                         help=f"{what}; default: the experiment's physics.engine (kinematic)")
 

@@ -10,7 +10,10 @@ from dataclasses import dataclass
 import re
 from typing import Any
 
-from curve_formation.core.curve_codec import (
+from curve_formation.core.base.shapes import FloatArray
+from curve_formation.core.controller.estop import EstopReport, parse_report
+from curve_formation.core.controller.plausibility import quaternion_problem
+from curve_formation.core.formation.curve_codec import (
     CodecError,
     CurveClock,
     decode_agent_parameters,
@@ -19,10 +22,7 @@ from curve_formation.core.curve_codec import (
     decode_curve_rate,
     yaw_from_quaternion,
 )
-from curve_formation.core.curves import Curve
-from curve_formation.core.estop import EstopReport, parse_report
-from curve_formation.core.plausibility import quaternion_problem
-from curve_formation.core.shapes import FloatArray
+from curve_formation.core.formation.curves import Curve
 
 
 CURVE = '/formation/curve'
@@ -121,7 +121,7 @@ TOPICS = {t.name: t for t in (
               "the active curve: coefficients xi, for a moving curve their rate xi_dot, its "
               "clock (when it holds, s on the server's ROS clock; how long it has moved, s), "
               "then each agent's s_i; layout labels: basis kind and size, curve id, sizes of "
-              'each part (core/curve_codec.py)', EVERY_BAG),
+              'each part (core/formation/curve_codec.py)', EVERY_BAG),
     TopicSpec(ESTOP, 'std_msgs/msg/Bool', 'LATCHED', 'true stops every robot at once, false '
               'releases; read from any publisher (any reliability, any durability)', EVERY_BAG,
               reader_qos_name='ANY_PUBLISHER'),
@@ -209,7 +209,7 @@ def stamp_to_seconds(stamp: Any) -> float:
 
 def pose_from_msg(msg: Any) -> tuple[float, float, float, float]:
     """(x, y, theta, stamp s) from a PoseStamped (m, m, rad; planar: heading from the
-    quaternion); CodecError if the quaternion is not unit (core.plausibility).
+    quaternion); CodecError if the quaternion is not unit (core.controller.plausibility).
     """
     q = msg.pose.orientation
     problem = quaternion_problem(q.x, q.y, q.z, q.w)
@@ -229,7 +229,7 @@ def _curve_dims(msg: Any) -> list[tuple[str, int]]:
 
 
 def curve_from_msg(msg: Any) -> tuple[Curve, int]:
-    """(Curve, curve id) from a curve message (core.curve_codec's layout)."""
+    """(Curve, curve id) from a curve message (core.formation.curve_codec's layout)."""
     return decode_curve(_curve_dims(msg), msg.data)
 
 
@@ -249,7 +249,7 @@ def agent_parameters_from_msg(msg: Any) -> FloatArray | None:
 
 
 def estop_state_from_msg(msg: Any) -> EstopReport:
-    """core.estop.EstopReport of a node's e-stop state (DiagnosticStatus)."""
+    """core.controller.estop.EstopReport of a node's e-stop state (DiagnosticStatus)."""
     try:
         return parse_report(msg.name, msg.hardware_id, {kv.key: kv.value for kv in msg.values})
     except ValueError as exc:

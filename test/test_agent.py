@@ -7,18 +7,18 @@ import numpy as np
 import pytest
 
 from conftest import DATA_DIR, paper_arena
-from curve_formation.core.agent import AgentController, is_stale
-from curve_formation.core.agent_config import agent_configs, AgentConfig
-from curve_formation.core.assignment import AssignmentError, reassigned
-from curve_formation.core.bodies import separate
-from curve_formation.core.control import Gains, WheelLimits
-from curve_formation.core.curves import Curve
-from curve_formation.core.dynamics import arc_step, DrivenUnicycle
-from curve_formation.core.experiment import load_experiment, with_start
-from curve_formation.core.metrics import offset_points, settle_time
-from curve_formation.core.motion import constant_coefficients
-from curve_formation.core.safety import AVOIDANCE_OFF
-from curve_formation.core.simulator import simulate
+from curve_formation.core.config.experiment import load_experiment, with_start
+from curve_formation.core.controller.agent import AgentController, is_stale
+from curve_formation.core.controller.agent_config import agent_configs, AgentConfig
+from curve_formation.core.controller.control import Gains, WheelLimits
+from curve_formation.core.controller.safety import AVOIDANCE_OFF
+from curve_formation.core.formation.assignment import AssignmentError, reassigned
+from curve_formation.core.formation.curves import Curve
+from curve_formation.core.formation.dynamics import arc_step, DrivenUnicycle
+from curve_formation.core.formation.motion import constant_coefficients
+from curve_formation.core.record.metrics import offset_points, settle_time
+from curve_formation.core.sim.batch import simulate
+from curve_formation.core.world.bodies import separate
 from curve_formation.paths import resolve_config
 
 
@@ -37,7 +37,8 @@ def controllers_for(experiment, rate_hz, compiled=False):
     ('fixed', False)])
 def test_node_controllers_reproduce_the_simulator_exactly(name, compiled):
     """n AgentControllers ticked together at 10 Hz with exact unicycle steps == simulate():
-    the same tick pipeline (core.control.agent_command), run as Python or, as a single-process
+    the same tick pipeline (core.controller.control.agent_command), run as Python or, as a
+    single-process
     run's nodes do, compiled (loaded before the first tick, never again). The shipped arena
     case has nearest assignment, follower pinning, bodies, the safety filter and re-assignment
     every second (done here as the curve server does it, with assignment.reassigned), and
@@ -107,8 +108,8 @@ THIRDS = [0.0, 1 / 3, 2 / 3]   # the curve server's uniform s_i for 3 agents on 
 
 
 def circle():
-    from curve_formation.core.curve_sources import expression_samples
-    from curve_formation.core.curves import fit_curve, FourierBasis
+    from curve_formation.core.formation.curve_sources import expression_samples
+    from curve_formation.core.formation.curves import fit_curve, FourierBasis
     s, pts = expression_samples('cos(2*pi*s)', 'sin(2*pi*s)', 100, closed=True)
     return fit_curve(FourierBasis(2), s, pts).curve
 
@@ -647,7 +648,7 @@ def test_the_observer_pairs_a_motion_with_what_the_lagging_motors_realised(elaps
     c (1 - tau / T (1 - exp(-T / tau))) over the first T s), each command from its sending
     plus the command latency.
     """
-    from curve_formation.core.agent import Sent
+    from curve_formation.core.controller.agent import Sent
     tau, latency, c = 0.05, 0.03, 0.02
     ctrl = AgentController(config(motor_time_constant=tau, command_latency=latency))
     for k in range(5):   # at rest: commands of 0 (driven) before the step at t = 1 s

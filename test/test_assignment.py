@@ -3,7 +3,7 @@ import itertools
 import numpy as np
 import pytest
 
-from curve_formation.core.assignment import (
+from curve_formation.core.formation.assignment import (
     agent_parameters,
     assigned_parameters,
     AssignmentError,
@@ -13,8 +13,8 @@ from curve_formation.core.assignment import (
     reassigned,
     uniform_parameters,
 )
-from curve_formation.core.curve_sources import expression_samples
-from curve_formation.core.curves import fit_curve, FourierBasis, PolynomialBasis
+from curve_formation.core.formation.curve_sources import expression_samples
+from curve_formation.core.formation.curves import fit_curve, FourierBasis, PolynomialBasis
 
 
 def ellipse():

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from conftest import DATA_DIR
-from curve_formation.core import metrics
-from curve_formation.core.simulator import simulate
+from curve_formation.core.record import metrics
+from curve_formation.core.sim.batch import simulate
 from curve_formation.run.run_options import RunOptions
 from curve_formation.run.runner import Run
 
@@ -183,7 +183,7 @@ def test_the_robots_follow_a_line_drawn_on_the_floor_and_moved(ros_domain, tmp_p
     open), each within 2 mm of the drawn line, both settle as the simulator settles on the
     drawn curves (measured 50.8 s and 47.3 s against 50.3 s and 45.3 s), without a contact.
     """
-    from curve_formation.core.curve_sources import polyline_rms_distance
+    from curve_formation.core.formation.curve_sources import polyline_rms_distance
     with Run('drawn_curve', tmp_path, RunOptions(camera={}), log=quiet) as run:
         run.spin_for(128.0)
         result = run.write_results()
@@ -209,9 +209,9 @@ def test_the_arena_demo_settles_with_mujoco_robots_seen_through_the_camera(ros_d
     and casters in MuJoCo (fake_arena), seen by the fake overhead camera, driven by the
     controllers over DDS. The formation settles on the robots' true poses with no contact
     between robots nor with a wall, within 1.2x of the same pipeline without ROS
-    (core.pipeline) in the MuJoCo world.
+    (core.sim.pipeline) in the MuJoCo world.
     """
-    from curve_formation.core.pipeline import simulate_pipeline
+    from curve_formation.core.sim.pipeline import simulate_pipeline
     options = RunOptions(camera={}, physics='mujoco')
     with Run('arena_demo', tmp_path, options, log=quiet) as run:
         run.spin_for(45.0)

@@ -11,7 +11,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import Image
 
-from curve_formation.core.experiment import load_experiment
+from curve_formation.core.config.experiment import load_experiment
 from curve_formation.nodes import messages, qos, topics
 from curve_formation.nodes.camera_tracker import CameraTracker
 from curve_formation.nodes.fake_camera import FakeCamera
@@ -223,7 +223,7 @@ def test_a_curve_drawn_on_the_floor_becomes_the_formation_curve(ros):
     """
     from std_msgs.msg import Float64MultiArray
 
-    from curve_formation.core.curve_sources import polyline_rms_distance
+    from curve_formation.core.formation.curve_sources import polyline_rms_distance
     from curve_formation.nodes.curve_server import CurveServer
     context, add, spin_until = ros
     experiment = load_experiment(resolve_config('drawn_curve'))

@@ -4,8 +4,7 @@ import numpy as np
 import pytest
 from test_graph import random_rooted_graph
 
-from curve_formation.core.assignment import check_assumptions, uniform_parameters
-from curve_formation.core.control import (
+from curve_formation.core.controller.control import (
     agent_command,
     agent_input,
     FEEDBACK_HEADROOM,
@@ -22,8 +21,9 @@ from curve_formation.core.control import (
     wheel_speeds,
     WheelLimits,
 )
-from curve_formation.core.curves import FourierBasis, PolynomialBasis
-from curve_formation.core.safety import AVOIDANCE_OFF
+from curve_formation.core.controller.safety import AVOIDANCE_OFF
+from curve_formation.core.formation.assignment import check_assumptions, uniform_parameters
+from curve_formation.core.formation.curves import FourierBasis, PolynomialBasis
 
 
 def local_arena_input(poses, dhat, targets, graph, gains):

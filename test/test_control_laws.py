@@ -13,16 +13,16 @@ import numpy as np
 import pytest
 
 from conftest import paper_arena
-from curve_formation.core import metrics
-from curve_formation.core.control import (
+from curve_formation.core.config.experiment import load_experiment, seeded_start, with_start
+from curve_formation.core.controller.control import (
     body_velocity,
     ray_growth,
     sampled_feedback,
     WheelLimits,
 )
-from curve_formation.core.dynamics import arc_step
-from curve_formation.core.experiment import load_experiment, seeded_start, with_start
-from curve_formation.core.simulator import simulate
+from curve_formation.core.formation.dynamics import arc_step
+from curve_formation.core.record import metrics
+from curve_formation.core.sim.batch import simulate
 from curve_formation.paths import resolve_config
 
 
@@ -208,7 +208,7 @@ def heading_rate_growth(push, k1=1.0, offset=0.01, duration=2.0, dt=1e-3):
     The estimate is off by a forward push `push` (m/s): d = [push, 0] with k2 = 0. The robot
     starts at its rest point e = push h / k1 with the heading turned by 1e-6 rad.
     """
-    from curve_formation.core.control import agent_input
+    from curve_formation.core.controller.control import agent_input
     target = np.array([offset - push / k1, 0.0])   # xb - target = push h / k1 at rest
 
     def rates(state):

@@ -1,12 +1,12 @@
 import numpy as np
 import pytest
 
-from curve_formation.core.curve_sources import (
+from curve_formation.core.formation.curve_sources import (
     bezier_samples,
     chord_length_parameters,
     expression_samples,
 )
-from curve_formation.core.curves import (
+from curve_formation.core.formation.curves import (
     CurveError,
     fit_curve,
     FourierBasis,
@@ -109,12 +109,12 @@ def test_observed_points_are_fitted_by_their_shape_not_their_spacing():
     alone leave the 8-harmonic fit 3 mm off the flower; moving each point's parameter to its
     foot on the fit and refitting brings it to 0.1 mm.
     """
-    from curve_formation.core.curve_sources import (
+    from curve_formation.core.config.experiment import load_experiment
+    from curve_formation.core.formation.curve_sources import (
         fit_points,
         point_samples,
         polyline_rms_distance,
     )
-    from curve_formation.core.experiment import load_experiment
     from curve_formation.paths import resolve_config
     flower = load_experiment(resolve_config('arena_demo')).phases[0].curve
     u = np.linspace(0, 1, 300, endpoint=False)

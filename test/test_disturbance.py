@@ -7,10 +7,10 @@ import pytest
 import yaml
 
 from conftest import DATA_DIR
-from curve_formation.core.disturbance import factors, Variation
-from curve_formation.core.experiment import build_experiment, ConfigError
-from curve_formation.core.metrics import result_metrics
-from curve_formation.core.simulator import simulate
+from curve_formation.core.config.experiment import build_experiment, ConfigError
+from curve_formation.core.controller.disturbance import factors, Variation
+from curve_formation.core.record.metrics import result_metrics
+from curve_formation.core.sim.batch import simulate
 
 
 def test_each_kind_of_variation_changes_the_value_as_stated():
@@ -79,7 +79,7 @@ def test_the_nodes_pipeline_follows_the_same_variation_where_it_is_injected(inje
     step: the robots' disturbance (on_robot) or the controllers' (on_pc) changes, and each
     observer ends on the new value (the metrics compare it with the disturbance at the end).
     """
-    from curve_formation.core.pipeline import simulate_pipeline
+    from curve_formation.core.sim.pipeline import simulate_pipeline
     experiment = fast_disturbed(injected=injected, varies=[
         {'kind': 'step', 'at': 25.0, 'change': -0.5, 'agents': [1, 2, 3]}])
     result = simulate_pipeline(experiment, 'kinematic', duration=50.0)
@@ -101,7 +101,7 @@ def test_a_fake_robot_changes_its_disturbance_on_the_runs_clock(ros):
     import rclpy
     from rclpy.parameter import Parameter
 
-    from curve_formation.core.curve_codec import CurveClock
+    from curve_formation.core.formation.curve_codec import CurveClock
     from curve_formation.nodes import messages, topics
     from curve_formation.nodes.fake_robot import FakeRobot
     context, add, spin_until = ros
@@ -172,7 +172,7 @@ def test_over_dds_the_disturbance_changes_on_the_runs_clock_and_the_nodes_learn_
 
 
 def mona_arena_varying(order, observer_rate=8.0, amplitude=0.1, seed=1):
-    from curve_formation.core.experiment import seeded_start, with_start
+    from curve_formation.core.config.experiment import seeded_start, with_start
     from curve_formation.paths import resolve_config
     data = yaml.safe_load(resolve_config('mona_arena').read_text())
     data['disturbance']['varies'] = [{'kind': 'sine', 'amplitude': amplitude, 'period': 10.0}]
@@ -189,7 +189,7 @@ def test_the_second_order_observer_holds_a_disturbance_on_the_pc_that_swings_10_
     2, its rate estimated and the disturbance predicted over the coming period) settles every
     phase and ends 0.09 mm off.
     """
-    from curve_formation.core.pipeline import simulate_pipeline
+    from curve_formation.core.sim.pipeline import simulate_pipeline
     metrics = result_metrics(simulate_pipeline(mona_arena_varying(order), 'kinematic'))
     phases = metrics['phases']
     worst = max(p['final_max_agent_error'] for p in phases)

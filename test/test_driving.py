@@ -7,13 +7,13 @@ import sys
 import numpy as np
 import pytest
 
-from curve_formation.core.agent import AgentController
-from curve_formation.core.agent_config import agent_configs
-from curve_formation.core.control import agent_command, Gains, WheelLimits
-from curve_formation.core.driving import drive_direction, steered_law
-from curve_formation.core.dynamics import arc_step
-from curve_formation.core.experiment import load_experiment
-from curve_formation.core.safety import AVOIDANCE_OFF
+from curve_formation.core.config.experiment import load_experiment
+from curve_formation.core.controller.agent import AgentController
+from curve_formation.core.controller.agent_config import agent_configs
+from curve_formation.core.controller.control import agent_command, Gains, WheelLimits
+from curve_formation.core.controller.driving import drive_direction, steered_law
+from curve_formation.core.controller.safety import AVOIDANCE_OFF
+from curve_formation.core.formation.dynamics import arc_step
 from curve_formation.paths import resolve_config
 
 
@@ -112,7 +112,7 @@ def test_a_curves_first_pose_takes_the_sooner_way_outright():
         return tx - 0.3 * math.cos(way), ty - 0.3 * math.sin(way), heading
 
     # Poses 10 s apart: a robot could drive from one to the next (a jump a robot cannot
-    # make is rejected as a measurement, core.plausibility).
+    # make is rejected as a measurement, core.controller.plausibility).
     controller.set_curve(phase.curve, 0, phase.s)
     assert controller.on_pose(*pose_with_target_at(right), 0.0)
     assert controller.front == -1.0

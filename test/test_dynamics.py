@@ -5,7 +5,7 @@ the robot-side watchdog.
 import numpy as np
 import pytest
 
-from curve_formation.core.dynamics import arc_step, DrivenUnicycle
+from curve_formation.core.formation.dynamics import arc_step, DrivenUnicycle
 
 
 @pytest.mark.parametrize('step', [0.01, 1 / 30, 0.25, 3.0])
@@ -39,8 +39,8 @@ def test_the_kinematic_world_steps_at_once_only_where_no_contact_can_happen():
     throughout, in under half the steps.
     """
     from conftest import DATA_DIR
-    from curve_formation.core.experiment import load_experiment
-    from curve_formation.core.kinematic_world import KinematicWorld
+    from curve_formation.core.config.experiment import load_experiment
+    from curve_formation.core.world.kinematic import KinematicWorld
     experiment = load_experiment(DATA_DIR / 'arena_bodies.yaml')
     worlds = [KinematicWorld(experiment) for _ in range(2)]
     worlds[1]._apart_over = lambda span: False   # physics_dt steps throughout
@@ -71,7 +71,7 @@ def test_a_jittered_link_delays_each_command_its_own_way_but_never_reorders_them
     every command acts 0.07-0.13 s after it came, or as soon as the one before it has, and
     the delays spread as a uniform draw does (std 0.017 s).
     """
-    from curve_formation.core.dynamics import CommandQueue
+    from curve_formation.core.formation.dynamics import CommandQueue
     queue = CommandQueue(latency=0.1, jitter=0.03, seed=4)
     sent = np.arange(0.0, 100.0, 0.1)
     for k, t in enumerate(sent):

@@ -1,4 +1,6 @@
-"""The e-stop's rules (core.estop) and what a run's metrics say of it (core.metrics)."""
+"""The e-stop's rules (core.controller.estop) and what a run's metrics say of it
+(core.record.metrics).
+"""
 
 import math
 
@@ -6,16 +8,16 @@ import numpy as np
 import pytest
 
 from conftest import CONFIG_DIR
-from curve_formation.core import metrics
-from curve_formation.core.estop import (
+from curve_formation.core.config.experiment import load_experiment
+from curve_formation.core.controller.estop import (
     estop_fields,
     EstopLatch,
     parse_report,
     stopped_intervals,
     stopped_time,
 )
-from curve_formation.core.experiment import load_experiment
-from curve_formation.core.simulator import simulate
+from curve_formation.core.record import metrics
+from curve_formation.core.sim.batch import simulate
 
 
 def test_a_stop_holds_until_a_release_and_a_release_older_than_the_stop_is_ignored():

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from curve_formation.core.expressions import Expression, ExpressionError
+from curve_formation.core.formation.expressions import Expression, ExpressionError
 
 
 def test_evaluates_paper_curve_on_arrays():

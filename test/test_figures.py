@@ -1,5 +1,5 @@
-"""Figures as a paper prints them, the animation and the run's folder (core.plots,
-core.animation, outputs): units on every axis, nothing over the data, bodies and walls to
+"""Figures as a paper prints them, the animation and the run's folder (figures.plots,
+figures.animation, outputs): units on every axis, nothing over the data, bodies and walls to
 scale, headings unwrapped, the error not clamped, PNG at 300 dpi beside a PDF.
 """
 
@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 
 from conftest import CONFIG_DIR
-from curve_formation.core import metrics, plots
-from curve_formation.core.experiment import load_experiment
-from curve_formation.core.simulator import simulate
+from curve_formation.core.config.experiment import load_experiment
+from curve_formation.core.record import metrics
+from curve_formation.core.sim.batch import simulate
+from curve_formation.figures import plots
 
 
 UNIT = re.compile(r'\(.+\)\s*$')
@@ -44,7 +45,7 @@ def layout_problems(fig):
 
 @pytest.fixture
 def checked_figures(monkeypatch):
-    """Every figure core.plots saves, checked before it is written: {file name: figure}."""
+    """Every figure figures.plots saves, checked before it is written: {file name: figure}."""
     seen = {}
     save = plots._save
 
@@ -132,7 +133,7 @@ def test_robots_keep_their_colour_across_figures():
 def test_the_animation_shows_the_robots_moving(arena_run, tmp_path):
     import imageio_ffmpeg
 
-    from curve_formation.core.animation import animate, frame_times
+    from curve_formation.figures.animation import animate, frame_times
     experiment, sim = arena_run
     keep = sim.t <= 20.0
     out = tmp_path / 'film.mp4'
@@ -157,7 +158,7 @@ def test_the_animation_shows_the_robots_moving(arena_run, tmp_path):
 def test_a_gif_is_written_too(arena_run, tmp_path):
     from PIL import Image
 
-    from curve_formation.core.animation import animate
+    from curve_formation.figures.animation import animate
     experiment, sim = arena_run
     keep = sim.t <= 5.0
     frames = animate(tmp_path / 'film.gif', experiment, sim.t[keep], sim.poses[keep],

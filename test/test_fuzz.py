@@ -15,8 +15,8 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from conftest import DATA_DIR
-from curve_formation.core import metrics
-from curve_formation.core.curves import Curve, make_basis
+from curve_formation.core.formation.curves import Curve, make_basis
+from curve_formation.core.record import metrics
 from curve_formation.nodes import messages, qos, topics
 from curve_formation.run.run_options import RunOptions
 from curve_formation.run.runner import Run

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from curve_formation.core.graph import DirectedGraph, Edge, GraphError
+from curve_formation.core.formation.graph import DirectedGraph, Edge, GraphError
 
 
 def chain(n):

@@ -1,12 +1,13 @@
-"""The link's latency measured from commands and poses (core.link_estimate, measure-link; over
+"""The link's latency measured from commands and poses (core.controller.link_estimate,
+measure-link; over
 DDS from a recorded bag: test_disturbance).
 """
 
 import numpy as np
 import pytest
 
-from curve_formation.core.dynamics import arc_step
-from curve_formation.core.link_estimate import estimate_latency, replay_online
+from curve_formation.core.controller.link_estimate import estimate_latency, replay_online
+from curve_formation.core.formation.dynamics import arc_step
 
 
 def driven_robot(latency, jitter=0.0, loss=0.0, seed=0, seconds=30.0, drift=(0.005, 0.1),
@@ -144,9 +145,9 @@ def test_the_ros_loop_over_a_jittered_link_settles_with_the_latency_estimated_on
     import yaml
 
     from curve_formation.bags.bag import read_messages
-    from curve_formation.core.experiment import build_experiment
-    from curve_formation.core.metrics import result_metrics
-    from curve_formation.core.simulator import simulate
+    from curve_formation.core.config.experiment import build_experiment
+    from curve_formation.core.record.metrics import result_metrics
+    from curve_formation.core.sim.batch import simulate
     from curve_formation.paths import resolve_config
     from curve_formation.run.run_options import RunOptions
     from curve_formation.run.runner import Run

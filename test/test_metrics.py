@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-from curve_formation.core import metrics
-from curve_formation.core.curve_sources import expression_samples
-from curve_formation.core.curves import fit_curve, FourierBasis
+from curve_formation.core.formation.curve_sources import expression_samples
+from curve_formation.core.formation.curves import fit_curve, FourierBasis
+from curve_formation.core.record import metrics
 
 
 def test_settle_time_is_last_entry_below_tolerance():
@@ -60,7 +60,7 @@ def test_peak_wheel_speed():
 
 
 def test_closest_approach_finds_the_nearest_pair_over_time():
-    from curve_formation.core.metrics import closest_approach
+    from curve_formation.core.record.metrics import closest_approach
     poses = np.zeros((3, 3, 3))
     poses[:, 1, 0] = [1.0, 0.3, 0.8]
     poses[:, 2, 1] = [2.0, 2.0, 0.5]
@@ -71,7 +71,7 @@ def test_a_reversing_robot_is_measured_by_the_point_it_steers():
     """controller.reverse: a robot backing onto its target steers the point behind its axle;
     its error is that point's, not the 2 l of the point ahead (which it is without reverse).
     """
-    from curve_formation.core.control import Gains
+    from curve_formation.core.controller.control import Gains
     offset = 0.01
     poses = np.array([[[0.5, 0.2, 0.0], [0.1, 0.1, np.pi / 2]]])   # (R=1, n=2, 3)
     targets = np.array([[[0.49, 0.2], [0.1, 0.11]]])   # behind robot 1, ahead of robot 2

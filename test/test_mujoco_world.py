@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from curve_formation.core.dynamics import arc_step
-from curve_formation.core.experiment import build_experiment, load_experiment
-from curve_formation.core.mujoco_world import MujocoWorld
+from curve_formation.core.config.experiment import build_experiment, load_experiment
+from curve_formation.core.formation.dynamics import arc_step
+from curve_formation.core.world.mujoco_world import MujocoWorld
 
 
 def two_robots(poses=((0.5, 0.4, 0.3), (1.5, 0.4, 0.0)), physics=None, radius=0.04):
@@ -170,6 +170,6 @@ def test_the_shipped_arena_builds_with_walls_and_every_robot():
 
 
 def test_a_robot_lighter_than_its_wheels_is_refused_when_the_file_loads():
-    from curve_formation.core.experiment import ConfigError
+    from curve_formation.core.config.experiment import ConfigError
     with pytest.raises(ConfigError, match='physics.mass'):
         two_robots(physics={'mass': 0.008})

@@ -1,4 +1,4 @@
-"""The nodes' tick pipeline without ROS (core.pipeline): in the kinematic world it agrees with
+"""The nodes' tick pipeline without ROS (core.sim.pipeline): in the kinematic world it agrees with
 the batch simulator; in the MuJoCo world (robots with mass, motors and casters) the shipped
 arena demo settles as in the kinematic one, without a contact.
 """
@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from curve_formation import cli
-from curve_formation.core.experiment import load_experiment
-from curve_formation.core.metrics import result_metrics
-from curve_formation.core.pipeline import simulate_pipeline
-from curve_formation.core.simulator import simulate
+from curve_formation.core.config.experiment import load_experiment
+from curve_formation.core.record.metrics import result_metrics
+from curve_formation.core.sim.batch import simulate
+from curve_formation.core.sim.pipeline import simulate_pipeline
 
 
 @pytest.fixture(scope='module')
@@ -97,7 +97,7 @@ def test_an_untold_link_delay_is_what_the_nodes_meet(arena_demo):
     estimating it online from 0 (estimate_latency), it settles too, every estimate within
     20 ms of the truth.
     """
-    from curve_formation.core.pipeline import Link
+    from curve_formation.core.sim.pipeline import Link
 
     def with_controller(**settings):
         return dataclasses.replace(arena_demo, spec=arena_demo.spec.model_copy(update={
@@ -121,7 +121,7 @@ def mona_arena_start(seed, **controller):
     """
     import yaml
 
-    from curve_formation.core.experiment import build_experiment, seeded_start, with_start
+    from curve_formation.core.config.experiment import build_experiment, seeded_start, with_start
     from curve_formation.paths import resolve_config
     path = resolve_config('mona_arena')
     data = yaml.safe_load(open(path))
@@ -143,7 +143,7 @@ def test_mona_arena_settles_with_commands_300_ms_late_told(seed):
     flipping between forwards and backwards, until the barrier rate was capped at
     1 / (T + L) (safety.with_latency).
     """
-    from curve_formation.core.pipeline import Link
+    from curve_formation.core.sim.pipeline import Link
 
     def run(latency):
         case = mona_arena_start(seed, command_latency=latency, predict_pose=True,
@@ -173,7 +173,7 @@ def test_mona_arena_holds_old_poses(order, pose_latency, seed):
     between poses), it took all of that motion for the last command's: seed 3 took 2.4x,
     and seed 2 of the second-order observer ended 0.5 m off.
     """
-    from curve_formation.core.pipeline import Link
+    from curve_formation.core.sim.pipeline import Link
 
     def run(latency):
         case = mona_arena_start(seed, **({'observer_order': 2, 'observer_rate': 8.0}
@@ -196,7 +196,7 @@ def test_a_curve_that_begins_to_move_is_announced_ahead_as_the_curve_server_does
     """
     import yaml
 
-    from curve_formation.core.experiment import build_experiment
+    from curve_formation.core.config.experiment import build_experiment
     text = open('config/moving_curve.yaml').read()
     assert text.count('motion: {velocity: [0.01, 0.0]}') == 1
     case = build_experiment(yaml.safe_load(text.replace(
@@ -217,9 +217,9 @@ def test_a_drift_that_swings_is_not_read_as_latency():
     """
     import yaml
 
-    from curve_formation.core.experiment import build_experiment, seeded_start, with_start
-    from curve_formation.core.pipeline import Pipeline
-    from curve_formation.core.worlds import make_world
+    from curve_formation.core.config.experiment import build_experiment, seeded_start, with_start
+    from curve_formation.core.sim.pipeline import Pipeline
+    from curve_formation.core.world.worlds import make_world
     from curve_formation.paths import resolve_config
     path = resolve_config('arena_demo')
     data = yaml.safe_load(open(path))

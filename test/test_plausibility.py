@@ -1,4 +1,6 @@
-"""What a controller believes (core.plausibility, core.agent): finite is not enough."""
+"""What a controller believes (core.controller.plausibility, core.controller.agent): finite is not
+enough.
+"""
 
 import math
 
@@ -6,18 +8,18 @@ import numpy as np
 import pytest
 
 from conftest import CONFIG_DIR
-from curve_formation.core.agent import AgentController
-from curve_formation.core.agent_config import agent_configs
-from curve_formation.core.curve_codec import CodecError, decode_curve, encode_curve
-from curve_formation.core.curves import Curve, make_basis
-from curve_formation.core.experiment import load_experiment
-from curve_formation.core.plausibility import (
+from curve_formation.core.config.experiment import load_experiment
+from curve_formation.core.controller.agent import AgentController
+from curve_formation.core.controller.agent_config import agent_configs
+from curve_formation.core.controller.plausibility import (
     bounded_command,
     DEFAULT_MAX_SPEED,
     jump_problem,
     plausible_box,
     quaternion_problem,
 )
+from curve_formation.core.formation.curve_codec import CodecError, decode_curve, encode_curve
+from curve_formation.core.formation.curves import Curve, make_basis
 
 
 @pytest.fixture(scope='module')

@@ -14,7 +14,7 @@ import rclpy
 from conftest import DATA_DIR, private_domain
 from curve_formation.bags.analysis import analyze_bag, load_bag_run
 from curve_formation.bags.bag import BagError, read_messages
-from curve_formation.core import metrics
+from curve_formation.core.record import metrics
 from curve_formation.run.run_options import RunOptions
 from curve_formation.run.runner import Run
 
@@ -248,8 +248,8 @@ def law_on_bag_inputs(bag):
     """law(i, tick) -> (v, w): agent i's law (core) evaluated on the bag's messages whose
     stamps the tick names: its pose and its in-neighbours' states.
     """
-    from curve_formation.core.agent import AgentController
-    from curve_formation.core.agent_config import AgentConfig
+    from curve_formation.core.controller.agent import AgentController
+    from curve_formation.core.controller.agent_config import AgentConfig
     from curve_formation.nodes import messages
     run = load_bag_run(bag)
     experiment = run.experiment
@@ -273,8 +273,8 @@ def law_on_bag_inputs(bag):
             rate_hz=experiment.spec.controller.rate_hz))
         ctrl.set_curve(phase.curve, 0, phase.s)
         pose = poses[i, round(tick['pose_stamp'], 9)]
-        # Freshness was the node's to judge, on receipt (core.agent): here every input the
-        # tick named counts as just received.
+        # Freshness was the node's to judge, on receipt (core.controller.agent): here every input
+        # the tick named counts as just received.
         ctrl.on_pose(*pose, received=pose[3])
         for name, stamp in tick.items():
             if name.startswith('stamp_'):

@@ -19,9 +19,8 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import Bool
 
 from conftest import no_history_qos
-from curve_formation import links
-from curve_formation.core import wire
-from curve_formation.core.experiment import load_experiment
+from curve_formation import links, wire
+from curve_formation.core.config.experiment import load_experiment
 from curve_formation.nodes import qos, topics
 from curve_formation.nodes.params import ParameterError
 from curve_formation.nodes.robot_bridge import RobotBridge

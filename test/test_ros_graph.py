@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from conftest import DATA_DIR
-from curve_formation.core import metrics
-from curve_formation.core.simulator import simulate
+from curve_formation.core.record import metrics
+from curve_formation.core.sim.batch import simulate
 from curve_formation.run.run_options import RunOptions
 from curve_formation.run.runner import Run, run_experiment
 

@@ -16,12 +16,12 @@ from std_msgs.msg import Float64MultiArray, String
 import yaml
 
 from conftest import DATA_DIR, no_history_qos
-from curve_formation.core.agent import State
-from curve_formation.core.curve_codec import CurveClock
-from curve_formation.core.curve_sources import expression_samples
-from curve_formation.core.curves import fit_curve, FourierBasis
-from curve_formation.core.experiment import load_experiment
-from curve_formation.core.motion import CurveMotion
+from curve_formation.core.config.experiment import load_experiment
+from curve_formation.core.controller.agent import State
+from curve_formation.core.formation.curve_codec import CurveClock
+from curve_formation.core.formation.curve_sources import expression_samples
+from curve_formation.core.formation.curves import fit_curve, FourierBasis
+from curve_formation.core.formation.motion import CurveMotion
 from curve_formation.nodes import messages, qos, topics
 from curve_formation.nodes.curve_server import CurveServer
 from curve_formation.nodes.estop import EstopHolder
@@ -548,13 +548,14 @@ def test_malformed_curve_messages_are_refused_and_the_curve_kept(ros):
 @pytest.mark.parametrize('name', ['closed_curve', 'mona_arena', 'arena_demo',
                                   str(DATA_DIR / 'fast_disturbed.yaml')])
 def test_agent_settings_survive_the_trip_through_node_parameters(ros, name):
-    """Experiment -> AgentConfig (core.agent_config.agent_configs) -> node parameters (what
+    """Experiment -> AgentConfig (core.controller.agent_config.agent_configs) -> node parameters
+    (what
     the runner writes) -> the node's AgentConfig: the same settings, for every agent.
     """
     from rclpy.parameter import Parameter
 
-    from curve_formation.core.agent_config import agent_configs
-    from curve_formation.core.agent_parameters import node_parameters
+    from curve_formation.core.config.parameters import node_parameters
+    from curve_formation.core.controller.agent_config import agent_configs
     from curve_formation.nodes.formation_controller import agent_config
     from curve_formation.paths import resolve_config
     context, add, _ = ros

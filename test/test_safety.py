@@ -17,8 +17,8 @@ import rclpy
 from std_msgs.msg import Bool
 
 from conftest import CONFIG_DIR, DATA_DIR, no_history_qos
-from curve_formation.core import metrics
-from curve_formation.core.simulator import simulate
+from curve_formation.core.record import metrics
+from curve_formation.core.sim.batch import simulate
 from curve_formation.nodes import qos, topics
 from curve_formation.run.run_options import RunOptions
 from curve_formation.run.runner import Run
@@ -545,7 +545,7 @@ def test_a_release_is_done_only_when_the_nodes_that_move_the_robots_have_it_too(
     stayed stopped while the command said all were released): the command waits for every
     holder it has heard, and names one that did not confirm.
     """
-    from curve_formation.core.estop import EstopReport
+    from curve_formation.core.controller.estop import EstopReport
     from curve_formation.run.estop_command import _report, Tally
 
     tally = Tally(engage=False, expect=2)

@@ -1,9 +1,11 @@
-"""core.sample_log: rows round-trip through disk; memory held is one block, whatever the length."""
+"""core.record.sample_log: rows round-trip through disk; memory held is one block, whatever the
+length.
+"""
 
 import numpy as np
 import pytest
 
-from curve_formation.core.sample_log import SampleLog
+from curve_formation.core.record.sample_log import SampleLog
 
 
 FIELDS = {'t': ((), float), 'poses': ((3, 3), float), 'curve_id': ((), np.int64),

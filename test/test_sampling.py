@@ -1,12 +1,13 @@
-"""The one sampler of a run's record (core.sampling) and the one phase index
-(core.experiment.phase_index), shared by the live monitor, the bag analysis and the simulators.
+"""The one sampler of a run's record (core.record.sampling) and the one phase index
+(core.config.experiment.phase_index), shared by the live monitor, the bag analysis and the
+simulators.
 """
 
 import numpy as np
 import pytest
 
-from curve_formation.core.experiment import phase_index
-from curve_formation.core.sampling import GridSampler, LatestValues
+from curve_formation.core.config.experiment import phase_index
+from curve_formation.core.record.sampling import GridSampler, LatestValues
 
 
 def latest_before(events, at, width):

@@ -1,11 +1,13 @@
-"""The curve schedule both the curve server and the nodes' pipeline step (core.schedule)."""
+"""The curve schedule both the curve server and the nodes' pipeline step
+(core.schedule.curve_schedule).
+"""
 
 import numpy as np
 import pytest
 
 from conftest import DATA_DIR
-from curve_formation.core.experiment import ANNOUNCE_AHEAD, load_experiment
-from curve_formation.core.schedule import CurveSchedule
+from curve_formation.core.config.experiment import ANNOUNCE_AHEAD, load_experiment
+from curve_formation.core.schedule.curve_schedule import CurveSchedule
 
 
 @pytest.fixture

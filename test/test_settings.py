@@ -1,5 +1,5 @@
 """Every controller setting has one default, range and set of choices: the node's parameter
-table (nodes/formation_controller.py) agrees with the experiment schema (core/config_schema.py)
+table (nodes/formation_controller.py) agrees with the experiment schema (core/config/schema.py)
 for every parameter that comes from an experiment key, and AgentConfig's own defaults agree with
 both.
 """
@@ -11,7 +11,7 @@ from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 import pytest
 
-from curve_formation.core.config_schema import ExperimentSpec
+from curve_formation.core.config.schema import ExperimentSpec
 from curve_formation.nodes import formation_controller as node
 
 
@@ -109,7 +109,7 @@ def node_accepts(params):
 
 
 def schema_accepts(data):
-    from curve_formation.core.experiment import build_experiment, ConfigError
+    from curve_formation.core.config.experiment import build_experiment, ConfigError
     try:
         build_experiment(data, 'rules.yaml')
     except ConfigError:
@@ -125,9 +125,9 @@ def arena_demo():
 
 
 def the_leaders_parameters():
-    from curve_formation.core.agent_config import agent_configs
-    from curve_formation.core.agent_parameters import node_parameters
-    from curve_formation.core.experiment import build_experiment
+    from curve_formation.core.config.experiment import build_experiment
+    from curve_formation.core.config.parameters import node_parameters
+    from curve_formation.core.controller.agent_config import agent_configs
     experiment = build_experiment(arena_demo(), 'arena_demo.yaml')
     return node_parameters(agent_configs(experiment, 10.0)[0])
 
@@ -179,8 +179,8 @@ def test_agent_configs_defaults_are_the_schemas():
     """
     import dataclasses
 
-    from curve_formation.core.agent_config import agent_configs, AgentConfig
-    from curve_formation.core.experiment import build_experiment
+    from curve_formation.core.config.experiment import build_experiment
+    from curve_formation.core.controller.agent_config import agent_configs, AgentConfig
     experiment = build_experiment({
         'name': 'defaults', 'agents': {'count': 3, 'initial': {'random': {
             'seed': 1, 'center': [0.0, 0.0], 'half_width': [1.0, 1.0]}}},

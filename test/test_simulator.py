@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from curve_formation.core import metrics
-from curve_formation.core.control import NO_LIMITS
-from curve_formation.core.experiment import load_experiment, point_robots
-from curve_formation.core.simulator import simulate
+from curve_formation.core.config.experiment import load_experiment, point_robots
+from curve_formation.core.controller.control import NO_LIMITS
+from curve_formation.core.record import metrics
+from curve_formation.core.sim.batch import simulate
 from curve_formation.paths import resolve_config
 
 
@@ -167,10 +167,10 @@ def test_every_module_compiled_into_the_simulator_is_watched_for_changes():
     """A core module whose functions the kernels compile in must be among the SOURCES whose
     change drops numba's cache (else an edit of it would leave the old code running).
     """
-    from curve_formation.core import jit, simulator  # noqa: F401 (compiles its kernels)
-    compiled_in = {function.__module__.rsplit('.', 1)[1] + '.py'
+    from curve_formation.core.base import jit  # noqa: F401 (compiles its kernels)
+    compiled_in = {function.__module__.split('.core.', 1)[1].replace('.', '/') + '.py'
                    for function in jit._COMPILED}
-    assert 'driving.py' in compiled_in
+    assert 'controller/driving.py' in compiled_in
     assert compiled_in <= set(jit.SOURCES)
 
 
@@ -178,18 +178,18 @@ def test_compiled_cache_is_dropped_when_a_law_source_changes(tmp_path):
     """numba would keep running a stepping loop compiled from an older control.py."""
     import shutil
 
-    from curve_formation.core import jit
-    here = Path(jit.__file__).parent
+    from curve_formation.core.base import jit
     for name in jit.SOURCES:
-        shutil.copy(here / name, tmp_path / name)
-    cache = jit.cache_folder(tmp_path)   # NUMBA_CACHE_DIR's, as bootstrap.sh sets it
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(jit.CORE / name, tmp_path / name)
+    cache = jit.cache_folder(tmp_path / 'sim')   # NUMBA_CACHE_DIR's, as bootstrap.sh sets it
     cache.mkdir(parents=True)
     (cache / 'simulator._run-1.py311.nbi').write_text('compiled')
     assert jit.drop_stale_cache(tmp_path)            # no record of the sources yet
     assert not list(cache.glob('*.nbi'))
     (cache / 'simulator._run-1.py311.nbi').write_text('compiled')
     assert not jit.drop_stale_cache(tmp_path)        # unchanged: the cache stays
-    with open(tmp_path / 'control.py', 'a') as f:
+    with open(tmp_path / 'controller' / 'control.py', 'a') as f:
         f.write('# edited\n')
     assert jit.drop_stale_cache(tmp_path)
     assert not list(cache.glob('*.nbi'))
@@ -219,7 +219,7 @@ def test_the_batch_simulator_refuses_settings_of_motors_it_does_not_have(key):
     """
     import yaml
 
-    from curve_formation.core.experiment import build_experiment, ConfigError
+    from curve_formation.core.config.experiment import build_experiment, ConfigError
     data = yaml.safe_load(open('config/arena_demo.yaml'))
     data['limits'][key] = 0.001
     experiment = build_experiment(data, 'arena_demo.yaml')
@@ -233,7 +233,7 @@ def test_the_batch_simulator_refuses_a_command_latency_its_robots_do_not_have():
     """
     import yaml
 
-    from curve_formation.core.experiment import build_experiment, ConfigError
+    from curve_formation.core.config.experiment import build_experiment, ConfigError
     data = yaml.safe_load(open('config/arena_demo.yaml'))
     data['controller']['command_latency'] = 0.1
     experiment = build_experiment(data, 'arena_demo.yaml')
@@ -248,8 +248,8 @@ def test_the_batch_simulator_replays_each_controllers_online_latency_estimate():
     controllers do), as the nodes' pipeline with its live estimates ends; under continuous
     control, with no commands to time, it refuses the setting by name.
     """
-    from curve_formation.core.experiment import ConfigError
-    from curve_formation.core.pipeline import simulate_pipeline
+    from curve_formation.core.config.experiment import ConfigError
+    from curve_formation.core.sim.pipeline import simulate_pipeline
     experiment = load_experiment(resolve_config('arena_demo'))
     assert experiment.spec.controller.estimate_latency
     assert simulate(experiment, duration=30.0).latencies == [0.0] * experiment.n
@@ -267,7 +267,7 @@ def test_a_batch_run_whose_commands_would_show_a_latency_is_refused_by_name(late
     """
     from test_link_estimate import driven_robot
 
-    from curve_formation.core.estimate_replay import EstimateTakenError, held_estimates
+    from curve_formation.core.sim.estimate_replay import EstimateTakenError, held_estimates
     experiment = load_experiment(resolve_config('arena_demo'))
     sent, commands, seen, poses = driven_robot(latency, camera=100.0)
     held = np.repeat(commands, 10, axis=0)[:len(seen)]

@@ -55,9 +55,9 @@ def test_the_demo_split_over_four_hosts_settles_and_survives_a_lost_link(tmp_pat
     cut off for 2 s every controller stops (its poses are stale) and they all drive again
     once the link is back.
     """
-    from curve_formation.core.experiment import load_experiment
-    from curve_formation.core.metrics import settle_time
-    from curve_formation.core.simulator import simulate
+    from curve_formation.core.config.experiment import load_experiment
+    from curve_formation.core.record.metrics import settle_time
+    from curve_formation.core.sim.batch import simulate
     from curve_formation.paths import discovery_server_command, resolve_config
     with Hosts(4) as hosts:
         server = None

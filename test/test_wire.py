@@ -1,4 +1,4 @@
-"""The last link to a robot without ROS: wire formats (core.wire) and byte links (links)."""
+"""The last link to a robot without ROS: wire formats (wire) and byte links (links)."""
 
 import math
 import socket
@@ -7,8 +7,7 @@ import time
 import numpy as np
 import pytest
 
-from curve_formation import links
-from curve_formation.core import wire
+from curve_formation import links, wire
 
 
 RADIUS, BASE = 0.015, 0.08

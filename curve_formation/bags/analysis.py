@@ -4,7 +4,7 @@ The bag's metadata carries the experiment file (written by `curve-formation run 
 curves are taken from the recorded /formation/curve messages, so a curve that was observed at
 run time is measured too. Poses, commands and estimates are sampled on a uniform grid (latest
 value, NaN before the first) from t = 0 at the first curve message, by the live monitor's
-sampler (core.sampling), which refuses the poses the controllers refuse.
+sampler (core.record.sampling), which refuses the poses the controllers refuse.
 """
 
 from dataclasses import dataclass, replace
@@ -14,13 +14,10 @@ import time
 
 import numpy as np
 
+from curve_formation import diagnostics
 from curve_formation.bags.bag import bag_info, bag_summary, BagError, read_messages
 from curve_formation.bags.streams import stream_topic
-from curve_formation.core import diagnostics, metrics, plots
-from curve_formation.core.agent_config import geofence
-from curve_formation.core.curve_codec import CodecError
-from curve_formation.core.estop import stopped_intervals
-from curve_formation.core.experiment import (
+from curve_formation.core.config.experiment import (
     build_experiment,
     control_rate,
     load_experiment,
@@ -28,7 +25,12 @@ from curve_formation.core.experiment import (
     phase_index,
     received_phases,
 )
-from curve_formation.core.sampling import GridSampler, LatestValues
+from curve_formation.core.controller.agent_config import geofence
+from curve_formation.core.controller.estop import stopped_intervals
+from curve_formation.core.formation.curve_codec import CodecError
+from curve_formation.core.record import metrics
+from curve_formation.core.record.sampling import GridSampler, LatestValues
+from curve_formation.figures import plots
 from curve_formation.interface import (
     agent_parameters_from_msg,
     CMD_VEL,
@@ -265,7 +267,7 @@ def simulate_recorded(experiment, t, poses):
     known poses (t[0], poses[0]); returns a SimResult whose t is on the run's clock (s since
     t = 0).
     """
-    from curve_formation.core.pipeline import simulate_kinematic
+    from curve_formation.core.sim.pipeline import simulate_kinematic
     begin = float(t[0])
     # A phase that began before the first known poses starts the simulation.
     start_phase = max(0, int(np.searchsorted([p.start for p in experiment.phases], begin,

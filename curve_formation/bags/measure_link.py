@@ -1,14 +1,15 @@
 """The link's latency per robot from a recorded bag: each robot's cmd_vel (dated when the
 recorder got it, as the robot's link would) against its poses (dated by their stamps, when the
-camera saw them), by core.link_estimate. What `curve-formation measure-link` prints, and the
+camera saw them), by core.controller.link_estimate. What `curve-formation measure-link` prints,
+and the
 experiment setting it suggests (controller.command_latency).
 """
 
 import numpy as np
 
 from curve_formation.bags.bag import bag_summary, BagError, read_messages
-from curve_formation.core.curve_codec import CodecError
-from curve_formation.core.link_estimate import estimate_latency
+from curve_formation.core.controller.link_estimate import estimate_latency
+from curve_formation.core.formation.curve_codec import CodecError
 from curve_formation.interface import CMD_VEL, POSE, pose_from_msg, robot_of, twist_from_msg
 
 
@@ -22,7 +23,7 @@ def told_motor_lag(path):
     """
     from curve_formation.bags.analysis import EXPERIMENT_KEY
     from curve_formation.bags.bag import bag_info
-    from curve_formation.core.experiment import parse_experiment_text
+    from curve_formation.core.config.experiment import parse_experiment_text
     _, custom = bag_info(path)
     if EXPERIMENT_KEY not in custom:
         return 0.0

@@ -23,7 +23,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 from rclpy.node import Node
 
-from curve_formation.core.experiment import beside_experiment
+from curve_formation.core.config.experiment import beside_experiment
 from curve_formation.nodes import messages, topics
 from curve_formation.nodes.params import (
     declare_parameters,

@@ -16,7 +16,7 @@ from curve_formation.nodes.params import ParameterError
 
 
 PARAMS_HINT = "`curve-formation params EXPERIMENT --out DIR` writes every node's file"
-# Top-level keys of an experiment file (core/config_schema.py): a file with them is not a
+# Top-level keys of an experiment file (core/config/schema.py): a file with them is not a
 # parameters file.
 EXPERIMENT_KEYS = {'agents', 'curves', 'graph', 'controller', 'limits', 'simulation'}
 

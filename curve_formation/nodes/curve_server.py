@@ -13,7 +13,7 @@ readers that missed it; with `reassign_every`, the current curve is published ag
 whenever re-assigning its targets among the robots, from their poses on /formation/robot_poses,
 shortens their squared trips by 10 %; the next scheduled curve is then assigned from the targets as
 re-assigned (Phase.assigned_from), as the simulator does. What is published when is
-core.schedule's, which the nodes' pipeline steps too.
+core.schedule.curve_schedule's, which the nodes' pipeline steps too.
 """
 
 from geometry_msgs.msg import Point, PoseStamped
@@ -24,13 +24,13 @@ from rclpy.node import Node
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
-from curve_formation.core.assignment import AssignmentError, phase_parameters
-from curve_formation.core.curve_sources import fit_points
-from curve_formation.core.curves import CurveError, make_basis
-from curve_formation.core.experiment import ANNOUNCE_AHEAD, points_outside_arena
-from curve_formation.core.metrics import offset_points
-from curve_formation.core.plausibility import MAX_COORDINATE
-from curve_formation.core.schedule import CurveSchedule
+from curve_formation.core.config.experiment import ANNOUNCE_AHEAD, points_outside_arena
+from curve_formation.core.controller.plausibility import MAX_COORDINATE
+from curve_formation.core.formation.assignment import AssignmentError, phase_parameters
+from curve_formation.core.formation.curve_sources import fit_points
+from curve_formation.core.formation.curves import CurveError, make_basis
+from curve_formation.core.record.metrics import offset_points
+from curve_formation.core.schedule.curve_schedule import CurveSchedule
 from curve_formation.nodes import messages, topics
 from curve_formation.nodes.estop import estop_uses, EstopHolder
 from curve_formation.nodes.params import (
@@ -116,7 +116,7 @@ class CurveServer(Node):
         topics.subscription(self, topics.OBSERVED_CURVE, self._on_observed)
         # Holds the e-stop for controllers and bridges that (re)start while it is engaged.
         self.estop = EstopHolder(self, robots=self.experiment.n)
-        # What is published when, on this node's clock (core.schedule, as the nodes'
+        # What is published when, on this node's clock (core.schedule.curve_schedule, as the nodes'
         # pipeline steps it); its last publication is the current curve.
         self.schedule = CurveSchedule(self.experiment, self.params.schedule,
                                       self.params.announce_ahead)
@@ -229,7 +229,8 @@ class CurveServer(Node):
             self.get_logger().info(f'curve {publication.curve_id}: targets re-assigned')
 
     def publish_curve(self, publication, quiet=False):
-        """Publish a curve message of the schedule (core.schedule.Publication) with its path
+        """Publish a curve message of the schedule (core.schedule.curve_schedule.Publication) with
+        its path
         and its markers: the next curve, or the current one with its agents re-assigned or
         moved on.
         """
@@ -299,7 +300,7 @@ class CurveServer(Node):
 
     def _check_in_arena(self, curve):
         """CurveError unless the curve lies in the arena as a curve of the experiment file must
-        (core.experiment.points_outside_arena); without an arena, within MAX_COORDINATE.
+        (core.config.experiment.points_outside_arena); without an arena, within MAX_COORDINATE.
         """
         _, points = curve.sample(2000)
         spec = self.experiment.spec

@@ -5,7 +5,8 @@ and the curve server holds the e-stop through an EstopHolder:
 - it reads /formation/estop (std_msgs/Bool: true stops, false releases) from any publisher,
   with two subscriptions: best effort (which every writer matches, whatever its reliability
   and durability) and reliable (a reliable sender's retransmissions);
-- it keeps the state latched (core.estop.EstopLatch) until a release, whoever sent it and
+- it keeps the state latched (core.controller.estop.EstopLatch) until a release, whoever sent it
+and
   whether or not the sender is still there;
 - it announces its state on /formation/estop_state (latched, and again every
   ANNOUNCE_PERIOD for a late joiner whose history Fast DDS failed to deliver): the
@@ -16,7 +17,7 @@ and the curve server holds the e-stop through an EstopHolder:
 
 from std_msgs.msg import Bool
 
-from curve_formation.core.estop import EstopLatch
+from curve_formation.core.controller.estop import EstopLatch
 from curve_formation.nodes import messages, qos, topics
 from curve_formation.nodes.command_source import command_publishers
 from curve_formation.nodes.guard import Guarded

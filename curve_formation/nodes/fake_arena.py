@@ -1,13 +1,16 @@
 """fake_arena: every robot of an experiment as a body in one arena, standing in for Mona robots.
 
-The world is the experiment's physics.engine, or the `physics` parameter (core.worlds). In the
-kinematic world each robot moves as fake_robot's does (core.dynamics.DrivenUnicycle under its
+The world is the experiment's physics.engine, or the `physics` parameter (core.world.worlds). In
+the
+kinematic world each robot moves as fake_robot's does (core.formation.dynamics.DrivenUnicycle
+under its
 cmd_vel, with its disturbance, latency and watchdog), all of them in one world that advances in
 steps of at most `physics_dt`, pushing overlapping bodies apart and bodies through a wall back
-(core.kinematic_world), so robots block and push each other. In the MuJoCo world each robot is
+(core.world.kinematic), so robots block and push each other. In the MuJoCo world each robot is
 a body with mass on two motor-driven wheels and casters, its cmd_vel turned into wheel speed
 commands as its firmware would, with the experiment's imperfections; contacts come from the
-engine (core.mujoco_world). Publishes every robot's pose on /robot_<i>/pose (or true_pose when
+engine (core.world.mujoco_world). Publishes every robot's pose on /robot_<i>/pose (or true_pose
+when
 a camera tracks them) and all of them on /formation/robot_poses (unless a camera tracker does),
 at `rate_hz`; /diagnostics reports the contacts: how many, for how long, and the smallest gap
 between two bodies. With `links`, the robots are emulated Mona robots behind their last link:
@@ -26,10 +29,10 @@ import numpy as np
 from rclpy.duration import Duration
 from rclpy.node import Node
 
-from curve_formation.core import diagnostics, wire
-from curve_formation.core.disturbance import RunTime
-from curve_formation.core.experiment import wheel_base
-from curve_formation.core.worlds import ENGINES, make_world
+from curve_formation import diagnostics, wire
+from curve_formation.core.config.experiment import wheel_base
+from curve_formation.core.controller.disturbance import RunTime
+from curve_formation.core.world.worlds import ENGINES, make_world
 from curve_formation.links import robot_endpoint
 from curve_formation.nodes import messages, topics
 from curve_formation.nodes.command_source import CommandSourceWatch

@@ -17,8 +17,8 @@ import math
 import numpy as np
 from rclpy.node import Node
 
-from curve_formation.core.disturbance import RunTime, varied
-from curve_formation.core.dynamics import DrivenUnicycle
+from curve_formation.core.controller.disturbance import RunTime, varied
+from curve_formation.core.formation.dynamics import DrivenUnicycle
 from curve_formation.nodes import messages, topics
 from curve_formation.nodes.command_source import CommandSourceWatch
 from curve_formation.nodes.estop import estop_uses, EstopHolder
@@ -86,7 +86,7 @@ TOPICS = (
 ) + ESTOP_TOPICS
 
 class FakeRobot(Node):
-    """Unicycle integrated from cmd_vel; pure maths in core.dynamics.DrivenUnicycle."""
+    """Unicycle integrated from cmd_vel; pure maths in core.formation.dynamics.DrivenUnicycle."""
 
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)

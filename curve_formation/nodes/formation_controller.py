@@ -5,7 +5,7 @@ in-neighbour j, /formation/curve. Publishes at `rate_hz`: cmd_vel (Twist), and o
 its formation_state (target error e_i for out-neighbours), and every tick its
 disturbance_estimate (stamped with the pose that tick used) and /diagnostics. Any missing or
 stale input gives a zero Twist and a warning, never a stale command. All the maths is
-core.agent.AgentController.
+core.controller.agent.AgentController.
 """
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -16,14 +16,14 @@ from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 
-from curve_formation.core.agent import AgentController
-from curve_formation.core.agent_config import AgentConfig
-from curve_formation.core.agent_parameters import limit_value
-from curve_formation.core.assignment import AssignmentError
-from curve_formation.core.control import Gains, LAWS, timed_by, WheelLimits
-from curve_formation.core.disturbance import RunTime, varied
-from curve_formation.core.plausibility import bounded_command
-from curve_formation.core.safety import Avoidance, AVOIDANCE_OFF
+from curve_formation.core.config.parameters import limit_value
+from curve_formation.core.controller.agent import AgentController
+from curve_formation.core.controller.agent_config import AgentConfig
+from curve_formation.core.controller.control import Gains, LAWS, timed_by, WheelLimits
+from curve_formation.core.controller.disturbance import RunTime, varied
+from curve_formation.core.controller.plausibility import bounded_command
+from curve_formation.core.controller.safety import Avoidance, AVOIDANCE_OFF
+from curve_formation.core.formation.assignment import AssignmentError
 from curve_formation.nodes import messages, topics
 from curve_formation.nodes.command_source import CommandSourceWatch
 from curve_formation.nodes.estop import estop_uses, EstopHolder
@@ -99,7 +99,7 @@ PARAMETERS = (
           low=0.0),
     Param('radius', 'double', 0.0, "robots' body radius (m), for the safety filter", low=0.0),
     Param('avoidance', 'bool', False, 'safety filter on: keep bodies apart and inside the '
-          "arena (core.safety), from every robot's pose on /formation/robot_poses"),
+          "arena (core.controller.safety), from every robot's pose on /formation/robot_poses"),
     Param('avoidance_margin', 'double', 0.02, 'extra distance kept between bodies (m)',
           low=0.0),
     Param('avoidance_rate', 'double', 5.0, 'barrier rate alpha (1/s), at most rate_hz',
@@ -139,7 +139,7 @@ PARAMETERS = (
           'more to start; the runner sets it when every node shares one process'),
 )
 
-# Where each parameter comes from in an experiment file (core.config_schema's key): its
+# Where each parameter comes from in an experiment file (core.config.schema's key): its
 # default, range and choices are the schema's (test_settings proves it). A key that may be
 # left out (null in the schema, or in a section that may be, as `limits:`) is 0 as a
 # parameter when it is: none, unlimited.
@@ -162,7 +162,7 @@ SCHEMA_KEYS = {
     'min_wheel_speed': 'limits.min_wheel_speed',
     'motor_time_constant': 'limits.motor_time_constant',
 }
-# Parameters computed from several keys (agents, graph, arena, disturbance; core.agent.
+# Parameters computed from several keys (agents, graph, arena, disturbance; core.controller.agent.
 # agent_configs) or that only a node has.
 DERIVED = ('index', 'agent_count', 'role', 'in_neighbours', 'weights', 'rate_hz', 'geofence',
            'avoidance', 'arena', 'pc_disturbance', 'disturbance_varies')
@@ -170,7 +170,7 @@ NODE_ONLY = ('frame_id', 'compiled_law', 'fault_state_drop')
 
 
 def agent_config(p):
-    """AgentConfig from validated parameters (core.agent_parameters.node_parameters gives
+    """AgentConfig from validated parameters (core.config.parameters.node_parameters gives
     them from one); ParameterError on inconsistent ones.
     """
     if p.offset == 0:
@@ -233,7 +233,7 @@ def agent_config(p):
 
 
 def _avoidance(p):
-    """The safety filter's settings from the parameters (core.safety.Avoidance)."""
+    """The safety filter's settings from the parameters (core.controller.safety.Avoidance)."""
     if not p.avoidance:
         return AVOIDANCE_OFF
     if len(p.arena) not in (0, 2) or (p.arena and min(p.arena) <= 0):
@@ -276,7 +276,7 @@ def reason_kind(reason):
 
 
 class FormationController(Node):
-    """Thin ROS layer over core.agent.AgentController."""
+    """Thin ROS layer over core.controller.agent.AgentController."""
 
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
@@ -395,7 +395,7 @@ class FormationController(Node):
                                     throttle_duration_sec=5.0)
             return
         # Within the wheel limits already where the experiment states them; bounded all the
-        # same where it does not (core.plausibility.DEFAULT_MAX_SPEED, _TURN_RATE).
+        # same where it does not (core.controller.plausibility.DEFAULT_MAX_SPEED, _TURN_RATE).
         self.cmd_pub.publish(messages.twist_to_msg(*bounded_command(tick.v, tick.w)))
         if self.tick_pub.get_subscription_count():   # built only when read (camera runs, bags)
             self.tick_pub.publish(messages.tick_to_msg(tick, now))

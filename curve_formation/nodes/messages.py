@@ -32,13 +32,13 @@ import numpy as np
 from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-from curve_formation.core.curve_codec import (
+from curve_formation.core.controller.estop import estop_fields
+from curve_formation.core.formation.curve_codec import (
     CodecError,
     curve_id_from_float,
     encode_curve,
     quaternion_from_yaw,
 )
-from curve_formation.core.estop import estop_fields
 from curve_formation.interface import (  # noqa: F401 (the readers, for the nodes)
     agent_parameters_from_msg,
     curve_clock_from_msg,
@@ -63,7 +63,7 @@ def seconds_to_stamp(seconds):
 
 def curve_to_msg(curve, curve_id, s=None, rate=None, clock=None):
     """Float64MultiArray of a curve and, if given, its coefficients' rate (a moving curve),
-    when it holds (core.curve_codec.CurveClock) and the agents' parameters s (n,).
+    when it holds (core.formation.curve_codec.CurveClock) and the agents' parameters s (n,).
     """
     dims, data = encode_curve(curve, curve_id, s, rate, clock)
     msg = Float64MultiArray()
@@ -108,7 +108,7 @@ NO_NEWS = -1.0   # leader_age before any news of the leader (real ages are above
 
 
 def state_to_msg(state, frame_id='arena', msg=None):
-    """JointState carrying a core.agent.State; `msg`: one to fill, as pose_to_msg."""
+    """JointState carrying a core.controller.agent.State; `msg`: one to fill, as pose_to_msg."""
     if msg is None:
         msg = JointState()
         msg.name = list(STATE_FIELDS)
@@ -266,7 +266,8 @@ def polygon_from_msg(msg):
 
 
 def estop_state_to_msg(holder, role, robot, engaged, by, since, robots=0):
-    """DiagnosticStatus of a node's e-stop state (core.estop.EstopReport's fields): level
+    """DiagnosticStatus of a node's e-stop state (core.controller.estop.EstopReport's fields):
+    level
     WARN engaged, OK released.
     """
     return DiagnosticStatus(

@@ -1,7 +1,7 @@
 """Monitor: samples every robot's pose, command and estimate, as the runner's observer.
 
 t = 0 is when the first curve arrives. Rows are sampled at `record_hz` from the latest values
-(core.sampling, as the analysis of the run's bag samples them; NaN until a value is seen); a
+(core.record.sampling, as the analysis of the run's bag samples them; NaN until a value is seen); a
 sample due while the process was held up is skipped (_sample).
 Not a console script: the runner and tests create it in-process.
 """
@@ -14,12 +14,12 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 from rclpy.node import Node
 
-from curve_formation.core import diagnostics
-from curve_formation.core.agent_config import geofence
-from curve_formation.core.estop import stopped_intervals
-from curve_formation.core.experiment import ReceivedPhases
-from curve_formation.core.sample_log import SampleLog
-from curve_formation.core.sampling import LatestValues
+from curve_formation import diagnostics
+from curve_formation.core.config.experiment import ReceivedPhases
+from curve_formation.core.controller.agent_config import geofence
+from curve_formation.core.controller.estop import stopped_intervals
+from curve_formation.core.record.sample_log import SampleLog
+from curve_formation.core.record.sampling import LatestValues
 from curve_formation.nodes import messages, qos, topics
 from curve_formation.nodes.command_source import command_publishers, WATCH_PERIOD
 from curve_formation.nodes.readiness import subscribe_to_curve
@@ -55,7 +55,8 @@ class Monitor(Node):
     def __init__(self, n, record_hz=20.0, ground_truth=False, watch=True, adoption=True,
                  experiment=None, **kwargs):
         """ground_truth: also record the fake robots' true poses (when a camera tracks them).
-        experiment: the run's (core.experiment.Experiment): the phases followed are told from
+        experiment: the run's (core.config.experiment.Experiment): the phases followed are told
+        from
         its schedule (`followed`); without it, none are kept.
         watch False: only the curve (for t0), on a host of a split run that neither measures
         nor starts the curve server. adoption: also read every controller's state, to time
@@ -65,7 +66,8 @@ class Monitor(Node):
         super().__init__('formation_monitor', start_parameter_services=False, **kwargs)
         self.n = n
         # Each robot's latest pose, command and estimate, sampled as the bag analysis samples
-        # them; a pose is refused where the controllers would refuse it (core.plausibility).
+        # them; a pose is refused where the controllers would refuse it
+        # (core.controller.plausibility).
         self.latest = LatestValues(n, None if experiment is None else geofence(experiment))
         self.true_poses = np.full((n, 3), np.nan) if ground_truth else None
         # per robot, its last two true poses [(stamp s, x, y, theta)]; over every tick that
@@ -222,7 +224,7 @@ class Monitor(Node):
 
     def estop_intervals(self, end):
         """[(start, stop or None)] (s since t = 0, up to `end`) while a node held the e-stop
-        (core.estop.stopped_intervals); [] before t = 0.
+        (core.controller.estop.stopped_intervals); [] before t = 0.
         """
         if self.t0 is None:
             return []
@@ -254,7 +256,7 @@ class Monitor(Node):
         return t, msg
 
     def followed_phases(self):
-        """The phases the run followed (core.experiment.ReceivedPhases); () without one."""
+        """The phases the run followed (core.config.experiment.ReceivedPhases); () without one."""
         return () if self.followed is None else self.followed.phases
 
     def _on_robot_poses(self, msg):

@@ -3,7 +3,7 @@ namespace /robot_<i>.
 
 Each cmd_vel becomes the rim speeds of the two wheels (wheel base from the parameters), scaled
 down together, keeping the curvature, when a wheel would exceed `max_wheel_speed`, and is
-written at once as a line of the robot's wire format (core.wire), at most `rate_hz` lines a
+written at once as a line of the robot's wire format (wire), at most `rate_hz` lines a
 second and two more (see _may_send: a command that comes sooner waits, and a newer command
 replaces it), from a thread at real-time priority (`realtime_priority`) when the bridge has
 a process of its own.
@@ -23,8 +23,8 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 from rclpy.node import Node
 
-from curve_formation.core import wire
-from curve_formation.core.agent import is_stale
+from curve_formation import wire
+from curve_formation.core.controller.agent import is_stale
 from curve_formation.links import LinkError, robot_link
 from curve_formation.nodes import messages, topics
 from curve_formation.nodes.command_source import CommandSourceWatch
@@ -36,7 +36,7 @@ from curve_formation.nodes.topics import Use
 
 # How the robot's firmware reads its lines (robot_bridge, and fake_arena's emulated robots).
 WIRE_PARAMETERS = (
-    Param('wire_format', 'string', 'mona-serial', 'a preset of core.wire.PRESETS, or empty '
+    Param('wire_format', 'string', 'mona-serial', 'a preset of wire.PRESETS, or empty '
           'for command_template and stop_template', choices=('',) + tuple(wire.PRESETS)),
     Param('command_template', 'string', '', "wire_format '': the command line, with {left} "
           'and {right} (wheel speeds) and optionally {seq}, terminator included'),

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from curve_formation.core import metrics, plots
+from curve_formation.core.record import metrics
+from curve_formation.figures import plots
 from curve_formation.results.provenance import described
 from curve_formation.results.report import write_report
 
@@ -22,7 +23,7 @@ def write_outputs(out, experiment, record, result, experiment_path=None, label='
     record: the run's samples: 't' (R,) s, 'poses' (R, n, 3), 'phase' (R,), optionally
     'dhat' (R, n, 2) and any other arrays, all kept in trajectory.npz. result: its metrics
     (metrics.run_metrics and what the caller adds). experiment_text: the experiment as run
-    (default: the file's text). animate: also write animation.mp4 (core.animation).
+    (default: the file's text). animate: also write animation.mp4 (figures.animation).
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -36,7 +37,7 @@ def write_outputs(out, experiment, record, result, experiment_path=None, label='
     if experiment_text is not None:
         (out / 'experiment.yaml').write_text(experiment_text)
     if animate:
-        from curve_formation.core.animation import animate as film
+        from curve_formation.figures.animation import animate as film
         film(out / ANIMATION, experiment, t, poses, phase)
     write_report(out)
     return described_result
@@ -60,7 +61,7 @@ def write_law_comparison(out, experiment, duration, runs=()):
     """
     import dataclasses
 
-    from curve_formation.core.pipeline import simulate_kinematic
+    from curve_formation.core.sim.pipeline import simulate_kinematic
     paper = dataclasses.replace(experiment.gains, law='paper', sampled_heading=False)
     series, found = [], {}
     for key, label, gains in (('paper', "paper's law (simulated)", paper),

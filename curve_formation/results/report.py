@@ -1,7 +1,7 @@
 """report.html: one self-contained page per run (figures and film embedded, no network).
 
 Built from what `sim`, `run`, `analyze` and the demo write into a run's folder: metrics.json
-(with its units and provenance), the figures (core.plots), the animation (core.animation) and
+(with its units and provenance), the figures (figures.plots), the animation (figures.animation) and
 the experiment's text. It says in plain words whether each curve settled and why not,
 whether bodies touched, when the e-stop held the robots and which node died.
 """

@@ -13,14 +13,14 @@ import socket
 
 import yaml
 
-from curve_formation.core.agent_config import agent_configs
-from curve_formation.core.agent_parameters import limit_parameter, node_parameters
-from curve_formation.core.experiment import (
+from curve_formation.core.config.experiment import (
     control_rate,
     variations_text,
     wheel_base,
     wheel_radius,
 )
+from curve_formation.core.config.parameters import limit_parameter, node_parameters
+from curve_formation.core.controller.agent_config import agent_configs
 from curve_formation.interface import robot_namespace
 from curve_formation.run.run_options import DEFAULTS
 

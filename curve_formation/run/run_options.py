@@ -36,7 +36,7 @@ class RunOptions:
     isolated: a private random ROS_DOMAIN_ID and LOCALHOST discovery (tests, the demo);
         otherwise the caller's ROS_DOMAIN_ID (0 when unset) and discovery range, where the
         lab's RViz, `ros2 topic echo` and robot drivers are.
-    animate: also write animation.mp4 of the run beside its figures (core.animation).
+    animate: also write animation.mp4 of the run beside its figures (figures.animation).
     """
 
     single_process: bool = False

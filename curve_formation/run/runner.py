@@ -20,10 +20,11 @@ import time
 import numpy as np
 from rclpy.serialization import serialize_message
 
+from curve_formation import diagnostics
 from curve_formation.bags.analysis import bag_accounting, RUN_END_KEY
 from curve_formation.bags.bag import BagWriter
-from curve_formation.core import diagnostics, metrics
-from curve_formation.core.experiment import control_rate, load_experiment, phase_index
+from curve_formation.core.config.experiment import control_rate, load_experiment, phase_index
+from curve_formation.core.record import metrics
 from curve_formation.nodes.runtime import now_seconds
 from curve_formation.nodes.topics import CURVE, DIAGNOSTICS
 from curve_formation.paths import discovery_text, resolve_config, ros_environment
@@ -417,7 +418,7 @@ class Run:
 
     def followed(self, t):
         """(experiment, phase): the experiment with the phases the run followed, i.e. the
-        curves and agents' parameters the monitor received (core.experiment.ReceivedPhases,
+        curves and agents' parameters the monitor received (core.config.experiment.ReceivedPhases,
         re-assignments included), and the phase index of each sample time t (R,) s.
         """
         phases = self.monitor.followed_phases()

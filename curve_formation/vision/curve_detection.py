@@ -19,7 +19,7 @@ import numpy as np
 from scipy.sparse.csgraph import connected_components, dijkstra, minimum_spanning_tree
 from scipy.spatial import cKDTree
 
-from curve_formation.core.curve_sources import polyline_distances, polyline_rms_distance
+from curve_formation.core.formation.curve_sources import polyline_distances, polyline_rms_distance
 from curve_formation.vision.camera import apply_homography, raised_plane_homography
 
 

@@ -115,9 +115,9 @@ def read_intrinsics(path, resolution=None):
     """
     from pydantic import ValidationError
 
-    from curve_formation.core import safe_yaml
-    from curve_formation.core.config_schema import IntrinsicsFile
-    from curve_formation.core.experiment import validation_problem
+    from curve_formation.core.config import safe_yaml
+    from curve_formation.core.config.experiment import validation_problem
+    from curve_formation.core.config.schema import IntrinsicsFile
     try:
         data = safe_yaml.load(Path(path).read_bytes())
     except (OSError, safe_yaml.InputError) as exc:

@@ -1,0 +1,113 @@
+"""One agent's static settings (AgentConfig) and how an experiment gives them: what a
+formation_controller node and the tick pipeline build their AgentControllers from.
+
+Units: m, s, rad; the geofence in the arena frame.
+"""
+
+from dataclasses import dataclass
+from functools import cached_property
+from typing import Optional, TYPE_CHECKING
+
+from curve_formation.core.base.shapes import Command
+from curve_formation.core.controller.control import Gains, Law, NO_LIMITS, WheelLimits
+from curve_formation.core.controller.safety import Avoidance, AVOIDANCE_OFF
+
+
+if TYPE_CHECKING:
+    from curve_formation.core.config.experiment import Experiment
+
+
+# (xmin, ymin, xmax, ymax), arena frame (m); None: no fence.
+Fence = Optional[tuple[float, float, float, float]]
+
+
+@dataclass(frozen=True)
+class AgentConfig:
+    """Static settings of one agent (index 1-based; agent 1 is the leader)."""
+
+    index: int
+    agent_count: int
+    # ((j, a_ij), ...) in-neighbours, empty for the leader
+    neighbours: tuple[tuple[int, float], ...] = ()
+    pinning: float = 0.0            # a follower's weight b on its own error (DirectedGraph)
+    gains: Gains = Gains(1.0, 1.0, 0.01)
+    limits: WheelLimits = NO_LIMITS
+    rate_hz: float = 10.0
+    pose_timeout: float = 0.5       # s
+    neighbour_timeout: float = 0.5  # s
+    leader_timeout: float = 1.0     # s without news from the leader (followers)
+    geofence: Fence = None
+    pc_disturbance: Command = (0.0, 0.0)  # added to the command before the limits (m/s, rad/s)
+    avoidance: Avoidance = AVOIDANCE_OFF   # the safety filter, from every robot's pose
+    predict_pose: bool = False      # carry the pose forward to the tick (AgentController)
+    # s from a command leaving this controller to the robot's wheels acting on it (the link's
+    # delay): predict_pose carries the pose to when this tick's command acts, the observer
+    # compares the motion with the command acting on it then
+    command_latency: float = 0.0
+    feed_forward: bool = True       # add a moving curve's target velocity to the command
+    # m/s: a wheel commanded slower than this stays still (the motors' dead band, told): the
+    # observer expects that motion, not the command (0: no dead band)
+    min_wheel_speed: float = 0.0
+    # s: the wheels follow their commands with this first-order lag (the motors', told): the
+    # observer compares each measured motion with the commands' realised average over it
+    # (each from its sending plus command_latency, through the lag); 0: the command acting
+    # from the previous tick on
+    motor_time_constant: float = 0.0
+    # 2: the observer also estimates how fast the disturbance changes (an alpha-beta filter,
+    # critically damped at observer_rate), so a disturbance that drifts is tracked without
+    # the first-order filter's lag; 1: the observer as the simulator has it
+    observer_order: int = 1
+    # estimate command_latency online from the commands sent and the poses measured
+    # (core.controller.link_estimate.OnlineLatency), starting from command_latency
+    estimate_latency: bool = False
+    # The law and filter (control.agent_command) compiled by numba as in the batch simulator:
+    # the same source, about 15x faster a tick; loading it costs ~0.7 s and ~65 MB.
+    compiled: bool = False
+
+    @property
+    def is_leader(self) -> bool:
+        """The leader is the agent that receives from nobody."""
+        return not self.neighbours
+
+    @cached_property
+    def law(self) -> Law:
+        """The control.Law of this agent's ticks (built once: the settings are frozen)."""
+        return self.gains.tick_law(self.rate_hz, on_pc=any(self.pc_disturbance))
+
+
+
+def geofence(experiment: 'Experiment') -> 'Fence':
+    """(xmin, ymin, xmax, ymax) (m, arena frame) outside which a robot is stopped: the
+    arena grown by safety.geofence_margin; None without an arena.
+    """
+    spec = experiment.spec
+    if spec.arena is None:
+        return None
+    m = spec.safety.geofence_margin
+    return (-m, -m, spec.arena.size[0] + m, spec.arena.size[1] + m)
+
+
+def agent_configs(experiment: 'Experiment', rate_hz: float) -> list['AgentConfig']:
+    """Every agent's AgentConfig (agent 1 first) from an experiment, controlled at rate_hz:
+    its graph neighbours, gains, limits, safety timeouts and geofence, PC-injected
+    disturbance and safety filter.
+    """
+    spec = experiment.spec
+    on_pc = spec.disturbance.injected == 'on_pc'
+    fence = geofence(experiment)
+    return [AgentConfig(
+        index=i, agent_count=experiment.n, neighbours=tuple(experiment.graph.in_neighbours(i)),
+        pinning=experiment.graph.follower_pinning, gains=experiment.gains,
+        limits=experiment.limits, rate_hz=float(rate_hz),
+        pose_timeout=spec.safety.pose_timeout, neighbour_timeout=spec.safety.neighbour_timeout,
+        leader_timeout=spec.safety.leader_timeout, geofence=fence,
+        pc_disturbance=((float(experiment.disturbance[i - 1][0]),
+                         float(experiment.disturbance[i - 1][1])) if on_pc else (0.0, 0.0)),
+        avoidance=experiment.avoidance, predict_pose=spec.controller.predict_pose,
+        command_latency=spec.controller.command_latency,
+        feed_forward=spec.controller.feed_forward,
+        min_wheel_speed=(spec.limits.min_wheel_speed or 0.0) if spec.limits else 0.0,
+        motor_time_constant=(spec.limits.motor_time_constant or 0.0) if spec.limits else 0.0,
+        observer_order=spec.controller.observer_order,
+        estimate_latency=spec.controller.estimate_latency)
+        for i in range(1, experiment.n + 1)]

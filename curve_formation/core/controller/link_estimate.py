@@ -1,0 +1,330 @@
+"""How late a robot's commands act, measured from what was sent and how the robot moved.
+
+Commands (v, w) sent at times tc and held until the next act L s later; the robot's poses are
+measured at times tp (an overhead camera's stamps). Between two poses the robot's mean forward
+speed and turn rate are measured (the displacement along the mean heading, and the heading's
+change, over the interval) and compared with the commands' means over the same interval
+shifted by a candidate L, plus a disturbance [d_v, d_w] acting while a command drives the
+motors, a quadratic in time over the fit so that one that changes is not read as latency
+(fitted by least squares for each L). The latency is the L of least squared
+residual; its spread over windows of a few seconds tells the jitter (and the estimate's own
+noise). A robot whose commands hardly change tells nothing: then no latency is given.
+
+Times in s (one clock for commands and poses), speeds in m/s and rad/s.
+"""
+
+from dataclasses import dataclass
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from curve_formation.core.base.shapes import FloatArray
+
+
+LAGS = np.arange(-0.1, 0.6001, 0.0025)   # candidate latencies (s; below 0: the robot acts
+# before the commands are dated, the recorder got them late)
+WINDOW = 4.0   # s of poses per window for the spread
+# Least variation of the commanded speed (m/s) and turn rate (rad/s, scaled by TURN_SCALE)
+# across a window for its latency to count: a steady command has none to tell.
+MIN_EXCITATION = 1e-3
+TURN_SCALE = 0.04   # m: turn rates weigh as a point 4 cm from the axle moves
+TRIMMED = 0.05      # share of a fit's intervals of largest residual left out of it
+DRIFT_DEGREE = 2    # the disturbance over a fit: a polynomial in time of this degree
+
+
+@dataclass(frozen=True)
+class LinkEstimate:
+    """latency (s, None if not observable), spread (s: std of the windows' latencies),
+    windows (how many told a latency), residual (rms m/s of the fit at the latency).
+    """
+
+    latency: float | None
+    spread: float | None
+    windows: int
+    residual: float | None
+
+
+def _measured_rates(tp: FloatArray, poses: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """(forward speed, turn rate) over each interval between consecutive poses."""
+    dt = np.diff(tp)
+    turn = np.diff(np.unwrap(poses[:, 2]))
+    heading = poses[:-1, 2] + 0.5 * turn
+    step = np.diff(poses[:, :2], axis=0)
+    forward = step[:, 0] * np.cos(heading) + step[:, 1] * np.sin(heading)
+    # an arc's chord is shorter than its length by sinc(turn / 2)
+    half = 0.5 * turn
+    chord = np.where(np.abs(half) > 1e-9, np.sin(half) / np.where(half == 0, 1.0, half), 1.0)
+    return forward / chord / dt, turn / dt
+
+
+def _held_means(tc: FloatArray, values: FloatArray, starts: FloatArray, ends: FloatArray
+                ) -> FloatArray:
+    """Mean over [starts, ends] (arrays of one shape) of the piecewise-constant signal
+    values[k] from tc[k] (zero before the first command).
+    """
+    knots = np.concatenate([tc, [tc[-1] + 1e9]])
+    integral = np.concatenate([[0.0], np.cumsum(values * np.diff(knots))])
+    edges = np.concatenate([[tc[0] - 1e9], knots])
+    area = np.concatenate([[0.0], integral])
+    return (np.interp(ends, edges, area) - np.interp(starts, edges, area)) / (ends - starts)
+
+
+def _lagged_means(tc: FloatArray, values: FloatArray, starts: FloatArray, ends: FloatArray,
+                  tau: float) -> FloatArray:
+    """Mean over [starts, ends] of the piecewise-constant signal values[k] from tc[k] (zero
+    before the first) through a first-order lag of time constant tau (s; the motors'; 0:
+    none): tau y' = u - y, so the mean of y is the mean of u less tau (y(end) - y(start)) /
+    (end - start).
+    """
+    held = _held_means(tc, values, starts, ends)
+    if tau <= 0.0:
+        return held
+    knots = np.empty(len(tc))   # y at each command's start, from 0 before the first
+    y = 0.0
+    for k in range(len(tc)):
+        if k:
+            y = values[k - 1] + (y - values[k - 1]) * math.exp(-(tc[k] - tc[k - 1]) / tau)
+        knots[k] = y
+
+    def lagged(t):
+        k = np.searchsorted(tc, t, side='right') - 1
+        inside = k >= 0
+        k = np.maximum(k, 0)
+        u = values[k]
+        return np.where(inside, u + (knots[k] - u) * np.exp(-np.maximum(t - tc[k], 0.0) / tau),
+                        0.0)
+
+    return held - tau * (lagged(ends) - lagged(starts)) / (ends - starts)
+
+
+def _residuals(tc, commands, driven, tp, v_meas, w_meas, lags, tau=0.0):
+    """(len(lags),) sum of squared residuals of the fit at each lag, its largest TRIMMED
+    share of intervals left out (a lost command leaves the intervals it should have driven
+    fitting no lag). Every lag at once: rows are lags, columns the intervals. tau: the
+    motors' time constant (s), through which the commands act.
+    """
+    starts = tp[None, :-1] - lags[:, None]
+    ends = tp[None, 1:] - lags[:, None]
+    v = _lagged_means(tc, commands[:, 0], starts, ends, tau)
+    w = _lagged_means(tc, commands[:, 1], starts, ends, tau)
+    on = _held_means(tc, driven, starts, ends)
+    rv, rw = v_meas - v, (w_meas - w) * TURN_SCALE
+    # the disturbance acting while driven, drifting over the fit as a polynomial of degree
+    # DRIFT_DEGREE in time (a disturbance that changes is not read as latency): least
+    # squares in each channel, every lag at once
+    mid = 0.5 * (tp[:-1] + tp[1:])
+    span = max(0.5 * float(mid[-1] - mid[0]), 1e-9)
+    tau_k = (mid - 0.5 * (mid[0] + mid[-1])) / span
+    basis = on[:, None, :] * (tau_k[None, None, :] ** np.arange(DRIFT_DEGREE + 1)[None, :,
+                                                                                   None])
+    gram = np.einsum('lai,lbi->lab', basis, basis) + 1e-12 * np.eye(DRIFT_DEGREE + 1)
+    fitted = []
+    for r in (rv, rw):
+        coef = np.linalg.solve(gram, np.einsum('lai,li->la', basis, r)[..., None])[..., 0]
+        fitted.append(r - np.einsum('la,lai->li', coef, basis))
+    squared = fitted[0] ** 2 + fitted[1] ** 2
+    kept = squared.shape[1] - int(TRIMMED * squared.shape[1])
+    return np.partition(squared, kept - 1, axis=1)[:, :kept].sum(axis=1)
+
+
+def _best_lag(residuals: FloatArray, lags: FloatArray) -> float:
+    """The lag of least residual, refined by a parabola through it and its neighbours."""
+    k = int(np.argmin(residuals))
+    if 0 < k < len(lags) - 1:
+        a, b, c = residuals[k - 1:k + 2]
+        curvature = a - 2 * b + c
+        if curvature > 0:
+            return float(lags[k] + 0.5 * (a - c) / curvature * (lags[1] - lags[0]))
+    return float(lags[k])
+
+
+def _cleaned(command_times: ArrayLike, commands: ArrayLike, pose_times: ArrayLike,
+             poses: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Arrays of commands and poses, the poses finite, in time order, one per stamp."""
+    tc = np.asarray(command_times, float)
+    cmd = np.asarray(commands, float).reshape(-1, 2)
+    tp = np.asarray(pose_times, float)
+    pose = np.asarray(poses, float).reshape(-1, 3)
+    keep = np.isfinite(tp) & np.isfinite(pose).all(axis=1)
+    tp, pose = tp[keep], pose[keep]
+    order = np.argsort(tp, kind='stable')
+    tp, pose = tp[order], pose[order]
+    fresh = np.concatenate([[True], np.diff(tp) > 1e-6])
+    return tc, cmd, tp[fresh], pose[fresh]
+
+
+class _Fit:
+    """The intervals between a robot's poses that its commands cover at every candidate lag,
+    ready to be fitted window by window.
+    """
+
+    def __init__(self, tc: FloatArray, cmd: FloatArray, tp: FloatArray, pose: FloatArray,
+                 lags: FloatArray, tau: float = 0.0) -> None:
+        self.tc, self.cmd, self.tp, self.lags, self.tau = tc, cmd, tp, lags, tau
+        self.driven = ((cmd[:, 0] != 0.0) | (cmd[:, 1] != 0.0)).astype(float)
+        self.v_meas, self.w_meas = _measured_rates(tp, pose)
+        self.inside = (tp[:-1] - lags.max() >= tc[0]) & (tp[1:] <= tc[-1] + 1.0)
+
+    def residuals(self, begin: float, end: float,
+                  lags: FloatArray | None = None) -> tuple[FloatArray, int] | None:
+        """The residual curve over the lags of the intervals from begin to end (s) and their
+        count; None if fewer than 5, or if the commands in force then hardly change.
+        """
+        tp = self.tp
+        sel = self.inside & (tp[:-1] >= begin) & (tp[1:] < end)
+        if sel.sum() < 5 or not _excited(self.tc, self.cmd, begin - self.lags.max(), end):
+            return None
+        idx = np.flatnonzero(sel)
+        return _residuals(self.tc, self.cmd, self.driven, np.append(tp[idx], tp[idx[-1] + 1]),
+                          self.v_meas[idx], self.w_meas[idx],
+                          self.lags if lags is None else lags, self.tau), len(idx)
+
+
+def estimate_latency(command_times: ArrayLike, commands: ArrayLike, pose_times: ArrayLike,
+                     poses: ArrayLike, lags: ArrayLike = LAGS, window: float = WINDOW,
+                     motor_time_constant: float = 0.0) -> LinkEstimate:
+    """The latency of one robot's commands (see the module): command_times (k,) and commands
+    (k, 2) as sent; pose_times (m,) and poses (m, 3) as measured (x, y m; theta rad);
+    motor_time_constant (s): the motors' first-order lag, through which each command acts
+    (told: limits.motor_time_constant), so that the lag is not read as latency.
+    """
+    tc, cmd, tp, pose = _cleaned(command_times, commands, pose_times, poses)
+    lags = np.asarray(lags, float)
+    if len(tc) < 2 or len(tp) < 3:
+        return LinkEstimate(None, None, 0, None)
+    fit = _Fit(tc, cmd, tp, pose, lags, motor_time_constant)
+    lats = []
+    for begin in np.arange(tp[0], tp[-1], window):
+        found = fit.residuals(begin, begin + window)
+        if found is not None and _clear(*found):
+            lats.append(_best_lag(found[0], lags))
+    if not lats:
+        return LinkEstimate(None, None, 0, None)
+    # the windows' median: a window whose disturbance changed (the fit holds it constant)
+    # does not pull it, as it would a fit over the whole run
+    latency = float(np.median(lats))
+    whole = fit.residuals(-np.inf, np.inf, np.array([latency]))
+    residual = None if whole is None else math.sqrt(float(whole[0][0]) / whole[1])
+    return LinkEstimate(latency, float(np.std(lats)), len(lats), residual)
+
+
+def _clear(residuals: FloatArray, count: int) -> bool:
+    """Whether the fit over `count` intervals tells one latency: its least residual below the
+    typical one by more than the noise would make it vary (a standard deviation of a sum of
+    count squared Gaussian residuals); a robot that stood still fits every lag alike.
+    """
+    typical, best = float(np.median(residuals)), float(residuals.min())
+    return typical > 0.0 and typical - best > best * math.sqrt(2.0 / count)
+
+
+def _excited(tc: FloatArray, cmd: FloatArray, begin: float, end: float) -> bool:
+    """Whether the commands in force between begin and end (s) change enough to time."""
+    sel = (tc >= begin) & (tc <= end)
+    if sel.sum() < 2:
+        return False
+    v, w = cmd[sel, 0], cmd[sel, 1] * TURN_SCALE
+    return bool(max(np.ptp(v), np.ptp(w)) >= MIN_EXCITATION)
+
+
+# Online: candidate latencies on a coarser grid (refined by the parabola), how often (s) a
+# controller fits (more often until it has taken a first value) and over how much of the
+# past (s), over how long (s) the fits are remembered, how many estimates in a row must agree
+# and within what (s) before one is taken.
+ONLINE_LAGS = np.arange(0.0, 0.5001, 0.01)
+ONLINE_EVERY = 1.0
+ONLINE_FIRST_EVERY = 0.5
+ONLINE_SPAN = 6.0
+ONLINE_MEMORY = 50.0
+AGREEING = 3
+AGREEMENT = 0.02
+
+
+class OnlineLatency:
+    """A controller's running estimate of its command latency. Every ONLINE_EVERY s (every
+    ONLINE_FIRST_EVERY s until a first value is taken: the value it starts from is the one
+    most likely wrong) the last ONLINE_SPAN s of commands and poses are fitted (as
+    estimate_latency fits a window) and the fit's residual curve, weighted by the time since
+    the fit before, is added to those before it, which fade over ONLINE_MEMORY s: the
+    estimate is the least of the sum, a least-squares fit over the run's last minute, so one
+    large command change (whose own delay is one draw of the jitter) does not decide it, and
+    overlapping windows that repeat the same data are not taken for agreement. A new value
+    is taken only when AGREEING estimates in a row lie within AGREEMENT of each other (their
+    median), so one that wanders is not. Times in s on the controller's clock;
+    motor_time_constant (s) as estimate_latency takes it.
+    """
+
+    def __init__(self, initial: float, rate_hz: float, motor_time_constant: float = 0.0
+                 ) -> None:
+        from collections import deque
+        self.latency = initial
+        self.motor_time_constant = motor_time_constant
+        self.commands: deque[tuple[float, float, float]] = deque(
+            maxlen=int(rate_hz * (ONLINE_SPAN + ONLINE_LAGS.max() + 1.0)) + 2)
+        self.poses: deque[tuple[float, float, float, float]] = deque()
+        self.recent: deque[float] = deque(maxlen=AGREEING)
+        self.next_at: float | None = None
+        self.cadence = ONLINE_EVERY   # s from the last fit to the next
+        self.total: FloatArray | None = None   # the remembered residual curve over ONLINE_LAGS
+        self.taken: list[tuple[float, float]] = []   # (when, latency) of each value taken
+
+    def sent(self, at: float, v: float, w: float) -> None:
+        self.commands.append((at, v, w))
+
+    def seen(self, stamp: float, x: float, y: float, theta: float) -> None:
+        if not self.poses or stamp > self.poses[-1][0]:
+            self.poses.append((stamp, x, y, theta))
+            while self.poses[0][0] < stamp - ONLINE_SPAN:
+                self.poses.popleft()
+
+    def update(self, now: float) -> float:
+        """The latency to use from `now` on (s): a new estimate every cadence s."""
+        if self.next_at is None:
+            self.next_at = now + self.cadence
+        if now < self.next_at or len(self.commands) < 2 or len(self.poses) < 3:
+            return self.latency
+        weight = self.cadence / ONLINE_EVERY   # each second of the run weighs alike
+        fade = math.exp(-self.cadence / ONLINE_MEMORY)
+        self.cadence = ONLINE_EVERY if self.taken else ONLINE_FIRST_EVERY
+        self.next_at = now + self.cadence
+        sent = np.array(self.commands)
+        if not _excited(sent[:, 0], sent[:, 1:], -np.inf, np.inf):
+            return self.latency   # the fit below would tell nothing either: spare it
+        seen = np.array(self.poses)
+        tc, cmd, tp, pose = _cleaned(sent[:, 0], sent[:, 1:], seen[:, 0], seen[:, 1:])
+        found = _Fit(tc, cmd, tp, pose, ONLINE_LAGS,
+                     self.motor_time_constant).residuals(-np.inf, np.inf)
+        if found is None or not _clear(*found):
+            return self.latency
+        self.total = weight * found[0] if self.total is None else (
+            fade * self.total + weight * found[0])
+        self.recent.append(_best_lag(self.total, ONLINE_LAGS))
+        if len(self.recent) == AGREEING and max(self.recent) - min(self.recent) <= AGREEMENT:
+            latency = float(np.median(self.recent))
+            if abs(latency - self.latency) > 1e-3:
+                self.latency = latency
+                self.taken.append((now, latency))
+        return self.latency
+
+
+def replay_online(tick_times: ArrayLike, commands: ArrayLike, pose_times: ArrayLike,
+                  poses: ArrayLike, initial: float, rate_hz: float,
+                  motor_time_constant: float = 0.0) -> OnlineLatency:
+    """OnlineLatency fed as a controller feeds it: before each tick (tick_times (k,), s) the
+    poses taken by then (pose_times (m,), poses (m, 3): x, y m, theta rad), then the tick's
+    update, then its command (commands (k, 2): v m/s, w rad/s as sent). Returns it, with
+    every value it took in `taken` (none: it kept `initial` throughout).
+    """
+    ticks = np.asarray(tick_times, float)
+    sent = np.asarray(commands, float).reshape(-1, 2)
+    seen_at = np.asarray(pose_times, float)
+    seen = np.asarray(poses, float).reshape(-1, 3)
+    online = OnlineLatency(initial, rate_hz, motor_time_constant)
+    k = 0
+    for at, (v, w) in zip(ticks, sent, strict=True):
+        while k < len(seen_at) and seen_at[k] <= at:
+            online.seen(seen_at[k], *seen[k])
+            k += 1
+        online.update(at)
+        online.sent(at, v, w)
+    return online
