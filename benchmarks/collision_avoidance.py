@@ -32,8 +32,9 @@ from curve_formation.core.config.experiment import (
     with_start,
 )
 from curve_formation.core.controller.agent_config import agent_configs
-from curve_formation.core.controller.control import agent_command
+from curve_formation.core.controller.law import agent_command
 from curve_formation.core.controller.safety import AVOIDANCE_OFF
+from curve_formation.core.formation import dynamics
 from curve_formation.core.record import metrics
 from curve_formation.core.sim.batch import simulate
 from curve_formation.paths import resolve_config
@@ -57,7 +58,7 @@ def lower_bounds(result, turning=False, drift=False):
     drift also carries the robot while it turns.
     """
     experiment = result.experiment
-    points = metrics.offset_points(result.poses, experiment.gains.offset)
+    points = dynamics.offset_points(result.poses, experiment.gains.offset)
     # turning alone: no drift, and the smaller turn whichever way the robot then drives
     on_robot = drift and experiment.spec.disturbance.injected != 'on_pc'
     reverse = experiment.gains.reverse if drift else True

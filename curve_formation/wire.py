@@ -15,7 +15,8 @@ import math
 import re
 import string
 
-from curve_formation.core.controller.control import saturate
+from curve_formation.core.controller.limits import saturate
+from curve_formation.core.formation.dynamics import wheel_speeds
 
 
 class WireError(ValueError):
@@ -87,17 +88,12 @@ def _fields(template, name):
     return fields
 
 
-def wheel_speeds(v, w, wheel_base, max_wheel_speed):
+def saturated_wheel_speeds(v, w, wheel_base, max_wheel_speed):
     """(left, right) rim speeds (m/s) of (v, w), scaled down together (keeping the curvature
     w / v) when a wheel would exceed max_wheel_speed (0 or infinity: no limit).
     """
     v, w = saturate(v, w, wheel_base, max_wheel_speed, math.inf)
-    return v - 0.5 * wheel_base * w, v + 0.5 * wheel_base * w
-
-
-def body_velocity(left, right, wheel_base):
-    """(v, w) of rim speeds left, right (m/s) on a differential drive of wheel_base (m)."""
-    return 0.5 * (left + right), (right - left) / wheel_base
+    return wheel_speeds(v, w, wheel_base)
 
 
 def encode(fmt, left, right, seq, wheel_radius):

@@ -10,13 +10,14 @@ from conftest import DATA_DIR, paper_arena
 from curve_formation.core.config.experiment import load_experiment, with_start
 from curve_formation.core.controller.agent import AgentController, is_stale
 from curve_formation.core.controller.agent_config import agent_configs, AgentConfig
-from curve_formation.core.controller.control import Gains, WheelLimits
+from curve_formation.core.controller.gains import Gains
+from curve_formation.core.controller.limits import WheelLimits
 from curve_formation.core.controller.safety import AVOIDANCE_OFF
 from curve_formation.core.formation.assignment import AssignmentError, reassigned
 from curve_formation.core.formation.curves import Curve
-from curve_formation.core.formation.dynamics import arc_step, DrivenUnicycle
+from curve_formation.core.formation.dynamics import arc_step, DrivenUnicycle, offset_points
 from curve_formation.core.formation.motion import constant_coefficients
-from curve_formation.core.record.metrics import offset_points, settle_time
+from curve_formation.core.record.metrics import settle_time
 from curve_formation.core.sim.batch import simulate
 from curve_formation.core.world.bodies import separate
 from curve_formation.paths import resolve_config
@@ -37,7 +38,7 @@ def controllers_for(experiment, rate_hz, compiled=False):
     ('fixed', False)])
 def test_node_controllers_reproduce_the_simulator_exactly(name, compiled):
     """n AgentControllers ticked together at 10 Hz with exact unicycle steps == simulate():
-    the same tick pipeline (core.controller.control.agent_command), run as Python or, as a
+    the same tick pipeline (core.controller.law.agent_command), run as Python or, as a
     single-process
     run's nodes do, compiled (loaded before the first tick, never again). The shipped arena
     case has nearest assignment, follower pinning, bodies, the safety filter and re-assignment

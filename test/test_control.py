@@ -4,26 +4,28 @@ import numpy as np
 import pytest
 from test_graph import random_rooted_graph
 
-from curve_formation.core.controller.control import (
+from curve_formation.core.controller.gains import Gains
+from curve_formation.core.controller.law import (
     agent_command,
     agent_input,
     FEEDBACK_HEADROOM,
     follower_feedback,
-    Gains,
     leader_feedback,
     observer_input,
-    RAY_CLIPPED,
-    saturate,
-    saturate_turning,
     stacked_paper_input,
     tail_feedback,
+)
+from curve_formation.core.controller.limits import (
+    saturate,
+    saturate_turning,
     TURN_SHARE,
-    wheel_speeds,
     WheelLimits,
 )
+from curve_formation.core.controller.observer import RAY_CLIPPED
 from curve_formation.core.controller.safety import AVOIDANCE_OFF
 from curve_formation.core.formation.assignment import check_assumptions, uniform_parameters
 from curve_formation.core.formation.curves import FourierBasis, PolynomialBasis
+from curve_formation.core.formation.dynamics import wheel_speeds
 
 
 def local_arena_input(poses, dhat, targets, graph, gains):
@@ -83,7 +85,7 @@ def test_estimator_rate_is_k2_r_transpose_e():
 def test_saturation_respects_wheel_limits_and_keeps_curvature(v, w):
     base, vmax = 0.08, 0.0225
     sv, sw = saturate(v, w, base, vmax, math.inf)
-    right, left = wheel_speeds(sv, sw, base)
+    left, right = wheel_speeds(sv, sw, base)
     assert max(abs(right), abs(left)) <= vmax * (1 + 1e-12)
     assert sv * w == pytest.approx(sw * v, abs=1e-15)  # same curvature (or both zero)
     if max(abs(x) for x in wheel_speeds(v, w, base)) <= vmax:
@@ -111,7 +113,7 @@ def test_saturation_turning_first_keeps_the_turn_and_gives_the_speed_what_is_lef
     """
     base, vmax = 0.08, 0.0225
     sv, sw = saturate_turning(v, w, *drift, base, vmax, math.inf)
-    right, left = wheel_speeds(sv - drift[0], sw - drift[1], base)
+    left, right = wheel_speeds(sv - drift[0], sw - drift[1], base)
     assert max(abs(right), abs(left)) <= vmax * (1 + 1e-12)
     asked_v, asked_w = v - drift[0], w - drift[1]
     if max(abs(x) for x in wheel_speeds(asked_v, asked_w, base)) <= vmax:

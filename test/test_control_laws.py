@@ -14,13 +14,10 @@ import pytest
 
 from conftest import paper_arena
 from curve_formation.core.config.experiment import load_experiment, seeded_start, with_start
-from curve_formation.core.controller.control import (
-    body_velocity,
-    ray_growth,
-    sampled_feedback,
-    WheelLimits,
-)
-from curve_formation.core.formation.dynamics import arc_step
+from curve_formation.core.controller.law import sampled_feedback
+from curve_formation.core.controller.limits import WheelLimits
+from curve_formation.core.controller.observer import ray_growth
+from curve_formation.core.formation.dynamics import arc_step, measured_velocity
 from curve_formation.core.record import metrics
 from curve_formation.core.sim.batch import simulate
 from curve_formation.paths import resolve_config
@@ -197,7 +194,7 @@ def test_sampled_heading_never_overshoots_and_tends_to_the_paper_law(along, acro
 def test_body_velocity_inverts_an_arc(v, w, theta):
     dt = 0.1
     end = arc_step(0.3, -0.2, theta, v, w, dt)
-    mv, mw = body_velocity(0.3, -0.2, theta, *end, dt)
+    mv, mw = measured_velocity(0.3, -0.2, theta, *end, dt)
     assert mv == pytest.approx(v, abs=1e-9)
     assert mw == pytest.approx(w, abs=1e-9)
 
@@ -208,7 +205,7 @@ def heading_rate_growth(push, k1=1.0, offset=0.01, duration=2.0, dt=1e-3):
     The estimate is off by a forward push `push` (m/s): d = [push, 0] with k2 = 0. The robot
     starts at its rest point e = push h / k1 with the heading turned by 1e-6 rad.
     """
-    from curve_formation.core.controller.control import agent_input
+    from curve_formation.core.controller.law import agent_input
     target = np.array([offset - push / k1, 0.0])   # xb - target = push h / k1 at rest
 
     def rates(state):

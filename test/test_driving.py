@@ -10,8 +10,10 @@ import pytest
 from curve_formation.core.config.experiment import load_experiment
 from curve_formation.core.controller.agent import AgentController
 from curve_formation.core.controller.agent_config import agent_configs
-from curve_formation.core.controller.control import agent_command, Gains, WheelLimits
 from curve_formation.core.controller.driving import drive_direction, steered_law
+from curve_formation.core.controller.gains import Gains
+from curve_formation.core.controller.law import agent_command
+from curve_formation.core.controller.limits import WheelLimits
 from curve_formation.core.controller.safety import AVOIDANCE_OFF
 from curve_formation.core.formation.dynamics import arc_step
 from curve_formation.paths import resolve_config

@@ -71,7 +71,7 @@ def test_a_reversing_robot_is_measured_by_the_point_it_steers():
     """controller.reverse: a robot backing onto its target steers the point behind its axle;
     its error is that point's, not the 2 l of the point ahead (which it is without reverse).
     """
-    from curve_formation.core.controller.control import Gains
+    from curve_formation.core.controller.gains import Gains
     offset = 0.01
     poses = np.array([[[0.5, 0.2, 0.0], [0.1, 0.1, np.pi / 2]]])   # (R=1, n=2, 3)
     targets = np.array([[[0.49, 0.2], [0.1, 0.11]]])   # behind robot 1, ahead of robot 2

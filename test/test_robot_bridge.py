@@ -21,6 +21,7 @@ from std_msgs.msg import Bool
 from conftest import no_history_qos
 from curve_formation import links, wire
 from curve_formation.core.config.experiment import load_experiment
+from curve_formation.core.formation.dynamics import body_from_wheels
 from curve_formation.nodes import qos, topics
 from curve_formation.nodes.params import ParameterError
 from curve_formation.nodes.robot_bridge import RobotBridge
@@ -124,7 +125,7 @@ def test_a_cmd_vel_goes_out_at_once_as_wheel_speeds_and_a_wheel_limit_keeps_the_
     spin(commands)
     kind, left, right, _ = commands()[0]
     assert max(abs(left), abs(right)) == pytest.approx(0.04, abs=2e-5)
-    v, w = wire.body_velocity(left, right, BASE)
+    v, w = body_from_wheels(left, right, BASE)
     assert w / v == pytest.approx(0.5 / 0.03, rel=1e-3)
     spin(duration=0.3)
     operator.send(0.02, 0.0)

@@ -9,7 +9,7 @@ import pytest
 from scipy.linalg import expm
 
 from curve_formation.core.config.experiment import load_experiment, point_robots
-from curve_formation.core.controller.control import NO_LIMITS
+from curve_formation.core.controller.limits import NO_LIMITS
 from curve_formation.core.record import metrics
 from curve_formation.core.sim.batch import simulate
 from curve_formation.paths import resolve_config
@@ -189,7 +189,7 @@ def test_compiled_cache_is_dropped_when_a_law_source_changes(tmp_path):
     assert not list(cache.glob('*.nbi'))
     (cache / 'simulator._run-1.py311.nbi').write_text('compiled')
     assert not jit.drop_stale_cache(tmp_path)        # unchanged: the cache stays
-    with open(tmp_path / 'controller' / 'control.py', 'a') as f:
+    with open(tmp_path / 'controller' / 'law.py', 'a') as f:
         f.write('# edited\n')
     assert jit.drop_stale_cache(tmp_path)
     assert not list(cache.glob('*.nbi'))

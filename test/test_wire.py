@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from curve_formation import links, wire
+from curve_formation.core.formation.dynamics import body_from_wheels
 
 
 RADIUS, BASE = 0.015, 0.08
@@ -44,14 +45,14 @@ def test_lines_that_are_neither_command_nor_stop_decode_to_none(line):
 
 def test_a_wheel_over_its_limit_scales_both_and_keeps_the_curvature():
     v, w = 0.1, 1.5                        # right wheel would be 0.16 m/s
-    left, right = wire.wheel_speeds(v, w, BASE, 0.08)
+    left, right = wire.saturated_wheel_speeds(v, w, BASE, 0.08)
     assert max(abs(left), abs(right)) == pytest.approx(0.08)
-    v_out, w_out = wire.body_velocity(left, right, BASE)
+    v_out, w_out = body_from_wheels(left, right, BASE)
     assert w_out / v_out == pytest.approx(w / v)
     # within the limit: unchanged; no limit: unchanged
-    assert wire.body_velocity(*wire.wheel_speeds(0.02, 0.3, BASE, 0.08), BASE) == \
+    assert body_from_wheels(*wire.saturated_wheel_speeds(0.02, 0.3, BASE, 0.08), BASE) == \
         pytest.approx((0.02, 0.3))
-    assert wire.body_velocity(*wire.wheel_speeds(1.0, 3.0, BASE, math.inf), BASE) == \
+    assert body_from_wheels(*wire.saturated_wheel_speeds(1.0, 3.0, BASE, math.inf), BASE) == \
         pytest.approx((1.0, 3.0))
 
 

@@ -18,6 +18,7 @@ from matplotlib.patches import Circle  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from curve_formation.core.formation import dynamics
 from curve_formation.core.record import metrics  # noqa: E402
 from curve_formation.figures.plots import draw_arena, robot_colors, STYLE  # noqa: E402
 
@@ -47,7 +48,7 @@ def animate(path, experiment, t, poses, phase, fps=FPS, max_seconds=30.0, dpi=10
     times, speed = frame_times(t, fps, max_seconds)
     rows = np.clip(np.searchsorted(t, times, side='right') - 1, 0, len(t) - 1)
     targets = metrics.sample_targets(experiment, phase[rows], t[rows])
-    xb = metrics.offset_points(poses, experiment.gains.offset)
+    xb = dynamics.offset_points(poses, experiment.gains.offset)
     n, radius = experiment.n, experiment.radius
     colors = robot_colors(n)
     with plt.rc_context(STYLE):

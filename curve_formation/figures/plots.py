@@ -20,6 +20,7 @@ from matplotlib.patches import Circle, Rectangle  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from curve_formation.core.formation import dynamics
 from curve_formation.core.record import metrics  # noqa: E402
 
 
@@ -125,7 +126,7 @@ def plot_paths(path, experiment, poses, phase, title=None, overlay=None):
     n = experiment.n
     colors = robot_colors(n)
     arena = experiment.spec.arena
-    xb = metrics.offset_points(poses, experiment.gains.offset)[thin(len(poses))]
+    xb = dynamics.offset_points(poses, experiment.gains.offset)[thin(len(poses))]
     shown = [xb.reshape(-1, 2), *(p.curve.sample(200)[1] for p in experiment.phases)]
     if arena is not None:
         shown.append(np.array([[0.0, 0.0], arena.size]))
@@ -153,7 +154,7 @@ def plot_paths(path, experiment, poses, phase, title=None, overlay=None):
             ls='none', ms=7, label='end (body to scale)' if experiment.radius > 0 else 'end')
     if overlay is not None:
         label, other = overlay
-        oxb = metrics.offset_points(other, experiment.gains.offset)[thin(len(other))]
+        oxb = dynamics.offset_points(other, experiment.gains.offset)[thin(len(other))]
         for i in range(n):
             ax.plot(oxb[:, i, 0], oxb[:, i, 1], color=colors[i], lw=0.8, ls=(0, (4, 3)),
                     alpha=0.7)

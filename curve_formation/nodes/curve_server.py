@@ -29,7 +29,7 @@ from curve_formation.core.controller.plausibility import MAX_COORDINATE
 from curve_formation.core.formation.assignment import AssignmentError, phase_parameters
 from curve_formation.core.formation.curve_sources import fit_points
 from curve_formation.core.formation.curves import CurveError, make_basis
-from curve_formation.core.record.metrics import offset_points
+from curve_formation.core.formation.dynamics import offset_points
 from curve_formation.core.schedule.curve_schedule import CurveSchedule
 from curve_formation.nodes import messages, topics
 from curve_formation.nodes.estop import estop_uses, EstopHolder

@@ -32,6 +32,7 @@ from rclpy.node import Node
 from curve_formation import diagnostics, wire
 from curve_formation.core.config.experiment import wheel_base
 from curve_formation.core.controller.disturbance import RunTime
+from curve_formation.core.formation.dynamics import body_from_wheels
 from curve_formation.core.world.worlds import ENGINES, make_world
 from curve_formation.links import robot_endpoint
 from curve_formation.nodes import messages, topics
@@ -176,7 +177,7 @@ class FakeArena(Node):
                     endpoint.send(b'err\n')
                     continue
                 if said[0] == 'command':
-                    v, w = wire.body_velocity(said[1], said[2], self.wheel_base)
+                    v, w = body_from_wheels(said[1], said[2], self.wheel_base)
                 else:
                     v, w = 0.0, 0.0
                 self.world.command(i - 1, v, w, now)

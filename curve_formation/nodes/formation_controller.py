@@ -19,8 +19,9 @@ from sensor_msgs.msg import JointState
 from curve_formation.core.config.parameters import limit_value
 from curve_formation.core.controller.agent import AgentController
 from curve_formation.core.controller.agent_config import AgentConfig
-from curve_formation.core.controller.control import Gains, LAWS, timed_by, WheelLimits
 from curve_formation.core.controller.disturbance import RunTime, varied
+from curve_formation.core.controller.gains import Gains, LAWS
+from curve_formation.core.controller.limits import timed_by, WheelLimits
 from curve_formation.core.controller.plausibility import bounded_command
 from curve_formation.core.controller.safety import Avoidance, AVOIDANCE_OFF
 from curve_formation.core.formation.assignment import AssignmentError

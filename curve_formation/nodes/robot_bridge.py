@@ -133,7 +133,7 @@ class RobotBridge(Node):
             self.get_logger().warning('non-finite cmd_vel ignored', throttle_duration_sec=1.0)
             return
         received = time.perf_counter()
-        left, right = wire.wheel_speeds(v, w, self.params.wheel_base,
+        left, right = wire.saturated_wheel_speeds(v, w, self.params.wheel_base,
                                         self.params.max_wheel_speed)
         self.command = (left, right, received)
         self.command_time = now_seconds(self)

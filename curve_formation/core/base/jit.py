@@ -13,8 +13,9 @@ import numba
 
 # The sources numba compiles in, relative to core/ (a cached function is checked against its
 # own file only, not against the functions compiled into it from these).
-SOURCES = ('controller/control.py', 'controller/driving.py', 'formation/dynamics.py',
-           'controller/safety.py', 'world/bodies.py', 'world/kinematic.py', 'sim/batch.py')
+SOURCES = ('controller/law.py', 'controller/limits.py', 'controller/observer.py',
+           'controller/driving.py', 'controller/safety.py', 'formation/dynamics.py',
+           'world/bodies.py', 'world/kinematic.py', 'sim/batch.py')
 CORE = Path(__file__).resolve().parent.parent
 
 
@@ -34,7 +35,7 @@ def drop_stale_cache(core: Path = CORE) -> bool:
     """Delete numba's compiled caches when a source it compiles in (SOURCES) changed.
 
     numba checks a cached function against its own source file only, not against the
-    functions it compiled in from other modules: after an edit of control.py the stepping loop
+    functions it compiled in from other modules: after an edit of law.py the stepping loop
     would run the old law. Installed copies never change; an unwritable cache is left alone.
     """
     sources = b''.join((core / name).read_bytes() for name in SOURCES)

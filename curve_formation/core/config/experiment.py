@@ -28,8 +28,9 @@ from curve_formation.core.config.schema import (
     RobotsSpec,
     VariationSpec,
 )
-from curve_formation.core.controller.control import Gains, NO_LIMITS, timed_by, WheelLimits
 from curve_formation.core.controller.disturbance import disturbance_at, Variation
+from curve_formation.core.controller.gains import Gains
+from curve_formation.core.controller.limits import NO_LIMITS, timed_by, WheelLimits
 from curve_formation.core.controller.safety import Avoidance, AVOIDANCE_OFF
 from curve_formation.core.formation import curve_sources
 from curve_formation.core.formation.assignment import (
@@ -39,10 +40,11 @@ from curve_formation.core.formation.assignment import (
 )
 from curve_formation.core.formation.curve_codec import CurveClock
 from curve_formation.core.formation.curves import Curve, CurveError, Fit, fit_curve, make_basis
+from curve_formation.core.formation.dynamics import offset_points
 from curve_formation.core.formation.expressions import ExpressionError
 from curve_formation.core.formation.graph import DirectedGraph, Edge, GraphError
 from curve_formation.core.formation.motion import CurveMotion
-from curve_formation.core.record.metrics import MAX_STAMP_GAP, offset_points
+from curve_formation.core.record.metrics import MAX_STAMP_GAP
 
 
 # How long (s) before its start a curve that only begins to move where it is gets published

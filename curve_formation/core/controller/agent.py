@@ -34,23 +34,20 @@ from numpy.typing import ArrayLike
 
 from curve_formation.core.base.shapes import Command, FloatArray, Point, Pose
 from curve_formation.core.controller.agent_config import AgentConfig
-from curve_formation.core.controller.control import (
-    agent_command,
-    body_velocity,
-    follower_feedback,
-    inside_fence,
-    leader_feedback,
-    observe,
-    OBSERVER,
-    offset_point,
-    wheel_speeds,
-)
 from curve_formation.core.controller.driving import (
     drive_direction,
     REVERSE_HYSTERESIS,
     steered_law,
 )
+from curve_formation.core.controller.gains import OBSERVER
+from curve_formation.core.controller.law import (
+    agent_command,
+    follower_feedback,
+    leader_feedback,
+)
+from curve_formation.core.controller.limits import inside_fence
 from curve_formation.core.controller.link_estimate import ONLINE_LAGS, OnlineLatency
+from curve_formation.core.controller.observer import observe
 from curve_formation.core.controller.plausibility import (
     error_problem,
     jump_problem,
@@ -60,8 +57,13 @@ from curve_formation.core.controller.plausibility import (
 from curve_formation.core.controller.safety import STOPPED, with_latency
 from curve_formation.core.formation.assignment import AssignmentError, check_assumptions
 from curve_formation.core.formation.curves import Curve
-from curve_formation.core.formation.dynamics import arc_step
-from curve_formation.wire import body_velocity as rim_velocity
+from curve_formation.core.formation.dynamics import (
+    arc_step,
+    body_from_wheels,
+    measured_velocity,
+    offset_point,
+    wheel_speeds,
+)
 
 
 NO_OTHERS = np.zeros((0, 3))
@@ -675,11 +677,11 @@ class AgentController:
         self.idle = False
         if cfg.min_wheel_speed <= 0.0 or cfg.limits.wheel_base <= 0.0:
             return ref_v, ref_w
-        right, left = wheel_speeds(v, w, cfg.limits.wheel_base)
+        left, right = wheel_speeds(v, w, cfg.limits.wheel_base)
         still_right = abs(right) < cfg.min_wheel_speed
         still_left = abs(left) < cfg.min_wheel_speed
         self.idle = still_right and still_left
-        moved_v, moved_w = rim_velocity(0.0 if still_left else left,
+        moved_v, moved_w = body_from_wheels(0.0 if still_left else left,
                                         0.0 if still_right else right, cfg.limits.wheel_base)
         return ref_v + moved_v - v, ref_w + moved_w - w
 
@@ -734,7 +736,7 @@ class AgentController:
             acting = self._commanded(elapsed, ended, ticked, waits)
             if acting is None or not acting.driven or acting.estimate < self.updates:
                 return
-        measured_v, measured_w = body_velocity(x0, y0, th0, *self.pose, elapsed)
+        measured_v, measured_w = measured_velocity(x0, y0, th0, *self.pose, elapsed)
         self.estimated_at = ended - elapsed / 2.0
         if waits and self.observed_until is not None:   # blended over the time since the last
             elapsed = max(elapsed, ended - self.observed_until)

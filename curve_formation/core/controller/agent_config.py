@@ -9,7 +9,8 @@ from functools import cached_property
 from typing import Optional, TYPE_CHECKING
 
 from curve_formation.core.base.shapes import Command
-from curve_formation.core.controller.control import Gains, Law, NO_LIMITS, WheelLimits
+from curve_formation.core.controller.gains import Gains, Law
+from curve_formation.core.controller.limits import NO_LIMITS, WheelLimits
 from curve_formation.core.controller.safety import Avoidance, AVOIDANCE_OFF
 
 

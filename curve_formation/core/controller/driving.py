@@ -1,7 +1,7 @@
 """Which way a robot drives to its target: forwards, steering the point l ahead of its axle
 (the paper's), or backwards, steering the point l behind it (`controller.reverse`).
 
-Frames and units as in core.controller.control: poses and targets in the arena frame (m, rad),
+Frames and units as in core.controller.law: poses and targets in the arena frame (m, rad),
 speeds in
 m/s and rad/s. Scalar math only, so the node and the simulator's compiled kernel (numba) run
 the same source.
@@ -9,7 +9,8 @@ the same source.
 
 import math
 
-from curve_formation.core.controller.control import Law, timed_by, WheelLimits
+from curve_formation.core.controller.gains import Law
+from curve_formation.core.controller.limits import timed_by, WheelLimits
 
 
 # drive_direction: no change of direction within this distance (m) of the target, where the

@@ -9,6 +9,8 @@ import math
 
 import numpy as np
 
+from curve_formation.core.base.shapes import Command, Point
+
 
 def chord_ratio(half):
     """sin(h) / h: chord over arc length of an arc turning 2 h (rad); accurate as h -> 0."""
@@ -25,6 +27,51 @@ def arc_step(x, y, theta, v, w, dt):
     chord = v * dt * chord_ratio(half)
     mid = theta + half
     return x + chord * math.cos(mid), y + chord * math.sin(mid), theta + w * dt
+
+
+def offset_point(x: float, y: float, theta: float, offset: float) -> Point:
+    """Offset control point xb (m) ahead of the axle centre by `offset` along the heading."""
+    return x + offset * math.cos(theta), y + offset * math.sin(theta)
+
+
+def offset_points(poses, offset):
+    """(..., 2) offset points xb = x + l [cos theta, sin theta] (m) of poses (..., 3)."""
+    th = poses[..., 2]
+    return poses[..., :2] + offset * np.stack([np.cos(th), np.sin(th)], axis=-1)
+
+
+def marker_centres(poses, marker_offset):
+    """(..., 2) arena-frame centres of markers mounted at marker_offset (robot frame, m)."""
+    c, s = np.cos(poses[..., 2]), np.sin(poses[..., 2])
+    return np.stack([poses[..., 0] + c * marker_offset[0] - s * marker_offset[1],
+                     poses[..., 1] + s * marker_offset[0] + c * marker_offset[1]], axis=-1)
+
+
+def measured_velocity(x0: float, y0: float, theta0: float, x1: float, y1: float, theta1: float,
+                  dt: float) -> Command:
+    """Constant (v, w) (m/s, rad/s) that moves a unicycle from pose 0 to pose 1 in dt (s).
+
+    Exact for an arc (the inverse of arc_step); the heading change must be below
+    pi over dt. The sign of v follows the chord's direction relative to the mean heading.
+    """
+    turn = math.atan2(math.sin(theta1 - theta0), math.cos(theta1 - theta0))
+    mid = theta0 + 0.5 * turn
+    along = (x1 - x0) * math.cos(mid) + (y1 - y0) * math.sin(mid)
+    return along / (dt * chord_ratio(0.5 * turn)), turn / dt
+
+
+def wheel_speeds(v, w, wheel_base):
+    """(left, right) rim speeds (m/s) of body velocities (v, w) on a differential drive of
+    wheel_base (m); no limit applied.
+    """
+    return v - 0.5 * wheel_base * w, v + 0.5 * wheel_base * w
+
+
+def body_from_wheels(left, right, wheel_base):
+    """(v, w) (m/s, rad/s) of rim speeds left, right (m/s) on a differential drive of
+    wheel_base (m): the inverse of wheel_speeds.
+    """
+    return 0.5 * (left + right), (right - left) / wheel_base
 
 
 class CommandQueue:

@@ -10,6 +10,7 @@ import math
 import numpy as np
 
 from curve_formation.core.controller.estop import stopped_time
+from curve_formation.core.formation.dynamics import marker_centres, offset_points
 
 
 def strict_json(data):
@@ -39,12 +40,6 @@ def finite_or_none(value):
     """value as a float, or None when it is NaN or infinite (JSON has no NaN)."""
     value = float(value)
     return value if np.isfinite(value) else None
-
-
-def offset_points(poses, offset):
-    """(R, n, 2) control points xb = x + l [cos theta, sin theta]."""
-    th = poses[..., 2]
-    return poses[..., :2] + offset * np.stack([np.cos(th), np.sin(th)], axis=-1)
 
 
 def target_errors(poses, phase, experiment, gains=None, t=None, stamps=None):
@@ -267,7 +262,6 @@ def markers_covered(poses, radius, marker_offset, marker_size):
     marker_size at marker_offset, robot frame): its centre is within radius plus the marker's
     half-diagonal of the marker's centre.
     """
-    from curve_formation.core.world.bodies import marker_centres
     centres = marker_centres(poses, marker_offset)
     reach = radius + marker_size / np.sqrt(2)
     near = np.linalg.norm(centres[:, :, None, :] - poses[:, None, :, :2], axis=3) < reach

@@ -15,7 +15,7 @@ from curve_formation.core.config.experiment import ANNOUNCE_AHEAD, Experiment, P
 from curve_formation.core.formation.assignment import reassigned
 from curve_formation.core.formation.curve_codec import CurveClock
 from curve_formation.core.formation.curves import Curve
-from curve_formation.core.record.metrics import offset_points
+from curve_formation.core.formation.dynamics import offset_points
 
 
 @dataclass(frozen=True)

@@ -8,10 +8,10 @@ Two control modes:
   motion over the period just ended), and the command held while the robots are integrated
   exactly over each fine step dt, which is what the ROS controller nodes do.
 
-Laws (core.controller.control.LAWS): paper, adaptive (per-channel estimator gains), observer.
+Laws (core.controller.gains.LAWS): paper, adaptive (per-channel estimator gains), observer.
 
 The stepping loop is compiled with numba; it calls the same per-agent functions as the ROS
-controller (core.controller.control), and its cost is linear in agents plus edges.
+controller (core.controller.law), and its cost is linear in agents plus edges.
 """
 
 from collections.abc import Callable
@@ -32,10 +32,12 @@ from curve_formation.core.config.experiment import (
     phase_index,
     whole_steps,
 )
-from curve_formation.core.controller import control, driving
-from curve_formation.core.controller.control import Gains, Law, WheelLimits
+from curve_formation.core.controller import driving, observer
+from curve_formation.core.controller import law as control_law
 from curve_formation.core.controller.disturbance import disturbance_at
 from curve_formation.core.controller.driving import REVERSE_HYSTERESIS
+from curve_formation.core.controller.gains import Gains, Law, OBSERVER
+from curve_formation.core.controller.limits import timed_by, WheelLimits
 from curve_formation.core.controller.safety import Avoidance
 from curve_formation.core.formation import dynamics
 from curve_formation.core.record import metrics
@@ -44,13 +46,13 @@ from curve_formation.core.sim.estimate_replay import check_replayable, held_esti
 from curve_formation.core.world import bodies
 
 
-_agent_command = compiled(control.agent_command)
+_agent_command = compiled(control_law.agent_command)
 _arc = compiled(dynamics.arc_step)
-_observe = compiled(control.observe)
+_observe = compiled(observer.observe)
+_offset_point = compiled(dynamics.offset_point)
 _drive_direction = compiled(driving.drive_direction)
 _steered_law = compiled(driving.steered_law)
 _touch = compiled(bodies.touch)
-OBSERVER = control.LAWS['observer']
 
 # How often (s) a moving curve's targets are renewed under continuous control.
 MOVING_STEP = 0.01
@@ -72,8 +74,8 @@ class Clock(NamedTuple):
 EdgeArrays = tuple[IntArray, IntArray, FloatArray, FloatArray]
 # (poses (n, 3), dhat, motion, cmd (n, 2), ref (n, 5), fronts (n,), rays (n, 3)), advanced in
 # place; ref: the observer's reference (v, w), what the safety filter changed (v, w) and 1
-# where the wheel limits cut the command by more than control.RAY_CLIPPED (0 otherwise);
-# rays: the observer's control.ray_growth state (factor, last right, last left).
+# where the wheel limits cut the command by more than observer.RAY_CLIPPED (0 otherwise);
+# rays: the observer's observer.ray_growth state (factor, last right, last left).
 SimState = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
                  FloatArray]
 
@@ -84,9 +86,9 @@ def _controls(poses: FloatArray, dhat: FloatArray, targets: FloatArray, ahead: F
               d_pc: FloatArray, d_robot: FloatArray, fronts: FloatArray, err: FloatArray,
               fb: FloatArray, motion: FloatArray, cmd: FloatArray, ref: FloatArray,
               ddhat: FloatArray, codes: IntArray) -> None:
-    """Evaluate every agent's tick (control.agent_command): fills err, fb, cmd (sent), motion
+    """Evaluate every agent's tick (law.agent_command): fills err, fb, cmd (sent), motion
     (actual), ref (n, 5: the observer's reference, what the safety filter changed, 1 where
-    the wheel limits cut the command by more than control.RAY_CLIPPED), ddhat
+    the wheel limits cut the command by more than observer.RAY_CLIPPED), ddhat
     (continuous-time estimator rate) and codes (the safety filter's outcome); cmd on entry
     holds each agent's previous command.
 
@@ -98,9 +100,9 @@ def _controls(poses: FloatArray, dhat: FloatArray, targets: FloatArray, ahead: F
     tgt, src, wts, pins = graph
     n = poses.shape[0]
     for i in range(n):
-        offset = fronts[i] * law.offset
-        err[i, 0] = poses[i, 0] + offset * math.cos(poses[i, 2]) - targets[i, 0]
-        err[i, 1] = poses[i, 1] + offset * math.sin(poses[i, 2]) - targets[i, 1]
+        bx, by = _offset_point(poses[i, 0], poses[i, 1], poses[i, 2], fronts[i] * law.offset)
+        err[i, 0] = bx - targets[i, 0]
+        err[i, 1] = by - targets[i, 1]
         fb[i, 0] = pins[i] * err[i, 0]
         fb[i, 1] = pins[i] * err[i, 1]
     for k in range(tgt.shape[0]):
@@ -151,7 +153,7 @@ def _run(state: SimState, targets: FloatArray, ahead: FloatArray, graph: EdgeArr
     (step - tick_offsets[i]) % control_every == 0, from step start_steps[i] on. With the
     observer, a tick first updates dhat from the motion over the period just ended (exact
     here: the held motion is what the pose difference would measure; its part before the
-    safety filter scaled along its ray by control.ray_growth); before that it chooses the
+    safety filter scaled along its ray by observer.ray_growth); before that it chooses the
     point it steers (driving.drive_direction, as the node does when a pose comes; under
     continuous control at every fine step).
     record: (poses, dhat, cmd) arrays filled every record_every steps.
@@ -383,7 +385,7 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
     record_dt = spec.simulation.record_dt if record_dt is None else record_dt
     gains = experiment.gains if gains is None else gains
     limits = experiment.limits if limits is None else limits
-    if gains.reverse and not control.timed_by(limits):   # forwards only (drive_direction)
+    if gains.reverse and not timed_by(limits):   # forwards only (drive_direction)
         gains = dataclasses.replace(gains, reverse=False)
     avoidance = experiment.avoidance if avoidance is None else avoidance
     radius = experiment.radius if radius is None else radius
@@ -451,7 +453,7 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
             if moving is not None and (begin in reassign or end == b):
                 schedule.renewal(begin * dt)
             if begin in reassign:
-                points = metrics.offset_points(poses, gains.offset)
+                points = dynamics.offset_points(poses, gains.offset)
                 publication = schedule.reassign(points, begin * dt)
                 if publication is not None:
                     targets = phase.curve.points(publication.s)

@@ -35,7 +35,7 @@ from curve_formation.core.config.experiment import (
 )
 from curve_formation.core.controller.agent import AgentController
 from curve_formation.core.controller.agent_config import agent_configs
-from curve_formation.core.record import metrics
+from curve_formation.core.formation import dynamics
 from curve_formation.core.schedule.curve_schedule import CurveSchedule, Publication
 from curve_formation.core.sim.batch import pipeline_only, SimResult, simulate
 from curve_formation.core.sim.estimate_replay import EstimateTakenError
@@ -118,7 +118,7 @@ class Pipeline:
 
     def reassign(self, now: float) -> None:
         """The curve server's re-assignment from the robots' poses (same id)."""
-        points = metrics.offset_points(self.world.poses(), self.experiment.gains.offset)
+        points = dynamics.offset_points(self.world.poses(), self.experiment.gains.offset)
         publication = self.schedule.reassign(points, now)
         if publication is not None:
             self._hand_out(now, publication)

@@ -139,10 +139,3 @@ def _inside_walls(poses, i, radius, width, height):
         moved = moved or y != poses[i, 1]
         poses[i, 1] = y
     return moved
-
-
-def marker_centres(poses, marker_offset):
-    """(..., 2) arena-frame centres of markers mounted at marker_offset (robot frame, m)."""
-    c, s = np.cos(poses[..., 2]), np.sin(poses[..., 2])
-    return np.stack([poses[..., 0] + c * marker_offset[0] - s * marker_offset[1],
-                     poses[..., 1] + s * marker_offset[0] + c * marker_offset[1]], axis=-1)
