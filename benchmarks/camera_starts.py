@@ -22,7 +22,8 @@ import tempfile
 from collision_avoidance import lower_bounds, settling
 
 from curve_formation.cli import main as cli
-from curve_formation.core.config.experiment import load_experiment, seeded_start, with_start
+from curve_formation.core.config.loading import load_experiment, with_start
+from curve_formation.core.config.starts import seeded_start
 from curve_formation.core.sim.batch import simulate
 from curve_formation.paths import resolve_config
 

@@ -19,7 +19,8 @@ import time
 import cv2
 import numpy as np
 
-from curve_formation.core.config.experiment import load_experiment, random_poses
+from curve_formation.core.config.loading import load_experiment
+from curve_formation.core.config.starts import random_poses
 from curve_formation.nodes import messages
 from curve_formation.paths import resolve_config
 from curve_formation.vision.camera import overhead_camera

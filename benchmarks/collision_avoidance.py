@@ -25,13 +25,10 @@ import time
 
 import numpy as np
 
-from curve_formation.core.config.experiment import (
-    load_experiment,
-    point_robots,
-    seeded_start,
-    with_start,
-)
-from curve_formation.core.controller.agent_config import agent_configs
+from curve_formation.core.config.agents import agent_configs
+from curve_formation.core.config.experiment import point_robots
+from curve_formation.core.config.loading import load_experiment, with_start
+from curve_formation.core.config.starts import seeded_start
 from curve_formation.core.controller.law import agent_command
 from curve_formation.core.controller.safety import AVOIDANCE_OFF
 from curve_formation.core.formation import dynamics

@@ -23,13 +23,13 @@ import numpy as np
 from scenarios import scaled_experiment
 import yaml
 
-from curve_formation.core.config.experiment import (
+from curve_formation.core.config.loading import (
     as_in_the_paper,
     build_experiment,
     load_experiment,
-    seeded_start,
     with_start,
 )
+from curve_formation.core.config.starts import seeded_start
 from curve_formation.core.record import metrics
 from curve_formation.core.sim.batch import simulate
 from curve_formation.paths import resolve_config

@@ -20,7 +20,7 @@ import time
 import cv2
 import numpy as np
 
-from curve_formation.core.config.experiment import load_experiment
+from curve_formation.core.config.loading import load_experiment
 from curve_formation.core.formation.curve_sources import fit_points, polyline_rms_distance
 from curve_formation.core.formation.curves import make_basis
 from curve_formation.paths import resolve_config

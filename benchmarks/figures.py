@@ -17,7 +17,7 @@ import tempfile
 
 from simulation_speed import best_time  # benchmarks/ is the script's folder
 
-from curve_formation.core.config.experiment import load_experiment
+from curve_formation.core.config.loading import load_experiment
 from curve_formation.core.record import metrics
 from curve_formation.core.sim.batch import simulate
 from curve_formation.paths import resolve_config

@@ -34,7 +34,8 @@ import time
 import numpy as np
 import yaml
 
-from curve_formation.core.config.experiment import build_experiment, seeded_start, with_start
+from curve_formation.core.config.loading import build_experiment, with_start
+from curve_formation.core.config.starts import seeded_start
 from curve_formation.core.record import metrics
 from curve_formation.core.sim.pipeline import Link, simulate_pipeline
 from curve_formation.paths import resolve_config

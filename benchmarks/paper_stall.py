@@ -16,7 +16,7 @@ from pathlib import Path
 import matplotlib
 import numpy as np
 
-from curve_formation.core.config.experiment import load_experiment
+from curve_formation.core.config.loading import load_experiment
 from curve_formation.core.sim.batch import simulate
 from curve_formation.paths import resolve_config
 

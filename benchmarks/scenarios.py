@@ -1,6 +1,6 @@
 """Experiments built in code for the benchmarks: n agents on a wavy closed curve."""
 
-from curve_formation.core.config.experiment import build_experiment
+from curve_formation.core.config.loading import build_experiment
 
 
 def scaled_experiment(n, seed=0, duration=10.0, disturbance=(1.0, 1.0), law='paper',

@@ -12,7 +12,7 @@ import time
 
 from scenarios import scaled_experiment
 
-from curve_formation.core.config.experiment import load_experiment
+from curve_formation.core.config.loading import load_experiment
 from curve_formation.core.sim.batch import simulate
 from curve_formation.paths import resolve_config
 

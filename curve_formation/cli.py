@@ -17,11 +17,8 @@ import sys
 from typing import Any
 
 from curve_formation.bags.bag import BagError, DEFAULT_STORAGE, STORAGES
-from curve_formation.core.config.experiment import (
-    check_rate_override,
-    ConfigError,
-    load_experiment,
-)
+from curve_formation.core.config.errors import ConfigError
+from curve_formation.core.config.loading import check_rate_override, load_experiment
 from curve_formation.core.config.marker_ids import MARKER_IDS
 from curve_formation.paths import resolve_config, use_dds_profile
 from curve_formation.results.provenance import command_line

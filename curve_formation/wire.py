@@ -45,9 +45,6 @@ PRESETS = {
                        '{{"seq": {seq}, "stop": true}}\n', 'm/s'),
 }
 FIELDS = ('left', 'right', 'seq')
-# A Mona's wheel base (m): the bridge's default, and the emulated robots' when an experiment
-# sets no wheel limits.
-MONA_WHEEL_BASE = 0.08
 
 
 def wire_format(preset='', command='', stop='', unit='rad/s'):

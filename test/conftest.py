@@ -54,7 +54,7 @@ def paper_arena():
     """The shipped Mona arena case with the paper's agents, graph and law
     (core.config.experiment.as_in_the_paper).
     """
-    from curve_formation.core.config.experiment import as_in_the_paper, build_experiment
+    from curve_formation.core.config.loading import as_in_the_paper, build_experiment
     data = yaml.safe_load((CONFIG_DIR / 'mona_arena.yaml').read_text())
     return build_experiment(as_in_the_paper(data), 'mona_arena (paper agents and graph)')
 

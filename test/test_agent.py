@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 
 from conftest import DATA_DIR, paper_arena
-from curve_formation.core.config.experiment import load_experiment, with_start
+from curve_formation.core.config.agents import agent_configs
+from curve_formation.core.config.loading import load_experiment, with_start
 from curve_formation.core.controller.agent import AgentController, is_stale
-from curve_formation.core.controller.agent_config import agent_configs, AgentConfig
+from curve_formation.core.controller.agent_config import AgentConfig
 from curve_formation.core.controller.gains import Gains
 from curve_formation.core.controller.limits import WheelLimits
 from curve_formation.core.controller.safety import AVOIDANCE_OFF

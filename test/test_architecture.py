@@ -12,7 +12,7 @@ import pytest
 
 CORE = Path(__file__).resolve().parent.parent / 'curve_formation' / 'core'
 # lowest first: a module may import from its own layer and those before it
-LAYERS = ('base', 'formation', 'controller', 'record', 'config', 'world', 'schedule', 'sim')
+LAYERS = ('base', 'formation', 'controller', 'config', 'record', 'world', 'schedule', 'sim')
 # the layers whose files touch no file format, engine or validation library
 PURE = ('base', 'formation', 'controller', 'record', 'schedule', 'sim')
 PURE_THIRD_PARTY = {'numpy', 'scipy', 'numba'}

@@ -15,11 +15,8 @@ import pytest
 
 from conftest import CONFIG_DIR
 from curve_formation.cli import main
-from curve_formation.core.config.experiment import (
-    build_experiment,
-    ConfigError,
-    parse_experiment_text,
-)
+from curve_formation.core.config.errors import ConfigError
+from curve_formation.core.config.loading import build_experiment, parse_experiment_text
 from curve_formation.core.record import metrics
 from curve_formation.core.sim.batch import simulate
 
@@ -101,8 +98,8 @@ def test_a_long_sum_of_terms_parses_and_runs(tmp_path, capsys):
 def test_the_billion_laughs_cost_no_time_or_memory():
     """In its own process, with 1 GB of address space: refused within seconds."""
     code = ('import resource, sys; resource.setrlimit(resource.RLIMIT_AS, (1 << 30, 1 << 30)); '
-            'from curve_formation.core.config.experiment import parse_experiment_text, '
-            'ConfigError\n'
+            'from curve_formation.core.config.errors import ConfigError\n'
+            'from curve_formation.core.config.loading import parse_experiment_text\n'
             'try:\n    parse_experiment_text(sys.stdin.read(), "laughs.yaml")\n'
             'except ConfigError as exc:\n    print(exc)')
     proc = subprocess.run([sys.executable, '-c', code], input=LAUGHS + 'c2: [*i, *i, *i]\n',

@@ -11,7 +11,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import Image
 
-from curve_formation.core.config.experiment import load_experiment
+from curve_formation.core.config.loading import load_experiment
 from curve_formation.nodes import messages, qos, topics
 from curve_formation.nodes.camera_tracker import CameraTracker
 from curve_formation.nodes.fake_camera import FakeCamera

@@ -11,12 +11,9 @@ import pytest
 from scipy.optimize import minimize
 
 from conftest import DATA_DIR
-from curve_formation.core.config.experiment import (
-    load_experiment,
-    point_robots,
-    seeded_start,
-    with_start,
-)
+from curve_formation.core.config.experiment import point_robots
+from curve_formation.core.config.loading import load_experiment, with_start
+from curve_formation.core.config.starts import seeded_start
 from curve_formation.core.controller import safety
 from curve_formation.core.formation.assignment import nearest_order
 from curve_formation.core.record import metrics
@@ -229,7 +226,8 @@ def test_bodies_without_the_filter_push_each_other_but_never_overlap():
 
 
 def test_avoidance_settings_are_checked_at_load(arena_dict):
-    from curve_formation.core.config.experiment import build_experiment, ConfigError
+    from curve_formation.core.config.errors import ConfigError
+    from curve_formation.core.config.loading import build_experiment
     arena_dict['avoidance'] = {'rate': 50.0}
     with pytest.raises(ConfigError, match='avoidance.rate'):
         build_experiment(arena_dict, 'a.yaml')
@@ -241,7 +239,8 @@ def test_avoidance_settings_are_checked_at_load(arena_dict):
 
 
 def test_check_warns_of_targets_too_close_and_refuses_a_curve_outside(arena_dict):
-    from curve_formation.core.config.experiment import build_experiment, ConfigError
+    from curve_formation.core.config.errors import ConfigError
+    from curve_formation.core.config.loading import build_experiment
     arena_dict['agents']['spacing'] = 'uniform_s'   # the paper's: two targets 2.8 cm apart
     experiment = build_experiment(arena_dict, 'a.yaml')
     assert any('0.028 m apart' in w for w in experiment.warnings), experiment.warnings

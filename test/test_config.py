@@ -9,7 +9,8 @@ import pytest
 import yaml
 
 from conftest import CONFIG_DIR
-from curve_formation.core.config.experiment import build_experiment, ConfigError, load_experiment
+from curve_formation.core.config.errors import ConfigError
+from curve_formation.core.config.loading import build_experiment, load_experiment
 
 
 @pytest.mark.parametrize('name', sorted(p.stem for p in CONFIG_DIR.glob('*.yaml')))

@@ -8,7 +8,8 @@ import pytest
 import yaml
 
 from conftest import CONFIG_DIR
-from curve_formation.core.config.experiment import build_experiment, ConfigError
+from curve_formation.core.config.errors import ConfigError
+from curve_formation.core.config.loading import build_experiment
 
 
 BASE = yaml.safe_load((CONFIG_DIR / 'mona_arena.yaml').read_text())
@@ -68,7 +69,7 @@ def test_mutated_experiments_load_or_are_refused_with_file_and_key(data):
 
 @pytest.mark.parametrize('text', ['', 'just a string', '[1, 2, 3]', 'a: [', '{name: 1}'])
 def test_non_experiments_are_refused(tmp_path, text):
-    from curve_formation.core.config.experiment import load_experiment
+    from curve_formation.core.config.loading import load_experiment
     path = tmp_path / 'x.yaml'
     path.write_text(text)
     with pytest.raises(ConfigError, match=r'x\.yaml: '):

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from conftest import paper_arena
-from curve_formation.core.config.experiment import load_experiment, seeded_start, with_start
+from curve_formation.core.config.loading import load_experiment, with_start
+from curve_formation.core.config.starts import seeded_start
 from curve_formation.core.controller.law import sampled_feedback
 from curve_formation.core.controller.limits import WheelLimits
 from curve_formation.core.controller.observer import ray_growth

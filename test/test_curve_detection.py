@@ -5,7 +5,7 @@ closed found by itself, robots' bodies bridged, and no republishing from pixel n
 import numpy as np
 import pytest
 
-from curve_formation.core.config.experiment import load_experiment
+from curve_formation.core.config.loading import load_experiment
 from curve_formation.core.formation.curve_sources import fit_points, polyline_rms_distance
 from curve_formation.core.formation.curves import make_basis
 from curve_formation.paths import resolve_config

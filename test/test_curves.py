@@ -109,7 +109,7 @@ def test_observed_points_are_fitted_by_their_shape_not_their_spacing():
     alone leave the 8-harmonic fit 3 mm off the flower; moving each point's parameter to its
     foot on the fit and refitting brings it to 0.1 mm.
     """
-    from curve_formation.core.config.experiment import load_experiment
+    from curve_formation.core.config.loading import load_experiment
     from curve_formation.core.formation.curve_sources import (
         fit_points,
         point_samples,

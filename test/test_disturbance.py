@@ -7,7 +7,8 @@ import pytest
 import yaml
 
 from conftest import DATA_DIR
-from curve_formation.core.config.experiment import build_experiment, ConfigError
+from curve_formation.core.config.errors import ConfigError
+from curve_formation.core.config.loading import build_experiment
 from curve_formation.core.controller.disturbance import factors, Variation
 from curve_formation.core.record.metrics import result_metrics
 from curve_formation.core.sim.batch import simulate
@@ -172,7 +173,8 @@ def test_over_dds_the_disturbance_changes_on_the_runs_clock_and_the_nodes_learn_
 
 
 def mona_arena_varying(order, observer_rate=8.0, amplitude=0.1, seed=1):
-    from curve_formation.core.config.experiment import seeded_start, with_start
+    from curve_formation.core.config.loading import with_start
+    from curve_formation.core.config.starts import seeded_start
     from curve_formation.paths import resolve_config
     data = yaml.safe_load(resolve_config('mona_arena').read_text())
     data['disturbance']['varies'] = [{'kind': 'sine', 'amplitude': amplitude, 'period': 10.0}]

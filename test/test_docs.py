@@ -76,7 +76,7 @@ def test_nodes_create_the_documented_topics(ros_domain, name, module):
 
 def test_the_readme_example_experiment_is_valid_and_settles(tmp_path):
     """The minimal experiment the README shows passes check and settles in the simulator."""
-    from curve_formation.core.config.experiment import load_experiment
+    from curve_formation.core.config.loading import load_experiment
     from curve_formation.core.record.metrics import result_metrics
     from curve_formation.core.sim.batch import simulate
     text = (NODE_REFERENCE.parent.parent / 'README.md').read_text()

@@ -7,9 +7,9 @@ import sys
 import numpy as np
 import pytest
 
-from curve_formation.core.config.experiment import load_experiment
+from curve_formation.core.config.agents import agent_configs
+from curve_formation.core.config.loading import load_experiment
 from curve_formation.core.controller.agent import AgentController
-from curve_formation.core.controller.agent_config import agent_configs
 from curve_formation.core.controller.driving import drive_direction, steered_law
 from curve_formation.core.controller.gains import Gains
 from curve_formation.core.controller.law import agent_command

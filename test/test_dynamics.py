@@ -39,7 +39,7 @@ def test_the_kinematic_world_steps_at_once_only_where_no_contact_can_happen():
     throughout, in under half the steps.
     """
     from conftest import DATA_DIR
-    from curve_formation.core.config.experiment import load_experiment
+    from curve_formation.core.config.loading import load_experiment
     from curve_formation.core.world.kinematic import KinematicWorld
     experiment = load_experiment(DATA_DIR / 'arena_bodies.yaml')
     worlds = [KinematicWorld(experiment) for _ in range(2)]

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from conftest import CONFIG_DIR
-from curve_formation.core.config.experiment import load_experiment
+from curve_formation.core.config.loading import load_experiment
 from curve_formation.core.controller.estop import (
     estop_fields,
     EstopLatch,

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from conftest import CONFIG_DIR
-from curve_formation.core.config.experiment import load_experiment
+from curve_formation.core.config.loading import load_experiment
 from curve_formation.core.record import metrics
 from curve_formation.core.sim.batch import simulate
 from curve_formation.figures import plots

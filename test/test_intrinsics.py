@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 
 from curve_formation.cli import main
-from curve_formation.core.config.experiment import ConfigError, load_experiment, random_poses
+from curve_formation.core.config.errors import ConfigError
+from curve_formation.core.config.loading import load_experiment
+from curve_formation.core.config.starts import random_poses
 from curve_formation.paths import resolve_config
 from curve_formation.vision.camera import (
     apply_homography,

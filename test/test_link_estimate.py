@@ -145,7 +145,7 @@ def test_the_ros_loop_over_a_jittered_link_settles_with_the_latency_estimated_on
     import yaml
 
     from curve_formation.bags.bag import read_messages
-    from curve_formation.core.config.experiment import build_experiment
+    from curve_formation.core.config.loading import build_experiment
     from curve_formation.core.record.metrics import result_metrics
     from curve_formation.core.sim.batch import simulate
     from curve_formation.paths import resolve_config

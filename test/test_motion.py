@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 
 from conftest import DATA_DIR
-from curve_formation.core.config.experiment import load_experiment, received_phases
+from curve_formation.core.config.loading import load_experiment
 from curve_formation.core.formation.curve_codec import CurveClock
 from curve_formation.core.formation.motion import CurveMotion
 from curve_formation.core.record.metrics import run_metrics
+from curve_formation.core.record.received_phases import received_phases
 from curve_formation.core.sim.batch import simulate
 from curve_formation.paths import resolve_config
 
@@ -119,7 +120,8 @@ def test_feed_forward_keeps_the_formation_on_a_curve_moving_at_1_cm_per_s(moving
 
 
 def test_a_curve_that_would_move_out_of_the_arena_is_refused():
-    from curve_formation.core.config.experiment import build_experiment, ConfigError
+    from curve_formation.core.config.errors import ConfigError
+    from curve_formation.core.config.loading import build_experiment
     from curve_formation.core.config.safe_yaml import load
     text = resolve_config('moving_curve').read_text()
     assert 'velocity: [0.01, 0.0]' in text

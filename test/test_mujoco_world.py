@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from curve_formation.core.config.experiment import build_experiment, load_experiment
+from curve_formation.core.config.loading import build_experiment, load_experiment
 from curve_formation.core.formation.dynamics import arc_step
 from curve_formation.core.world.mujoco_world import MujocoWorld
 
@@ -170,6 +170,6 @@ def test_the_shipped_arena_builds_with_walls_and_every_robot():
 
 
 def test_a_robot_lighter_than_its_wheels_is_refused_when_the_file_loads():
-    from curve_formation.core.config.experiment import ConfigError
+    from curve_formation.core.config.errors import ConfigError
     with pytest.raises(ConfigError, match='physics.mass'):
         two_robots(physics={'mass': 0.008})

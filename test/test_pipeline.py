@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from curve_formation import cli
-from curve_formation.core.config.experiment import load_experiment
+from curve_formation.core.config.loading import load_experiment
 from curve_formation.core.record.metrics import result_metrics
 from curve_formation.core.sim.batch import simulate
 from curve_formation.core.sim.pipeline import simulate_pipeline
@@ -121,7 +121,8 @@ def mona_arena_start(seed, **controller):
     """
     import yaml
 
-    from curve_formation.core.config.experiment import build_experiment, seeded_start, with_start
+    from curve_formation.core.config.loading import build_experiment, with_start
+    from curve_formation.core.config.starts import seeded_start
     from curve_formation.paths import resolve_config
     path = resolve_config('mona_arena')
     data = yaml.safe_load(open(path))
@@ -196,7 +197,7 @@ def test_a_curve_that_begins_to_move_is_announced_ahead_as_the_curve_server_does
     """
     import yaml
 
-    from curve_formation.core.config.experiment import build_experiment
+    from curve_formation.core.config.loading import build_experiment
     text = open('config/moving_curve.yaml').read()
     assert text.count('motion: {velocity: [0.01, 0.0]}') == 1
     case = build_experiment(yaml.safe_load(text.replace(
@@ -217,7 +218,8 @@ def test_a_drift_that_swings_is_not_read_as_latency():
     """
     import yaml
 
-    from curve_formation.core.config.experiment import build_experiment, seeded_start, with_start
+    from curve_formation.core.config.loading import build_experiment, with_start
+    from curve_formation.core.config.starts import seeded_start
     from curve_formation.core.sim.pipeline import Pipeline
     from curve_formation.core.world.worlds import make_world
     from curve_formation.paths import resolve_config

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from conftest import CONFIG_DIR
-from curve_formation.core.config.experiment import load_experiment
+from curve_formation.core.config.agents import agent_configs
+from curve_formation.core.config.loading import load_experiment
 from curve_formation.core.controller.agent import AgentController
-from curve_formation.core.controller.agent_config import agent_configs
 from curve_formation.core.controller.plausibility import (
     bounded_command,
     DEFAULT_MAX_SPEED,

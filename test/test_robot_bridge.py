@@ -20,7 +20,7 @@ from std_msgs.msg import Bool
 
 from conftest import no_history_qos
 from curve_formation import links, wire
-from curve_formation.core.config.experiment import load_experiment
+from curve_formation.core.config.loading import load_experiment
 from curve_formation.core.formation.dynamics import body_from_wheels
 from curve_formation.nodes import qos, topics
 from curve_formation.nodes.params import ParameterError

@@ -16,7 +16,7 @@ from std_msgs.msg import Float64MultiArray, String
 import yaml
 
 from conftest import DATA_DIR, no_history_qos
-from curve_formation.core.config.experiment import load_experiment
+from curve_formation.core.config.loading import load_experiment
 from curve_formation.core.controller.agent import State
 from curve_formation.core.formation.curve_codec import CurveClock
 from curve_formation.core.formation.curve_sources import expression_samples
@@ -554,8 +554,8 @@ def test_agent_settings_survive_the_trip_through_node_parameters(ros, name):
     """
     from rclpy.parameter import Parameter
 
+    from curve_formation.core.config.agents import agent_configs
     from curve_formation.core.config.parameters import node_parameters
-    from curve_formation.core.controller.agent_config import agent_configs
     from curve_formation.nodes.formation_controller import agent_config
     from curve_formation.paths import resolve_config
     context, add, _ = ros

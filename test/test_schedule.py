@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from conftest import DATA_DIR
-from curve_formation.core.config.experiment import ANNOUNCE_AHEAD, load_experiment
+from curve_formation.core.config.experiment import ANNOUNCE_AHEAD
+from curve_formation.core.config.loading import load_experiment
 from curve_formation.core.schedule.curve_schedule import CurveSchedule
 
 

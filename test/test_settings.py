@@ -109,7 +109,8 @@ def node_accepts(params):
 
 
 def schema_accepts(data):
-    from curve_formation.core.config.experiment import build_experiment, ConfigError
+    from curve_formation.core.config.errors import ConfigError
+    from curve_formation.core.config.loading import build_experiment
     try:
         build_experiment(data, 'rules.yaml')
     except ConfigError:
@@ -125,9 +126,9 @@ def arena_demo():
 
 
 def the_leaders_parameters():
-    from curve_formation.core.config.experiment import build_experiment
+    from curve_formation.core.config.agents import agent_configs
+    from curve_formation.core.config.loading import build_experiment
     from curve_formation.core.config.parameters import node_parameters
-    from curve_formation.core.controller.agent_config import agent_configs
     experiment = build_experiment(arena_demo(), 'arena_demo.yaml')
     return node_parameters(agent_configs(experiment, 10.0)[0])
 
@@ -179,8 +180,9 @@ def test_agent_configs_defaults_are_the_schemas():
     """
     import dataclasses
 
-    from curve_formation.core.config.experiment import build_experiment
-    from curve_formation.core.controller.agent_config import agent_configs, AgentConfig
+    from curve_formation.core.config.agents import agent_configs
+    from curve_formation.core.config.loading import build_experiment
+    from curve_formation.core.controller.agent_config import AgentConfig
     experiment = build_experiment({
         'name': 'defaults', 'agents': {'count': 3, 'initial': {'random': {
             'seed': 1, 'center': [0.0, 0.0], 'half_width': [1.0, 1.0]}}},

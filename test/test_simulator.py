@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from curve_formation.core.config.experiment import load_experiment, point_robots
+from curve_formation.core.config.experiment import point_robots
+from curve_formation.core.config.loading import load_experiment
 from curve_formation.core.controller.limits import NO_LIMITS
 from curve_formation.core.record import metrics
 from curve_formation.core.sim.batch import simulate
@@ -219,7 +220,8 @@ def test_the_batch_simulator_refuses_settings_of_motors_it_does_not_have(key):
     """
     import yaml
 
-    from curve_formation.core.config.experiment import build_experiment, ConfigError
+    from curve_formation.core.config.errors import ConfigError
+    from curve_formation.core.config.loading import build_experiment
     data = yaml.safe_load(open('config/arena_demo.yaml'))
     data['limits'][key] = 0.001
     experiment = build_experiment(data, 'arena_demo.yaml')
@@ -233,7 +235,8 @@ def test_the_batch_simulator_refuses_a_command_latency_its_robots_do_not_have():
     """
     import yaml
 
-    from curve_formation.core.config.experiment import build_experiment, ConfigError
+    from curve_formation.core.config.errors import ConfigError
+    from curve_formation.core.config.loading import build_experiment
     data = yaml.safe_load(open('config/arena_demo.yaml'))
     data['controller']['command_latency'] = 0.1
     experiment = build_experiment(data, 'arena_demo.yaml')
@@ -248,7 +251,7 @@ def test_the_batch_simulator_replays_each_controllers_online_latency_estimate():
     controllers do), as the nodes' pipeline with its live estimates ends; under continuous
     control, with no commands to time, it refuses the setting by name.
     """
-    from curve_formation.core.config.experiment import ConfigError
+    from curve_formation.core.config.errors import ConfigError
     from curve_formation.core.sim.pipeline import simulate_pipeline
     experiment = load_experiment(resolve_config('arena_demo'))
     assert experiment.spec.controller.estimate_latency

@@ -55,7 +55,7 @@ def test_the_demo_split_over_four_hosts_settles_and_survives_a_lost_link(tmp_pat
     cut off for 2 s every controller stops (its poses are stale) and they all drive again
     once the link is back.
     """
-    from curve_formation.core.config.experiment import load_experiment
+    from curve_formation.core.config.loading import load_experiment
     from curve_formation.core.record.metrics import settle_time
     from curve_formation.core.sim.batch import simulate
     from curve_formation.paths import discovery_server_command, resolve_config

@@ -5,7 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from curve_formation.core.config.experiment import load_experiment, random_poses
+from curve_formation.core.config.loading import load_experiment
+from curve_formation.core.config.starts import random_poses
 from curve_formation.nodes import messages
 from curve_formation.paths import resolve_config
 from curve_formation.vision.camera import overhead_camera
@@ -232,9 +233,8 @@ def test_padded_rows_and_bad_images_are_handled():
 
 
 def test_the_cores_aruco_table_is_opencvs():
-    """core.config.marker_ids lets the experiment loader check marker ids without OpenCV; it must
-    be
-    what cv2.aruco holds.
+    """core.config.marker_ids lets the experiment loader check marker ids without OpenCV; it
+    must be what cv2.aruco holds.
     """
     import subprocess
     import sys
@@ -243,7 +243,7 @@ def test_the_cores_aruco_table_is_opencvs():
     from curve_formation.vision.markers import DICTIONARIES, dictionary_size
     assert {name: dictionary_size(name) for name in DICTIONARIES} == MARKER_IDS
     # Loading a camera experiment imports no OpenCV.
-    code = ('import sys; from curve_formation.core.config.experiment import load_experiment; '
+    code = ('import sys; from curve_formation.core.config.loading import load_experiment; '
             'from curve_formation.paths import resolve_config; '
             'load_experiment(resolve_config("arena_demo")); print("cv2" in sys.modules)')
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True)

@@ -17,18 +17,18 @@ import numpy as np
 from curve_formation import diagnostics
 from curve_formation.bags.bag import bag_info, bag_summary, BagError, read_messages
 from curve_formation.bags.streams import stream_topic
-from curve_formation.core.config.experiment import (
+from curve_formation.core.config.agents import geofence
+from curve_formation.core.config.experiment import phase_index
+from curve_formation.core.config.loading import (
     build_experiment,
     control_rate,
     load_experiment,
     parse_experiment_text,
-    phase_index,
-    received_phases,
 )
-from curve_formation.core.controller.agent_config import geofence
 from curve_formation.core.controller.estop import stopped_intervals
 from curve_formation.core.formation.curve_codec import CodecError
 from curve_formation.core.record import metrics
+from curve_formation.core.record.received_phases import received_phases
 from curve_formation.core.record.sampling import GridSampler, LatestValues
 from curve_formation.figures import plots
 from curve_formation.interface import (

@@ -23,7 +23,7 @@ def told_motor_lag(path):
     """
     from curve_formation.bags.analysis import EXPERIMENT_KEY
     from curve_formation.bags.bag import bag_info
-    from curve_formation.core.config.experiment import parse_experiment_text
+    from curve_formation.core.config.loading import parse_experiment_text
     _, custom = bag_info(path)
     if EXPERIMENT_KEY not in custom:
         return 0.0

@@ -24,7 +24,8 @@ from rclpy.node import Node
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
-from curve_formation.core.config.experiment import ANNOUNCE_AHEAD, points_outside_arena
+from curve_formation.core.config.checks import points_outside_arena
+from curve_formation.core.config.experiment import ANNOUNCE_AHEAD
 from curve_formation.core.controller.plausibility import MAX_COORDINATE
 from curve_formation.core.formation.assignment import AssignmentError, phase_parameters
 from curve_formation.core.formation.curve_sources import fit_points

@@ -15,9 +15,9 @@ import numpy as np
 from rclpy.node import Node
 
 from curve_formation import diagnostics
-from curve_formation.core.config.experiment import ReceivedPhases
-from curve_formation.core.controller.agent_config import geofence
+from curve_formation.core.config.agents import geofence
 from curve_formation.core.controller.estop import stopped_intervals
+from curve_formation.core.record.received_phases import ReceivedPhases
 from curve_formation.core.record.sample_log import SampleLog
 from curve_formation.core.record.sampling import LatestValues
 from curve_formation.nodes import messages, qos, topics

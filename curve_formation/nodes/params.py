@@ -173,7 +173,8 @@ def experiment_parameter(value, needs=()):
 
     needs: sections it must have (e.g. ('camera',)). ParameterError names the parameter.
     """
-    from curve_formation.core.config.experiment import ConfigError, load_experiment
+    from curve_formation.core.config.errors import ConfigError
+    from curve_formation.core.config.loading import load_experiment
     from curve_formation.paths import resolve_config
     try:
         experiment = load_experiment(resolve_config(value))
@@ -192,7 +193,8 @@ def node_variations(value, n=None):
     """
     if not value.strip():
         return ()   # without importing the experiment loader: ~0.2 s of a node's start-up
-    from curve_formation.core.config.experiment import ConfigError, variations_from_text
+    from curve_formation.core.config.errors import ConfigError
+    from curve_formation.core.config.variations import variations_from_text
     try:
         return variations_from_text(value, n, "parameter 'disturbance_varies'")
     except ConfigError as exc:

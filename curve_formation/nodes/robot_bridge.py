@@ -24,6 +24,7 @@ import numpy as np
 from rclpy.node import Node
 
 from curve_formation import wire
+from curve_formation.core.config.schema import MONA_WHEEL_BASE
 from curve_formation.core.controller.agent import is_stale
 from curve_formation.links import LinkError, robot_link
 from curve_formation.nodes import messages, topics
@@ -59,7 +60,7 @@ NODE_NAME = 'robot_bridge'   # also its console script's name
 PARAMETERS = (
     Param('link', 'string', None, "where the robot is: 'udp:HOST:PORT' or 'serial:DEVICE'"),
     Param('baud', 'int', 115200, 'serial line speed (bits/s)', low=1),
-    Param('wheel_base', 'double', wire.MONA_WHEEL_BASE, 'distance between the wheels (m)',
+    Param('wheel_base', 'double', MONA_WHEEL_BASE, 'distance between the wheels (m)',
           positive=True),
     Param('max_wheel_speed', 'double', 0.0, 'max rim speed of a wheel (m/s); 0 = no limit',
           low=0.0),

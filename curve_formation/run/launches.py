@@ -13,14 +13,11 @@ import socket
 
 import yaml
 
-from curve_formation.core.config.experiment import (
-    control_rate,
-    variations_text,
-    wheel_base,
-    wheel_radius,
-)
+from curve_formation.core.config.agents import agent_configs
+from curve_formation.core.config.experiment import wheel_base, wheel_radius
+from curve_formation.core.config.loading import control_rate
 from curve_formation.core.config.parameters import limit_parameter, node_parameters
-from curve_formation.core.controller.agent_config import agent_configs
+from curve_formation.core.config.variations import variations_text
 from curve_formation.interface import robot_namespace
 from curve_formation.run.run_options import DEFAULTS
 

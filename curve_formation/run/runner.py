@@ -23,7 +23,8 @@ from rclpy.serialization import serialize_message
 from curve_formation import diagnostics
 from curve_formation.bags.analysis import bag_accounting, RUN_END_KEY
 from curve_formation.bags.bag import BagWriter
-from curve_formation.core.config.experiment import control_rate, load_experiment, phase_index
+from curve_formation.core.config.experiment import phase_index
+from curve_formation.core.config.loading import control_rate, load_experiment
 from curve_formation.core.record import metrics
 from curve_formation.nodes.runtime import now_seconds
 from curve_formation.nodes.topics import CURVE, DIAGNOSTICS

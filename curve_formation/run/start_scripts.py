@@ -122,7 +122,7 @@ def graph_launches(experiment_path, folder, with_robots=True, camera=False, brid
     measure the run, and the curve server waits for it. physics: the simulated robots' world
     (None: the experiment's).
     """
-    from curve_formation.core.config.experiment import load_experiment
+    from curve_formation.core.config.loading import load_experiment
     from curve_formation.run.launches import node_launches
     from curve_formation.run.run_options import RunOptions
     experiment = load_experiment(experiment_path)

@@ -2,7 +2,8 @@
 so that `curve-formation check` refuses what the tracker would refuse at start.
 """
 
-from curve_formation.core.config.experiment import beside_experiment, ConfigError
+from curve_formation.core.config.errors import ConfigError
+from curve_formation.core.config.experiment import beside_experiment
 from curve_formation.vision.intrinsics import IntrinsicsError, read_intrinsics
 from curve_formation.vision.tracker import Calibration, CalibrationError
 

@@ -116,8 +116,8 @@ def read_intrinsics(path, resolution=None):
     from pydantic import ValidationError
 
     from curve_formation.core.config import safe_yaml
-    from curve_formation.core.config.experiment import validation_problem
-    from curve_formation.core.config.schema import IntrinsicsFile
+    from curve_formation.core.config.camera_schema import IntrinsicsFile
+    from curve_formation.core.config.errors import validation_problem
     try:
         data = safe_yaml.load(Path(path).read_bytes())
     except (OSError, safe_yaml.InputError) as exc:

@@ -6,16 +6,12 @@ Units: m, s, rad; the geofence in the arena frame.
 
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Optional, TYPE_CHECKING
+from typing import Optional
 
 from curve_formation.core.base.shapes import Command
 from curve_formation.core.controller.gains import Gains, Law
 from curve_formation.core.controller.limits import NO_LIMITS, WheelLimits
 from curve_formation.core.controller.safety import Avoidance, AVOIDANCE_OFF
-
-
-if TYPE_CHECKING:
-    from curve_formation.core.config.experiment import Experiment
 
 
 # (xmin, ymin, xmax, ymax), arena frame (m); None: no fence.
@@ -74,41 +70,3 @@ class AgentConfig:
     def law(self) -> Law:
         """The control.Law of this agent's ticks (built once: the settings are frozen)."""
         return self.gains.tick_law(self.rate_hz, on_pc=any(self.pc_disturbance))
-
-
-
-def geofence(experiment: 'Experiment') -> 'Fence':
-    """(xmin, ymin, xmax, ymax) (m, arena frame) outside which a robot is stopped: the
-    arena grown by safety.geofence_margin; None without an arena.
-    """
-    spec = experiment.spec
-    if spec.arena is None:
-        return None
-    m = spec.safety.geofence_margin
-    return (-m, -m, spec.arena.size[0] + m, spec.arena.size[1] + m)
-
-
-def agent_configs(experiment: 'Experiment', rate_hz: float) -> list['AgentConfig']:
-    """Every agent's AgentConfig (agent 1 first) from an experiment, controlled at rate_hz:
-    its graph neighbours, gains, limits, safety timeouts and geofence, PC-injected
-    disturbance and safety filter.
-    """
-    spec = experiment.spec
-    on_pc = spec.disturbance.injected == 'on_pc'
-    fence = geofence(experiment)
-    return [AgentConfig(
-        index=i, agent_count=experiment.n, neighbours=tuple(experiment.graph.in_neighbours(i)),
-        pinning=experiment.graph.follower_pinning, gains=experiment.gains,
-        limits=experiment.limits, rate_hz=float(rate_hz),
-        pose_timeout=spec.safety.pose_timeout, neighbour_timeout=spec.safety.neighbour_timeout,
-        leader_timeout=spec.safety.leader_timeout, geofence=fence,
-        pc_disturbance=((float(experiment.disturbance[i - 1][0]),
-                         float(experiment.disturbance[i - 1][1])) if on_pc else (0.0, 0.0)),
-        avoidance=experiment.avoidance, predict_pose=spec.controller.predict_pose,
-        command_latency=spec.controller.command_latency,
-        feed_forward=spec.controller.feed_forward,
-        min_wheel_speed=(spec.limits.min_wheel_speed or 0.0) if spec.limits else 0.0,
-        motor_time_constant=(spec.limits.motor_time_constant or 0.0) if spec.limits else 0.0,
-        observer_order=spec.controller.observer_order,
-        estimate_latency=spec.controller.estimate_latency)
-        for i in range(1, experiment.n + 1)]

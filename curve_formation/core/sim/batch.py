@@ -26,12 +26,8 @@ from numpy.typing import ArrayLike
 
 from curve_formation.core.base.jit import compiled
 from curve_formation.core.base.shapes import FloatArray, IntArray
-from curve_formation.core.config.experiment import (
-    ConfigError,
-    Experiment,
-    phase_index,
-    whole_steps,
-)
+from curve_formation.core.config.errors import ConfigError
+from curve_formation.core.config.experiment import Experiment, phase_index, whole_steps
 from curve_formation.core.controller import driving, observer
 from curve_formation.core.controller import law as control_law
 from curve_formation.core.controller.disturbance import disturbance_at

@@ -11,7 +11,8 @@ runs the nodes' tick pipeline instead (pipeline.simulate_kinematic). Times in s.
 import numpy as np
 
 from curve_formation.core.base.shapes import FloatArray, IntArray
-from curve_formation.core.config.experiment import ConfigError, Experiment
+from curve_formation.core.config.errors import ConfigError
+from curve_formation.core.config.experiment import Experiment
 from curve_formation.core.controller.link_estimate import replay_online
 
 

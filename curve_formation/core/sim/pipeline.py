@@ -26,15 +26,10 @@ from typing import Literal
 import numpy as np
 
 from curve_formation.core.base.shapes import BoolArray, FloatArray
-from curve_formation.core.config.experiment import (
-    ANNOUNCE_AHEAD,
-    control_rate,
-    Experiment,
-    Phase,
-    phase_index,
-)
+from curve_formation.core.config.agents import agent_configs
+from curve_formation.core.config.experiment import ANNOUNCE_AHEAD, Experiment, Phase, phase_index
+from curve_formation.core.config.loading import control_rate
 from curve_formation.core.controller.agent import AgentController
-from curve_formation.core.controller.agent_config import agent_configs
 from curve_formation.core.formation import dynamics
 from curve_formation.core.schedule.curve_schedule import CurveSchedule, Publication
 from curve_formation.core.sim.batch import pipeline_only, SimResult, simulate

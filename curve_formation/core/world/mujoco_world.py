@@ -29,7 +29,7 @@ import numpy as np
 
 from curve_formation.core.base.shapes import FloatArray
 from curve_formation.core.config.experiment import wheel_base, wheel_radius
-from curve_formation.core.config.schema import WHEEL_MASS
+from curve_formation.core.config.physics_schema import WHEEL_MASS
 from curve_formation.core.formation.dynamics import CommandQueue
 
 
