@@ -32,7 +32,7 @@ import numpy as np
 import rclpy
 from geometry_msgs.msg import PoseStamped, Twist, Vector3Stamped
 from sensor_msgs.msg import Image, JointState
-from curve_formation.core.controller.agent import State
+from curve_formation.core.controller.inputs import State
 from curve_formation.nodes import messages, qos, topics
 duration, width, height = float(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3])
 images = sys.argv[4] == '1'

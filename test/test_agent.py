@@ -9,9 +9,10 @@ import pytest
 from conftest import DATA_DIR, paper_arena
 from curve_formation.core.config.agents import agent_configs
 from curve_formation.core.config.loading import load_experiment, with_start
-from curve_formation.core.controller.agent import AgentController, is_stale
+from curve_formation.core.controller.agent import AgentController
 from curve_formation.core.controller.agent_config import AgentConfig
 from curve_formation.core.controller.gains import Gains
+from curve_formation.core.controller.inputs import is_stale
 from curve_formation.core.controller.limits import WheelLimits
 from curve_formation.core.controller.safety import AVOIDANCE_OFF
 from curve_formation.core.formation.assignment import AssignmentError, reassigned
@@ -39,7 +40,7 @@ def controllers_for(experiment, rate_hz, compiled=False):
     ('fixed', False)])
 def test_node_controllers_reproduce_the_simulator_exactly(name, compiled):
     """n AgentControllers ticked together at 10 Hz with exact unicycle steps == simulate():
-    the same tick pipeline (core.controller.law.agent_command), run as Python or, as a
+    the same control step (core.controller.step.agent_step), run as Python or, as a
     single-process
     run's nodes do, compiled (loaded before the first tick, never again). The shipped arena
     case has nearest assignment, follower pinning, bodies, the safety filter and re-assignment
@@ -49,7 +50,7 @@ def test_node_controllers_reproduce_the_simulator_exactly(name, compiled):
     experiment = paper_arena() if name == 'fixed' else load_experiment(resolve_config(name))
     rate, dt, duration = 10.0, 0.001, 5.0
     ctrls = controllers_for(experiment, rate, compiled)
-    compiled_for = len(ctrls[0].command.signatures) if compiled else None
+    compiled_for = len(ctrls[0].step.signatures) if compiled else None
     on_pc = experiment.spec.disturbance.injected == 'on_pc'
     poses = experiment.initial_poses.copy()
     phase = experiment.phases[0]
@@ -96,7 +97,7 @@ def test_node_controllers_reproduce_the_simulator_exactly(name, compiled):
     if experiment.gains.reverse:   # the case covers both ways of driving
         assert {c.front for c in ctrls} == {1.0, -1.0}
     if compiled:   # no tick compiled anything
-        assert len(ctrls[0].command.signatures) == compiled_for
+        assert len(ctrls[0].step.signatures) == compiled_for
 
 
 def config(**kw):
@@ -650,7 +651,7 @@ def test_the_observer_pairs_a_motion_with_what_the_lagging_motors_realised(elaps
     c (1 - tau / T (1 - exp(-T / tau))) over the first T s), each command from its sending
     plus the command latency.
     """
-    from curve_formation.core.controller.agent import Sent
+    from curve_formation.core.controller.inputs import Sent
     tau, latency, c = 0.05, 0.03, 0.02
     ctrl = AgentController(config(motor_time_constant=tau, command_latency=latency))
     for k in range(5):   # at rest: commands of 0 (driven) before the step at t = 1 s

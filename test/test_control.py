@@ -8,11 +8,9 @@ from curve_formation.core.controller.gains import Gains
 from curve_formation.core.controller.law import (
     agent_command,
     agent_input,
+    consensus_feedback,
     FEEDBACK_HEADROOM,
-    follower_feedback,
-    leader_feedback,
     observer_input,
-    stacked_paper_input,
     tail_feedback,
 )
 from curve_formation.core.controller.limits import (
@@ -28,6 +26,30 @@ from curve_formation.core.formation.curves import FourierBasis, PolynomialBasis
 from curve_formation.core.formation.dynamics import wheel_speeds
 
 
+def stacked_paper_input(poses, dhat, g_bar, xi, laplacian, leader, gains):
+    """The paper's stacked law, with the pseudo-inverse: what the local law is held to.
+
+    ub = -k1 (Lbar Gbar xi_e + Lambda_bar xb_e) - k2 R dhat with xi_e = Gbar^+ xb - xi.
+
+    Args:
+        poses: (n, 3) x, y, theta.  dhat: (n, 2).  g_bar: (2n, 2H).  xi: (2H,).
+        laplacian: (n, n).  leader: 0-based index.  gains: Gains.
+    Returns:
+        ub (n, 2) in the arena frame.
+    """
+    n = len(poses)
+    xb = poses[:, :2] + gains.offset * np.column_stack([np.cos(poses[:, 2]),
+                                                        np.sin(poses[:, 2])])
+    xb_e = xb.ravel() - g_bar @ xi
+    xi_e = np.linalg.pinv(g_bar) @ xb.ravel() - xi
+    lam = np.zeros((n, n))
+    lam[leader, leader] = 1.0
+    consensus = np.kron(laplacian, np.eye(2)) @ g_bar @ xi_e + np.kron(lam, np.eye(2)) @ xb_e
+    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    r_dhat = np.column_stack([c * dhat[:, 0] - gains.offset * s * dhat[:, 1],
+                              s * dhat[:, 0] + gains.offset * c * dhat[:, 1]])
+    return -gains.k1 * consensus.reshape(n, 2) - gains.k2 * r_dhat
+
 def local_arena_input(poses, dhat, targets, graph, gains):
     """ub_i from each agent's own and in-neighbours' errors only, mapped back by R_i."""
     xb = poses[:, :2] + gains.offset * np.column_stack([np.cos(poses[:, 2]),
@@ -36,12 +58,10 @@ def local_arena_input(poses, dhat, targets, graph, gains):
     out = np.zeros_like(errors)
     for i in range(graph.n):
         ex, ey = errors[i]
-        if i + 1 == graph.leader:
-            fx, fy = leader_feedback(ex, ey)
-        else:
-            nbrs = graph.in_neighbours(i + 1)
-            fx, fy = follower_feedback(ex, ey, [errors[j - 1] for j, _ in nbrs],
-                                       [w for _, w in nbrs])
+        nbrs = graph.in_neighbours(i + 1)
+        fx, fy = consensus_feedback(ex, ey, errors, np.array([j - 1 for j, _ in nbrs]),
+                                    np.array([w for _, w in nbrs]),
+                                    1.0 if i + 1 == graph.leader else 0.0)
         v, w, _, _ = agent_input(fx, fy, ex, ey, poses[i, 2], dhat[i, 0], dhat[i, 1],
                                  gains.k1, gains.k2, gains.offset)
         th = poses[i, 2]

@@ -203,16 +203,27 @@ def test_the_second_order_observer_holds_a_disturbance_on_the_pc_that_swings_10_
         assert worst < 2e-4
 
 
-def test_the_batch_simulator_refuses_the_second_order_observer_and_sim_runs_the_pipeline(
-        tmp_path):
+def test_the_batch_simulator_runs_the_second_order_observer_as_the_nodes_do(tmp_path):
+    """The observer's update is one function for the controller and the batch kernel
+    (observer.observer_update): mona_arena's +-10 % swing with the second-order observer
+    settles every phase in the batch simulator as in the nodes' pipeline (the test above),
+    the first-order one does not, and `sim` runs the batch simulator for it.
+    """
     from curve_formation.cli import simulate_to_dir
     from curve_formation.paths import resolve_config
-    with pytest.raises(ConfigError, match='controller.observer_order.*simulate_pipeline'):
-        simulate(mona_arena_varying(2), duration=1.0)
+    for order in (1, 2):
+        phases = result_metrics(simulate(mona_arena_varying(order)))['phases']
+        worst = max(p['final_max_agent_error'] for p in phases)
+        if order == 1:
+            assert not any(p['settled'] and p['settle_time'] < 50.0 for p in phases), phases
+            assert worst > 3e-4
+        else:
+            assert all(p['settled'] and p['settle_time'] < 35.0 for p in phases), phases
+            assert worst < 2e-4
     data = yaml.safe_load(resolve_config('mona_arena').read_text())
     data['controller']['observer_order'] = 2
     data['simulation']['duration'] = 5.0
     path = tmp_path / 'order2.yaml'
     path.write_text(yaml.safe_dump(data))
     out = simulate_to_dir(path, tmp_path / 'sim')
-    assert 'observer of order 2' in out['simulator']
+    assert out['simulator'] == 'batch (compiled)'

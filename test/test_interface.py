@@ -61,7 +61,7 @@ def test_a_state_message_carries_news_of_the_leader_that_came_after_the_pose():
     """leader_age is the news's age when the pose was taken: slightly negative for news that
     came after it, and NO_NEWS (not a small negative age) before any.
     """
-    from curve_formation.core.controller.agent import State
+    from curve_formation.core.controller.inputs import State
     from curve_formation.nodes import messages
     for age in (0.4, 0.0, -0.03, None):
         msg = messages.state_to_msg(State((0.01, -0.02), 3, 12.5, age))

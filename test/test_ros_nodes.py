@@ -17,7 +17,7 @@ import yaml
 
 from conftest import DATA_DIR, no_history_qos
 from curve_formation.core.config.loading import load_experiment
-from curve_formation.core.controller.agent import State
+from curve_formation.core.controller.inputs import State
 from curve_formation.core.formation.curve_codec import CurveClock
 from curve_formation.core.formation.curve_sources import expression_samples
 from curve_formation.core.formation.curves import fit_curve, FourierBasis
@@ -563,7 +563,9 @@ def test_agent_settings_survive_the_trip_through_node_parameters(ros, name):
     experiment = load_experiment(resolve_config(name))
     configs = agent_configs(experiment, 10.0)
     # and a setting no shipped file uses
-    configs[0] = dataclasses.replace(configs[0], observer_order=2, estimate_latency=True)
+    configs[0] = dataclasses.replace(
+        configs[0], gains=dataclasses.replace(configs[0].gains, observer_order=2),
+        estimate_latency=True)
     for config in configs:
         params = [Parameter(k, value=v) for k, v in node_parameters(config).items()]
         node = add(FormationController(context=context, namespace=f'/robot_{config.index}',

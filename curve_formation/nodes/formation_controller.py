@@ -223,14 +223,14 @@ def agent_config(p):
         gains=Gains(p.k1, p.k2, p.offset, law=p.law, adaptation=tuple(p.adaptation),
                     observer_rate=p.observer_rate, sampled_heading=p.heading == 'sampled',
                     tail_radius=p.tail_radius, tail_gain=p.tail_gain, reverse=p.reverse,
-                    observer_growth=p.observer_growth),
+                    observer_growth=p.observer_growth, observer_order=p.observer_order),
         limits=limits,
         rate_hz=p.rate_hz, pose_timeout=p.pose_timeout, neighbour_timeout=p.neighbour_timeout,
         pc_disturbance=tuple(p.pc_disturbance), leader_timeout=p.leader_timeout,
         geofence=None if fence is None else tuple(fence), predict_pose=p.predict_pose,
         command_latency=p.command_latency, feed_forward=p.feed_forward, compiled=p.compiled_law,
         min_wheel_speed=p.min_wheel_speed, motor_time_constant=p.motor_time_constant,
-        observer_order=p.observer_order, estimate_latency=p.estimate_latency)
+        estimate_latency=p.estimate_latency)
 
 
 def _avoidance(p):

@@ -25,7 +25,7 @@ from rclpy.node import Node
 
 from curve_formation import wire
 from curve_formation.core.config.schema import MONA_WHEEL_BASE
-from curve_formation.core.controller.agent import is_stale
+from curve_formation.core.controller.inputs import is_stale
 from curve_formation.links import LinkError, robot_link
 from curve_formation.nodes import messages, topics
 from curve_formation.nodes.command_source import CommandSourceWatch

@@ -13,9 +13,9 @@ import numba
 
 # The sources numba compiles in, relative to core/ (a cached function is checked against its
 # own file only, not against the functions compiled into it from these).
-SOURCES = ('controller/law.py', 'controller/limits.py', 'controller/observer.py',
-           'controller/driving.py', 'controller/safety.py', 'formation/dynamics.py',
-           'world/bodies.py', 'world/kinematic.py', 'sim/batch.py')
+SOURCES = ('controller/step.py', 'controller/law.py', 'controller/limits.py',
+           'controller/observer.py', 'controller/driving.py', 'controller/safety.py',
+           'formation/dynamics.py', 'world/bodies.py', 'world/kinematic.py', 'sim/kernel.py')
 CORE = Path(__file__).resolve().parent.parent
 
 

@@ -40,6 +40,5 @@ def agent_configs(experiment: Experiment, rate_hz: float) -> list[AgentConfig]:
         feed_forward=spec.controller.feed_forward,
         min_wheel_speed=(spec.limits.min_wheel_speed or 0.0) if spec.limits else 0.0,
         motor_time_constant=(spec.limits.motor_time_constant or 0.0) if spec.limits else 0.0,
-        observer_order=spec.controller.observer_order,
         estimate_latency=spec.controller.estimate_latency)
         for i in range(1, experiment.n + 1)]

@@ -286,7 +286,8 @@ def _gains(controller: ControllerSpec) -> Gains:
                  sampled_heading=controller.heading == 'sampled',
                  tail_radius=controller.tail.radius if controller.tail else 0.0,
                  tail_gain=controller.tail.gain if controller.tail else 1.0,
-                 reverse=controller.reverse, observer_growth=controller.observer_growth)
+                 reverse=controller.reverse, observer_growth=controller.observer_growth,
+                 observer_order=controller.observer_order)
 
 
 def check_rate_override(experiment: Experiment, rate_hz: float, option: str = '--rate'

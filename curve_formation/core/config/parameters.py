@@ -55,7 +55,7 @@ def node_parameters(config):
         'feed_forward': bool(config.feed_forward),
         'min_wheel_speed': float(config.min_wheel_speed),
         'motor_time_constant': float(config.motor_time_constant),
-        'observer_order': int(config.observer_order),
+        'observer_order': int(gains.observer_order),
         'estimate_latency': bool(config.estimate_latency),
         'compiled_law': bool(config.compiled),
     }

@@ -50,14 +50,10 @@ class AgentConfig:
     # (each from its sending plus command_latency, through the lag); 0: the command acting
     # from the previous tick on
     motor_time_constant: float = 0.0
-    # 2: the observer also estimates how fast the disturbance changes (an alpha-beta filter,
-    # critically damped at observer_rate), so a disturbance that drifts is tracked without
-    # the first-order filter's lag; 1: the observer as the simulator has it
-    observer_order: int = 1
     # estimate command_latency online from the commands sent and the poses measured
     # (core.controller.link_estimate.OnlineLatency), starting from command_latency
     estimate_latency: bool = False
-    # The law and filter (control.agent_command) compiled by numba as in the batch simulator:
+    # The control step (step.agent_step) compiled by numba as in the batch simulator:
     # the same source, about 15x faster a tick; loading it costs ~0.7 s and ~65 MB.
     compiled: bool = False
 

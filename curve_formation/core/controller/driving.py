@@ -67,4 +67,4 @@ def steered_law(law: Law, front: float) -> Law:
     """The law steering the point `front` * offset ahead of the axle (drive_direction)."""
     return Law(law.code, law.k1, law.k2, front * law.offset, law.gamma_v, law.gamma_w,
                law.hold, law.period, law.observer_rate, law.on_pc, law.tail_radius,
-               law.tail_gain, law.reverse, law.max_growth)
+               law.tail_gain, law.reverse, law.max_growth, law.order)

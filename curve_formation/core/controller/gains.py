@@ -29,6 +29,8 @@ class Gains:
     (core.controller.driving), when that reaches its target sooner.
     observer_growth: law observer with the disturbance added on the PC: the largest factor
     of ray_growth's search along a saturated motion (1: off).
+    observer_order: law observer: 2 also estimates how fast the disturbance changes
+    (observer.observer_update); 1 the first-order observer.
     """
 
     k1: float
@@ -42,6 +44,7 @@ class Gains:
     tail_gain: float = 1.0
     reverse: bool = False
     observer_growth: float = 1.0
+    observer_order: int = 1
 
     @property
     def law_code(self) -> int:
@@ -67,7 +70,7 @@ class Gains:
         return Law(self.law_code, self.k1, self.k2, self.offset, gamma_v, gamma_w,
                    self.hold_period(rate_hz), 1.0 / rate_hz if rate_hz else 0.0,
                    self.observer_rate, on_pc, self.tail_radius, self.tail_gain, self.reverse,
-                   self.observer_growth)
+                   self.observer_growth, self.observer_order)
 
 
 class Law(NamedTuple):
@@ -77,7 +80,8 @@ class Law(NamedTuple):
     the sampled heading (s; 0: the paper's heading), period: the control period (s; 0:
     continuous), observer_rate (1/s), on_pc: the disturbance is added on the PC,
     tail_radius (m), tail_gain: tail_feedback's, reverse: driving.drive_direction may
-    choose to drive backwards, max_growth: ray_growth's largest factor (1: off).
+    choose to drive backwards, max_growth: ray_growth's largest factor (1: off), order: the
+    observer's (1 or 2).
     """
 
     code: int
@@ -94,3 +98,4 @@ class Law(NamedTuple):
     tail_gain: float
     reverse: bool
     max_growth: float
+    order: int

@@ -9,13 +9,10 @@ The per-agent functions use only scalar math so that the same source runs in the
 controller node (plain Python) and inside the batch simulator's compiled kernel (numba).
 """
 
-from collections.abc import Sequence
 import math
 
-import numpy as np
-
-from curve_formation.core.base.shapes import Command, FloatArray, Point
-from curve_formation.core.controller.gains import Gains, Law, OBSERVER
+from curve_formation.core.base.shapes import Command, FloatArray, IntArray, Point
+from curve_formation.core.controller.gains import Law, OBSERVER
 from curve_formation.core.controller.limits import (
     clipped,
     limit_acceleration,
@@ -51,7 +48,7 @@ def agent_command(fx: float, fy: float, ahead_x: float, ahead_y: float, ex: floa
     """One control tick of one agent, from its inputs to the command sent: the one pipeline
     the ROS controller (core.controller.agent) and the batch simulator both run.
 
-    fx, fy: feedback (m; follower_feedback or leader_feedback); ahead: the target's velocity
+    fx, fy: feedback (m; consensus_feedback); ahead: the target's velocity
     on a moving curve (m/s; the feed-forward, with_feed_forward; 0 otherwise); ex, ey: own
     target error (m); x, y, theta: own pose; dhat: estimate; prev: the previous command sent
     (for the acceleration limits); pc: disturbance added on the PC (the paper's arena
@@ -235,46 +232,17 @@ def with_feed_forward(fx: float, fy: float, ahead_x: float, ahead_y: float,
     return fx - ahead_x / k1, fy - ahead_y / k1
 
 
-def leader_feedback(ex: float, ey: float) -> Point:
-    """The leader's feedback term: its own error (m)."""
-    return ex, ey
-
-
-def follower_feedback(ex: float, ey: float, neighbour_errors: Sequence[Point],
-                      weights: Sequence[float], pinning: float = 0.0) -> Point:
-    """A follower's feedback b e_i + sum_j a_ij (e_i - e_j) (m) from its own error, its
-    in-neighbours' errors (k, 2) and its pinning weight b (0 in the paper).
+def consensus_feedback(ex: float, ey: float, errors: FloatArray, sources: IntArray,
+                       weights: FloatArray, pin: float) -> Point:
+    """An agent's feedback b e_i + sum_k a_k (e_i - e_sources[k]) (m) from its own error,
+    the errors (m, 2) its in-neighbours sources (k,) sent, their weights a (k,) and its own
+    weight b: 1 for the leader (no in-neighbours: its own error), the graph's pinning for a
+    follower (0 in the paper).
     """
-    fx = pinning * ex
-    fy = pinning * ey
-    for j in range(len(weights)):
-        fx += weights[j] * (ex - neighbour_errors[j][0])
-        fy += weights[j] * (ey - neighbour_errors[j][1])
+    fx = pin * ex
+    fy = pin * ey
+    for k in range(len(sources)):
+        j = sources[k]
+        fx += weights[k] * (ex - errors[j, 0])
+        fy += weights[k] * (ey - errors[j, 1])
     return fx, fy
-
-
-def stacked_paper_input(poses: FloatArray, dhat: FloatArray, g_bar: FloatArray,
-                        xi: FloatArray, laplacian: FloatArray, leader: int,
-                        gains: Gains) -> FloatArray:
-    """The paper's stacked law, with the pseudo-inverse, as a reference for tests.
-
-    ub = -k1 (Lbar Gbar xi_e + Lambda_bar xb_e) - k2 R dhat with xi_e = Gbar^+ xb - xi.
-
-    Args:
-        poses: (n, 3) x, y, theta.  dhat: (n, 2).  g_bar: (2n, 2H).  xi: (2H,).
-        laplacian: (n, n).  leader: 0-based index.  gains: Gains.
-    Returns:
-        ub (n, 2) in the arena frame.
-    """
-    n = len(poses)
-    xb = poses[:, :2] + gains.offset * np.column_stack([np.cos(poses[:, 2]),
-                                                        np.sin(poses[:, 2])])
-    xb_e = xb.ravel() - g_bar @ xi
-    xi_e = np.linalg.pinv(g_bar) @ xb.ravel() - xi
-    lam = np.zeros((n, n))
-    lam[leader, leader] = 1.0
-    consensus = np.kron(laplacian, np.eye(2)) @ g_bar @ xi_e + np.kron(lam, np.eye(2)) @ xb_e
-    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-    r_dhat = np.column_stack([c * dhat[:, 0] - gains.offset * s * dhat[:, 1],
-                              s * dhat[:, 0] + gains.offset * c * dhat[:, 1]])
-    return -gains.k1 * consensus.reshape(n, 2) - gains.k2 * r_dhat

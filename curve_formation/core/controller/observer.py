@@ -24,6 +24,9 @@ RAY_CLIPPED = 1.05
 RAY_ALIGNED = 0.95
 RAY_SHRINK = 0.25
 RAY_GROWTH = 2.0
+# observer_order 2 predicts the disturbance over the coming period only after this many
+# updates in a row whose commands the wheel limits did not cut (its rate has settled)
+TRACKING_TICKS = 10
 
 
 def observer_step(dhat_v: float, dhat_w: float, measured_v: float, measured_w: float,
@@ -102,3 +105,67 @@ def observe(dhat_v: float, dhat_w: float, growth: float, last_right: float, last
     dhat_v, dhat_w = observer_step(dhat_v, dhat_w, growth * pre_v + shift_v,
                                    growth * pre_w + shift_w, ref_v, ref_w, law.k2, blend)
     return dhat_v, dhat_w, growth, last_right, last_left
+
+
+def rate_update(rate_v: float, rate_w: float, predicted_v: float, predicted_w: float,
+                corrected_v: float, corrected_w: float, alpha: float, elapsed: float,
+                searching: bool) -> tuple[float, float]:
+    """The second-order observer's rate of the estimate (per s) after a tick: an alpha-beta
+    filter's, the estimate corrected by alpha of the innovation and its rate by beta of it
+    over the elapsed time, beta = (1 - sqrt(1 - alpha))^2 so that the estimation error's
+    two poles coincide at sqrt(1 - alpha) (critically damped: the error of a disturbance
+    changing at a constant rate decays without overshoot); zero while the wheel limits cut
+    the command (the motion shows the disturbance's direction, not its size, and the search
+    along it is no change of the disturbance).
+    """
+    if searching:
+        return 0.0, 0.0
+    if alpha <= 0.0 or elapsed <= 0.0:
+        return rate_v, rate_w
+    beta = (1.0 - math.sqrt(max(1.0 - alpha, 0.0))) ** 2
+    gain = beta / alpha / elapsed
+    return (rate_v + gain * (corrected_v - predicted_v),
+            rate_w + gain * (corrected_w - predicted_w))
+
+
+def observer_update(dhat_v: float, dhat_w: float, rate_v: float, rate_w: float,
+                    growth: float, last_right: float, last_left: float, tracking: int,
+                    measured_v: float, measured_w: float, ref_v: float, ref_w: float,
+                    shift_v: float, shift_w: float, limited: bool, law: Law,
+                    limits: WheelLimits, elapsed: float
+                    ) -> tuple[float, float, float, float, float, float, float, int]:
+    """One update of the observer from a motion measured over `elapsed` s (measured: its
+    constant body velocity, m/s and rad/s) against what was commanded over it (ref, shift,
+    limited: agent_command's), as the controller and the batch simulator both make it.
+
+    The estimate moves by the blend 1 - exp(-observer_rate elapsed) (observe); with
+    law.order 2 it is first carried over the motion at its rate (rate_v, rate_w per s),
+    and the rate is corrected as an alpha-beta filter's (rate_update); tracking counts the
+    updates since the wheel limits last cut a command (the search along a ray is no change
+    of the disturbance). Returns (dhat_v, dhat_w, rate_v, rate_w, growth, last_right,
+    last_left, tracking).
+    """
+    blend = 1.0 - math.exp(-law.observer_rate * elapsed)
+    second = law.order == 2
+    before_v = dhat_v + rate_v * elapsed if second else dhat_v
+    before_w = dhat_w + rate_w * elapsed if second else dhat_w
+    new_v, new_w, growth, last_right, last_left = observe(
+        before_v, before_w, growth, last_right, last_left, measured_v, measured_w, ref_v,
+        ref_w, shift_v, shift_w, limited, law, limits, blend)
+    if second:
+        searching = limited or growth != 1.0
+        rate_v, rate_w = rate_update(rate_v, rate_w, before_v, before_w, new_v, new_w, blend,
+                                     elapsed, searching)
+        tracking = 0 if searching else tracking + 1
+    return new_v, new_w, rate_v, rate_w, growth, last_right, last_left, tracking
+
+
+def carried_estimate(dhat_v: float, dhat_w: float, rate_v: float, rate_w: float,
+                     tracking: int, ahead_by: float, law: Law) -> tuple[float, float]:
+    """The estimate a command uses: with law.order 2, once its rate has settled (tracking
+    at least TRACKING_TICKS), carried ahead_by s at that rate (from the middle of the motion
+    it was learnt from to the middle of the period the command holds for); else as it is.
+    """
+    if law.order == 2 and tracking >= TRACKING_TICKS:
+        return dhat_v + rate_v * ahead_by, dhat_w + rate_w * ahead_by
+    return dhat_v, dhat_w

@@ -1,264 +1,40 @@
-"""Batch simulator: n unicycles with constant input disturbance under the formation law.
+"""Batch simulator: n unicycles with constant or varying input disturbance under the
+formation law, its curves switched and re-assigned as the curve server does
+(schedule.curve_schedule), stepped by the compiled kernel (sim.kernel), whose control step
+is the ROS controller's own (controller.step.agent_step).
 
-Two control modes:
-- continuous: the law is evaluated at every RK4 stage and the estimator is integrated with the
-  robots (the paper's setting);
-- zero-order hold at `rate_hz`: the law is evaluated once per control period from the latest
-  poses, its estimator advanced by one Euler step (the observer: by one filter step from the
-  motion over the period just ended), and the command held while the robots are integrated
-  exactly over each fine step dt, which is what the ROS controller nodes do.
-
-Laws (core.controller.gains.LAWS): paper, adaptive (per-channel estimator gains), observer.
-
-The stepping loop is compiled with numba; it calls the same per-agent functions as the ROS
-controller (core.controller.law), and its cost is linear in agents plus edges.
+Two control modes: continuous (the paper's setting) or a zero-order hold at `rate_hz`, which
+is what the ROS controller nodes do. Laws (core.controller.gains.LAWS): paper, adaptive
+(per-channel estimator gains), observer (first or second order).
 """
 
 from collections.abc import Callable
 import dataclasses
 from dataclasses import dataclass
 import math
-from typing import Any, Literal, NamedTuple
+from typing import Any, Literal
 
-import numba
 import numpy as np
 from numpy.typing import ArrayLike
 
-from curve_formation.core.base.jit import compiled
 from curve_formation.core.base.shapes import FloatArray, IntArray
 from curve_formation.core.config.errors import ConfigError
 from curve_formation.core.config.experiment import Experiment, phase_index, whole_steps
-from curve_formation.core.controller import driving, observer
-from curve_formation.core.controller import law as control_law
+from curve_formation.core.controller import driving
 from curve_formation.core.controller.disturbance import disturbance_at
-from curve_formation.core.controller.driving import REVERSE_HYSTERESIS
-from curve_formation.core.controller.gains import Gains, Law, OBSERVER
+from curve_formation.core.controller.gains import Gains, Law
 from curve_formation.core.controller.limits import timed_by, WheelLimits
 from curve_formation.core.controller.safety import Avoidance
 from curve_formation.core.formation import dynamics
 from curve_formation.core.record import metrics
 from curve_formation.core.schedule.curve_schedule import CurveSchedule
 from curve_formation.core.sim.estimate_replay import check_replayable, held_estimates
+from curve_formation.core.sim.kernel import Clock, edge_arrays, run, SimState
 from curve_formation.core.world import bodies
 
 
-_agent_command = compiled(control_law.agent_command)
-_arc = compiled(dynamics.arc_step)
-_observe = compiled(observer.observe)
-_offset_point = compiled(dynamics.offset_point)
-_drive_direction = compiled(driving.drive_direction)
-_steered_law = compiled(driving.steered_law)
-_touch = compiled(bodies.touch)
-
 # How often (s) a moving curve's targets are renewed under continuous control.
 MOVING_STEP = 0.01
-# Largest heading change (rad) of one RK4 substep in continuous mode.
-MAX_TURN_PER_SUBSTEP = 0.05
-
-
-class Clock(NamedTuple):
-    """Fine steps of a simulation: dt (s); a control tick every control_every steps (0:
-    continuous control), a record every record_every steps.
-    """
-
-    dt: float
-    control_every: int
-    record_every: int
-
-
-# The graph as the kernels take it: (targets, sources, weights) edge arrays and the pins.
-EdgeArrays = tuple[IntArray, IntArray, FloatArray, FloatArray]
-# (poses (n, 3), dhat, motion, cmd (n, 2), ref (n, 5), fronts (n,), rays (n, 3)), advanced in
-# place; ref: the observer's reference (v, w), what the safety filter changed (v, w) and 1
-# where the wheel limits cut the command by more than observer.RAY_CLIPPED (0 otherwise);
-# rays: the observer's observer.ray_growth state (factor, last right, last left).
-SimState = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
-                 FloatArray]
-
-
-@numba.njit(cache=True)
-def _controls(poses: FloatArray, dhat: FloatArray, targets: FloatArray, ahead: FloatArray,
-              graph: EdgeArrays, law: Law, limits: WheelLimits, avoidance: Avoidance,
-              d_pc: FloatArray, d_robot: FloatArray, fronts: FloatArray, err: FloatArray,
-              fb: FloatArray, motion: FloatArray, cmd: FloatArray, ref: FloatArray,
-              ddhat: FloatArray, codes: IntArray) -> None:
-    """Evaluate every agent's tick (law.agent_command): fills err, fb, cmd (sent), motion
-    (actual), ref (n, 5: the observer's reference, what the safety filter changed, 1 where
-    the wheel limits cut the command by more than observer.RAY_CLIPPED), ddhat
-    (continuous-time estimator rate) and codes (the safety filter's outcome); cmd on entry
-    holds each agent's previous command.
-
-    graph: (tgt, src, weights, pins) edge arrays. d_pc (n, 2) is added to the command before
-    the limits (injected on the PC), d_robot (n, 2) after them (physical). ahead (n, 2): each
-    target's velocity (m/s, a moving curve's feed-forward; zeros otherwise). fronts (n,):
-    the offset point each agent steers (driving.drive_direction).
-    """
-    tgt, src, wts, pins = graph
-    n = poses.shape[0]
-    for i in range(n):
-        bx, by = _offset_point(poses[i, 0], poses[i, 1], poses[i, 2], fronts[i] * law.offset)
-        err[i, 0] = bx - targets[i, 0]
-        err[i, 1] = by - targets[i, 1]
-        fb[i, 0] = pins[i] * err[i, 0]
-        fb[i, 1] = pins[i] * err[i, 1]
-    for k in range(tgt.shape[0]):
-        i = tgt[k]
-        j = src[k]
-        fb[i, 0] += wts[k] * (err[i, 0] - err[j, 0])
-        fb[i, 1] += wts[k] * (err[i, 1] - err[j, 1])
-    for i in range(n):
-        v, w, ref_v, ref_w, ddv, ddw, code, shift_v, shift_w, limited = _agent_command(
-            fb[i, 0], fb[i, 1], ahead[i, 0], ahead[i, 1], err[i, 0], err[i, 1], poses[i, 0],
-            poses[i, 1], poses[i, 2], dhat[i, 0], dhat[i, 1], cmd[i, 0], cmd[i, 1], d_pc[i, 0],
-            d_pc[i, 1], _steered_law(law, fronts[i]), limits, poses, i, avoidance)
-        motion[i, 0] = v + d_robot[i, 0]
-        motion[i, 1] = w + d_robot[i, 1]
-        cmd[i, 0] = v
-        cmd[i, 1] = w
-        ref[i, 0] = ref_v
-        ref[i, 1] = ref_w
-        ref[i, 2] = shift_v
-        ref[i, 3] = shift_w
-        ref[i, 4] = 1.0 if limited else 0.0
-        codes[i] = code
-        if law.code == OBSERVER and law.k2 != 0.0:   # k2 = 0: estimator off
-            ddv = law.observer_rate * ((motion[i, 0] - ref[i, 0]) / law.k2 - dhat[i, 0])
-            ddw = law.observer_rate * ((motion[i, 1] - ref[i, 1]) / law.k2 - dhat[i, 1])
-        ddhat[i, 0] = ddv
-        ddhat[i, 1] = ddw
-
-
-@numba.njit(cache=True)
-def _arc_step(poses: FloatArray, motion: FloatArray, dt: float) -> None:
-    """Exact unicycle motion over dt with constant (v, w) per agent."""
-    for i in range(poses.shape[0]):
-        poses[i, 0], poses[i, 1], poses[i, 2] = _arc(poses[i, 0], poses[i, 1], poses[i, 2],
-                                                     motion[i, 0], motion[i, 1], dt)
-
-
-@numba.njit(cache=True)
-def _run(state: SimState, targets: FloatArray, ahead: FloatArray, graph: EdgeArrays, law: Law,
-         limits: WheelLimits, avoidance: Avoidance, d_pc: FloatArray, d_robot: FloatArray,
-         clock: Clock, step0: int, steps: int, schedule: tuple[IntArray, IntArray],
-         contacts: bodies.Contacts, record: tuple[FloatArray, FloatArray, FloatArray]) -> None:
-    """Advance the state (poses (n, 3), dhat (n, 2), the held motion, cmd, ref (n, 5), the
-    steered points' fronts (n,) and the observer's rays (n, 3)) in place by `steps` fine
-    steps from `step0`.
-
-    schedule: (tick_offsets, start_steps): agent i ticks at the steps where
-    (step - tick_offsets[i]) % control_every == 0, from step start_steps[i] on. With the
-    observer, a tick first updates dhat from the motion over the period just ended (exact
-    here: the held motion is what the pose difference would measure; its part before the
-    safety filter scaled along its ray by observer.ray_growth); before that it chooses the
-    point it steers (driving.drive_direction, as the node does when a pose comes; under
-    continuous control at every fine step).
-    record: (poses, dhat, cmd) arrays filled every record_every steps.
-    """
-    poses, dhat, motion, cmd, ref, fronts, rays = state
-    tick_offsets, start_steps = schedule
-    rec_poses, rec_dhat, rec_cmd = record
-    n = poses.shape[0]
-    err = np.zeros((n, 2))
-    fb = np.zeros((n, 2))
-    ddhat = np.zeros((n, 2))
-    codes = np.zeros(n, dtype=np.int64)
-    dt = clock.dt
-    control_every = clock.control_every
-    if control_every > 0:
-        dt_control = control_every * dt
-        blend = 1.0 - math.exp(-law.observer_rate * dt_control)
-        new_motion = np.zeros((n, 2))
-        new_cmd = np.zeros((n, 2))
-        new_ref = np.zeros((n, 5))
-        for step in range(step0, step0 + steps):
-            ticking = False
-            for i in range(n):
-                if (step - tick_offsets[i]) % control_every == 0:
-                    ticking = True
-                    if step >= start_steps[i]:
-                        fronts[i] = _drive_direction(fronts[i], poses[i, 0], poses[i, 1],
-                                                     poses[i, 2], targets[i, 0], targets[i, 1],
-                                                     dhat[i, 0], dhat[i, 1], law, limits,
-                                                     REVERSE_HYSTERESIS)
-                    if law.code == OBSERVER and step >= start_steps[i]:
-                        (dhat[i, 0], dhat[i, 1], rays[i, 0], rays[i, 1],
-                         rays[i, 2]) = _observe(dhat[i, 0], dhat[i, 1], rays[i, 0], rays[i, 1],
-                                                rays[i, 2], motion[i, 0], motion[i, 1],
-                                                ref[i, 0], ref[i, 1], ref[i, 2], ref[i, 3],
-                                                ref[i, 4] != 0.0, law,
-                                                limits, blend)
-            if ticking:
-                new_cmd[:] = cmd   # each agent's previous command
-                _controls(poses, dhat, targets, ahead, graph, law, limits, avoidance, d_pc,
-                          d_robot, fronts, err, fb, new_motion, new_cmd, new_ref, ddhat, codes)
-                for i in range(n):
-                    if step < start_steps[i]:
-                        continue   # not started yet: motors off, estimator idle
-                    if (step - tick_offsets[i]) % control_every == 0:
-                        motion[i, 0] = new_motion[i, 0]
-                        motion[i, 1] = new_motion[i, 1]
-                        cmd[i, 0] = new_cmd[i, 0]
-                        cmd[i, 1] = new_cmd[i, 1]
-                        ref[i] = new_ref[i]
-                        if law.code != OBSERVER:
-                            dhat[i, 0] += dt_control * ddhat[i, 0]
-                            dhat[i, 1] += dt_control * ddhat[i, 1]
-            if step % clock.record_every == 0:
-                r = step // clock.record_every
-                rec_poses[r] = poses
-                rec_dhat[r] = dhat
-                rec_cmd[r] = cmd
-            _arc_step(poses, motion, dt)
-            _touch(poses, contacts, dt)
-        return
-    # Continuous control: RK4 on (poses, dhat) with the law evaluated at every stage. The
-    # heading turns at up to k1 |e| / l (1000 rad/s at the paper's start), so each step is
-    # split into substeps that turn at most MAX_TURN_PER_SUBSTEP.
-    kp = np.zeros((4, n, 3))
-    kd = np.zeros((4, n, 2))
-    p_stage = np.zeros((n, 3))
-    d_stage = np.zeros((n, 2))
-    for step in range(step0, step0 + steps):
-        for i in range(n):
-            fronts[i] = _drive_direction(fronts[i], poses[i, 0], poses[i, 1], poses[i, 2],
-                                         targets[i, 0], targets[i, 1], dhat[i, 0], dhat[i, 1],
-                                         law, limits, REVERSE_HYSTERESIS)
-        _controls(poses, dhat, targets, ahead, graph, law, limits, avoidance, d_pc, d_robot,
-                  fronts, err, fb, motion, cmd, ref, ddhat, codes)
-        if step % clock.record_every == 0:
-            r = step // clock.record_every
-            rec_poses[r] = poses
-            rec_dhat[r] = dhat
-            rec_cmd[r] = cmd
-        fastest = 0.0
-        for i in range(n):
-            fastest = max(fastest, abs(motion[i, 1]))
-        substeps = max(1, int(math.ceil(fastest * dt / MAX_TURN_PER_SUBSTEP)))
-        h = dt / substeps
-        for _ in range(substeps):
-            for stage in range(4):
-                frac = 0.0 if stage == 0 else (h if stage == 3 else 0.5 * h)
-                for i in range(n):
-                    for c in range(3):
-                        p_stage[i, c] = poses[i, c] + frac * kp[stage - 1, i, c]
-                    for c in range(2):
-                        d_stage[i, c] = dhat[i, c] + frac * kd[stage - 1, i, c]
-                _controls(p_stage, d_stage, targets, ahead, graph, law, limits, avoidance, d_pc,
-                          d_robot, fronts, err, fb, motion, cmd, ref, ddhat, codes)
-                for i in range(n):
-                    kp[stage, i, 0] = motion[i, 0] * math.cos(p_stage[i, 2])
-                    kp[stage, i, 1] = motion[i, 0] * math.sin(p_stage[i, 2])
-                    kp[stage, i, 2] = motion[i, 1]
-                    kd[stage, i, 0] = ddhat[i, 0]
-                    kd[stage, i, 1] = ddhat[i, 1]
-            for i in range(n):
-                for c in range(3):
-                    poses[i, c] += h / 6.0 * (kp[0, i, c] + 2.0 * kp[1, i, c]
-                                              + 2.0 * kp[2, i, c] + kp[3, i, c])
-                for c in range(2):
-                    dhat[i, c] += h / 6.0 * (kd[0, i, c] + 2.0 * kd[1, i, c]
-                                             + 2.0 * kd[2, i, c] + kd[3, i, c])
-        _touch(poses, contacts, dt)
 
 
 def _choose_directions(state: SimState, targets: FloatArray, law: Law,
@@ -327,9 +103,6 @@ PIPELINE_ONLY: tuple[tuple[str, Callable[[Any], bool], str], ...] = (
     ('controller.command_latency', lambda c: c.command_latency > 0,
      "the batch simulator's robots act on each command at once: simulate a link that late "
      'with core.sim.pipeline.simulate_pipeline (as sim does)'),
-    ('controller.observer_order', lambda c: c.observer_order != 1,
-     "the batch simulator's observer is first-order: simulate the second-order one with "
-     'core.sim.pipeline.simulate_pipeline (as sim does)'),
 )
 
 
@@ -376,6 +149,10 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
     if needs:
         raise ConfigError(experiment.source, *needs[0])
     rate_hz = spec.controller.rate_hz if rate_hz == 'config' else rate_hz
+    if rate_hz is None and spec.controller.observer_order != 1:
+        raise ConfigError(experiment.source, 'controller.observer_order',
+                          'the second-order observer updates at ticks: it needs a control '
+                          'rate (controller.rate_hz), not continuous control')
     duration = spec.simulation.duration if duration is None else duration
     dt = spec.simulation.dt if dt is None else dt
     record_dt = spec.simulation.record_dt if record_dt is None else record_dt
@@ -406,12 +183,13 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
               np.zeros((n_rec, experiment.n, 2)))
     n = experiment.n
     state = (poses, np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 5)),
-             np.ones(n), np.column_stack([np.ones(n), np.zeros((n, 2))]))
+             np.ones(n), np.column_stack([np.ones(n), np.zeros((n, 2))]), np.zeros((n, 2)),
+             np.zeros((n, 2), dtype=np.int64))
     width, height = spec.arena.size if spec.arena is not None else (0.0, 0.0)
     contacts = bodies.contacts_of(n, radius, width, height)
     law = gains.tick_law(rate_hz, on_pc)
     feed_forward = spec.controller.feed_forward
-    graph = (*experiment.graph.edge_arrays(), experiment.graph.pins)
+    graph = edge_arrays(*experiment.graph.edge_arrays(), experiment.graph.pins)
     clock = Clock(dt, control_every, record_every)
     if spec.controller.estimate_latency:
         check_replayable(experiment, control_every, record_every, dt)
@@ -464,7 +242,7 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
                                        on_pc)
             if begin == a:   # a curve's first pose: the sooner way outright
                 _choose_directions(state, now, law, limits)
-            _run(state, np.ascontiguousarray(now), np.ascontiguousarray(ahead), graph, law,
+            run(state, np.ascontiguousarray(now), np.ascontiguousarray(ahead), graph, law,
                  limits, avoidance, d_pc, d_robot, clock, begin, end - begin, ticks,
                  contacts, record)
     followed = schedule.close()

@@ -234,7 +234,8 @@ class Pipeline:
 def simulate_pipeline(experiment: Experiment, engine: Literal['kinematic', 'mujoco'] | None
                       = None, rate_hz: float | None = None, duration: float | None = None,
                       record_dt: float | None = None, seed: int = 0,
-                      pose_rate: float | None = None, link: Link | None = None) -> SimResult:
+                      pose_rate: float | None = None, link: Link | None = None,
+                      synchronous: bool = False) -> SimResult:
     """Run an experiment through the nodes' tick pipeline (module doc) in a world of
     `engine` (None: the experiment's physics.engine); a SimResult as simulator.simulate
     gives.
@@ -243,7 +244,8 @@ def simulate_pipeline(experiment: Experiment, engine: Literal['kinematic', 'mujo
     each controller's phase of the control period (uniform in [0, 1)); pose_rate: poses per
     second (Hz; default the camera's rate, else POSE_RATE); link: the link's delays and
     losses (default: a link as long as the controllers are told, controller.command_latency,
-    and no loss).
+    and no loss); synchronous: every controller ticks at the start of the period (no
+    phases drawn), as the batch simulator's do by default.
     """
     spec = experiment.spec
     rate = control_rate(experiment, rate_hz)
@@ -252,7 +254,8 @@ def simulate_pipeline(experiment: Experiment, engine: Literal['kinematic', 'mujo
     if pose_rate is None:
         pose_rate = spec.camera.rate_hz if spec.camera is not None else POSE_RATE
     world = make_world(experiment, engine)
-    phases = np.random.default_rng(seed).random(experiment.n)
+    phases = (np.zeros(experiment.n) if synchronous
+              else np.random.default_rng(seed).random(experiment.n))
     if link is None:
         link = Link(command_latency=spec.controller.command_latency, seed=seed)
     pipeline = Pipeline(experiment, world, rate, phases, pose_rate, link)

@@ -1,0 +1,63 @@
+"""Every agent's target on a curve a controller received, as it held when the curve came and
+how it moves (a moving curve's target velocities): what a controller steers its own point to
+and converts a neighbour's error on the curve before into.
+
+Targets in the arena frame (m), velocities in m/s, times in s on the controller's clock.
+"""
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from curve_formation.core.base.shapes import FloatArray, Point
+from curve_formation.core.formation.assignment import AssignmentError, check_assumptions
+from curve_formation.core.formation.curves import Curve
+
+
+@dataclass(frozen=True)
+class CurveTargets:
+    """Every agent's target on one curve (n, 2; m, arena frame) as it held at `dated` (s, this
+    controller's clock), their velocities (n, 2; m/s; zero on a still curve) and parameters.
+    """
+
+    curve_id: int
+    targets: FloatArray
+    velocities: FloatArray
+    dated: float
+    s: FloatArray   # every agent's curve parameter s_i (n,)
+
+    def at(self, j: int, t: float) -> Point:
+        """Agent j's (1-based) target at t (s)."""
+        age = max(t - self.dated, 0.0)
+        tx, ty = self.targets[j - 1] + self.velocities[j - 1] * age
+        return float(tx), float(ty)
+
+
+def curve_targets(curve: Curve, curve_id: int, s_all: Sequence[float] | FloatArray | None,
+                  rate: Curve | None, agent_count: int, dated: float) -> CurveTargets:
+    """The targets G(s_i) xi of a curve received with every agent's parameter s_all (n,)
+    and, for a moving curve, its coefficient rate (1/s), holding at `dated`. Raises
+    AssignmentError (a ValueError) if s_all is missing, of another team's size, or breaks
+    the paper's assumptions: agents never derive s_i themselves.
+    """
+    if s_all is None:
+        raise AssignmentError("the curve carries no agent parameters s_i (the curve "
+                              "server's curves do)")
+    if len(s_all) != agent_count:
+        raise AssignmentError(f'the curve assigns {len(s_all)} agent parameters, this '
+                              f'team has {agent_count} agents')
+    s = np.array(s_all, dtype=float)
+    check_assumptions(curve.basis, s)
+    return CurveTargets(int(curve_id), curve.points(s),
+                        np.zeros((agent_count, 2)) if rate is None else rate.points(s), dated,
+                        s)
+
+
+def error_on(error: Point, j: int, old: CurveTargets, new: CurveTargets, taken: float
+             ) -> Point:
+    """Agent j's error sent on curve `old` as one on `new`: its point (error plus its old
+    target) against its new target, both where they were at `taken`.
+    """
+    (ox, oy), (tx, ty) = old.at(j, taken), new.at(j, taken)
+    return error[0] + ox - tx, error[1] + oy - ty

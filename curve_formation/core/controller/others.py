@@ -1,0 +1,58 @@
+"""Every robot's pose as one controller knows it, for its safety filter: the latest (a robot
+not seen keeps its last known pose) and carried ahead at the robots' recent velocities to
+when a late command acts.
+
+Poses (n, 3) in the arena frame (m, rad); times in s on the controller's clock.
+"""
+
+from collections import deque
+import math
+
+import numpy as np
+
+from curve_formation.core.base.shapes import FloatArray
+from curve_formation.core.controller.inputs import MAX_PREDICTION, NO_OTHERS
+
+
+# How far back (s) the other robots' poses are kept to measure their velocities (ahead)
+OTHERS_KEPT = 0.2
+
+
+class OtherRobots:
+    """The other robots' poses, as given to update()."""
+
+    def __init__(self) -> None:
+        self.poses: FloatArray = NO_OTHERS   # every robot's pose (n, 3)
+        self.received: float | None = None
+        # (when taken, poses (n, 3); NaN rows: not seen) of the last OTHERS_KEPT s
+        self.seen: deque[tuple[float, FloatArray]] = deque()
+
+    def update(self, given: FloatArray, taken: float, received: float) -> None:
+        """Poses (n, 3; NaN rows: not seen) taken at `taken`, received at `received`."""
+        seen = np.isfinite(given)
+        if self.poses is not NO_OTHERS:
+            given = np.where(seen, given, self.poses)
+        self.poses, self.received = given, received
+        kept = self.seen
+        if kept and taken <= kept[-1][0]:
+            kept.clear()   # a pose older than the last: start again
+        kept.append((taken, np.where(seen, given, np.nan)))
+        while taken - kept[0][0] > OTHERS_KEPT:
+            kept.popleft()
+
+    def ahead(self, at: float, latency: float, max_wheel_speed: float) -> FloatArray:
+        """Every robot's pose (n, 3) carried from when it was taken to `at` at its velocity
+        over the last OTHERS_KEPT s (no faster than max_wheel_speed, m/s; zero for a robot
+        not seen at both ends), at most MAX_PREDICTION + latency s.
+        """
+        kept = self.seen
+        if len(kept) < 2 or kept[-1][0] - kept[0][0] <= 0.0:
+            return self.poses
+        (start, first), (end, last) = kept[0], kept[-1]
+        velocity = np.nan_to_num((last[:, :2] - first[:, :2]) / (end - start))
+        if 0.0 < max_wheel_speed < math.inf:
+            speed = np.linalg.norm(velocity, axis=1, keepdims=True)
+            velocity *= np.minimum(1.0, max_wheel_speed / np.maximum(speed, 1e-12))
+        ahead = self.poses.copy()
+        ahead[:, :2] += velocity * min(max(at - end, 0.0), MAX_PREDICTION + latency)
+        return ahead
