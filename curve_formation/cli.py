@@ -20,6 +20,7 @@ from curve_formation.bags.bag import BagError, DEFAULT_STORAGE, STORAGES
 from curve_formation.core.config.errors import ConfigError
 from curve_formation.core.config.loading import check_rate_override, load_experiment
 from curve_formation.core.config.marker_ids import MARKER_IDS
+from curve_formation.core.controller.settings import SETTINGS
 from curve_formation.paths import resolve_config, use_dds_profile
 from curve_formation.results.provenance import command_line
 
@@ -432,8 +433,8 @@ def _cmd_calibrate_camera(args):
 
 
 def _cmd_nodes_doc(args):
-    from curve_formation.nodes.docs import nodes_markdown
-    print(nodes_markdown())
+    from curve_formation.nodes.docs import nodes_markdown, settings_markdown
+    print(settings_markdown() if args.settings else nodes_markdown())
 
 
 class _Parser(argparse.ArgumentParser):
@@ -504,9 +505,9 @@ def build_parser():
     sim = sub.add_parser('sim', help='batch-simulate an experiment')
     sim.add_argument('config', help='experiment YAML path or shipped name (e.g. closed_curve)')
     sim.add_argument('--out', required=True, help='output folder')
-    sim.add_argument('--law', choices=('paper', 'adaptive', 'observer'),
+    sim.add_argument('--law', choices=SETTINGS['controller.law'].choices,
                      help="override controller.law (paper: the paper's reference law)")
-    sim.add_argument('--heading', choices=('paper', 'sampled'),
+    sim.add_argument('--heading', choices=SETTINGS['controller.heading'].choices,
                      help='override controller.heading')
     mode = sim.add_mutually_exclusive_group()
     mode.add_argument('--rate', type=positive, help='zero-order-hold control rate (Hz)')
@@ -680,6 +681,8 @@ def build_parser():
     calib.set_defaults(func=_cmd_calibrate_camera)
     nodes_doc = sub.add_parser('nodes-doc', help='print the node reference of docs/nodes.md '
                                '(parameters, topics, QoS) from the code')
+    nodes_doc.add_argument('--settings', action='store_true', help="print instead the "
+                           "controller settings' table of docs/experiments.md")
     nodes_doc.set_defaults(func=_cmd_nodes_doc)
     demo = sub.add_parser('demo', help='the headless demo: paper cases simulated, then a ROS '
                           'run with fake robots recorded to a bag')

@@ -55,7 +55,7 @@ def test_a_rate_given_on_the_command_line_passes_the_files_checks(tmp_path, caps
                     ['params', 'arena_demo', '--rate', '5']):
         assert main([*command, '--out', str(tmp_path / command[0])]) == 2
         err = capsys.readouterr().err
-        assert 'arena_demo.yaml: controller: with --rate 5: ' in err, err
+        assert 'arena_demo.yaml: controller.tail.gain: with --rate 5: ' in err, err
         assert 'must stay below rate_hz 5' in err
     assert main(['sim', 'arena_demo', '--rate', '20', '--out', str(tmp_path / 'ok')]) == 0
 

@@ -85,7 +85,7 @@ def test_the_passing_rule_turns_a_head_on_meeting_to_the_right_only_when_asked(b
     default) it keeps heading straight at it (the barriers then stop it, and the robot of
     lower priority gives way).
     """
-    av = safety.Avoidance(True, radius=0.04, margin=0.02, bias=bias, bias_range=0.08)
+    av = safety.Avoidance(True, radius=0.04, margin=0.02, passing=bias, passing_range=0.08)
     others = np.array([[0.0, 0.0, 0.0], [0.12, 0.0, math.pi]])
     fx, fy = safety.shaped_feedback(-0.1, 0.0, 0.0, 0.0, others, 0, 2 / 3, 0.0225, av)
     # the law steers along -k1 f: heading right is f_y > 0
@@ -209,12 +209,12 @@ def test_commands_that_act_late_lower_the_barrier_rate_to_one_over_the_loops_del
     """alpha (T + L) <= 1: unchanged at no latency or where it already holds, capped at
     1 / (T + L) otherwise (5 /s at T = 0.1 s becomes 2.5 /s at L = 0.3 s).
     """
-    avoidance = safety.Avoidance(True, radius=0.04, margin=0.02, alpha=5.0)
+    avoidance = safety.Avoidance(True, radius=0.04, margin=0.02, rate=5.0)
     assert safety.with_latency(avoidance, 0.1, 0.0) is avoidance
     assert safety.with_latency(avoidance, 0.1, 0.1) is avoidance   # 5 * 0.2 = 1
     late = safety.with_latency(avoidance, 0.1, 0.3)
-    assert late.alpha == pytest.approx(2.5)
-    assert late._replace(alpha=5.0) == avoidance
+    assert late.rate == pytest.approx(2.5)
+    assert late._replace(rate=5.0) == avoidance
 
 
 def test_bodies_without_the_filter_push_each_other_but_never_overlap():

@@ -84,8 +84,8 @@ def test_switch_times_must_increase(arena_dict):
 
 def test_a_tail_gain_that_would_overshoot_a_sampled_command_is_refused(arena_dict):
     arena_dict['controller']['tail'] = {'radius': 0.05, 'gain': 20.0}
-    with pytest.raises(ConfigError, match=r'arena.yaml: controller: .*tail.gain 20 times k1 '
-                       r'0.666667 must stay below rate_hz 10'):
+    with pytest.raises(ConfigError, match=r'arena.yaml: controller.tail.gain: tail.gain 20 '
+                       r'times k1 0.666667 must stay below rate_hz 10'):
         build_experiment(arena_dict, 'arena.yaml')
     arena_dict['controller']['tail'] = {'radius': 0.05, 'gain': 3.0}
     assert build_experiment(arena_dict, 'arena.yaml').gains.tail_gain == 3.0

@@ -23,6 +23,15 @@ def test_the_node_reference_is_the_generated_one():
         'docs/nodes.md is stale: regenerate with `curve-formation nodes-doc`')
 
 
+def test_the_settings_table_is_the_generated_one():
+    text = (NODE_REFERENCE.parent / 'experiments.md').read_text()
+    begin, end = '<!-- settings:begin -->\n', '\n<!-- settings:end -->'
+    assert begin in text and end in text, 'docs/experiments.md lacks the settings markers'
+    current = text.split(begin, 1)[1].split(end, 1)[0]
+    assert current == docs.settings_markdown(), (
+        'docs/experiments.md is stale: regenerate with `curve-formation nodes-doc --settings`')
+
+
 def test_a_run_records_every_robots_topics_once_with_their_registered_types():
     recorded = topics.recorded(3)
     names = [t.name for t in recorded]

@@ -1,93 +1,110 @@
-"""Every controller setting has one default, range and set of choices: the node's parameter
-table (nodes/formation_controller.py) agrees with the experiment schema (core/config/schema.py)
-for every parameter that comes from an experiment key, and AgentConfig's own defaults agree with
-both.
+"""Every controller setting is declared once (core/controller/settings.py) and everything
+else is made from that: a default or a set of choices written a second time anywhere in the
+package is found here by searching the source; a rule between settings refuses the same
+values in an experiment file and in a node's parameters; the node's parameter table is the
+declaration's. (The file -> parameters -> node round trip: test_ros_nodes.)
 """
 
-import typing
+import ast
+import math
+from pathlib import Path
 
-from annotated_types import Ge, Gt, Le, Lt
-from pydantic import BaseModel
-from pydantic_core import PydanticUndefined
 import pytest
 
-from curve_formation.core.config.schema import ExperimentSpec
+from curve_formation.core.controller.settings import SETTINGS
 from curve_formation.nodes import formation_controller as node
 
 
-PARAMS = {p.name: p for p in node.PARAMETERS}
+PACKAGE = Path(__file__).resolve().parent.parent / 'curve_formation'
+# The settings the redesign was measured on, and one of each kind besides.
+NAMED = ('safety.leader_timeout', 'controller.law', 'limits.max_linear_accel',
+         'avoidance.rate', 'controller.observer_rate', 'graph.pinning',
+         'safety.pose_timeout', 'avoidance.margin')
 
 
-def schema_field(path):
-    """The pydantic FieldInfo at a dotted path of ExperimentSpec, and whether an enclosing
-    section may be left out (an Optional sub-model).
+def literal(node):
+    """True where `node` writes a value down: a constant, a tuple or list of constants, or
+    infinity (math.inf, float('inf')).
     """
-    model, optional = ExperimentSpec, False
-    *sections, key = path.split('.')
-    for name in sections:
-        annotation = model.model_fields[name].annotation
-        inner = [a for a in (annotation, *typing.get_args(annotation))
-                 if isinstance(a, type) and issubclass(a, BaseModel)]
-        optional = optional or type(None) in typing.get_args(annotation)
-        model = inner[0]
-    return model.model_fields[key], optional
+    if isinstance(node, ast.Constant):
+        return node.value is not None and node.value is not Ellipsis
+    if isinstance(node, (ast.Tuple, ast.List)):
+        return bool(node.elts) and all(literal(e) for e in node.elts)
+    if isinstance(node, ast.Attribute):
+        return node.attr == 'inf'
+    return (isinstance(node, ast.Call) and isinstance(node.func, ast.Name)
+            and node.func.id == 'float' and bool(node.args) and literal(node.args[0]))
 
 
-def bounds(field):
-    """(low, high, positive) as a Param states them, from the field's constraints."""
-    low = high = None
-    positive = False
-    for m in field.metadata:
-        if isinstance(m, Ge):
-            low = m.ge
-        elif isinstance(m, Gt):
-            if m.gt == 0:
-                positive = True
-            else:
-                low = m.gt
-        elif isinstance(m, Le):
-            high = m.le
-        elif isinstance(m, Lt):
-            high = m.lt
-    return low, high, positive
+def defaults_written(setting):
+    """(file, line, how) of every place in the package that writes a default of `setting`:
+    its declaration (Setting('key', ...)); a class field (a dataclass's, a NamedTuple's, a
+    pydantic Field's) named by the key's last part or the ROS parameter; a Param, an
+    argument's default or a dict entry named by the ROS parameter; each with a value written
+    down (a call that passes a value, e.g. the paper's law, declares none).
+    """
+    names = {setting.name, setting.parameter}
+    found = []
+    for path in sorted(PACKAGE.rglob('*.py')):
+        tree = ast.parse(path.read_text())
+        where = str(path.relative_to(PACKAGE.parent))
+        fields = [f for c in ast.walk(tree) if isinstance(c, ast.ClassDef) for f in c.body]
+        for n in ast.walk(tree):
+            if isinstance(n, ast.Call) and n.args and isinstance(n.args[0], ast.Constant):
+                called = getattr(n.func, 'id', getattr(n.func, 'attr', ''))
+                if called == 'Setting' and n.args[0].value == setting.key:
+                    found.append((where, n.lineno, 'declaration'))
+                if (called == 'Param' and n.args[0].value in names and len(n.args) > 2
+                        and literal(n.args[2])):
+                    found.append((where, n.lineno, 'Param'))
+            if (isinstance(n, ast.AnnAssign) and isinstance(n.target, ast.Name) and n in fields
+                    and n.target.id in names and n.value is not None):
+                value = n.value
+                if (isinstance(value, ast.Call) and getattr(value.func, 'id', '') == 'Field'
+                        and value.args):
+                    value = value.args[0]
+                if literal(value):
+                    found.append((where, n.lineno, 'field'))
+            if isinstance(n, ast.arguments):
+                positional = n.posonlyargs + n.args
+                for arg, value in zip(positional[len(positional) - len(n.defaults):],
+                                      n.defaults, strict=True):
+                    if arg.arg == setting.parameter and literal(value):
+                        found.append((where, n.lineno if hasattr(n, 'lineno') else 0,
+                                      'argument default'))
+            if isinstance(n, ast.Dict):
+                for k, v in zip(n.keys, n.values, strict=True):
+                    if (isinstance(k, ast.Constant) and k.value == setting.parameter
+                            and v is not None
+                            and literal(v)):
+                        found.append((where, k.lineno, 'dict entry'))
+    return found
 
 
-def test_every_parameter_is_an_experiment_key_derived_or_the_nodes_own():
-    classified = set(node.SCHEMA_KEYS) | set(node.DERIVED) | set(node.NODE_ONLY)
-    assert set(PARAMS) == classified, set(PARAMS) ^ classified
-    assert not set(node.SCHEMA_KEYS) & set(node.DERIVED + node.NODE_ONLY)
+@pytest.mark.parametrize('key', NAMED)
+def test_a_settings_default_is_written_once_in_the_package(key):
+    written = defaults_written(SETTINGS[key])
+    assert [how for _, _, how in written] == ['declaration'], written
 
 
-@pytest.mark.parametrize('name', sorted(node.SCHEMA_KEYS))
-def test_a_parameter_has_its_experiment_keys_default_range_and_choices(name):
-    param = PARAMS[name]
-    field, in_optional_section = schema_field(node.SCHEMA_KEYS[name])
-    default = field.default
-    # a key that may be left out (null), or a required key of a section that may be (limits),
-    # is 0 as a parameter when left out: none, unlimited
-    absent_is_zero = (type(None) in typing.get_args(field.annotation)
-                      or (in_optional_section and default is PydanticUndefined))
-    if name == 'tail_gain':   # no tail: a cap of 1, no speed-up
-        assert param.default == 1.0 and (param.low, param.high) == (1.0, None)
-        return
-    if absent_is_zero:
-        zero = [] if param.kind.endswith('[]') else (False if param.kind == 'bool' else 0)
-        assert param.default == zero, (name, param.default, default)
-    elif default is not PydanticUndefined:
-        expected = list(default) if isinstance(default, tuple) else default
-        assert param.default == expected, (name, param.default, default)
-    # else the file must give it; the parameter's default serves `ros2 run` alone
-    args = typing.get_args(field.annotation)
-    if typing.get_origin(field.annotation) is typing.Literal:
-        if param.kind == 'string':
-            assert set(param.choices) == set(args), (name, param.choices, args)
-        else:
-            assert (param.low, param.high) == (min(args), max(args)), name
-        return
-    low, high, positive = bounds(field)
-    if positive and absent_is_zero:   # 0 stands for the key left out
-        low, positive = 0.0, False
-    assert (param.low, param.high, param.positive) == (low, high, positive), name
+def test_the_laws_are_named_once_in_the_package():
+    """controller.law's choices, spelled out: only where the setting is declared."""
+    laws = set(SETTINGS['controller.law'].choices)
+    spelt = []
+    for path in sorted(PACKAGE.rglob('*.py')):
+        for n in ast.walk(ast.parse(path.read_text())):
+            if (isinstance(n, (ast.Tuple, ast.List, ast.Set)) and n.elts
+                    and {getattr(e, 'value', None) for e in n.elts} == laws):
+                spelt.append((str(path.relative_to(PACKAGE.parent)), n.lineno))
+    assert len(spelt) == 1 and spelt[0][0].endswith('core/controller/settings.py'), spelt
+
+
+def test_the_nodes_parameters_are_the_declared_settings():
+    params = {p.name: p for p in node.PARAMETERS}
+    for setting in SETTINGS.values():
+        param = params[setting.parameter]
+        expected = (list(setting.default) if setting.kind == 'double[]' else setting.default)
+        assert param.default == expected and param.description == setting.description
 
 
 def node_accepts(params):
@@ -138,6 +155,7 @@ def without_limits(data):
     data.pop('avoidance', None)
 
 
+NO_LIMITS = {'wheel_base': 0.0, 'max_wheel_speed': math.inf, 'avoidance': False}
 # (rule, how the file breaks it, the parameters that break it)
 RULES = [
     ('the offset is non-zero', lambda d: d['controller'].update(offset=0.0), {'offset': 0.0}),
@@ -149,17 +167,18 @@ RULES = [
      lambda d: d.setdefault('avoidance', {}).update(rate=20.0), {'avoidance_rate': 20.0}),
     ('reversing needs wheel limits',
      lambda d: (without_limits(d), d['controller'].update(reverse=True)),
-     {'reverse': True, 'wheel_base': 0.0, 'max_wheel_speed': 0.0, 'avoidance': False}),
+     {'reverse': True, **NO_LIMITS}),
     ("the observer's search needs wheel limits",
      lambda d: (without_limits(d), d['controller'].update(observer_growth=4.0)),
-     {'observer_growth': 4.0, 'wheel_base': 0.0, 'max_wheel_speed': 0.0,
-      'avoidance': False}),
+     {'observer_growth': 4.0, **NO_LIMITS}),
     ('the command latency is at most 0.5 s',
      lambda d: d['controller'].update(command_latency=0.6), {'command_latency': 0.6}),
     ('the observer is of order 1 or 2', lambda d: d['controller'].update(observer_order=3),
      {'observer_order': 3}),
     ('adaptation gains are > 0', lambda d: d['controller'].update(adaptation=[1.0, 0.0]),
      {'adaptation': [1.0, 0.0]}),
+    ('a limit is a positive number or none',
+     lambda d: d['limits'].update(max_linear_accel=-1.0), {'max_linear_accel': -1.0}),
 ]
 
 
@@ -171,6 +190,17 @@ def test_a_rule_refuses_the_same_setting_in_a_file_and_in_a_nodes_parameters(
     break_file(data)
     assert not schema_accepts(data), rule
     assert not node_accepts({**params, **break_params}), rule
+
+
+def test_no_limit_is_infinity_in_a_file_and_in_a_nodes_parameters():
+    """A limit left out or written `.inf` is no limit; the node takes `.inf` the same."""
+    from curve_formation.core.config.loading import build_experiment
+    data = arena_demo()
+    data['limits']['max_linear_accel'] = math.inf
+    assert build_experiment(data, 'inf.yaml').limits.max_linear_accel == math.inf
+    params = the_leaders_parameters()
+    assert params['max_angular_accel'] == math.inf
+    assert node_accepts({**params, 'max_linear_accel': math.inf})
 
 
 def test_agent_configs_defaults_are_the_schemas():

@@ -27,6 +27,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from curve_formation.core.config.checks import points_outside_arena
 from curve_formation.core.config.experiment import ANNOUNCE_AHEAD
 from curve_formation.core.controller.plausibility import MAX_COORDINATE
+from curve_formation.core.controller.settings import default
 from curve_formation.core.formation.assignment import AssignmentError, phase_parameters
 from curve_formation.core.formation.curve_sources import fit_points
 from curve_formation.core.formation.curves import CurveError, make_basis
@@ -68,8 +69,8 @@ PARAMETERS = (
     Param('reassign_every', 'double', -1.0, 'period (s) at which targets are re-assigned among '
           "the robots from their poses on /formation/robot_poses (assignment.reassigned); "
           "negative = the experiment's agents.reassign_every (0 = never)"),
-    Param('pose_timeout', 'double', 0.5, 'robot poses older than this are not used to '
-          're-assign (s)', positive=True),
+    Param('pose_timeout', 'double', default('safety.pose_timeout'), 'robot poses older than '
+          'this are not used to re-assign (s)', positive=True),
     Param('wait_for_ready', 'int', 0, 'start the schedule (t = 0) only once this many nodes '
           'have said on /formation/ready that they receive /formation/curve from this server, '
           'and its publisher has matched as many subscriptions, so all robots start together '

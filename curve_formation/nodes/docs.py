@@ -1,7 +1,11 @@
-"""Tables of every node's parameters, topics and QoS (docs/nodes.md), generated from the node
-modules.
+"""Reference tables generated from the code: every node's parameters, topics and QoS
+(docs/nodes.md, from the node modules) and every controller setting of an experiment file
+(docs/experiments.md, from core.controller.settings).
 """
 
+import math
+
+from curve_formation.core.controller.settings import SETTINGS
 from curve_formation.nodes import (
     camera_tracker,
     curve_server,
@@ -61,3 +65,39 @@ def nodes_markdown():
         parts.append(f'### `{name}`\n\n{summary}\n\n{topic_table(module.TOPICS)}\n\n'
                      f'{markdown_table(module.PARAMETERS)}')
     return '\n\n'.join(parts)
+
+
+def _shown(value):
+    """A setting's value as an experiment file writes it."""
+    if isinstance(value, float) and math.isinf(value):
+        return '.inf'
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, tuple):
+        return '[' + ', '.join(_shown(v) for v in value) + ']'
+    return f'{value:g}' if isinstance(value, float) else str(value)
+
+
+def settings_markdown():
+    """The controller settings' table in docs/experiments.md, between its `settings:begin`
+    and `settings:end` markers: key, default, unit, range, meaning, node parameter.
+    """
+    rows = ['| key | default | unit | range | meaning | parameter |',
+            '| --- | --- | --- | --- | --- | --- |']
+    for setting in SETTINGS.values():
+        bounds = []
+        if setting.choices:
+            bounds.append(' or '.join(_shown(c) for c in setting.choices))
+        if setting.low is not None:
+            bounds.append(f'>= {setting.low:g}')
+        if setting.above is not None:
+            bounds.append(f'> {setting.above:g}')
+        if setting.high is not None:
+            bounds.append(f'<= {setting.high:g}')
+        if setting.unlimited:
+            bounds.append('.inf = no limit')
+        default = 'required' if setting.required else _shown(setting.default)
+        meaning = setting.meaning.replace('|', '\\|')
+        rows.append(f'| `{setting.key}` | `{default}` | {setting.unit} | {", ".join(bounds)} | '
+                    f'{meaning} | `{setting.parameter}` |')
+    return '\n'.join(rows)

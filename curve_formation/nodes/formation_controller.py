@@ -16,14 +16,14 @@ from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 
-from curve_formation.core.config.parameters import limit_value
 from curve_formation.core.controller.agent import AgentController
 from curve_formation.core.controller.agent_config import AgentConfig
 from curve_formation.core.controller.disturbance import RunTime, varied
-from curve_formation.core.controller.gains import Gains, LAWS
-from curve_formation.core.controller.limits import timed_by, WheelLimits
+from curve_formation.core.controller.gains import Gains
+from curve_formation.core.controller.limits import WheelLimits
 from curve_formation.core.controller.plausibility import bounded_command
 from curve_formation.core.controller.safety import Avoidance, AVOIDANCE_OFF
+from curve_formation.core.controller.settings import broken_rules, DEFAULT_RATE_HZ, SETTINGS
 from curve_formation.core.formation.assignment import AssignmentError
 from curve_formation.nodes import messages, topics
 from curve_formation.nodes.command_source import CommandSourceWatch
@@ -41,6 +41,9 @@ from curve_formation.nodes.topics import Use
 
 
 NODE_NAME = 'formation_controller'   # also its console script's name
+# The parameters computed from several experiment keys (agents, graph, arena, disturbance;
+# config.agents.agent_configs) or that only a node has; then one per controller setting,
+# as controller.settings declares it.
 PARAMETERS = (
     Param('index', 'int', None, "this robot's agent number i (1 = leader)", low=1),
     Param('agent_count', 'int', None, 'number of agents n in the formation', low=1),
@@ -49,133 +52,33 @@ PARAMETERS = (
     Param('in_neighbours', 'int[]', [], 'agents j this robot receives from (empty for the '
           'leader)'),
     Param('weights', 'double[]', [], 'edge weights a_ij, one per in-neighbour (empty = all 1)'),
-    Param('pinning', 'double', 0.0, "a follower's weight b on its own target error, added to "
-          "its neighbours' (0 = the paper's consensus law)", low=0.0),
-    Param('k1', 'double', 1.0, 'gain on the target error (1/s)', positive=True),
-    Param('k2', 'double', 1.0, 'disturbance estimator gain; 0 = estimator off', low=0.0),
-    Param('offset', 'double', 0.01, 'offset l of the control point ahead of the axle (m), '
-          'non-zero'),
-    Param('rate_hz', 'double', 10.0, 'control rate (Hz)', positive=True),
-    Param('law', 'string', 'paper', "disturbance estimator: paper (the paper's adaptive "
-          'law), adaptive (per-channel gains) or observer (from the measured motion)',
-          choices=tuple(LAWS)),
-    Param('adaptation', 'double[]', [1.0, 1.0], 'law adaptive: [gamma_v, gamma_w] '
-          "multiplying the paper's estimator rate per channel"),
-    Param('estimate_latency', 'bool', False, 'estimate command_latency online from the '
-          'commands sent and the poses measured (every 1 s, 0.5 s until a first value, over '
-          'the last 6 s, the fits summed over about the last minute; a value taken when 3 in '
-          'a row agree within 20 ms)'),
-    Param('observer_order', 'int', 1, 'law observer: 2 = it also estimates how fast the '
-          'disturbance changes (alpha-beta filter) and predicts it over the coming period; '
-          '1 = first-order', low=1, high=2),
-    Param('observer_rate', 'double', 5.0, 'law observer: observer bandwidth (1/s)',
-          positive=True),
-    Param('observer_growth', 'double', 1.0, 'law observer, pc_disturbance set: largest '
-          "factor of the observer's search along a saturated motion (control.ray_growth); "
-          '1 = off; needs wheel_base and max_wheel_speed', low=1.0),
-    Param('tail_radius', 'double', 0.0, 'feedback size (m) below which the law speeds up as '
-          'its square root (finite-time tail); 0 = off', low=0.0),
-    Param('tail_gain', 'double', 1.0, 'cap on the finite-time speed-up', low=1.0),
-    Param('reverse', 'bool', False, 'drive backwards (steering the point behind the axle) '
-          'when that reaches the target sooner; needs wheel_base and max_wheel_speed'),
-    Param('heading', 'string', 'paper', 'sampled: each command turns as the continuous law '
-          'would over one period; paper: holds its instantaneous turn rate',
-          choices=('paper', 'sampled')),
-    Param('wheel_base', 'double', 0.0, 'distance between the wheels (m); 0 = no wheel limit',
-          low=0.0),
-    Param('max_wheel_speed', 'double', 0.0, 'max linear speed of each wheel (m/s); 0 = '
-          'unlimited', low=0.0),
-    Param('max_angular_rate', 'double', 0.0, 'max |w| (rad/s); 0 = unlimited', low=0.0),
-    Param('pose_timeout', 'double', 0.5, 'own pose older than this stops the robot (s)',
-          positive=True),
-    Param('neighbour_timeout', 'double', 0.5, 'neighbour state older than this stops the '
-          'robot (s)', positive=True),
-    Param('leader_timeout', 'double', 1.0, 'no news from the leader (through the neighbours) '
-          'for this long stops a follower (s)', positive=True),
+    Param('rate_hz', 'double', DEFAULT_RATE_HZ, 'control rate (Hz)', positive=True),
     Param('geofence', 'double[]', [], '[xmin, ymin, xmax, ymax] (m): outside it the robot is '
           'stopped; empty = no fence'),
-    Param('max_linear_accel', 'double', 0.0, 'max change of v (m/s^2); 0 = unlimited',
-          low=0.0),
-    Param('max_angular_accel', 'double', 0.0, 'max change of w (rad/s^2); 0 = unlimited',
-          low=0.0),
-    Param('radius', 'double', 0.0, "robots' body radius (m), for the safety filter", low=0.0),
     Param('avoidance', 'bool', False, 'safety filter on: keep bodies apart and inside the '
           "arena (core.controller.safety), from every robot's pose on /formation/robot_poses"),
-    Param('avoidance_margin', 'double', 0.02, 'extra distance kept between bodies (m)',
-          low=0.0),
-    Param('avoidance_rate', 'double', 5.0, 'barrier rate alpha (1/s), at most rate_hz',
-          positive=True),
-    Param('avoidance_drift', 'double', 0.0, 'forward drift (m/s) the barriers hold against '
-          'beyond what the command cancels; 0 = none', low=0.0),
-    Param('passing', 'double', 0.0, 'passing rule: sideways speed to the right per unit of '
-          'approach speed; 0 = none', low=0.0),
-    Param('passing_range', 'double', 0.0, 'gap above the safe distance within which the law '
-          'is steered around robots (m); 0 = one body diameter', low=0.0),
     Param('arena', 'double[]', [], '[width, height] (m) of the walls the filter keeps the '
           'body inside; empty = no walls'),
-    Param('feed_forward', 'bool', True, "add a moving curve's target velocity G(s_i) "
-          'xi-dot to the command'),
-    Param('predict_pose', 'bool', False, 'carry the pose forward from its stamp to the tick '
-          'through the commands sent since (clocks of pose source and this PC in sync)'),
-    Param('command_latency', 'double', 0.0, "delay (s) from a command leaving to the robot's "
-          'wheels: predict_pose carries the pose (and the other robots) to when the command '
-          'acts, the observer compares each motion with the commands acting over it and '
-          'waits for the motion that answers its estimate', low=0.0, high=0.5),
-    Param('min_wheel_speed', 'double', 0.0, "the slowest wheel speed (m/s) the robot's motors "
-          'turn at (their dead band): the observer expects no motion from a smaller command; '
-          '0 = none', low=0.0),
-    Param('motor_time_constant', 'double', 0.0, "the first-order lag (s) of the robot's wheels "
-          'behind their commands: the observer compares each motion with what the commands '
-          'realised through it; 0 = none', low=0.0, high=1.0),
-    Param('fault_state_drop', 'double', 0.0, 'fault injection: probability of not publishing '
-          'a formation_state message', low=0.0, high=1.0),
     Param('pc_disturbance', 'double[]', [0.0, 0.0], 'disturbance [d_v, d_w] added to the '
           "command before the wheel limits (the paper's arena experiment); normally zero"),
     Param('disturbance_varies', 'string', '', "how pc_disturbance changes over the run's time "
           "(s since the first curve, from the curve's clock): the experiment's "
           "disturbance.varies as JSON (sines, steps, ramps); '' = constant"),
     Param('frame_id', 'string', 'arena', 'frame of poses and errors'),
-    Param('compiled_law', 'bool', False, 'run the law and safety filter compiled by numba, as '
-          'the batch simulator does (the same source): ~15x faster a tick, ~0.7 s and ~65 MB '
+    Param('compiled_law', 'bool', False, 'run the control step compiled by numba, as the '
+          'batch simulator does (the same source): ~15x faster a tick, ~0.7 s and ~65 MB '
           'more to start; the runner sets it when every node shares one process'),
+    Param('fault_state_drop', 'double', 0.0, 'fault injection: probability of not publishing '
+          'a formation_state message', low=0.0, high=1.0),
+    *(Param.of(setting) for setting in SETTINGS.values()),
 )
-
-# Where each parameter comes from in an experiment file (core.config.schema's key): its
-# default, range and choices are the schema's (test_settings proves it). A key that may be
-# left out (null in the schema, or in a section that may be, as `limits:`) is 0 as a
-# parameter when it is: none, unlimited.
-SCHEMA_KEYS = {
-    'pinning': 'graph.pinning', 'k1': 'controller.k1', 'k2': 'controller.k2',
-    'offset': 'controller.offset', 'law': 'controller.law',
-    'adaptation': 'controller.adaptation', 'estimate_latency': 'controller.estimate_latency',
-    'observer_order': 'controller.observer_order', 'observer_rate': 'controller.observer_rate',
-    'observer_growth': 'controller.observer_growth', 'tail_radius': 'controller.tail.radius',
-    'tail_gain': 'controller.tail.gain', 'reverse': 'controller.reverse',
-    'heading': 'controller.heading', 'wheel_base': 'limits.wheel_base',
-    'max_wheel_speed': 'limits.max_wheel_speed', 'max_angular_rate': 'limits.max_angular_rate',
-    'pose_timeout': 'safety.pose_timeout', 'neighbour_timeout': 'safety.neighbour_timeout',
-    'leader_timeout': 'safety.leader_timeout', 'max_linear_accel': 'limits.max_linear_accel',
-    'max_angular_accel': 'limits.max_angular_accel', 'radius': 'robots.radius',
-    'avoidance_margin': 'avoidance.margin', 'avoidance_rate': 'avoidance.rate',
-    'avoidance_drift': 'avoidance.drift', 'passing': 'avoidance.passing',
-    'passing_range': 'avoidance.passing_range', 'feed_forward': 'controller.feed_forward',
-    'predict_pose': 'controller.predict_pose', 'command_latency': 'controller.command_latency',
-    'min_wheel_speed': 'limits.min_wheel_speed',
-    'motor_time_constant': 'limits.motor_time_constant',
-}
-# Parameters computed from several keys (agents, graph, arena, disturbance; core.controller.agent.
-# agent_configs) or that only a node has.
-DERIVED = ('index', 'agent_count', 'role', 'in_neighbours', 'weights', 'rate_hz', 'geofence',
-           'avoidance', 'arena', 'pc_disturbance', 'disturbance_varies')
-NODE_ONLY = ('frame_id', 'compiled_law', 'fault_state_drop')
 
 
 def agent_config(p):
     """AgentConfig from validated parameters (core.config.parameters.node_parameters gives
-    them from one); ParameterError on inconsistent ones.
+    them from one); ParameterError on inconsistent ones, naming the parameter. The rules
+    between settings are controller.settings.RULES, as an experiment file is held to.
     """
-    if p.offset == 0:
-        raise ParameterError("parameter 'offset' must be non-zero")
     if p.index > p.agent_count:
         raise ParameterError(f"parameter 'index' ({p.index}) exceeds 'agent_count' "
                              f'({p.agent_count})')
@@ -193,29 +96,24 @@ def agent_config(p):
         raise ParameterError(f"parameter 'role' is {p.role!r} but 'in_neighbours' is "
                              f'{p.in_neighbours}: the leader receives from nobody, a follower '
                              'from at least one agent')
-    if len(p.adaptation) != 2 or min(p.adaptation) <= 0:
-        raise ParameterError(f"parameter 'adaptation' must be [gamma_v, gamma_w] > 0, got "
-                             f'{p.adaptation}')
+    for setting in SETTINGS.values():
+        problem = setting.problem(getattr(p, setting.parameter))
+        if setting.kind == 'double[]' and len(getattr(p, setting.parameter)) != 2:
+            problem = 'expected a pair [a, b]'
+        if problem is not None:
+            raise ParameterError(f'parameter {setting.parameter!r}: {problem}')
+    values = {key: getattr(p, setting.parameter) for key, setting in SETTINGS.items()}
+    for key, problem in broken_rules({**values, 'controller.rate_hz': p.rate_hz,
+                                      'avoidance.on': p.avoidance}):
+        raise ParameterError(f'parameter {SETTINGS[key].parameter!r}: {problem}')
     if len(p.pc_disturbance) != 2:
         raise ParameterError("parameter 'pc_disturbance' must be [d_v, d_w]")
     fence = p.geofence or None
     if fence is not None and (len(fence) != 4 or fence[0] >= fence[2] or fence[1] >= fence[3]):
         raise ParameterError(f"parameter 'geofence' must be [xmin, ymin, xmax, ymax] with "
                              f'xmin < xmax and ymin < ymax, got {p.geofence}')
-    limits = WheelLimits(p.wheel_base, limit_value(p.max_wheel_speed),
-                         limit_value(p.max_angular_rate), limit_value(p.max_linear_accel),
-                         limit_value(p.max_angular_accel))
-    if p.reverse and not timed_by(limits):
-        raise ParameterError("parameter 'reverse' needs 'wheel_base' and 'max_wheel_speed' "
-                             '(> 0) to time a trip forwards and backwards')
-    if p.tail_radius > 0 and p.k1 * p.tail_gain >= p.rate_hz:
-        raise ParameterError(f"parameter 'tail_gain' ({p.tail_gain:g}) times 'k1' ({p.k1:g}) "
-                             f"must stay below 'rate_hz' ({p.rate_hz:g}): a sampled command "
-                             'would overshoot the target')
-    if p.observer_growth > 1 and not timed_by(limits):
-        raise ParameterError("parameter 'observer_growth' needs 'wheel_base' and "
-                             "'max_wheel_speed' (> 0): it acts while the wheel limits saturate "
-                             'the command')
+    limits = WheelLimits(p.wheel_base, p.max_wheel_speed, p.max_angular_rate,
+                         p.max_linear_accel, p.max_angular_accel)
     return AgentConfig(
         avoidance=_avoidance(p),
         index=p.index, agent_count=p.agent_count,
@@ -240,9 +138,6 @@ def _avoidance(p):
     if len(p.arena) not in (0, 2) or (p.arena and min(p.arena) <= 0):
         raise ParameterError(f"parameter 'arena' must be [width, height] > 0 or empty, got "
                              f'{p.arena}')
-    if p.avoidance_rate > p.rate_hz:
-        raise ParameterError(f"parameter 'avoidance_rate' ({p.avoidance_rate:g}) must not "
-                             f"exceed 'rate_hz' ({p.rate_hz:g})")
     width, height = p.arena or (0.0, 0.0)
     return Avoidance(True, p.radius, p.avoidance_margin, p.avoidance_rate, p.passing,
                      p.passing_range or 2.0 * p.radius, float(width), float(height),

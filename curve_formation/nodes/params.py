@@ -44,6 +44,31 @@ class Param:
     positive: bool = False
     choices: tuple = ()
     read_only: bool = True
+    unlimited: bool = False   # infinity (`.inf`) allowed: no limit
+
+    @classmethod
+    def of(cls, setting):
+        """The parameter of a controller setting (core.controller.settings.Setting): its
+        name, type, default, meaning and range as declared there. Where the setting's
+        default lies outside its range (0: off, for a setting whose file section may be left
+        out) the range starts at the default.
+        """
+        low, positive = setting.low, False
+        if setting.above is not None:
+            first = (setting.default[0] if setting.kind == 'double[]' else setting.default)
+            if first > setting.above:
+                positive = setting.above == 0.0
+                low = None if positive else setting.above
+            else:
+                low = setting.default
+        high = setting.high
+        choices = tuple(setting.choices) if setting.kind == 'string' else ()
+        if setting.choices and setting.kind == 'int':
+            low, high = min(setting.choices), max(setting.choices)
+        default = list(setting.default) if setting.kind == 'double[]' else setting.default
+        return cls(setting.parameter, setting.kind, default, setting.description, low=low,
+                   high=high, positive=positive, choices=choices,
+                   unlimited=setting.unlimited)
 
     def descriptor(self):
         # A double also takes an integer (`-p k1:=2`, `k1: 2` in a parameters file): typed
@@ -66,6 +91,8 @@ class Param:
     def doc_default(self):
         if self.default is None:
             return '(required)'
+        if isinstance(self.default, float) and math.isinf(self.default):
+            return '.inf'   # as a parameters file writes it: no limit
         return repr(self.default)
 
 
@@ -115,7 +142,8 @@ def _validate(p, value):
         if (p.low is not None and item < p.low) or (p.high is not None and item > p.high):
             raise ParameterError(f'parameter {p.name!r} must be in [{p.low}, {p.high}], got '
                                  f'{value!r} ({p.description})')
-        if isinstance(item, float) and not math.isfinite(item):
+        if isinstance(item, float) and not math.isfinite(item) and not (
+                p.unlimited and math.isinf(item) and item > 0):
             raise ParameterError(f'parameter {p.name!r} must be finite, got {value!r}')
         if p.positive and not item > 0:
             raise ParameterError(f'parameter {p.name!r} must be > 0, got {value!r} '

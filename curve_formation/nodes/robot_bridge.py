@@ -26,6 +26,7 @@ from rclpy.node import Node
 from curve_formation import wire
 from curve_formation.core.config.schema import MONA_WHEEL_BASE
 from curve_formation.core.controller.inputs import is_stale
+from curve_formation.core.controller.settings import SETTINGS
 from curve_formation.links import LinkError, robot_link
 from curve_formation.nodes import messages, topics
 from curve_formation.nodes.command_source import CommandSourceWatch
@@ -62,8 +63,7 @@ PARAMETERS = (
     Param('baud', 'int', 115200, 'serial line speed (bits/s)', low=1),
     Param('wheel_base', 'double', MONA_WHEEL_BASE, 'distance between the wheels (m)',
           positive=True),
-    Param('max_wheel_speed', 'double', 0.0, 'max rim speed of a wheel (m/s); 0 = no limit',
-          low=0.0),
+    Param.of(SETTINGS['limits.max_wheel_speed']),
     Param('rate_hz', 'double', 10.0, 'the most lines a second the robot takes, and two more '
           '(so that a late tick of a controller at this rate is never held back)',
           positive=True),

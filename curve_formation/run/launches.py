@@ -16,7 +16,7 @@ import yaml
 from curve_formation.core.config.agents import agent_configs
 from curve_formation.core.config.experiment import wheel_base, wheel_radius
 from curve_formation.core.config.loading import control_rate
-from curve_formation.core.config.parameters import limit_parameter, node_parameters
+from curve_formation.core.config.parameters import node_parameters
 from curve_formation.core.config.variations import variations_text
 from curve_formation.interface import robot_namespace
 from curve_formation.run.run_options import DEFAULTS
@@ -153,7 +153,7 @@ def bridge_parameters(experiment, rate, link):
     return {'link': link if kind == 'udp' else f'serial:{where}',
             'wheel_base': wheel_base(experiment),
             'wheel_radius': wheel_radius(experiment),
-            'max_wheel_speed': limit_parameter(limits.max_wheel_speed),
+            'max_wheel_speed': float(limits.max_wheel_speed),
             'rate_hz': float(rate)}
 
 

@@ -189,7 +189,6 @@ def whole_steps(interval: float, dt: float, what: str) -> int:
 
 
 # Control rate (Hz) of the ROS controllers when the experiment gives none (continuous).
-DEFAULT_RATE_HZ = 10.0
 
 
 def wheel_radius(experiment: Experiment) -> float:

@@ -7,7 +7,6 @@ Every problem is raised as ConfigError naming the file, the key and what was exp
 from collections.abc import Sequence
 import copy
 import dataclasses
-import math
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +23,7 @@ from curve_formation.core.config.checks import (
     check_time,
 )
 from curve_formation.core.config.errors import ConfigError, validation_problem
-from curve_formation.core.config.experiment import DEFAULT_RATE_HZ, Experiment, Phase
+from curve_formation.core.config.experiment import Experiment, Phase
 from curve_formation.core.config.schema import (
     ControllerSpec,
     CurveSpec,
@@ -35,8 +34,9 @@ from curve_formation.core.config.starts import random_poses
 from curve_formation.core.config.variations import checked_variations
 from curve_formation.core.controller.disturbance import Variation
 from curve_formation.core.controller.gains import Gains
-from curve_formation.core.controller.limits import NO_LIMITS, timed_by, WheelLimits
+from curve_formation.core.controller.limits import NO_LIMITS, WheelLimits
 from curve_formation.core.controller.safety import Avoidance, AVOIDANCE_OFF
+from curve_formation.core.controller.settings import broken_rules, DEFAULT_RATE_HZ, SETTINGS
 from curve_formation.core.formation import curve_sources
 from curve_formation.core.formation.assignment import (
     AssignmentError,
@@ -101,8 +101,33 @@ def as_in_the_paper(data: dict[str, Any]) -> dict[str, Any]:
     return data
 
 
+def setting_values(spec: ExperimentSpec) -> dict[str, Any]:
+    """Every controller setting's value in the file (controller.settings.SETTINGS: its
+    default where it or its section is left out), with 'controller.rate_hz' and
+    'avoidance.on', as controller.settings.RULES read them.
+    """
+    values: dict[str, Any] = {}
+    for key, declared in SETTINGS.items():
+        node: Any = spec
+        for part in key.split('.')[:-1]:
+            node = None if node is None else getattr(node, part)
+        values[key] = declared.default if node is None else getattr(node, declared.name)
+    values['controller.rate_hz'] = spec.controller.rate_hz
+    values['avoidance.on'] = spec.avoidance is not None
+    return values
+
+
+def check_rules(spec: ExperimentSpec, source: str, **override: Any) -> None:
+    """ConfigError naming the key of the first rule between settings the file breaks
+    (controller.settings.RULES); override: values to hold instead of the file's, by key.
+    """
+    for key, problem in broken_rules({**setting_values(spec), **override}):
+        raise ConfigError(source, key, problem)
+
+
 def _build(spec: ExperimentSpec, source: str) -> Experiment:
     n = spec.agents.count
+    check_rules(spec, source)
     try:
         graph = DirectedGraph(n, [Edge(e.source, e.target, e.weight) for e in spec.graph.edges],
                               leader=spec.graph.leader, follower_pinning=spec.graph.pinning)
@@ -122,13 +147,6 @@ def _build(spec: ExperimentSpec, source: str) -> Experiment:
     check_time(spec, source)
     gains = _gains(spec.controller)
     limits = _limits(spec)
-    if gains.reverse and not timed_by(limits):
-        raise ConfigError(source, 'controller.reverse', 'needs limits.wheel_base and '
-                          'limits.max_wheel_speed (> 0) to time a trip forwards and backwards')
-    if gains.observer_growth > 1 and not timed_by(limits):
-        raise ConfigError(source, 'controller.observer_growth', 'needs limits.wheel_base and '
-                          'limits.max_wheel_speed (> 0): it acts while the wheel limits '
-                          'saturate the command')
     initial = _initial_poses(spec, source)
     phases = tuple(_build_phases(spec, source, offset_points(initial, gains.offset)))
     avoidance = _avoidance(spec, source)
@@ -209,15 +227,11 @@ def _fit_phase_curve(curve_spec: CurveSpec, source: str, key: str) -> Fit:
 
 
 def _limits(spec: ExperimentSpec) -> WheelLimits:
-    if spec.limits is None:
-        return NO_LIMITS
     limits = spec.limits
-
-    def given(value: float | None) -> float:
-        return math.inf if value is None else value
-    return WheelLimits(limits.wheel_base, limits.max_wheel_speed,
-                       given(limits.max_angular_rate), given(limits.max_linear_accel),
-                       given(limits.max_angular_accel))
+    if limits is None:
+        return NO_LIMITS
+    return WheelLimits(limits.wheel_base, limits.max_wheel_speed, limits.max_angular_rate,
+                       limits.max_linear_accel, limits.max_angular_accel)
 
 
 def _avoidance(spec: ExperimentSpec, source: str) -> Avoidance:
@@ -225,14 +239,9 @@ def _avoidance(spec: ExperimentSpec, source: str) -> Avoidance:
     av = spec.avoidance
     if av is None:
         return AVOIDANCE_OFF
-    rate = spec.controller.rate_hz
-    if rate is not None and av.rate > rate:
-        raise ConfigError(source, 'avoidance.rate', f'the barrier rate must not exceed the '
-                          f'control rate ({rate:g} Hz), got {av.rate:g} /s: a robot could '
-                          'close more than the whole distance to the safe one in one tick')
     radius = spec.robots.radius
     width, height = spec.arena.size if spec.arena is not None else (0.0, 0.0)
-    passing_range = av.passing_range if av.passing_range is not None else 2.0 * radius
+    passing_range = av.passing_range or 2.0 * radius
     return Avoidance(True, radius, av.margin, av.rate, av.passing, passing_range,
                      float(width), float(height), av.drift)
 
@@ -292,19 +301,13 @@ def _gains(controller: ControllerSpec) -> Gains:
 
 def check_rate_override(experiment: Experiment, rate_hz: float, option: str = '--rate'
                         ) -> None:
-    """ConfigError unless the file's controller section passes its checks at rate_hz (Hz), as
-    it would with that rate in the file (e.g. the finite-time tail's gain below the rate): a
+    """ConfigError unless the file's settings pass their rules at rate_hz (Hz), as they would
+    with that rate in the file (e.g. the finite-time tail's gain below the rate): a
     command-line override is held to the file's rules.
     """
-    controller = experiment.spec.controller
-    try:
-        ControllerSpec.model_validate({**controller.model_dump(exclude_unset=True),
-                                       'rate_hz': rate_hz})
-    except ValidationError as exc:
-        key, problem = validation_problem(exc)
-        where = 'controller' if key == '(top level)' else f'controller.{key}'
-        raise ConfigError(experiment.source, where,
-                          f'with {option} {rate_hz:g}: {problem}') from None
+    for key, problem in broken_rules({**setting_values(experiment.spec),
+                                      'controller.rate_hz': rate_hz}):
+        raise ConfigError(experiment.source, key, f'with {option} {rate_hz:g}: {problem}')
 
 
 def with_start(experiment: Experiment, poses: ArrayLike) -> Experiment:

@@ -1,32 +1,19 @@
-"""An agent's settings (core.controller.agent_config.AgentConfig) as the flat parameters of the
-node that runs
-it, ROS-free: what the launcher writes into a controller's parameters file. The node reads
-them back (nodes/formation_controller.agent_config, which validates them); a test checks the
-round trip for every agent of every shipped experiment. A limit that is not set (inf) is the
-parameter 0, "unlimited", in both directions.
+"""An agent's settings (core.controller.agent_config.AgentConfig) as the flat parameters of
+the node that runs it, ROS-free: what the launcher writes into a controller's parameters
+file. The node reads them back (nodes/formation_controller.agent_config, which validates
+them); a test checks the round trip for every agent of every shipped experiment. A limit
+that is not set is infinite here as everywhere (`.inf` in a parameters file).
 """
 
-import math
-
-
-def limit_parameter(value):
-    """A limit as a node parameter value: an unlimited one (inf) is written as 0."""
-    return float(value) if math.isfinite(value) else 0.0
-
-
-def limit_value(parameter):
-    """A limit from its node parameter value: 0 is unlimited (inf)."""
-    return float(parameter) or math.inf
 
 
 def node_parameters(config):
     """The parameters {name: value} of a node that runs AgentConfig `config`: agent_config of
     them gives `config` back (a test checks it for every agent of every shipped experiment).
-    Unlimited values are written as 0; empty lists are left out (a ROS parameter needs a type).
+    Empty lists are left out (a ROS parameter needs a type).
     """
     gains, limits, av = config.gains, config.limits, config.avoidance
 
-    limit = limit_parameter
     params = {
         'index': config.index, 'agent_count': config.agent_count,
         'role': 'leader' if config.is_leader else 'follower',
@@ -39,10 +26,10 @@ def node_parameters(config):
         'tail_radius': float(gains.tail_radius), 'tail_gain': float(gains.tail_gain),
         'reverse': bool(gains.reverse),
         'heading': 'sampled' if gains.sampled_heading else 'paper',
-        'wheel_base': float(limits.wheel_base), 'max_wheel_speed': limit(limits.max_wheel_speed),
-        'max_angular_rate': limit(limits.max_angular_rate),
-        'max_linear_accel': limit(limits.max_linear_accel),
-        'max_angular_accel': limit(limits.max_angular_accel),
+        'wheel_base': float(limits.wheel_base), 'max_wheel_speed': float(limits.max_wheel_speed),
+        'max_angular_rate': float(limits.max_angular_rate),
+        'max_linear_accel': float(limits.max_linear_accel),
+        'max_angular_accel': float(limits.max_angular_accel),
         'pose_timeout': float(config.pose_timeout),
         'neighbour_timeout': float(config.neighbour_timeout),
         'leader_timeout': float(config.leader_timeout),
@@ -61,8 +48,8 @@ def node_parameters(config):
     }
     if av.on:
         params.update({'avoidance': True, 'radius': float(av.radius),
-                       'avoidance_margin': float(av.margin), 'avoidance_rate': float(av.alpha),
-                       'passing': float(av.bias), 'passing_range': float(av.bias_range),
+                       'avoidance_margin': float(av.margin), 'avoidance_rate': float(av.rate),
+                       'passing': float(av.passing), 'passing_range': float(av.passing_range),
                        'avoidance_drift': float(av.drift),
                        'arena': [float(av.width), float(av.height)] if av.width > 0 else []})
     return {name: value for name, value in params.items() if value != []}

@@ -6,18 +6,45 @@ The camera's and the physics' sections are in config.camera_schema and
 config.physics_schema.
 """
 
-import math
-from typing import Literal, Optional
+from typing import Any, Literal, Optional
 
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, field_validator, model_validator, ValidationInfo
 
 from curve_formation.core.config.camera_schema import CameraSpec
 from curve_formation.core.config.physics_schema import PhysicsSpec
 from curve_formation.core.config.strict import Pair, Strict
+from curve_formation.core.controller.settings import SETTINGS
 from curve_formation.core.formation.curves import MAX_HARMONICS, MAX_ORDER
 
 
 MAX_FIT_ENTRIES = 50_000_000   # samples x basis functions of one fit (400 MB of float64)
+
+
+def setting(key: str) -> Any:
+    """The schema field of a controller setting, from its one declaration
+    (controller.settings.SETTINGS): default (none where the file must give it), bounds and
+    description; choices are checked by `checked`.
+    """
+    declared = SETTINGS[key]
+    bounds: dict[str, Any] = {}
+    if declared.low is not None:
+        bounds['ge'] = declared.low
+    if declared.above is not None and declared.kind != 'double[]':
+        bounds['gt'] = declared.above
+    if declared.high is not None:
+        bounds['le'] = declared.high
+    if declared.unlimited:
+        bounds['allow_inf_nan'] = True   # infinity: no limit (NaN fails every bound)
+    default = ... if declared.required else declared.default
+    return Field(default, description=declared.description, **bounds)
+
+
+def checked(key: str, value: Any) -> Any:
+    """`value` if setting `key` takes it (choices, a pair's bounds), else ValueError."""
+    problem = SETTINGS[key].problem(value)
+    if problem is not None:
+        raise ValueError(problem)
+    return value
 
 
 class RandomStart(Strict):
@@ -84,100 +111,42 @@ class EdgeSpec(Strict):
 class GraphSpec(Strict):
     leader: int = Field(1, ge=1)
     edges: list[EdgeSpec]
-    pinning: float = Field(
-        0.0, ge=0, allow_inf_nan=False,
-        description="weight b of each follower's own target error in its feedback, "
-        "b e_i + sum_j a_ij (e_i - e_j) (the leader's is 1); 0 = the paper's consensus law")
+    pinning: float = setting('graph.pinning')
 
 
 class TailSpec(Strict):
-    """The finite-time tail of the approach (control.tail_feedback)."""
+    """The finite-time tail of the approach (law.tail_feedback)."""
 
-    radius: float = Field(gt=0, allow_inf_nan=False, description='feedback size (m) below '
-                          'which the law speeds up as the square root of it instead of linearly')
-    gain: float = Field(ge=1, allow_inf_nan=False,
-                        description='cap on the speed-up (the gain is at most k1 gain)')
+    radius: float = setting('controller.tail.radius')
+    gain: float = setting('controller.tail.gain')
 
 
 class ControllerSpec(Strict):
-    law: Literal['paper', 'adaptive', 'observer'] = Field(
-        'paper', description="disturbance estimator: 'paper' (the paper's adaptive law), "
-        "'adaptive' (per-channel gains `adaptation`), 'observer' (from the measured motion)")
-    adaptation: Pair = Field((1.0, 1.0), description='law adaptive: multipliers (gamma_v, '
-                             "gamma_w) of the paper's estimator rate per channel")
-    heading: Literal['paper', 'sampled'] = Field(
-        'paper', description="'sampled': with rate_hz, each command turns the heading as the "
-        "continuous law would over one period, so it cannot overshoot; 'paper': holds the "
-        'continuous-time turn rate')
-    observer_rate: float = Field(5.0, gt=0, description='law observer: bandwidth of the '
-                                 'disturbance observer (1/s)')
-    observer_growth: float = Field(
-        1.0, ge=1, allow_inf_nan=False, description='law observer with a disturbance '
-        "injected on_pc: while the wheel limits saturate the command, the robot's motion "
-        "shows the disturbance's direction but not its size; the observer then searches "
-        'along that direction, its step doubling each tick up to this factor '
-        '(control.ray_growth; needs limits.wheel_base and max_wheel_speed); 1 = off')
-    estimate_latency: bool = Field(
-        False, description='estimate command_latency online, every 1 s (0.5 s until a first '
-        'value) from the last 6 s of commands and poses, each fit added to those of about '
-        'the last minute (core.controller.link_estimate), starting from command_latency; a '
-        'new value is '
-        'taken when 3 estimates in a row agree within 20 ms; in the nodes and their tick '
-        'pipeline')
-    observer_order: Literal[1, 2] = Field(
-        1, description='law observer: 2 = it also estimates how fast the disturbance changes '
-        '(an alpha-beta filter critically damped at observer_rate) and follows one that '
-        'drifts without lag; runs in the nodes and their tick pipeline (sim runs that); 1 = '
-        'the first-order observer')
-    k1: float = Field(gt=0, description='gain on the target error (1/s)')
-    k2: float = Field(ge=0, description='estimator gain; 0 = estimator off (every law '
-                      'estimates d / k2, as the paper)')
-    offset: float = Field(description='offset l of the control point ahead of the axle (m)')
+    law: str = setting('controller.law')
+    adaptation: Pair = setting('controller.adaptation')
+    heading: str = setting('controller.heading')
+    observer_rate: float = setting('controller.observer_rate')
+    observer_growth: float = setting('controller.observer_growth')
+    estimate_latency: bool = setting('controller.estimate_latency')
+    observer_order: int = setting('controller.observer_order')
+    k1: float = setting('controller.k1')
+    k2: float = setting('controller.k2')
+    offset: float = setting('controller.offset')
     rate_hz: Optional[float] = Field(
         None, gt=0, description='control rate with zero-order hold; null = continuous')
-    predict_pose: bool = Field(
-        False, description="ROS controllers: carry the robot's pose forward from its stamp "
-        '(capture time) to the tick, through the commands sent since, so a pose that is '
-        '80 ms old does not make an 80 ms old command (PCs with synchronised clocks)')
-    command_latency: float = Field(
-        0.0, ge=0, le=0.5, allow_inf_nan=False, description="ROS controllers: the delay (s) "
-        "from a command leaving the PC to the robot's wheels (the link's, e.g. Wi-Fi and the "
-        'bridge): with predict_pose the pose (and the other robots, for the safety filter) is '
-        'carried forward to when the command acts; the observer compares each motion with '
-        'the commands acting over it and waits for the motion that answers its estimate')
-    feed_forward: bool = Field(
-        True, description="a moving curve's velocity at each target, G(s_i) xi-dot, is added "
-        'to the command, so the formation keeps up instead of lagging (curves[].motion)')
+    predict_pose: bool = setting('controller.predict_pose')
+    command_latency: float = setting('controller.command_latency')
+    feed_forward: bool = setting('controller.feed_forward')
     tail: Optional[TailSpec] = Field(
         None, description="near the target the law's speed shrinks as the square root of the "
         'error instead of linearly, so the approach ends in finite time instead of an '
         "exponential tail; null = the paper's linear law")
-    reverse: bool = Field(
-        False, description='a robot may drive backwards, steering the point behind its axle '
-        'onto its target, when turning round and driving forwards would take longer (needs '
-        "limits.wheel_base and max_wheel_speed to time both); false = the paper's forwards only")
+    reverse: bool = setting('controller.reverse')
 
-    @field_validator('adaptation')
+    @field_validator('law', 'heading', 'observer_order', 'adaptation')
     @classmethod
-    def _positive_gains(cls, value):
-        if min(value) <= 0 or not all(math.isfinite(g) for g in value):
-            raise ValueError('adaptation gains must be finite and > 0')
-        return value
-
-    @field_validator('offset')
-    @classmethod
-    def _nonzero(cls, value):
-        if value == 0 or not math.isfinite(value):
-            raise ValueError('the offset l must be finite and non-zero')
-        return value
-
-    @model_validator(mode='after')
-    def _tail_within_the_period(self):
-        if self.tail is not None and self.rate_hz and self.k1 * self.tail.gain >= self.rate_hz:
-            raise ValueError(f'tail.gain {self.tail.gain:g} times k1 {self.k1:g} must stay '
-                             f'below rate_hz {self.rate_hz:g}: a sampled command would '
-                             'overshoot the target')
-        return self
+    def _declared(cls, value: Any, info: ValidationInfo) -> Any:
+        return checked(f'controller.{info.field_name}', value)
 
 
 class VariationSpec(Strict):
@@ -247,29 +216,25 @@ MONA_WHEEL_BASE = 0.08
 
 
 class LimitsSpec(Strict):
-    wheel_base: float = Field(gt=0, description='distance between the wheels (m)')
-    max_wheel_speed: float = Field(gt=0, description='max linear speed of each wheel (m/s)')
+    """The robots' wheels and motors; a limit left out (or `.inf`) is no limit."""
+
+    wheel_base: float = setting('limits.wheel_base')
+    max_wheel_speed: float = setting('limits.max_wheel_speed')
     wheel_radius: float = Field(0.015, gt=0, description='wheel radius (m): the wheel speeds in '
                                 'rad/s a robot bridge sends (Mona: 15 mm)')
-    max_angular_rate: Optional[float] = Field(None, gt=0, description='max |w| (rad/s)')
-    min_wheel_speed: Optional[float] = Field(
-        None, gt=0, description="the slowest wheel speed (m/s) the robots' motors turn at: "
-        'a smaller command leaves the wheel still (a dead band); the observer then expects '
-        'no motion from it instead of learning a disturbance. Measure it on your robots')
-    motor_time_constant: Optional[float] = Field(
-        None, gt=0, le=1.0, description="the first-order lag (s) with which the robots' wheels "
-        'follow their commands: the observer compares each measured motion with what the '
-        'commands realised through it. Measure it on your robots (a step response)')
-    max_linear_accel: Optional[float] = Field(None, gt=0, description='max dv/dt (m/s^2)')
-    max_angular_accel: Optional[float] = Field(None, gt=0, description='max dw/dt (rad/s^2)')
+    max_angular_rate: float = setting('limits.max_angular_rate')
+    min_wheel_speed: float = setting('limits.min_wheel_speed')
+    motor_time_constant: float = setting('limits.motor_time_constant')
+    max_linear_accel: float = setting('limits.max_linear_accel')
+    max_angular_accel: float = setting('limits.max_angular_accel')
 
 
 class SafetySpec(Strict):
     """Watchdog timeouts of every controller (s) and the geofence margin (m)."""
 
-    pose_timeout: float = Field(0.5, gt=0)
-    neighbour_timeout: float = Field(0.5, gt=0)
-    leader_timeout: float = Field(1.0, gt=0)
+    pose_timeout: float = setting('safety.pose_timeout')
+    neighbour_timeout: float = setting('safety.neighbour_timeout')
+    leader_timeout: float = setting('safety.leader_timeout')
     geofence_margin: float = Field(0.05, ge=0, description='a robot further than this outside '
                                    'the arena is stopped')
 
@@ -349,29 +314,19 @@ class ArenaSpec(Strict):
 class RobotsSpec(Strict):
     """The robots' bodies."""
 
-    radius: float = Field(0.0, ge=0, description='body radius (m): a disc around the axle '
-                          'centre that no other body or wall may enter; 0 = points that pass '
-                          'through each other (the paper)')
+    radius: float = setting('robots.radius')
 
 
 class AvoidanceSpec(Strict):
-    """The safety filter in every controller (core.controller.safety); `avoidance: on` takes these
-    defaults, `off` (or leaving the section out) the formation law alone.
+    """The safety filter in every controller (core.controller.safety); `avoidance: on` takes
+    these defaults, `off` (or leaving the section out) the formation law alone.
     """
 
-    margin: float = Field(0.02, ge=0, description='extra distance kept between two bodies and '
-                          'from the walls (m): covers pose latency and the arc a robot draws '
-                          'within a tick')
-    rate: float = Field(5.0, gt=0, description='barrier rate alpha (1/s): how fast a robot '
-                        'may close the distance to the safe one; at most the control rate')
-    passing: float = Field(0.0, ge=0, description='passing rule: sideways speed to the right '
-                           'per unit of approach speed towards a robot nearby (0 = none)')
-    passing_range: Optional[float] = Field(None, gt=0, description='gap above the safe '
-                                           'distance within which a robot steers around others '
-                                           'and gives way (m); default: one body diameter')
-    drift: float = Field(0.0, ge=0, description='forward drift (m/s) the barriers hold '
-                         "against beyond what the command cancels: a bound on the robots' "
-                         'drift before the observer has learnt it (0 = none)')
+    margin: float = setting('avoidance.margin')
+    rate: float = setting('avoidance.rate')
+    passing: float = setting('avoidance.passing')
+    passing_range: float = setting('avoidance.passing_range')
+    drift: float = setting('avoidance.drift')
 
 
 class MetricsSpec(Strict):

@@ -12,9 +12,8 @@ pose stale, outside the geofence, no news from the leader, a neighbour missing, 
 another curve. While stopped the disturbance estimate is frozen, so it does not wind up, and
 with an acceleration limit the robot ramps up again from rest.
 
-Leader heartbeat: every state carries the age of the newest news of the leader its sender
-has, so each follower learns within a few hops when the leader is gone and stops after
-`leader_timeout` (core.controller.neighbourhood).
+Leader heartbeat: every state carries the age of its sender's newest news of the leader, so
+a follower learns when the leader is gone (core.controller.neighbourhood).
 """
 
 from collections.abc import Sequence

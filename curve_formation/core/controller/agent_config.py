@@ -12,6 +12,7 @@ from curve_formation.core.base.shapes import Command
 from curve_formation.core.controller.gains import Gains, Law
 from curve_formation.core.controller.limits import NO_LIMITS, WheelLimits
 from curve_formation.core.controller.safety import Avoidance, AVOIDANCE_OFF
+from curve_formation.core.controller.settings import default, DEFAULT_RATE_HZ
 
 
 # (xmin, ymin, xmax, ymax), arena frame (m); None: no fence.
@@ -20,39 +21,32 @@ Fence = Optional[tuple[float, float, float, float]]
 
 @dataclass(frozen=True)
 class AgentConfig:
-    """Static settings of one agent (index 1-based; agent 1 is the leader)."""
+    """Static settings of one agent (index 1-based; agent 1 is the leader): each as
+    controller.settings declares it (units, meaning, default), plus the agent's place in the
+    graph, its control rate (Hz), geofence (arena frame, m) and a PC-injected disturbance.
+    """
 
     index: int
     agent_count: int
     # ((j, a_ij), ...) in-neighbours, empty for the leader
     neighbours: tuple[tuple[int, float], ...] = ()
-    pinning: float = 0.0            # a follower's weight b on its own error (DirectedGraph)
-    gains: Gains = Gains(1.0, 1.0, 0.01)
+    pinning: float = default('graph.pinning')   # a follower's weight b on its own error
+    gains: Gains = Gains(default('controller.k1'), default('controller.k2'),
+                         default('controller.offset'))
     limits: WheelLimits = NO_LIMITS
-    rate_hz: float = 10.0
-    pose_timeout: float = 0.5       # s
-    neighbour_timeout: float = 0.5  # s
-    leader_timeout: float = 1.0     # s without news from the leader (followers)
+    rate_hz: float = DEFAULT_RATE_HZ
+    pose_timeout: float = default('safety.pose_timeout')
+    neighbour_timeout: float = default('safety.neighbour_timeout')
+    leader_timeout: float = default('safety.leader_timeout')
     geofence: Fence = None
     pc_disturbance: Command = (0.0, 0.0)  # added to the command before the limits (m/s, rad/s)
     avoidance: Avoidance = AVOIDANCE_OFF   # the safety filter, from every robot's pose
-    predict_pose: bool = False      # carry the pose forward to the tick (AgentController)
-    # s from a command leaving this controller to the robot's wheels acting on it (the link's
-    # delay): predict_pose carries the pose to when this tick's command acts, the observer
-    # compares the motion with the command acting on it then
-    command_latency: float = 0.0
-    feed_forward: bool = True       # add a moving curve's target velocity to the command
-    # m/s: a wheel commanded slower than this stays still (the motors' dead band, told): the
-    # observer expects that motion, not the command (0: no dead band)
-    min_wheel_speed: float = 0.0
-    # s: the wheels follow their commands with this first-order lag (the motors', told): the
-    # observer compares each measured motion with the commands' realised average over it
-    # (each from its sending plus command_latency, through the lag); 0: the command acting
-    # from the previous tick on
-    motor_time_constant: float = 0.0
-    # estimate command_latency online from the commands sent and the poses measured
-    # (core.controller.link_estimate.OnlineLatency), starting from command_latency
-    estimate_latency: bool = False
+    predict_pose: bool = default('controller.predict_pose')
+    command_latency: float = default('controller.command_latency')
+    feed_forward: bool = default('controller.feed_forward')
+    min_wheel_speed: float = default('limits.min_wheel_speed')
+    motor_time_constant: float = default('limits.motor_time_constant')
+    estimate_latency: bool = default('controller.estimate_latency')
     # The control step (step.agent_step) compiled by numba as in the batch simulator:
     # the same source, about 15x faster a tick; loading it costs ~0.7 s and ~65 MB.
     compiled: bool = False

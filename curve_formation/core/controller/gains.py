@@ -7,10 +7,12 @@ import dataclasses
 from dataclasses import dataclass
 from typing import NamedTuple
 
+from curve_formation.core.controller.settings import default, LAW_NAMES
+
 
 # Disturbance estimators, by name in the experiment YAML (`controller.law`) and by code in the
 # compiled simulator.
-LAWS = {'paper': 0, 'adaptive': 1, 'observer': 2}
+LAWS = {name: code for code, name in enumerate(LAW_NAMES)}
 OBSERVER = LAWS['observer']
 
 
@@ -36,15 +38,15 @@ class Gains:
     k1: float
     k2: float
     offset: float
-    law: str = 'paper'
-    adaptation: tuple[float, float] = (1.0, 1.0)
-    observer_rate: float = 5.0
-    sampled_heading: bool = False
-    tail_radius: float = 0.0
-    tail_gain: float = 1.0
-    reverse: bool = False
-    observer_growth: float = 1.0
-    observer_order: int = 1
+    law: str = default('controller.law')
+    adaptation: tuple[float, float] = default('controller.adaptation')
+    observer_rate: float = default('controller.observer_rate')
+    sampled_heading: bool = default('controller.heading') == 'sampled'
+    tail_radius: float = default('controller.tail.radius')
+    tail_gain: float = default('controller.tail.gain')
+    reverse: bool = default('controller.reverse')
+    observer_growth: float = default('controller.observer_growth')
+    observer_order: int = default('controller.observer_order')
 
     @property
     def law_code(self) -> int:

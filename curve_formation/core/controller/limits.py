@@ -8,6 +8,7 @@ import math
 from typing import NamedTuple
 
 from curve_formation.core.base.shapes import Command
+from curve_formation.core.controller.settings import default
 
 
 class WheelLimits(NamedTuple):
@@ -15,11 +16,11 @@ class WheelLimits(NamedTuple):
     (rad/s) and acceleration limits (m/s^2, rad/s^2). 0 or infinity means unlimited.
     """
 
-    wheel_base: float = 0.0
-    max_wheel_speed: float = math.inf
-    max_angular_rate: float = math.inf
-    max_linear_accel: float = math.inf
-    max_angular_accel: float = math.inf
+    wheel_base: float = default('limits.wheel_base')
+    max_wheel_speed: float = default('limits.max_wheel_speed')
+    max_angular_rate: float = default('limits.max_angular_rate')
+    max_linear_accel: float = default('limits.max_linear_accel')
+    max_angular_accel: float = default('limits.max_angular_accel')
 
 
 NO_LIMITS = WheelLimits()

@@ -35,7 +35,7 @@ Deadlock: a robot whose law heads into a barrier would stop there (the filter ta
 forward motion, and a unicycle cannot slide sideways). So before the law, shaped_feedback
 turns the law's intended velocity into the closest one the barriers allow a point robot
 (sliding along what blocks it), and a blocked robot gives way to the robots of higher
-priority it heads at; an optional passing rule (`bias`) steers head-on meetings to the right.
+priority it heads at; an optional passing rule (`passing`) steers head-on meetings to the right.
 Targets are also re-assigned among the robots while they travel (assignment.reassigned), so
 paths that cross are swapped. That liveness is measured, not proved
 (benchmarks/collision_avoidance.py).
@@ -49,19 +49,21 @@ from typing import NamedTuple
 
 import numpy as np
 
+from curve_formation.core.controller.settings import default
+
 
 class Avoidance(NamedTuple):
     """The filter's settings (an experiment's `robots` and `avoidance` sections)."""
 
     on: bool
-    radius: float = 0.0       # body radius (m)
-    margin: float = 0.0       # extra distance kept between bodies and from walls (m)
-    alpha: float = 5.0        # barrier rate (1/s); alpha * control period <= 1
-    bias: float = 0.0         # sideways term per unit of approach speed (passing rule; 0: off)
-    bias_range: float = 0.0   # gap above the safe distance within which it acts (m)
+    radius: float = default('robots.radius')         # body radius (m)
+    margin: float = default('avoidance.margin')      # kept between bodies, from walls (m)
+    rate: float = default('avoidance.rate')          # barrier rate alpha (1/s); alpha T <= 1
+    passing: float = default('avoidance.passing')    # passing rule (sideways per approach)
+    passing_range: float = default('avoidance.passing_range')   # where it acts (m)
     width: float = 0.0        # arena (m); <= 0: no walls
     height: float = 0.0
-    drift: float = 0.0        # forward drift (m/s) the barriers hold against, unestimated
+    drift: float = default('avoidance.drift')   # forward drift (m/s) held against
 
 
 AVOIDANCE_OFF = Avoidance(False)
@@ -83,9 +85,9 @@ def with_latency(avoidance: Avoidance, period: float, latency: float) -> Avoidan
     the others' are guessed from their last motion, and a pair holding each other at the
     barrier chatters (docs/collision-avoidance.md, "Commands that act late").
     """
-    if latency <= 0.0 or avoidance.alpha * (period + latency) <= 1.0:
+    if latency <= 0.0 or avoidance.rate * (period + latency) <= 1.0:
         return avoidance
-    return avoidance._replace(alpha=1.0 / (period + latency))
+    return avoidance._replace(rate=1.0 / (period + latency))
 
 
 def safe_command(v, w, x, y, theta, drift_v, drift_w, others, me, offset, period,
@@ -114,18 +116,18 @@ def safe_command(v, w, x, y, theta, drift_v, drift_w, others, me, offset, period
     for k in range(near.shape[0]):
         ux, uy, dist, gap = near[k, 0], near[k, 1], near[k, 2], near[k, 3]
         count = _pair_barrier(planes, count, c, s, dist * (ux * c + uy * s),
-                              gap * (dist + safe), avoidance.alpha, period, c * m0x + s * m0y,
+                              gap * (dist + safe), avoidance.rate, period, c * m0x + s * m0y,
                               avoidance.drift)
     low = avoidance.radius + 0.5 * avoidance.margin
     drift = avoidance.drift
     if avoidance.width > 0.0:
-        count = _forward_barrier(planes, count, c, s, c, avoidance.alpha * (x - low), drift)
+        count = _forward_barrier(planes, count, c, s, c, avoidance.rate * (x - low), drift)
         count = _forward_barrier(planes, count, c, s, -c,
-                                 avoidance.alpha * (avoidance.width - low - x), drift)
+                                 avoidance.rate * (avoidance.width - low - x), drift)
     if avoidance.height > 0.0:
-        count = _forward_barrier(planes, count, c, s, s, avoidance.alpha * (y - low), drift)
+        count = _forward_barrier(planes, count, c, s, s, avoidance.rate * (y - low), drift)
         count = _forward_barrier(planes, count, c, s, -s,
-                                 avoidance.alpha * (avoidance.height - low - y), drift)
+                                 avoidance.rate * (avoidance.height - low - y), drift)
     barriers = count
     count = _wheel_planes(planes, count, c, s, offset, wheel_base, max_wheel_speed,
                           max_angular_rate, drift_v, drift_w)
@@ -153,9 +155,9 @@ def shaped_feedback(fx, fy, x, y, others, me, k1, speed, avoidance):
     is replaced by the closest velocity that the barriers would allow a robot free to move in
     any direction (the same half-planes as safe_command's, with their true normals), so the
     robot slides along what blocks it. Where d heads within 45 degrees at a robot whose gap is
-    below `bias_range`, `bias` times the part heading at it is first added to the right
+    below `passing_range`, `passing` times the part heading at it is first added to the right
     (passing rule: two robots meeting head-on both turn right and pass left side to left
-    side; off with bias 0, the default). Nothing nearby: f is returned as it is.
+    side; off with passing 0, the default). Nothing nearby: f is returned as it is.
     """
     if not avoidance.on:
         return fx, fy
@@ -164,7 +166,7 @@ def shaped_feedback(fx, fy, x, y, others, me, k1, speed, avoidance):
     scale = speed / size if 0.0 < speed < size else 1.0
     dx, dy = dx * scale, dy * scale
     safe = 2.0 * avoidance.radius + avoidance.margin
-    reach = max(4.0 * math.hypot(dx, dy) / avoidance.alpha, avoidance.bias_range)
+    reach = max(4.0 * math.hypot(dx, dy) / avoidance.rate, avoidance.passing_range)
     near = _near(others, me, x, y, safe, reach)
     planes = np.empty((near.shape[0] + 4, 3))
     count = 0
@@ -172,21 +174,21 @@ def shaped_feedback(fx, fy, x, y, others, me, k1, speed, avoidance):
     for k in range(near.shape[0]):
         ux, uy, dist, gap = near[k, 0], near[k, 1], near[k, 2], near[k, 3]
         approach = -(ux * dx + uy * dy)
-        if gap < avoidance.bias_range and approach > abs(ux * dy - uy * dx):
-            push = avoidance.bias * approach * (1.0 - max(gap, 0.0) / avoidance.bias_range)
+        if gap < avoidance.passing_range and approach > abs(ux * dy - uy * dx):
+            push = avoidance.passing * approach * (1.0 - max(gap, 0.0) / avoidance.passing_range)
             gx -= push * uy   # the right of the heading -u is (-uy, ux)
             gy += push * ux
         count = _plane(planes, count, -ux, -uy,
-                       max(0.25 * avoidance.alpha * gap * (dist + safe) / dist, 0.0))
+                       max(0.25 * avoidance.rate * gap * (dist + safe) / dist, 0.0))
     low = avoidance.radius + 0.5 * avoidance.margin
     if avoidance.width > 0.0:
-        count = _plane(planes, count, -1.0, 0.0, max(avoidance.alpha * (x - low), 0.0))
+        count = _plane(planes, count, -1.0, 0.0, max(avoidance.rate * (x - low), 0.0))
         count = _plane(planes, count, 1.0, 0.0,
-                       max(avoidance.alpha * (avoidance.width - low - x), 0.0))
+                       max(avoidance.rate * (avoidance.width - low - x), 0.0))
     if avoidance.height > 0.0:
-        count = _plane(planes, count, 0.0, -1.0, max(avoidance.alpha * (y - low), 0.0))
+        count = _plane(planes, count, 0.0, -1.0, max(avoidance.rate * (y - low), 0.0))
         count = _plane(planes, count, 0.0, 1.0,
-                       max(avoidance.alpha * (avoidance.height - low - y), 0.0))
+                       max(avoidance.rate * (avoidance.height - low - y), 0.0))
     if gx == dx and gy == dy and _inside(planes, count, dx, dy):
         return fx, fy
     found, gx, gy = _closest(planes, count, gx, gy)
@@ -195,7 +197,7 @@ def shaped_feedback(fx, fy, x, y, others, me, k1, speed, avoidance):
     if math.hypot(gx, gy) < BLOCKED * math.hypot(dx, dy):
         # Blocked (robots around it block every way that leads on): give way to the robots
         # of lower index (higher priority) that it heads at, by backing away from them.
-        yx, yy = _yield(dx, dy, x, y, others, me, safe, avoidance.bias_range)
+        yx, yy = _yield(dx, dy, x, y, others, me, safe, avoidance.passing_range)
         if yx != 0.0 or yy != 0.0:
             found, hx, hy = _closest(planes, count, gx + yx, gy + yy)
             if found:
@@ -299,7 +301,7 @@ def _reach(avoidance, max_wheel_speed, drift_v):
     """
     if not (max_wheel_speed > 0.0 and max_wheel_speed < math.inf):
         return math.inf
-    return max(4.0 * (max_wheel_speed + abs(drift_v)) / avoidance.alpha, avoidance.bias_range)
+    return max(4.0 * (max_wheel_speed + abs(drift_v)) / avoidance.rate, avoidance.passing_range)
 
 
 def _plane(planes, count, ax, ay, b):
