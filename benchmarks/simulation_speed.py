@@ -12,9 +12,8 @@ continuous row (its commands must be timed at a rate).
 import argparse
 import time
 
-import yaml
-
 from scenarios import scaled_experiment
+import yaml
 
 from curve_formation.core.config.loading import build_experiment, load_experiment
 from curve_formation.core.sim.batch import simulate

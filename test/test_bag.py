@@ -213,6 +213,16 @@ def start_run(tmp_path, ros_env, sigint_ignored=False, storage='mcap'):
     raise AssertionError(f'the run ended early: {proc.wait()}')
 
 
+def wait_for_status(proc, timeout=60.0):
+    """Read the run's output until its first status line (`t ... s  phase ...`)."""
+    deadline = time.monotonic() + timeout
+    for line in proc.stdout:
+        if line.lstrip().startswith('t ') and ' phase ' in line:
+            return
+        assert time.monotonic() < deadline, 'no status line from the run'
+    raise AssertionError(f'the run ended early: {proc.wait()}')
+
+
 @pytest.fixture
 def ros_env(ros_domain):
     return dict(os.environ)
@@ -226,7 +236,7 @@ def test_interrupted_run_leaves_a_closed_valid_bag(tmp_path, ros_env, sig):
     ignored): the run must still stop every node promptly, each sending its zero command.
     """
     proc = start_run(tmp_path, ros_env, sigint_ignored=sig == signal.SIGTERM)
-    time.sleep(4.0)
+    wait_for_status(proc)   # the run records: its first 5 s status line
     proc.send_signal(sig)
     signalled = time.time()
     out, _ = proc.communicate(timeout=60)

@@ -37,8 +37,16 @@ def start_participant():
     proc = subprocess.Popen([sys.executable, '-c', PARTICIPANT], stdout=subprocess.PIPE,
                             text=True)
     assert proc.stdout.readline().strip() == 'ready'
-    time.sleep(1.0)   # its ports and segments made
-    return proc
+    # its ports and segments made: its shared-memory files, unchanged over 0.3 s
+    deadline, seen, since = time.monotonic() + 10.0, set(), time.monotonic()
+    while time.monotonic() < deadline:
+        now = shm_files_of(proc.pid)
+        if now != seen:
+            seen, since = now, time.monotonic()
+        elif seen and time.monotonic() - since >= 0.3:
+            return proc
+        time.sleep(0.05)
+    raise AssertionError(f'the participant mapped no stable set of files: {seen}')
 
 
 def shm_files_of(pid):

@@ -81,7 +81,8 @@ def test_late_starting_controller_still_receives_the_current_curve(ros, tmp_path
     server = add(CurveServer(context=context, parameter_overrides=overrides(
         experiment='closed_curve')))
     spin_until(lambda: server.schedule.next_id == 1)
-    time.sleep(0.5)   # the curve is long published when the controller starts
+    published = time.monotonic()   # the curve is long published when the controller starts
+    spin_until(lambda: time.monotonic() - published > 0.5)
     ctrl = add(FormationController(context=context, namespace='/robot_1', parameter_overrides=(
         overrides(index=1, agent_count=6, role='leader'))))
     spin_until(lambda: ctrl.controller.curve is not None)

@@ -148,8 +148,13 @@ def test_a_serial_port_that_comes_back_is_reopened(tmp_path, monkeypatch):
     with pytest.raises(links.LinkError, match='No such file'):   # too soon: same error
         bridge.send(b'stop\n')
     robot = links.PtyEndpoint(path)
-    time.sleep(0.11)
-    bridge.send(b'stop\n')
+    deadline = time.monotonic() + 5.0
+    while True:   # the bridge reopens its link once REOPEN_PERIOD has passed
+        try:
+            bridge.send(b'stop\n')
+            break
+        except links.LinkError:
+            assert time.monotonic() < deadline, 'the link was never reopened'
     assert wait_lines(robot) == [b'stop\n'] and bridge.opened == 1
     robot.close()                         # the other end goes away
     with pytest.raises(links.LinkError):
