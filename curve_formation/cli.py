@@ -8,99 +8,32 @@ Bad input ends with one line `error: FILE: KEY: ...` and exit status 2, never a 
 """
 
 import argparse
-import dataclasses
 import json
 import math
 import os
 from pathlib import Path
 import sys
-from typing import Any
 
 from curve_formation.bags.bag import BagError, DEFAULT_STORAGE, STORAGES
 from curve_formation.core.config.errors import ConfigError
-from curve_formation.core.config.loading import check_rate_override, load_experiment
+from curve_formation.core.config.loading import load_experiment
 from curve_formation.core.config.marker_ids import MARKER_IDS
 from curve_formation.core.controller.settings import SETTINGS
 from curve_formation.paths import resolve_config, use_dds_profile
 from curve_formation.results.provenance import command_line
-
-
-def _write_json(path, data):
-    path.parent.mkdir(parents=True, exist_ok=True)
-    from curve_formation.core.record.metrics import strict_json
-    path.write_text(strict_json(data))
-
-
-def simulate_to_dir(config, out_dir, rate='config', law=None, heading=None, physics=None,
-                    animate=False):
-    """Batch-simulate one experiment; write metrics.json and figures into out_dir.
-
-    law ('paper', 'adaptive', 'observer') and heading ('paper', 'sampled') override the file's;
-    physics ('kinematic', 'mujoco'; None: the file's physics.engine): the kinematic batch
-    simulator, or the nodes' tick pipeline in the MuJoCo world (core.sim.pipeline).
-    animate: also write animation.mp4. Writes the folder of outputs.write_outputs.
-    """
-    from curve_formation.core.record import metrics
-    from curve_formation.results.outputs import write_outputs
-
-    path = resolve_config(config)
-    experiment = load_experiment(path)
-    if rate not in ('config', None):
-        check_rate_override(experiment, rate)
-    _warn(experiment)
-    gains = experiment.gains
-    if law is not None:
-        gains = dataclasses.replace(gains, law=law)
-    if heading is not None:
-        gains = dataclasses.replace(gains, sampled_heading=heading == 'sampled')
-    engine = physics or experiment.spec.physics.engine
-    latency = experiment.spec.controller.command_latency
-    order = experiment.spec.controller.observer_order
-    experiment = dataclasses.replace(experiment, gains=gains)
-    pipeline = (f"the nodes' tick pipeline, {engine} world, commands {latency:g} s late as "
-                f'told, observer of order {order}')
-    if engine == 'mujoco':   # robots in MuJoCo: the nodes' tick pipeline
-        from curve_formation.core.sim.pipeline import simulate_pipeline
-        if rate is None:
-            raise ValueError("--continuous: the MuJoCo world runs the nodes' tick pipeline, "
-                             'at a control rate (--rate, or controller.rate_hz)')
-        result = simulate_pipeline(experiment, engine,
-                                   rate_hz=None if rate == 'config' else rate)
-        simulator = pipeline
-    else:   # the batch simulator, or the pipeline for settings only it models
-        from curve_formation.core.sim.pipeline import simulate_kinematic
-        result, why = simulate_kinematic(experiment, rate)
-        simulator = 'batch (compiled)' if why is None else f'{pipeline} ({why})'
-    data = metrics.result_metrics(result)
-    data['simulator'] = simulator
-    write_outputs(out_dir, experiment, {'t': result.t, 'poses': result.poses,
-                                        'dhat': result.dhat, 'commands': result.commands,
-                                        'phase': result.phase},
-                  data, path, label=data['control'], animate=animate)
-    return data
-
-
-def _summary_line(name, data):
-    settle = ', '.join('not settled' if p['settle_time'] is None else f'{p["settle_time"]:.1f} s'
-                       for p in data['phases'])
-    stops = data.get('estop', {}).get('intervals', [])
-    held = '; e-stop held {} time{} for {:.1f} s in all{}'.format(
-        len(stops), 's' if len(stops) > 1 else '', data['estop']['stopped_for'],
-        ' (still held at the end)' if stops[-1][1] is None else '') if stops else ''
-    return (f'{name:24s} final ||e|| = {data["final_error_norm"]:.3g}, '
-            f'settling per curve: {settle}{held}')
-
-
-def _warn(experiment):
-    """Print what the experiment allows but should not: `warning: FILE: ...` on stderr."""
-    for text in experiment.warnings:
-        print(f'warning: {experiment.source}: {text}', file=sys.stderr)
+from curve_formation.workflows import (
+    run_demo,
+    simulate_to_dir,
+    summary_line,
+    warn,
+    write_json,
+)
 
 
 def _cmd_check(args):
     from curve_formation.vision.camera_files import check_camera_files
     experiment = load_experiment(resolve_config(args.config))
-    _warn(experiment)
+    warn(experiment)
     report = experiment.report()
     report['camera_files'] = check_camera_files(experiment)
     if args.json:
@@ -135,66 +68,22 @@ def _cmd_sim(args):
     _output_folder(args.out, args.force)
     data = simulate_to_dir(args.config, args.out, rate, args.law, args.heading, args.physics,
                            args.animate)
-    print(_summary_line(data['experiment'], data))
+    print(summary_line(data['experiment'], data))
     print(f'wrote {args.out}/: report.html, metrics.json, figures (PNG and PDF), '
           f'trajectory.npz{", animation.mp4" if args.animate else ""}')
 
 
-PAPER_CASES = ('closed_curve', 'open_curve', 'shape_change', 'mona_arena')
-DEMO_RUN = 'arena_demo'
-
-
 def _cmd_demo(args):
-    """Batch-simulate the paper's cases, then run the arena demo as ROS nodes with a bag."""
-    import shutil
-
-    import numpy as np
-
-    from curve_formation.results.outputs import write_law_comparison
-    from curve_formation.results.report import write_report
-    from curve_formation.run.run_options import RunOptions
-    from curve_formation.run.runner import run_experiment
     out = Path(args.out)
     _output_folder(out)
-    summary: dict[str, Any] = {'paper_cases_batch_simulation': {}}
-    print("1/3 batch simulation of the paper's cases, with the paper's law and with ours")
-    for name in PAPER_CASES:
-        for law, heading in (('paper', 'paper'), ('observer', 'sampled')):
-            data = simulate_to_dir(name, out / 'paper_cases' / name / law, law=law,
-                                   heading=heading)
-            summary['paper_cases_batch_simulation'].setdefault(name, {})[law] = data
-            print('    ' + _summary_line(f'{name} ({law})', data))
-    print(f'2/3 ROS 2 run of {DEMO_RUN}: 9 robots in one fake arena, 9 controllers, curve server, '
-          f'one process each ({args.duration:g} s)')
-    run_dir = out / DEMO_RUN
-    result = run_experiment(DEMO_RUN, run_dir, args.duration,
-                            RunOptions(bag_path=run_dir / 'bag', isolated=True, animate=True),
-                            log=lambda m: print('    ' + m))
-    summary[DEMO_RUN] = result
-    print('    ' + _summary_line(DEMO_RUN, result))
-    print(f"3/3 the paper's law and ours from the same start ({DEMO_RUN}, simulated, with the "
-          'ROS run); the report')
-    record = np.load(run_dir / 'trajectory.npz')
-    compared = write_law_comparison(
-        run_dir, load_experiment(resolve_config(DEMO_RUN)), args.duration,
-        [('ours over ROS 2 (this run)', record['t'], record['poses'], record['phase'])])
-    summary['law_comparison_simulated'] = compared
-    for law, data in compared.items():
-        print('    ' + _summary_line(f'{DEMO_RUN} ({law}, sim)', data))
-    write_report(run_dir, f'{DEMO_RUN}: the demo run over ROS 2')
-    for name in ('report.html', 'law_comparison.png', 'law_comparison.pdf', 'animation.mp4'):
-        shutil.copy2(run_dir / name, out / name)
-    _write_json(out / 'summary.json', summary)
-    print(f'wrote {out}/: report.html (open it in a browser), law_comparison.png/.pdf, '
-          f'animation.mp4, summary.json; paper_cases/<case>/ and {DEMO_RUN}/ with their '
-          f'reports, metrics.json and figures; {DEMO_RUN}/bag (ROS 2 bag, MCAP)')
+    run_demo(out, args.duration)
 
 
 def _cmd_run(args):
     from curve_formation.run.run_options import RunOptions
     from curve_formation.run.runner import run_experiment
     _bridge_needs_simulated_robots(args)
-    _warn(load_experiment(resolve_config(args.config)))
+    warn(load_experiment(resolve_config(args.config)))
     only = _parts(args.only)
     _output_folder(args.out, args.force)
     options = RunOptions(single_process=args.single_process, with_robots=not args.no_sim,
@@ -209,7 +98,7 @@ def _cmd_run(args):
         print(f'ran {", ".join(sorted(only or ()))} of {result["experiment"]}; logs/ in '
               f'{args.out} (the host with `observer` writes the metrics)')
         return
-    print(_summary_line(result['experiment'], result))
+    print(summary_line(result['experiment'], result))
     print(f'wrote {args.out}/: report.html, metrics.json, figures, params/ and logs/')
     if result['node_deaths']:
         died = ', '.join(f'{d["node"]} ({d["how"]})' for d in result['node_deaths'])
@@ -285,9 +174,9 @@ def _cmd_analyze(args):
     result = analyze_bag(args.bag, args.out, args.experiment, args.compare, args.compare_sim,
                          progress=lambda line: print(line, file=sys.stderr, flush=True),
                          animate=args.animate)
-    print(_summary_line(result['experiment'], result))
+    print(summary_line(result['experiment'], result))
     if args.compare_sim:
-        print(_summary_line('simulated', result['compare_sim']))
+        print(summary_line('simulated', result['compare_sim']))
         print(f'{"phase":>5s} {"start (s)":>9s} {"settled (s)":>12s} {"simulated (s)":>14s} '
               f'{"final ||e||":>12s} {"simulated":>10s}')
         for row in result['compare_sim_table']:
@@ -337,7 +226,7 @@ def _cmd_measure_link(args):
           '(with estimate_latency: true they estimate it online, starting from '
           'command_latency)')
     if args.json:
-        _write_json(Path(args.json), found)
+        write_json(Path(args.json), found)
     return 0
 
 

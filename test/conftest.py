@@ -10,6 +10,9 @@ import yaml
 
 
 sys.path.insert(0, str(Path(__file__).parent))
+# test support: code the tests run in the package's place (e.g. a lossy controller)
+SUPPORT = Path(__file__).resolve().parent / 'support'
+sys.path.insert(0, str(SUPPORT))
 
 from curve_formation.paths import use_dds_profile  # noqa: E402
 

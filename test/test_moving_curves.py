@@ -8,9 +8,9 @@ import pytest
 
 from conftest import CONFIG_DIR
 from curve_formation.bags.analysis import analyze_bag
-from curve_formation.cli import simulate_to_dir
 from curve_formation.run.run_options import RunOptions
 from curve_formation.run.runner import Run
+from curve_formation.workflows import simulate_to_dir
 
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]

@@ -11,12 +11,13 @@ import subprocess
 import sys
 import time
 
+import lossy_controller
 import numpy as np
 import pytest
 import rclpy
 from std_msgs.msg import Bool
 
-from conftest import CONFIG_DIR, DATA_DIR, no_history_qos
+from conftest import CONFIG_DIR, DATA_DIR, no_history_qos, SUPPORT
 from curve_formation.core.record import metrics
 from curve_formation.core.sim.batch import simulate
 from curve_formation.nodes import qos, topics
@@ -232,7 +233,8 @@ def test_estop_command_holds_the_stop_sending_it_again_until_ctrl_c(ros):
 
 @pytest.mark.slow   # 45 s each: the default run keeps under 10 minutes
 @pytest.mark.parametrize('told', [True, False], ids=['latency-told', 'latency-untold'])
-def test_dropped_messages_and_latency_still_converge_at_arena_speeds(ros_domain, tmp_path, told):
+def test_dropped_messages_and_latency_still_converge_at_arena_speeds(ros_domain, tmp_path, told,
+                                                                    monkeypatch):
     """20 % of poses and of neighbour states dropped, commands delayed 200 ms, on the arena demo
     (Mona wheel limits, 10 Hz, robots drifting with d = [5 mm/s, 0.1 rad/s]). Tolerance: the
     error never exceeds its start by more than 1 % (the drift acts before the observer has
@@ -255,8 +257,14 @@ def test_dropped_messages_and_latency_still_converge_at_arena_speeds(ros_domain,
         experiment.write_text(text.replace('predict_pose: true,',
                                            'predict_pose: true, command_latency: 0.2,'))
         late = 1.0
+    # the states are lost by a variant of the controller (test/support/lossy_controller.py)
+    monkeypatch.setenv('PYTHONPATH', os.pathsep.join(
+        [str(SUPPORT), *filter(None, [os.environ.get('PYTHONPATH')])]))
+    monkeypatch.setenv(lossy_controller.STATE_DROP_ENV, '0.2')
     options = RunOptions(command_latency=0.2, bag_path=tmp_path / 'bag',
-                         faults={'pose_drop': 0.2, 'state_drop': 0.2})
+                         faults={'pose_drop': 0.2}, node_variants={
+                             'curve_formation.nodes.formation_controller':
+                             lossy_controller.MODULE})
     with Run(experiment, tmp_path, options, log=quiet) as run:
         run.spin_for(30.0)
         data = run.recording()

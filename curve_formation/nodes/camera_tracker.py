@@ -90,6 +90,7 @@ class CameraTracker(Node):
         p = self.params = declare_parameters(self, PARAMETERS)
         self.experiment = experiment_parameter(p.experiment, needs=('camera',))
         camera = self.experiment.spec.camera
+        assert camera is not None   # experiment_parameter checked it is there
         self.n = self.experiment.n
         self.lost_timeout = p.lost_timeout or camera.lost_timeout
         mode = p.calibration or camera.calibration
@@ -118,6 +119,7 @@ class CameraTracker(Node):
         self.curve_finder = None
         if camera.drawn_curve is not None:
             spec = self.experiment.spec
+            assert spec.arena is not None   # a camera experiment has one (config.checks)
             self.curve_finder = finder_for(self.tracker, camera, spec.arena.size,
                                            spec.robots.radius)
             self.curve_watch = CurveWatch(camera.drawn_curve.change,

@@ -90,15 +90,17 @@ class FakeCamera(Node):
             lens = Lens.from_coefficients(p.distortion)
         except ValueError as exc:
             raise ParameterError(f"parameter 'distortion': {exc}") from None
-        arena = experiment.spec.arena.size
-        self.layout = MarkerLayout.from_spec(experiment.spec.camera)
+        spec = experiment.spec
+        assert spec.camera is not None and spec.arena is not None   # checked on loading
+        arena = spec.arena.size
+        self.layout = MarkerLayout.from_spec(spec.camera)
         camera = overhead_camera(arena, tuple(p.resolution), p.tilt_deg, p.height)
         self.renderer = ArenaRenderer(camera, self.layout, arena,
                                       RenderOptions(p.noise, p.blur, p.brightness),
                                       robot_radius=experiment.spec.robots.radius, seed=p.seed,
                                       lens=lens)
         # a drawn curve: the experiment's curves drawn on the floor, each from its start time
-        self.drawn = experiment.spec.camera.drawn_curve
+        self.drawn = spec.camera.drawn_curve
         self.phases = experiment.phases
         self.started = now_seconds(self)
         self.drawn_phase = None
@@ -161,6 +163,7 @@ class FakeCamera(Node):
                 and np.abs(points - self.drawn_points).max() < MOVED_BY):
             return
         self.drawn_phase, self.drawn_points = index, points
+        assert self.drawn is not None   # drawn only where the camera has a drawn curve
         self.renderer.draw_on_floor(FloorLine(points, phase.curve.basis.closed,
                                               self.drawn.width, self.drawn.grey))
 

@@ -8,18 +8,22 @@ stale input gives a zero Twist and a warning, never a stale command. All the mat
 core.controller.agent.AgentController.
 """
 
+from types import SimpleNamespace
+from typing import Any
+
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import Twist
-import numpy as np
+from geometry_msgs.msg import PoseStamped, Twist
 from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
 
 from curve_formation.core.controller.agent import AgentController
 from curve_formation.core.controller.agent_config import AgentConfig
 from curve_formation.core.controller.disturbance import RunTime, varied
 from curve_formation.core.controller.gains import Gains
+from curve_formation.core.controller.inputs import State
 from curve_formation.core.controller.limits import WheelLimits
 from curve_formation.core.controller.plausibility import bounded_command
 from curve_formation.core.controller.safety import Avoidance, AVOIDANCE_OFF
@@ -68,13 +72,11 @@ PARAMETERS = (
     Param('compiled_law', 'bool', False, 'run the control step compiled by numba, as the '
           'batch simulator does (the same source): ~15x faster a tick, ~0.7 s and ~65 MB '
           'more to start; the runner sets it when every node shares one process'),
-    Param('fault_state_drop', 'double', 0.0, 'fault injection: probability of not publishing '
-          'a formation_state message', low=0.0, high=1.0),
     *(Param.of(setting) for setting in SETTINGS.values()),
 )
 
 
-def agent_config(p):
+def agent_config(p: SimpleNamespace) -> AgentConfig:
     """AgentConfig from validated parameters (core.config.parameters.node_parameters gives
     them from one); ParameterError on inconsistent ones, naming the parameter. The rules
     between settings are controller.settings.RULES, as an experiment file is held to.
@@ -131,7 +133,7 @@ def agent_config(p):
         estimate_latency=p.estimate_latency)
 
 
-def _avoidance(p):
+def _avoidance(p: SimpleNamespace) -> Avoidance:
     """The safety filter's settings from the parameters (core.controller.safety.Avoidance)."""
     if not p.avoidance:
         return AVOIDANCE_OFF
@@ -164,7 +166,7 @@ TOPICS = (
                'whoever sent it)')
 
 
-def reason_kind(reason):
+def reason_kind(reason: str | None) -> str | None:
     """Why a robot is stopped, without the numbers: 'own pose stale' of 'own pose stale
     (0.61 s old)'; None while driving.
     """
@@ -174,7 +176,7 @@ def reason_kind(reason):
 class FormationController(Node):
     """Thin ROS layer over core.controller.agent.AgentController."""
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         self.params = declare_parameters(self, PARAMETERS)
         self.config = agent_config(self.params)
@@ -186,8 +188,7 @@ class FormationController(Node):
         self.source = CommandSourceWatch(self, topics.CMD_VEL,
                                          lambda *_: self._publish_diagnostics())
         self.pose_topic = self.resolve_topic_name(topics.POSE)
-        self._last_reason = None
-        self.rng = np.random.default_rng()
+        self._last_reason: str | None = None
         self.cmd_pub = topics.publisher(self, topics.CMD_VEL)
         self.state_pub = topics.publisher(self, topics.STATE)
         self.estimate_pub = topics.publisher(self, topics.ESTIMATE)
@@ -204,7 +205,7 @@ class FormationController(Node):
         for j, _ in self.config.neighbours:
             topics.subscription(self, topics.STATE, lambda msg, j=j: self._on_neighbour(j, msg),
                                 robot=j)
-        self.others_msg = None
+        self.others_msg: tuple[bytes, float] | None = None
         if self.config.avoidance.on:
             # Kept as the bytes received; decoded at the tick (10 Hz), not for every message
             # (30 Hz), the latest only.
@@ -216,7 +217,7 @@ class FormationController(Node):
         self.get_logger().info(f'agent {self.config.index}/{self.config.agent_count}, {role}, '
                                f'{self.config.rate_hz:g} Hz')
 
-    def _on_curve(self, msg):
+    def _on_curve(self, msg: Float64MultiArray) -> None:
         before = (self.controller.curve_id, self.controller.s)
         try:
             curve, curve_id = messages.curve_from_msg(msg)
@@ -232,17 +233,21 @@ class FormationController(Node):
             self.get_logger().info(f'curve {curve_id} ({curve.basis.describe()}), '
                                    f's_i = {self.controller.s:.4f}')
 
-    def _on_pose(self, msg):
+    def _on_pose(self, msg: PoseStamped) -> None:
         x, y, theta, stamp = messages.pose_from_msg(msg)
         if not self.controller.on_pose(x, y, theta, stamp, now_seconds(self)):
             self.rejections.reject(self.pose_topic, self.controller.rejection)
             return
         state = self.controller.state()
-        if state is not None and self.rng.random() >= self.params.fault_state_drop:
-            self.state_msg = messages.state_to_msg(state, self.params.frame_id, self.state_msg)
-            self.state_pub.publish(self.state_msg)
+        if state is not None:
+            self.publish_state(state)
 
-    def _on_neighbour(self, j, msg):
+    def publish_state(self, state: State) -> None:
+        """Tell the out-neighbours this robot's state (on every accepted pose)."""
+        self.state_msg = messages.state_to_msg(state, self.params.frame_id, self.state_msg)
+        self.state_pub.publish(self.state_msg)
+
+    def _on_neighbour(self, j: int, msg: JointState) -> None:
         try:
             ex, ey, curve_id, stamp, leader_age = messages.state_from_msg(msg)
             accepted = self.controller.on_neighbour(j, ex, ey, curve_id, stamp, leader_age,
@@ -253,10 +258,10 @@ class FormationController(Node):
             self.rejections.reject(topics.robot_topic(j, topics.STATE),
                                    self.controller.rejection)
 
-    def _on_others(self, msg):
+    def _on_others(self, msg: bytes) -> None:
         self.others_msg = (msg, now_seconds(self))
 
-    def _take_others(self):
+    def _take_others(self) -> None:
         latest, self.others_msg = self.others_msg, None
         if latest is None:
             return
@@ -270,13 +275,13 @@ class FormationController(Node):
             self.get_logger().warning(f'robot poses refused: expected {self.config.agent_count}'
                                       ' robots', throttle_duration_sec=1.0)
 
-    def _on_estop(self, engaged):
+    def _on_estop(self, engaged: bool) -> None:
         """The e-stop changed: engaged, a zero command goes out now, not at the next tick."""
         self.controller.set_estop(engaged)
         if engaged:
             self.cmd_pub.publish(Twist())
 
-    def _on_timer(self):
+    def _on_timer(self) -> None:
         now = now_seconds(self)
         run_time = self.run_time.at(now)
         if self.variations and run_time is not None:   # the emulated disturbance as it varies
@@ -310,7 +315,7 @@ class FormationController(Node):
         else:
             self._last_reason = tick.stopped
 
-    def _publish_diagnostics(self):
+    def _publish_diagnostics(self) -> None:
         c = self.controller
         status = DiagnosticStatus(
             level=(DiagnosticStatus.WARN if self._last_reason or self.source.extra
@@ -332,7 +337,7 @@ class FormationController(Node):
         msg.header.stamp = self.get_clock().now().to_msg()
         self.diag_pub.publish(msg)
 
-    def on_shutdown(self):
+    def on_shutdown(self) -> None:
         """Leave the robot stopped: send a zero command and wait (1 s at most) until it is
         acknowledged, then (0.25 s at most per topic) for the last ticks, so that a recorder
         misses none of them.
@@ -343,7 +348,7 @@ class FormationController(Node):
             publisher.wait_for_all_acked(Duration(seconds=0.25))
 
 
-def main(args=None):
+def main(args: list[str] | None = None) -> int:
     return run_node(FormationController, args)
 
 

@@ -5,10 +5,11 @@ parameter tables of docs/nodes.md are generated from (`curve-formation nodes-doc
 cannot drift apart.
 """
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 import math
 from types import SimpleNamespace
-from typing import Optional
+from typing import Any, Optional, TYPE_CHECKING
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.exceptions import (
@@ -16,7 +17,15 @@ from rclpy.exceptions import (
     InvalidParameterValueException,
     ParameterUninitializedException,
 )
+from rclpy.node import Node
 from rclpy.parameter import Parameter
+
+from curve_formation.core.controller.settings import Setting
+
+
+if TYPE_CHECKING:
+    from curve_formation.core.config.experiment import Experiment
+    from curve_formation.core.controller.disturbance import Variation
 
 
 class ParameterError(ValueError):
@@ -37,7 +46,7 @@ class Param:
 
     name: str
     kind: str
-    default: object
+    default: Any
     description: str
     low: Optional[float] = None
     high: Optional[float] = None
@@ -47,7 +56,7 @@ class Param:
     unlimited: bool = False   # infinity (`.inf`) allowed: no limit
 
     @classmethod
-    def of(cls, setting):
+    def of(cls, setting: Setting) -> 'Param':
         """The parameter of a controller setting (core.controller.settings.Setting): its
         name, type, default, meaning and range as declared there. Where the setting's
         default lies outside its range (0: off, for a setting whose file section may be left
@@ -70,7 +79,7 @@ class Param:
                    high=high, positive=positive, choices=choices,
                    unlimited=setting.unlimited)
 
-    def descriptor(self):
+    def descriptor(self) -> ParameterDescriptor:
         # A double also takes an integer (`-p k1:=2`, `k1: 2` in a parameters file): typed
         # dynamically, converted and range-checked in _validate.
         desc = ParameterDescriptor(description=self.description, read_only=self.read_only,
@@ -88,7 +97,7 @@ class Param:
                                                                 to_value=float(high), step=0.0)]
         return desc
 
-    def doc_default(self):
+    def doc_default(self) -> str:
         if self.default is None:
             return '(required)'
         if isinstance(self.default, float) and math.isinf(self.default):
@@ -96,7 +105,7 @@ class Param:
         return repr(self.default)
 
 
-def declare_parameters(node, table):
+def declare_parameters(node: Node, table: Sequence['Param']) -> SimpleNamespace:
     """Declare every Param of table on node; returns a namespace of validated values.
 
     Raises ParameterError naming the parameter on a missing, mistyped or out-of-range value.
@@ -129,12 +138,12 @@ def declare_parameters(node, table):
     return SimpleNamespace(**values)
 
 
-def _scalar_type(kind):
+def _scalar_type(kind: str) -> Parameter.Type:
     return {'double': Parameter.Type.DOUBLE, 'int': Parameter.Type.INTEGER,
             'bool': Parameter.Type.BOOL, 'string': Parameter.Type.STRING}[kind]
 
 
-def _validate(p, value):
+def _validate(p: Param, value: Any) -> Any:
     if p.kind in ('double', 'double[]'):
         value = _as_doubles(p, value)
     items = list(value) if p.kind.endswith('[]') else [value]
@@ -154,9 +163,9 @@ def _validate(p, value):
     return list(value) if p.kind.endswith('[]') else value
 
 
-def _as_doubles(p, value):
+def _as_doubles(p: Param, value: Any) -> float | list[float]:
     """A double (or double array) parameter's value as float(s): integers are accepted."""
-    def number(item):
+    def number(item: Any) -> float:
         if isinstance(item, bool) or not isinstance(item, (int, float)):
             raise ParameterError(f'parameter {p.name!r} has the wrong type, expected '
                                  f'{p.kind} ({p.description}), got {item!r}')
@@ -169,7 +178,7 @@ def _as_doubles(p, value):
     return number(value)
 
 
-def markdown_table(table):
+def markdown_table(table: Sequence[Param]) -> str:
     """The table as Markdown rows: name, type, default, description."""
     rows = ['| parameter | type | default | meaning |', '| --- | --- | --- | --- |']
     for p in table:
@@ -185,7 +194,7 @@ def markdown_table(table):
     return '\n'.join(rows)
 
 
-def text_table(table):
+def text_table(table: Sequence[Param]) -> str:
     """The table as plain text for a terminal: one parameter per line, then its meaning."""
     lines = []
     for p in table:
@@ -196,7 +205,7 @@ def text_table(table):
     return '\n'.join(lines)
 
 
-def experiment_parameter(value, needs=()):
+def experiment_parameter(value: str, needs: Sequence[str] = ()) -> 'Experiment':
     """The Experiment named by an `experiment` parameter (path or shipped name).
 
     needs: sections it must have (e.g. ('camera',)). ParameterError names the parameter.
@@ -215,7 +224,7 @@ def experiment_parameter(value, needs=()):
     return experiment
 
 
-def node_variations(value, n=None):
+def node_variations(value: str, n: int | None = None) -> tuple['Variation', ...]:
     """The Variations a `disturbance_varies` parameter holds (JSON; '' = none) for n agents
     (None: any number); ParameterError names the parameter and what is wrong.
     """

@@ -24,12 +24,20 @@ from curve_formation.run.run_options import DEFAULTS
 
 @dataclass(frozen=True)
 class NodeLaunch:
-    """One node to start: its module, namespace, name and parameters."""
+    """One node to start: its module, namespace, name and parameters; runs: the module to run
+    in its place with the same parameters (RunOptions.node_variants; '' = the module itself).
+    """
 
     module: str
     namespace: str
     name: str
     parameters: dict
+    runs: str = ''
+
+    @property
+    def program(self):
+        """The module that is run for this node."""
+        return self.runs or self.module
 
     @property
     def agent(self):
@@ -79,10 +87,10 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None,
         d = [float(v) for v in experiment.disturbance[i - 1]]
         controller = {**node_parameters(config),
                       'disturbance_varies': varies if on_pc else '',
-                      'fault_state_drop': float(faults.get('state_drop', 0.0)),
                       'compiled_law': options.single_process}
-        launches.append(NodeLaunch('curve_formation.nodes.formation_controller', ns,
-                                   'formation_controller', controller))
+        module = 'curve_formation.nodes.formation_controller'
+        launches.append(NodeLaunch(module, ns, 'formation_controller', controller,
+                                   (options.node_variants or {}).get(module, '')))
         if links:
             launches.append(NodeLaunch('curve_formation.nodes.robot_bridge', ns,
                                        'robot_bridge', bridges[i - 1]))
@@ -223,5 +231,8 @@ def executable(module):
 
 
 def node_class(module):
-    """The Node subclass a node module's console script runs."""
-    return getattr(importlib.import_module(module), NODES[module][0])
+    """The Node subclass a node module's console script runs: the package's (NODES), or a
+    variant module's NODE_CLASS.
+    """
+    loaded = importlib.import_module(module)
+    return getattr(loaded, NODES[module][0]) if module in NODES else loaded.NODE_CLASS

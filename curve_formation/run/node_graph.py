@@ -75,7 +75,7 @@ class NodeGraph:
         overrides = overrides or {}
         if self.single_process:
             from rclpy.parameter import Parameter
-            node = node_class(launch.module)(
+            node = node_class(launch.program)(
                 context=self.host.context, namespace=launch.namespace,
                 parameter_overrides=[Parameter(k, value=v) for k, v
                                      in {**launch.parameters, **overrides}.items()])
@@ -87,7 +87,7 @@ class NodeGraph:
         env = dict(os.environ, PYTHONUNBUFFERED='1')
         if self.publications_dir is not None:   # each node reports what it published
             env[PUBLICATIONS_ENV] = str(self.publications_dir)
-        cmd = [sys.executable, '-m', launch.module, '--ros-args', '-r',
+        cmd = [sys.executable, '-m', launch.program, '--ros-args', '-r',
                f'__ns:={launch.namespace}', '--params-file', str(self.params_files[launch.key])]
         for key, value in overrides.items():
             cmd += ['-p', f'{key}:={yaml.safe_dump(value).splitlines()[0]}']

@@ -17,8 +17,10 @@ class RunOptions:
     pose_noise: (position m, heading rad) standard deviations added to simulated poses.
     command_latency: delay (s) of every command at the simulated robots; command_jitter: how
         much each command's delay varies either way (s, uniform).
-    faults: fault injection, {'pose_drop': p, 'state_drop': p, 'link_down': [robot, from s,
-        for s]}.
+    faults: faults of the simulated robots, {'pose_drop': p (each pose lost with that
+        probability), 'link_down': [robot, from s, for s] (fake_arena's link to a robot cut)}.
+    node_variants: {package node module: module run in its place with the same parameters},
+        e.g. a lab's own variant of formation_controller; the module defines NODE_CLASS.
     camera: None, or fake_camera parameter overrides ({} for none): poses then come from
         camera_tracker, fed by fake_camera (with_robots) or a real camera on /camera/image_raw.
     bridge: None, 'udp' or 'pty': each cmd_vel goes through a robot_bridge to fake_arena's
@@ -47,6 +49,7 @@ class RunOptions:
     command_latency: float = 0.0
     command_jitter: float = 0.0
     faults: dict | None = None
+    node_variants: dict[str, str] | None = None
     camera: dict | None = None
     bridge: str | None = None
     bag_path: Path | str | None = None

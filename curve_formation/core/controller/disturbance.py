@@ -8,7 +8,7 @@ acts on some agents or all (experiment key `disturbance.varies`).
 
 from dataclasses import dataclass
 import math
-from typing import Literal, Sequence
+from typing import Any, Literal, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -81,7 +81,7 @@ class RunTime:
     def __init__(self) -> None:
         self.start: float | None = None   # the run's t = 0 on this node's clock (s)
 
-    def heard(self, clock, received: float) -> None:
+    def heard(self, clock: Any, received: float) -> None:
         """A curve message with `clock` (CurveClock or None) arrived at `received` (s)."""
         if clock is not None and clock.run_start is not None:
             self.start = clock.run_start

@@ -18,6 +18,7 @@ Rules (all times in s):
   releases anyone: only a release command does.
 """
 
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 import math
 from typing import NamedTuple
@@ -35,13 +36,14 @@ class EstopReport(NamedTuple):
     robots: int      # agents in the formation as the node knows it (0: does not know)
 
 
-def estop_fields(engaged, role, by, since, robots):
+def estop_fields(engaged: bool, role: str, by: str, since: float, robots: int
+                 ) -> dict[str, str]:
     """The key/value text fields an EstopReport travels as (a DiagnosticStatus's values)."""
     return {'engaged': 'true' if engaged else 'false', 'role': role, 'by': by,
             'since': repr(float(since)), 'robots': str(int(robots))}
 
 
-def parse_report(holder, robot, values):
+def parse_report(holder: str, robot: str, values: Mapping[str, str]) -> EstopReport:
     """EstopReport from a holder's name, robot and text fields (estop_fields); ValueError
     naming what is wrong when they are not an e-stop state.
     """
@@ -100,16 +102,17 @@ class EstopLatch:
         return True
 
 
-def stopped_intervals(events, end):
+def stopped_intervals(events: Iterable[tuple[float, str, bool]], end: float
+                      ) -> list[tuple[float, float | None]]:
     """[(start, stop)] (s) during which some node held the e-stop engaged.
 
     events: [(t s, holder name, engaged bool)] in time order, each holder's announced state
     (repeats allowed); end: the run's last time (s). An interval still open at `end` has
     stop None.
     """
-    held = set()
-    out = []
-    start = None
+    held: set[str] = set()
+    out: list[tuple[float, float | None]] = []
+    start: float | None = None
     for t, holder, engaged in events:
         if engaged:
             held.add(holder)
@@ -125,6 +128,6 @@ def stopped_intervals(events, end):
     return [(a, b) for a, b in out if a <= end]
 
 
-def stopped_time(intervals, end):
+def stopped_time(intervals: Iterable[tuple[float, float | None]], end: float) -> float:
     """Total time (s) in intervals (open ones counted until `end`)."""
     return sum((end if b is None else min(b, end)) - a for a, b in intervals if a < end)

@@ -87,7 +87,7 @@ def _lagged_means(tc: FloatArray, values: FloatArray, starts: FloatArray, ends: 
             y = values[k - 1] + (y - values[k - 1]) * math.exp(-(tc[k] - tc[k - 1]) / tau)
         knots[k] = y
 
-    def lagged(t):
+    def lagged(t: FloatArray) -> FloatArray:
         k = np.searchsorted(tc, t, side='right') - 1
         inside = k >= 0
         k = np.maximum(k, 0)
@@ -98,7 +98,9 @@ def _lagged_means(tc: FloatArray, values: FloatArray, starts: FloatArray, ends: 
     return held - tau * (lagged(ends) - lagged(starts)) / (ends - starts)
 
 
-def _residuals(tc, commands, driven, tp, v_meas, w_meas, lags, tau=0.0):
+def _residuals(tc: FloatArray, commands: FloatArray, driven: FloatArray, tp: FloatArray,
+               v_meas: FloatArray, w_meas: FloatArray, lags: FloatArray, tau: float = 0.0
+               ) -> FloatArray:
     """(len(lags),) sum of squared residuals of the fit at each lag, its largest TRIMMED
     share of intervals left out (a lost command leaves the intervals it should have driven
     fitting no lag). Every lag at once: rows are lags, columns the intervals. tau: the

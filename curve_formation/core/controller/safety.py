@@ -49,6 +49,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from curve_formation.core.base.shapes import FloatArray
 from curve_formation.core.controller.settings import default
 
 
@@ -90,8 +91,10 @@ def with_latency(avoidance: Avoidance, period: float, latency: float) -> Avoidan
     return avoidance._replace(rate=1.0 / (period + latency))
 
 
-def safe_command(v, w, x, y, theta, drift_v, drift_w, others, me, offset, period,
-                 avoidance, wheel_base, max_wheel_speed, max_angular_rate):
+def safe_command(v: float, w: float, x: float, y: float, theta: float, drift_v: float,
+                 drift_w: float, others: FloatArray, me: int, offset: float, period: float,
+                 avoidance: Avoidance, wheel_base: float, max_wheel_speed: float,
+                 max_angular_rate: float) -> tuple[float, float, int]:
     """The command closest to (v, w) that keeps bodies apart and inside the arena.
 
     v, w: nominal command (m/s, rad/s), within the wheel limits. x, y, theta: own pose.
@@ -146,7 +149,8 @@ def safe_command(v, w, x, y, theta, drift_v, drift_w, others, me, offset, period
     return (c * mx + s * my - drift_v, (-s * mx + c * my) / offset - drift_w, ADJUSTED)
 
 
-def shaped_feedback(fx, fy, x, y, others, me, k1, speed, avoidance):
+def shaped_feedback(fx: float, fy: float, x: float, y: float, others: FloatArray, me: int,
+                    k1: float, speed: float, avoidance: Avoidance) -> tuple[float, float]:
     """The law's feedback f (m; the law steers along -k1 f) reshaped around robots and walls
     nearby, so that the law turns towards a way that is free instead of pushing into the
     safety filter (which would stop it there).
@@ -205,7 +209,8 @@ def shaped_feedback(fx, fy, x, y, others, me, k1, speed, avoidance):
     return -gx / (k1 * scale), -gy / (k1 * scale)
 
 
-def _yield(dx, dy, x, y, others, me, safe, near):
+def _yield(dx: float, dy: float, x: float, y: float, others: FloatArray, me: int, safe: float,
+           near: float) -> tuple[float, float]:
     """Backing-away velocity (m/s) from the higher-priority robots (lower index) within
     `near` of the safe distance that the intended velocity d heads at: |d| in all.
     """
@@ -227,7 +232,8 @@ def _yield(dx, dy, x, y, others, me, safe, near):
     return yx * speed, yy * speed
 
 
-def _pair_barrier(planes, count, c, s, k, h, alpha, period, forward, drift):
+def _pair_barrier(planes: FloatArray, count: int, c: float, s: float, k: float, h: float,
+                  alpha: float, period: float, forward: float, drift: float) -> int:
     """Append the half-plane that keeps h = |c_i - c_j|^2 - D^2 (m^2) from falling faster
     than (alpha / 2) h per tick by this robot's own step, which moves its axle centre by
     T V along its heading e = (c, s) (V = e^T m, the forward speed, m/s; k = (c_i - c_j)^T e):
@@ -259,7 +265,8 @@ def _pair_barrier(planes, count, c, s, k, h, alpha, period, forward, drift):
     return _plane(planes, count, c, s, low)
 
 
-def _forward_barrier(planes, count, c, s, k, b, drift):
+def _forward_barrier(planes: FloatArray, count: int, c: float, s: float, k: float, b: float,
+                     drift: float) -> int:
     """Append k V' >= -b for every V' within `drift` (m/s) of V = e^T m, e = (c, s) the
     heading: the axle centre, which moves by V along e, may close in on what lies along -k e
     no faster than b (m^2/s) allows, whatever forward drift up to `drift` the command does
@@ -271,7 +278,8 @@ def _forward_barrier(planes, count, c, s, k, b, drift):
     return _plane(planes, count, -sign * c, -sign * s, b / abs(k) - drift)
 
 
-def _near(others, me, x, y, safe, reach):
+def _near(others: FloatArray, me: int, x: float, y: float, safe: float, reach: float
+          ) -> FloatArray:
     """(k, 4) [ux, uy, dist, gap] of the robots whose gap (distance - safe, m) is below
     `reach`: u the unit vector from each to (x, y), dist their distance (m). Skips row `me`,
     rows not finite and a robot at the very same point.
@@ -294,7 +302,7 @@ def _near(others, me, x, y, safe, reach):
     return out[:count]
 
 
-def _reach(avoidance, max_wheel_speed, drift_v):
+def _reach(avoidance: Avoidance, max_wheel_speed: float, drift_v: float) -> float:
     """Gap (m) beyond which another robot's half-plane cannot cut the wheel-limited motions,
     nor the passing rule act: with the centre moving at most v_max, (alpha / 4) h <= |c_i -
     c_j| v_max needs a gap below 4 v_max / alpha. Infinite without wheel limits.
@@ -304,7 +312,7 @@ def _reach(avoidance, max_wheel_speed, drift_v):
     return max(4.0 * (max_wheel_speed + abs(drift_v)) / avoidance.rate, avoidance.passing_range)
 
 
-def _plane(planes, count, ax, ay, b):
+def _plane(planes: FloatArray, count: int, ax: float, ay: float, b: float) -> int:
     """Append the half-plane a^T m <= b (a a unit vector)."""
     planes[count, 0] = ax
     planes[count, 1] = ay
@@ -312,8 +320,9 @@ def _plane(planes, count, ax, ay, b):
     return count + 1
 
 
-def _wheel_planes(planes, count, c, s, offset, wheel_base, max_wheel_speed, max_angular_rate,
-                  drift_v, drift_w):
+def _wheel_planes(planes: FloatArray, count: int, c: float, s: float, offset: float,
+                  wheel_base: float, max_wheel_speed: float, max_angular_rate: float,
+                  drift_v: float, drift_w: float) -> int:
     """The wheel limits as half-planes of m: v = c mx + s my - dv, w = (-s mx + c my)/l - dw."""
     if max_wheel_speed > 0.0 and max_wheel_speed < math.inf:
         half = 0.5 * wheel_base
@@ -332,14 +341,15 @@ def _wheel_planes(planes, count, c, s, offset, wheel_base, max_wheel_speed, max_
     return count
 
 
-def _inside(planes, count, mx, my):
+def _inside(planes: FloatArray, count: int, mx: float, my: float) -> bool:
     for k in range(count):
         if planes[k, 0] * mx + planes[k, 1] * my > planes[k, 2] + TOLERANCE:
             return False
     return True
 
 
-def _closest(planes, count, mx, my):
+def _closest(planes: FloatArray, count: int, mx: float, my: float
+             ) -> tuple[bool, float, float]:
     """(found, x, y): the point of the polygon {a_k^T m <= b_k} closest to (mx, my).
 
     Exact: the point itself if inside; else, for a half-plane it violates, its projection
