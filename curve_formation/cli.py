@@ -69,6 +69,7 @@ def _cmd_sim(args):
     data = simulate_to_dir(args.config, args.out, rate, args.law, args.heading, args.physics,
                            args.animate)
     print(summary_line(data['experiment'], data))
+    print(f"simulated by: {data['simulator']}")   # the batch simulator, or why not
     print(f'wrote {args.out}/: report.html, metrics.json, figures (PNG and PDF), '
           f'trajectory.npz{", animation.mp4" if args.animate else ""}')
 

@@ -169,9 +169,16 @@ TOPICS = {t.name: t for t in (
 _ROBOT_TOPIC = re.compile(r'^/robot_(\d+)/([A-Za-z0-9_]+)$')
 
 
+def robot_name(index: int) -> str:
+    """Name of robot `index` (1-based): robot_<i>, as its namespace, e-stop and diagnostics
+    know it.
+    """
+    return f'robot_{index}'
+
+
 def robot_namespace(index: int) -> str:
     """Namespace of robot `index` (1-based): /robot_<i>."""
-    return f'/robot_{index}'
+    return f'/{robot_name(index)}'
 
 
 def robot_topic(index: int, name: str) -> str:

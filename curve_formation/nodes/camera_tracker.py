@@ -17,13 +17,19 @@ ids, the desired curve and each robot's target point for the arena operator.
 import math
 from pathlib import Path
 import time
+from typing import Any
 
 import cv2
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PolygonStamped
 import numpy as np
 from rclpy.node import Node
+from sensor_msgs.msg import Image
+from std_msgs.msg import Float64MultiArray
 
+from curve_formation.core.config.camera_schema import CameraSpec
 from curve_formation.core.config.experiment import beside_experiment
+from curve_formation.core.formation.curves import Curve
 from curve_formation.nodes import messages, topics
 from curve_formation.nodes.params import (
     declare_parameters,
@@ -85,7 +91,7 @@ TOPICS = (
 class CameraTracker(Node):
     """ArUco detection and arena calibration over a camera stream."""
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         p = self.params = declare_parameters(self, PARAMETERS)
         self.experiment = experiment_parameter(p.experiment, needs=('camera',))
@@ -126,18 +132,20 @@ class CameraTracker(Node):
                                           width=camera.drawn_curve.width)
             self.curve_period = 1.0 / camera.drawn_curve.rate_hz
             self.last_curve_search = -math.inf
-            self.positions = {}   # agent -> (x, y) last seen (m): where its body hides line
-            self.unanswered = None   # (observed curve message, curve id when it was sent)
-        self.curve_id = None   # of the last curve on /formation/curve
+            # agent -> (x, y) last seen (m): where its body hides line
+            self.positions: dict[int, tuple[float, float]] = {}
+            # (observed curve message, curve id when it was sent)
+            self.unanswered: tuple[PolygonStamped, int | None] | None = None
+        self.curve_id: int | None = None   # of the last curve on /formation/curve
         subscribe_to_curve(self, self._on_curve)
-        self.curve = None
-        self.targets = None
-        self.last_seen = {}
+        self.curve: Curve | None = None
+        self.targets: np.ndarray | None = None
+        self.last_seen: dict[int, float] = {}
         self.seen_counts = np.zeros(self.n + 1, int)
         self.frames = 0
-        self.latencies = []
-        self.process_times = []
-        self.duplicates = set()
+        self.latencies: list[float] = []
+        self.process_times: list[float] = []
+        self.duplicates: set[int] = set()
         self.last_saved = -math.inf
         self.last_debug = -math.inf
         self.capture = None
@@ -151,16 +159,16 @@ class CameraTracker(Node):
             topics.subscription(self, topics.CAMERA_IMAGE, self._on_image)
         self.create_timer(1.0, self._publish_diagnostics)
 
-    def _calibration_path(self, camera):
+    def _calibration_path(self, camera: CameraSpec) -> Path | None:
         return self._path(self.params.calibration_file, camera.calibration_file)
 
-    def _path(self, parameter, experiment_key):
+    def _path(self, parameter: str, experiment_key: str | None) -> Path | None:
         """The file a parameter names (as given), else the experiment's (relative to it)."""
         if parameter:
             return Path(parameter)
         return beside_experiment(self.experiment, experiment_key)
 
-    def _intrinsics(self, camera):
+    def _intrinsics(self, camera: CameraSpec) -> tuple[Any, Any] | None:
         """(K, distortion) to undistort corner pixels with, or None (an ideal lens)."""
         path = self._path(self.params.intrinsics_file, camera.intrinsics_file)
         if path is None:
@@ -175,7 +183,7 @@ class CameraTracker(Node):
                                f'{lens.rms:.2f} px)')
         return lens.camera_matrix, lens.distortion
 
-    def _on_curve(self, msg):
+    def _on_curve(self, msg: Float64MultiArray) -> None:
         try:
             curve, self.curve_id = messages.curve_from_msg(msg)
             s = messages.agent_parameters_from_msg(msg)
@@ -185,7 +193,7 @@ class CameraTracker(Node):
         # Each robot's target as the curve server assigned it (None: the curve alone).
         self.targets = None if s is None or len(s) != self.n else curve.points(s)
 
-    def _on_capture(self):
+    def _on_capture(self) -> None:
         assert self.capture is not None   # the capture timer runs only with a capture
         ok, frame = self.capture.read()
         if not ok:
@@ -195,7 +203,7 @@ class CameraTracker(Node):
         gray = frame if frame.ndim == 2 else cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
         self.process(gray, now_seconds(self))
 
-    def _on_image(self, msg):
+    def _on_image(self, msg: Image) -> None:
         try:
             gray = messages.gray_from_image_msg(msg)
         except messages.MessageError as exc:
@@ -203,7 +211,7 @@ class CameraTracker(Node):
             return
         self.process(gray, messages.stamp_to_seconds(msg.header.stamp))
 
-    def process(self, gray, stamp):
+    def process(self, gray: np.ndarray, stamp: float) -> None:
         """Detect, publish poses stamped `stamp` (s), keep statistics, save calibration."""
         started = time.perf_counter()
         frame = self.tracker.process(gray)
@@ -241,7 +249,7 @@ class CameraTracker(Node):
             self.last_debug = now
             self.debug_pub.publish(messages.image_to_msg(self.annotate(gray, frame), stamp))
 
-    def _find_curve(self, gray, frame, stamp):
+    def _find_curve(self, gray: np.ndarray, frame: Any, stamp: float) -> None:
         """Search the frame for the drawn curve; publish it when first seen or moved."""
         assert self.curve_finder is not None   # called only when the drawn curve is sought
         self.positions.update({agent: pose[:2] for agent, pose in frame.poses.items()})
@@ -258,7 +266,7 @@ class CameraTracker(Node):
         self.get_logger().info(f"drawn curve published: {'closed' if publish.closed else 'open'}"
                                f', {len(publish.points)} points from {publish.pixels} pixels')
 
-    def annotate(self, gray, frame):
+    def annotate(self, gray: np.ndarray, frame: Any) -> np.ndarray:
         """bgr8 debug image: detected markers with agent numbers, curve and targets."""
         image = cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR)
         for agent, quad in frame.pixels.items():
@@ -277,7 +285,7 @@ class CameraTracker(Node):
                             cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 165, 255), 1)
         return image
 
-    def _publish_diagnostics(self):
+    def _publish_diagnostics(self) -> None:
         now = now_seconds(self)
         msg = DiagnosticArray()
         msg.header.stamp = messages.seconds_to_stamp(now)
@@ -324,17 +332,17 @@ class CameraTracker(Node):
         if self.tracker.pattern_fit is not None:
             self.tracker.pattern_fit.misses.clear()
 
-    def _unfitted(self, marker_id):
+    def _unfitted(self, marker_id: int) -> int:
         """Frames since the last report in which marker_id's pattern fit was not used."""
         fit = self.tracker.pattern_fit
         return 0 if fit is None else fit.misses[marker_id]
 
-    def on_shutdown(self):
+    def on_shutdown(self) -> None:
         if self.capture is not None:
             self.capture.release()
 
 
-def main(args=None):
+def main(args: list[str] | None = None) -> int:
     return run_node(CameraTracker, args, large_data=True)   # camera frames
 
 

@@ -6,9 +6,11 @@ rcl itself answers the first with a 16-line traceback and ignores the second sil
 node then stops on a required parameter it was never given).
 """
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 import re
+from typing import Any
 
 import yaml
 
@@ -31,11 +33,11 @@ class NodeCommandLine:
     params_files: tuple     # paths given with --params-file
 
     @property
-    def fully_qualified_name(self):
+    def fully_qualified_name(self) -> str:
         return f'{self.namespace.rstrip("/")}/{self.name}'
 
 
-def parse(argv, default_name):
+def parse(argv: Sequence[str], default_name: str) -> 'NodeCommandLine':
     """NodeCommandLine of argv (sys.argv, the program first) for a node named default_name."""
     args = list(argv[1:])
     ros = args.index('--ros-args') if '--ros-args' in args else len(args)
@@ -61,13 +63,13 @@ def parse(argv, default_name):
                            namespace=namespace, name=name, params_files=tuple(files))
 
 
-def node_keys(document):
+def node_keys(document: dict[str, Any]) -> list[str]:
     """The node keys of a parameters file's mapping: each path of mapping keys down to a
     `ros__parameters` entry, joined by '/' (rcl allows nesting namespaces as mappings).
     """
     keys = []
 
-    def walk(mapping, path):
+    def walk(mapping: dict[str, Any], path: list[str]) -> None:
         for key, value in mapping.items():
             if key == 'ros__parameters':
                 keys.append('/'.join(path))
@@ -77,7 +79,7 @@ def node_keys(document):
     return keys
 
 
-def key_pattern(key):
+def key_pattern(key: str) -> 're.Pattern[str]':
     """A regular expression for the node names a parameters file key applies to, as rcl
     matches them: `/**` any number of namespace levels, `*` one name, else the name itself.
     """
@@ -91,7 +93,7 @@ def key_pattern(key):
     return re.compile(regex + '$')
 
 
-def check_params_files(command_line):
+def check_params_files(command_line: 'NodeCommandLine') -> None:
     """ParameterError (one line naming the fix) for a parameters file that is missing, not a
     ROS 2 parameters file (an experiment file), or that sets nothing for this node.
     """
@@ -121,7 +123,7 @@ def check_params_files(command_line):
                                  f'any namespace ({PARAMS_HINT} so)')
 
 
-def help_text(executable, module):
+def help_text(executable: str, module: Any) -> str:
     """What `<node> --help` prints: the node's purpose, how to start it, its parameters."""
     from curve_formation.nodes.params import text_table
     summary = ' '.join(module.__doc__.strip().split())

@@ -8,11 +8,15 @@ the controllers and the runner's monitor report it. A guard against mistakes, no
 intruder: without DDS security anyone on the domain can still publish as the controller's
 own node name.
 """
+from collections.abc import Callable
+
+from rclpy.node import Node
+
 
 WATCH_PERIOD = 0.5   # s between two looks at the graph
 
 
-def command_publishers(node, topic):
+def command_publishers(node: Node, topic: str) -> list[str]:
     """Sorted names of the nodes publishing on `topic` (as far as discovery has named them;
     a node restarted under the same name counts once): a cmd_vel's, or the e-stop's senders.
     """
@@ -27,16 +31,17 @@ class CommandSourceWatch:
     on_change(extra, names) runs when that changes; the change is logged.
     """
 
-    def __init__(self, node, topic, on_change=None):
+    def __init__(self, node: Node, topic: str,
+                 on_change: Callable[[bool, list[str]], None] | None = None) -> None:
         self.node = node
         self.topic = node.resolve_topic_name(topic)
         self.on_change = on_change
-        self.names = []
+        self.names: list[str] = []
         self.extra = False
         self.episodes = 0     # times a second publisher appeared
         node.create_timer(WATCH_PERIOD, self.look)
 
-    def look(self):
+    def look(self) -> None:
         names = command_publishers(self.node, self.topic)
         extra = len(names) > 1
         self.names = names

@@ -16,11 +16,15 @@ re-assigned (Phase.assigned_from), as the simulator does. What is published when
 core.schedule.curve_schedule's, which the nodes' pipeline steps too.
 """
 
-from geometry_msgs.msg import Point, PoseStamped
+from typing import Any
+
+from geometry_msgs.msg import Point, PolygonStamped, PoseStamped
 from nav_msgs.msg import Path
 import numpy as np
 from rclpy.duration import Duration
 from rclpy.node import Node
+from rclpy.timer import Timer
+from sensor_msgs.msg import JointState
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
@@ -30,9 +34,9 @@ from curve_formation.core.controller.plausibility import MAX_COORDINATE
 from curve_formation.core.controller.settings import default
 from curve_formation.core.formation.assignment import AssignmentError, phase_parameters
 from curve_formation.core.formation.curve_sources import fit_points
-from curve_formation.core.formation.curves import CurveError, make_basis
+from curve_formation.core.formation.curves import Curve, CurveError, make_basis
 from curve_formation.core.formation.dynamics import offset_points
-from curve_formation.core.schedule.curve_schedule import CurveSchedule
+from curve_formation.core.schedule.curve_schedule import CurveSchedule, Publication
 from curve_formation.nodes import messages, topics
 from curve_formation.nodes.estop import estop_uses, EstopHolder
 from curve_formation.nodes.params import (
@@ -108,7 +112,7 @@ MAX_OBSERVED_POINTS = 20_000
 class CurveServer(Node):
     """Publishes the experiment's curves on schedule and fits observed ones."""
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         self.params = declare_parameters(self, PARAMETERS)
         self.experiment = experiment_parameter(self.params.experiment)
@@ -122,10 +126,13 @@ class CurveServer(Node):
         # pipeline steps it); its last publication is the current curve.
         self.schedule = CurveSchedule(self.experiment, self.params.schedule,
                                       self.params.announce_ahead)
-        self.start = None
-        self.refresh_timer = None   # fires refresh_period after the last curve message
-        self.last_observed = None   # (stamp s, closed, points bytes) of the last observed curve
-        self.poses = None     # (poses (n, 3), stamp s) last received
+        self.start: float | None = None
+        # fires refresh_period after the last curve message
+        self.refresh_timer: Timer | None = None
+        # (stamp s, closed, points bytes) of the last observed curve
+        self.last_observed: tuple[float, bool, bytes] | None = None
+        # (poses (n, 3), stamp s) last received
+        self.poses: tuple[np.ndarray, float] | None = None
         every = self.params.reassign_every
         if every < 0:
             every = self.experiment.spec.agents.reassign_every or 0.0
@@ -142,7 +149,7 @@ class CurveServer(Node):
         self.timer = self.create_timer(WAIT_POLL, self._on_timer)
         self._on_timer()
 
-    def _on_timer(self):
+    def _on_timer(self) -> None:
         if self.start is None:
             # Both sides of each link: a reader that has found this server says so on
             # /formation/ready; this server's writer must have found as many readers, or its
@@ -181,20 +188,20 @@ class CurveServer(Node):
         self.timer.timer_period_ns = max(1_000_000, int((due - now_seconds(self)) * 1e9))
         self.timer.reset()
 
-    def _renew_moving(self):
+    def _renew_moving(self) -> None:
         """Publish the moving curve where it is now, with its rate (same id)."""
         publication = self.schedule.renewal(now_seconds(self))
         if publication is not None:
             self.publish_curve(publication, quiet=True)
 
-    def _refresh(self):
+    def _refresh(self) -> None:
         """Publish the current curve message again: refresh_period has passed without one
         (a moving curve is renewed more often than that anyway).
         """
         if self.schedule.last is not None and self.schedule.moving_since is None:
             self._send(self.schedule.last)
 
-    def _send(self, publication):
+    def _send(self, publication: Publication) -> None:
         """Publish a curve message; the refresh waits a whole period from now."""
         if self.refresh_timer is not None:
             self.refresh_timer.reset()
@@ -202,19 +209,19 @@ class CurveServer(Node):
             publication.curve, publication.curve_id, publication.s, publication.rate,
             publication.clock))
 
-    def on_shutdown(self):
+    def on_shutdown(self) -> None:
         """Wait (0.5 s at most) until the last curve message is acknowledged, so that a
         recorder misses none of them.
         """
         self.curve_pub.wait_for_all_acked(Duration(seconds=0.5))
 
-    def _on_poses(self, msg):
+    def _on_poses(self, msg: JointState) -> None:
         try:
             self.poses = messages.robot_poses_from_msg(msg)
         except messages.MessageError:
             self.poses = None
 
-    def _reassign(self):
+    def _reassign(self) -> None:
         """Give robots whose ways have come to cross each other's targets (the curve as it
         is, same id, with the agents' parameters permuted).
         """
@@ -230,7 +237,7 @@ class CurveServer(Node):
             self.publish_curve(publication)
             self.get_logger().info(f'curve {publication.curve_id}: targets re-assigned')
 
-    def publish_curve(self, publication, quiet=False):
+    def publish_curve(self, publication: Publication, quiet: bool = False) -> None:
         """Publish a curve message of the schedule (core.schedule.curve_schedule.Publication) with
         its path
         and its markers: the next curve, or the current one with its agents re-assigned or
@@ -254,7 +261,7 @@ class CurveServer(Node):
             self.get_logger().info(f'published curve {publication.curve_id} '
                                    f'({curve.basis.describe()})')
 
-    def _markers(self, pts, targets, stamp):
+    def _markers(self, pts: np.ndarray, targets: np.ndarray, stamp: Any) -> MarkerArray:
         line = Marker(ns='curve', id=0, type=Marker.LINE_STRIP, action=Marker.ADD)
         line.scale.x = 0.005 * max(1.0, float(np.ptp(pts, axis=0).max()))
         line.color = ColorRGBA(r=0.1, g=0.1, b=0.1, a=1.0)
@@ -268,7 +275,7 @@ class CurveServer(Node):
             marker.pose.orientation.w = 1.0
         return MarkerArray(markers=[line, dots])
 
-    def _on_observed(self, msg):
+    def _on_observed(self, msg: PolygonStamped) -> None:
         count = len(msg.polygon.points)
         if count > MAX_OBSERVED_POINTS:
             self.get_logger().error(f'observed curve refused: {count} points, at most '
@@ -300,7 +307,7 @@ class CurveServer(Node):
                                f'residual {fit.rms_residual:.3g}')
         self.publish_curve(self.schedule.observed(fit.curve, s, now_seconds(self)))
 
-    def _check_in_arena(self, curve):
+    def _check_in_arena(self, curve: Curve) -> None:
         """CurveError unless the curve lies in the arena as a curve of the experiment file must
         (core.config.experiment.points_outside_arena); without an arena, within MAX_COORDINATE.
         """
@@ -317,7 +324,7 @@ class CurveServer(Node):
             raise CurveError(f'the fitted curve leaves the arena {problem}')
 
 
-def main(args=None):
+def main(args: list[str] | None = None) -> int:
     return run_node(CurveServer, args)
 
 

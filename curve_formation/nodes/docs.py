@@ -3,7 +3,9 @@
 (docs/experiments.md, from core.controller.settings).
 """
 
+from collections.abc import Sequence
 import math
+from typing import Any
 
 from curve_formation.core.controller.settings import SETTINGS
 from curve_formation.nodes import (
@@ -19,6 +21,7 @@ from curve_formation.nodes import (
     topics,
 )
 from curve_formation.nodes.params import markdown_table
+from curve_formation.nodes.topics import Use
 
 
 NODES = (('formation_controller', formation_controller),
@@ -42,7 +45,7 @@ QOS_TEXT = {
 }
 
 
-def topic_table(uses):
+def topic_table(uses: Sequence[Use]) -> str:
     """Markdown table of a node's topics (topics.Use rows), types and QoS from the registry."""
     rows = ['| | topic | type | QoS | meaning |', '| --- | --- | --- | --- | --- |']
     for use in uses:
@@ -55,7 +58,7 @@ def topic_table(uses):
     return '\n'.join(rows)
 
 
-def nodes_markdown():
+def nodes_markdown() -> str:
     """The node reference in docs/nodes.md, between its `nodes:begin` and `nodes:end`
     markers.
     """
@@ -67,7 +70,7 @@ def nodes_markdown():
     return '\n\n'.join(parts)
 
 
-def _shown(value):
+def _shown(value: Any) -> str:
     """A setting's value as an experiment file writes it."""
     if isinstance(value, float) and math.isinf(value):
         return '.inf'
@@ -78,7 +81,7 @@ def _shown(value):
     return f'{value:g}' if isinstance(value, float) else str(value)
 
 
-def settings_markdown():
+def settings_markdown() -> str:
     """The controller settings' table in docs/experiments.md, between its `settings:begin`
     and `settings:end` markers: key, default, unit, range, meaning, node parameter.
     """

@@ -15,6 +15,11 @@ and
   all) or that was engaged before they started.
 """
 
+from collections.abc import Callable
+from typing import Any
+
+from diagnostic_msgs.msg import DiagnosticStatus
+from rclpy.node import Node
 from std_msgs.msg import Bool
 
 from curve_formation.core.controller.estop import EstopLatch
@@ -34,7 +39,7 @@ HEAR_WAIT = 2.0
 UNNAMED = 'a publisher not yet named by discovery'
 
 
-def estop_uses(on_stop):
+def estop_uses(on_stop: str) -> tuple[Use, ...]:
     """The TOPICS rows (nodes/docs.py) of a node holding the e-stop; on_stop: what it does."""
     return (Use('sub', topics.ESTOP, on_stop),
             Use('sub', topics.ESTOP_STATE, "other nodes' e-stop state: started while the "
@@ -50,7 +55,8 @@ class EstopHolder:
     that must not move before then (a controller) starts stopped and waits for that call.
     """
 
-    def __init__(self, node, robot='', robots=0, on_change=None):
+    def __init__(self, node: Node, robot: str = '', robots: int = 0,
+                 on_change: Callable[[bool], None] | None = None) -> None:
         """robot: the robot this node acts for ('robot_3'; '' for none); robots: the
         formation's size as this node knows it (0: unknown).
         """
@@ -74,10 +80,10 @@ class EstopHolder:
         self.announce()
 
     @property
-    def engaged(self):
+    def engaged(self) -> bool:
         return self.latch.engaged
 
-    def _silence(self):
+    def _silence(self) -> None:
         """HEAR_WAIT s have passed (and every HEAR_WAIT s after until heard): silence tells
         the state only when no other holder is discovered. One that is has a state on its way
         (a restarted controller under load was seen to find its peers only after 2 s).
@@ -90,7 +96,7 @@ class EstopHolder:
             return
         self._hear()
 
-    def _hear(self):
+    def _hear(self) -> None:
         """The e-stop state is known from now on; on_change if that releases the robot."""
         if self.heard:
             return
@@ -99,7 +105,7 @@ class EstopHolder:
         if not self.latch.engaged and self.on_change is not None:
             self.on_change(False)
 
-    def announce(self):
+    def announce(self) -> None:
         latch = self.latch
         if latch.by == UNNAMED:   # discovery may know the sender's name by now
             latch.by = self._senders()
@@ -107,13 +113,13 @@ class EstopHolder:
             self.name, self.node.get_name(), self.robot, latch.engaged, latch.by, latch.since,
             self.robots))
 
-    def _senders(self):
+    def _senders(self) -> str:
         """Names of the nodes publishing e-stop commands now (who sent, as far as DDS tells:
         a message does not carry its sender's name).
         """
         return ', '.join(command_publishers(self.node, topics.ESTOP)) or UNNAMED
 
-    def _on_command(self, msg, info):
+    def _on_command(self, msg: Bool, info: dict[str, Any]) -> None:
         sent_at = info['source_timestamp'] * 1e-9
         engaged = bool(msg.data)
         if self.latch.command(engaged, sent_at, '', now_seconds(self.node)):
@@ -124,7 +130,7 @@ class EstopHolder:
                                            throttle_duration_sec=1.0)
         self._hear()
 
-    def _on_peer(self, msg):
+    def _on_peer(self, msg: DiagnosticStatus) -> None:
         try:
             report = messages.estop_state_from_msg(msg)
         except messages.MessageError as exc:
@@ -137,7 +143,7 @@ class EstopHolder:
             self._changed(f' (passed on by {report.holder})')
         self._hear()
 
-    def _changed(self, how=''):
+    def _changed(self, how: str = '') -> None:
         latch = self.latch
         if self.on_change is not None and (self.heard or latch.engaged):
             self.on_change(latch.engaged)

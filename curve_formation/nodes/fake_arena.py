@@ -22,15 +22,17 @@ cmd_vel has more than one publishing node stands still until one is left.
 """
 
 import math
+from types import SimpleNamespace
+from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import PoseStamped
+from geometry_msgs.msg import PoseStamped, Twist
 import numpy as np
 from rclpy.duration import Duration
 from rclpy.node import Node
 
 from curve_formation import diagnostics, wire
-from curve_formation.core.config.experiment import wheel_base
+from curve_formation.core.config.experiment import Experiment, wheel_base
 from curve_formation.core.controller.disturbance import RunTime
 from curve_formation.core.formation.dynamics import body_from_wheels
 from curve_formation.core.world.worlds import ENGINES, make_world
@@ -94,7 +96,7 @@ TOPICS = (
 class FakeArena(Node):
     """All robots of an experiment as bodies that cannot overlap."""
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         p = self.params = declare_parameters(self, PARAMETERS)
         experiment = experiment_parameter(p.experiment)
@@ -139,7 +141,7 @@ class FakeArena(Node):
                                f'{self.size[0]:g} x {self.size[1]:g} m, '
                                f'{type(self.world).__name__}')
 
-    def _endpoints(self, p, experiment):
+    def _endpoints(self, p: SimpleNamespace, experiment: Experiment) -> list[Any]:
         """The emulated robots' links, with their wire format; [] to read cmd_vel."""
         if not p.links:
             return []
@@ -150,20 +152,20 @@ class FakeArena(Node):
             raise ParameterError("parameter 'fault_link_down' must be [robot, from, for]")
         self.format = wire_format_parameter(p)
         self.wheel_base = wheel_base(experiment)
-        self.first_line = None
+        self.first_line: float | None = None
         try:
             return [robot_endpoint(link) for link in p.links]
         except (ValueError, OSError) as exc:
             raise ParameterError(f"parameter 'links': {exc}") from None
 
-    def _deaf(self, i, now):
+    def _deaf(self, i: int, now: float) -> bool:
         """Fault injection: robot i's firmware hears nothing now."""
         fault = self.params.fault_link_down
         if not fault or self.first_line is None or fault[0] not in (0, i):
             return False
         return fault[1] <= now - self.first_line < fault[1] + fault[2]
 
-    def _on_lines(self):
+    def _on_lines(self) -> None:
         """Each emulated robot's firmware: wheel speeds in, 'ok' or 'err' out."""
         now = now_seconds(self)
         for i, endpoint in enumerate(self.endpoints, 1):
@@ -183,7 +185,7 @@ class FakeArena(Node):
                 self.world.command(i - 1, v, w, now)
                 endpoint.send(b'ok\n')
 
-    def _on_cmd(self, i, msg):
+    def _on_cmd(self, i: int, msg: Twist) -> None:
         v, w = messages.twist_from_msg(msg)
         if not (math.isfinite(v) and math.isfinite(w)):
             self.get_logger().warning(f'robot {i}: non-finite cmd_vel ignored',
@@ -194,25 +196,25 @@ class FakeArena(Node):
         # Taken up, at its time, by the next step of the world (the pose timer's).
         self.world.command(i - 1, v, w, now_seconds(self))
 
-    def held(self, i):
+    def held(self, i: int) -> bool:
         """Robot i stands still: e-stop, or more than one node publishing its cmd_vel (with
         links, the robot bridges hold it instead).
         """
         return self.estop is not None and (self.estop.engaged or self.sources[i - 1].extra)
 
-    def _stop_held(self, *_):
+    def _stop_held(self, *_: Any) -> None:
         now = now_seconds(self)
         for i in range(1, self.n + 1):
             if self.held(i):
                 self.world.command(i - 1, 0.0, 0.0, now)
 
-    def advance(self, until):
+    def advance(self, until: float) -> None:
         """Move the world up to `until` (s), saying which robots' watchdogs stopped them."""
         for i in self.world.advance(until):
             self.get_logger().warning(f'robot {i + 1}: no command for '
                                       f'{self.params.command_timeout:g} s: motors off')
 
-    def _on_timer(self):
+    def _on_timer(self) -> None:
         now = now_seconds(self)
         self.advance(now)
         run_time = self.run_time.at(now)
@@ -229,13 +231,13 @@ class FakeArena(Node):
         if self.all_pub is not None:
             self.all_pub.publish(messages.robot_poses_to_msg(poses, now, self.params.frame_id))
 
-    def contact_summary(self):
+    def contact_summary(self) -> dict[str, Any]:
         """The world's contact tally so far: {'count', 'time' (s), 'smallest_gap' (m, None
         without bodies)}, and from MuJoCo also 'walls' and 'largest_push' (N).
         """
         return self.world.contact_summary()
 
-    def _publish_diagnostics(self):
+    def _publish_diagnostics(self) -> None:
         summary = self.contact_summary()
         status = DiagnosticStatus(
             level=DiagnosticStatus.WARN if summary['count'] else DiagnosticStatus.OK,
@@ -246,7 +248,7 @@ class FakeArena(Node):
         msg.header.stamp = messages.seconds_to_stamp(now_seconds(self))
         self.diag_pub.publish(msg)
 
-    def on_shutdown(self):
+    def on_shutdown(self) -> None:
         """The final contact tally, acknowledged (1 s at most) so that a recorder has it."""
         self._publish_diagnostics()
         self.diag_pub.wait_for_all_acked(Duration(seconds=1.0))
@@ -254,7 +256,7 @@ class FakeArena(Node):
             endpoint.close()
 
 
-def main(args=None):
+def main(args: list[str] | None = None) -> int:
     return run_node(FakeArena, args)
 
 

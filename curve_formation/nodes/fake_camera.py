@@ -11,8 +11,12 @@ time window counted from the first curve: cover some robots' markers, or show a 
 with a robot's id.
 """
 
+from typing import Any
+
+from geometry_msgs.msg import PoseStamped
 import numpy as np
 from rclpy.node import Node
+from std_msgs.msg import Float64MultiArray
 
 from curve_formation.nodes import messages, topics
 from curve_formation.nodes.params import (
@@ -71,7 +75,7 @@ TOPICS = (
 class FakeCamera(Node):
     """Arena renderer over the fake robots' true poses."""
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         p = self.params = declare_parameters(self, PARAMETERS)
         experiment = experiment_parameter(p.experiment, needs=('camera', 'arena'))
@@ -103,11 +107,11 @@ class FakeCamera(Node):
         self.drawn = spec.camera.drawn_curve
         self.phases = experiment.phases
         self.started = now_seconds(self)
-        self.drawn_phase = None
-        self.drawn_points = None
-        self.poses = {}
-        self.stamps = {}   # when each true pose held (s)
-        self.first_curve = None
+        self.drawn_phase: int | None = None
+        self.drawn_points: np.ndarray | None = None
+        self.poses: dict[int, tuple[float, float, float]] = {}
+        self.stamps: dict[int, float] = {}   # when each true pose held (s)
+        self.first_curve: float | None = None
         subscribe_to_curve(self, self._on_curve)
         for i in range(1, n + 1):
             topics.subscription(self, topics.TRUE_POSE, lambda m, i=i: self._on_pose(i, m),
@@ -115,16 +119,16 @@ class FakeCamera(Node):
         self.image_pub = topics.publisher(self, topics.CAMERA_IMAGE)
         self.create_timer(1.0 / p.rate_hz, self._on_timer)
 
-    def _on_pose(self, i, msg):
+    def _on_pose(self, i: int, msg: PoseStamped) -> None:
         x, y, theta, stamp = messages.pose_from_msg(msg)
         self.poses[i] = (x, y, theta)
         self.stamps[i] = stamp
 
-    def _on_curve(self, _msg):
+    def _on_curve(self, _msg: Float64MultiArray) -> None:
         if self.first_curve is None:
             self.first_curve = now_seconds(self)
 
-    def faulty(self, now):
+    def faulty(self, now: float) -> bool:
         """Whether the configured faults act at time `now` (s)."""
         p = self.params
         if self.first_curve is None:
@@ -133,7 +137,7 @@ class FakeCamera(Node):
         return elapsed >= p.fault_from and (p.fault_for < 0 or elapsed <= p.fault_from
                                             + p.fault_for)
 
-    def _on_timer(self):
+    def _on_timer(self) -> None:
         now = now_seconds(self)
         faulty = self.faulty(now)
         hidden = tuple(self.params.hide) if faulty else ()
@@ -148,7 +152,7 @@ class FakeCamera(Node):
         scene = max(self.stamps.values(), default=now)
         self.image_pub.publish(messages.image_to_msg(image, scene, self.params.frame_id))
 
-    def _draw_curve(self, elapsed):
+    def _draw_curve(self, elapsed: float) -> None:
         """Draw the curve of the phase in force `elapsed` (s) after start on the floor, where
         it is then if it moves (redrawn once it has moved MOVED_BY).
         """
@@ -168,7 +172,7 @@ class FakeCamera(Node):
                                               self.drawn.width, self.drawn.grey))
 
 
-def main(args=None):
+def main(args: list[str] | None = None) -> int:
     return run_node(FakeCamera, args, large_data=True)   # camera frames
 
 

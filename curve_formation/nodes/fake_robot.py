@@ -13,12 +13,17 @@ over the run's time (`disturbance_varies`, dated by the curve messages' clock).
 """
 
 import math
+from types import SimpleNamespace
+from typing import Any
 
+from geometry_msgs.msg import Twist
 import numpy as np
 from rclpy.node import Node
+from std_msgs.msg import Float64MultiArray
 
 from curve_formation.core.controller.disturbance import RunTime, varied
 from curve_formation.core.formation.dynamics import DrivenUnicycle
+from curve_formation.interface import robot_name
 from curve_formation.nodes import messages, topics
 from curve_formation.nodes.command_source import CommandSourceWatch
 from curve_formation.nodes.estop import estop_uses, EstopHolder
@@ -66,7 +71,7 @@ PARAMETERS = (
 ) + ROBOT_PARAMETERS
 
 
-def check_command_jitter(p):
+def check_command_jitter(p: SimpleNamespace) -> None:
     """ParameterError unless the command_jitter of ROBOT_PARAMETERS p is at most the
     command_latency (a command never acts before it was sent).
     """
@@ -88,7 +93,7 @@ TOPICS = (
 class FakeRobot(Node):
     """Unicycle integrated from cmd_vel; pure maths in core.formation.dynamics.DrivenUnicycle."""
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         p = self.params = declare_parameters(self, PARAMETERS)
         for name, size in (('initial_pose', 3), ('disturbance', 2), ('pose_noise', 2)):
@@ -104,21 +109,21 @@ class FakeRobot(Node):
         self.rng = np.random.default_rng(p.seed)
         self.pose_pub = topics.publisher(self, p.pose_topic)
         topics.subscription(self, topics.CMD_VEL, self._on_cmd)
-        self.estop = EstopHolder(self, f'robot_{p.index}', on_change=self._stop_if_held)
+        self.estop = EstopHolder(self, robot_name(p.index), on_change=self._stop_if_held)
         self.source = CommandSourceWatch(self, topics.CMD_VEL, self._stop_if_held)
         self.create_timer(1.0 / p.rate_hz, self._on_timer)
 
-    def _on_curve(self, msg):
+    def _on_curve(self, msg: Float64MultiArray) -> None:
         known = self.run_time.start is not None
         self.run_time.heard(messages.curve_clock_from_msg(msg), now_seconds(self))
         if not known and self.variations:
             self.get_logger().info('the disturbance varies from the first curve on')
 
     @property
-    def pose(self):
+    def pose(self) -> tuple[float, float, float]:
         return self.robot.pose
 
-    def _on_cmd(self, msg):
+    def _on_cmd(self, msg: Twist) -> None:
         v, w = messages.twist_from_msg(msg)
         if not (math.isfinite(v) and math.isfinite(w)):
             self.get_logger().warning('non-finite cmd_vel ignored', throttle_duration_sec=1.0)
@@ -128,15 +133,15 @@ class FakeRobot(Node):
         self.robot.drive(v, w, now_seconds(self))
 
     @property
-    def held(self):
+    def held(self) -> bool:
         """The robot stands still: e-stop, or more than one node publishing its cmd_vel."""
         return self.estop.engaged or self.source.extra
 
-    def _stop_if_held(self, *_):
+    def _stop_if_held(self, *_: Any) -> None:
         if self.held:
             self.robot.drive(0.0, 0.0, now_seconds(self))
 
-    def _on_timer(self):
+    def _on_timer(self) -> None:
         now = now_seconds(self)
         if self.robot.advance(now):
             self.get_logger().warning(f'no command for {self.params.command_timeout:g} s: '
@@ -156,7 +161,7 @@ class FakeRobot(Node):
         self.pose_pub.publish(messages.pose_to_msg(x, y, th, now, self.params.frame_id))
 
 
-def main(args=None):
+def main(args: list[str] | None = None) -> int:
     return run_node(FakeRobot, args)
 
 

@@ -29,6 +29,7 @@ from curve_formation.core.controller.plausibility import bounded_command
 from curve_formation.core.controller.safety import Avoidance, AVOIDANCE_OFF
 from curve_formation.core.controller.settings import broken_rules, DEFAULT_RATE_HZ, SETTINGS
 from curve_formation.core.formation.assignment import AssignmentError
+from curve_formation.interface import robot_name
 from curve_formation.nodes import messages, topics
 from curve_formation.nodes.command_source import CommandSourceWatch
 from curve_formation.nodes.estop import estop_uses, EstopHolder
@@ -200,7 +201,7 @@ class FormationController(Node):
         # Stopped until the e-stop state is heard: one that starts while the formation is
         # stopped must not move first.
         self.controller.set_estop(True, 'e-stop state not heard yet')
-        self.estop = EstopHolder(self, f'robot_{self.config.index}', self.config.agent_count,
+        self.estop = EstopHolder(self, robot_name(self.config.index), self.config.agent_count,
                                  self._on_estop)
         for j, _ in self.config.neighbours:
             topics.subscription(self, topics.STATE, lambda msg, j=j: self._on_neighbour(j, msg),
@@ -322,7 +323,7 @@ class FormationController(Node):
                    else DiagnosticStatus.OK),
             name=f'{self.get_fully_qualified_name()}',
             message=f'stopped: {self._last_reason}' if self._last_reason else 'driving',
-            hardware_id=f'robot_{self.config.index}',
+            hardware_id=robot_name(self.config.index),
             values=[KeyValue(key='curve_id', value=str(c.curve_id)),
                     KeyValue(key='s', value=f'{c.s}'),
                     KeyValue(key='dhat', value=f'{c.dhat[0]:.6g} {c.dhat[1]:.6g}'),

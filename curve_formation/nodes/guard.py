@@ -7,8 +7,13 @@ the process: one bad message from a buggy script on the domain would stop every 
 controller read it.
 """
 
+from collections.abc import Callable
 import inspect
 import time
+from typing import Any
+import weakref
+
+from rclpy.node import Node
 
 
 LOG_PERIOD = 5.0   # s between two log lines of the same topic and cause
@@ -17,13 +22,14 @@ LOG_PERIOD = 5.0   # s between two log lines of the same topic and cause
 class Rejections:
     """A node's rejected messages: {topic: count}, the last cause, throttled logging."""
 
-    def __init__(self, node):
+    def __init__(self, node: Node) -> None:
         self.node = node
-        self.counts = {}
+        self.counts: dict[str, int] = {}
         self.last = ''
-        self._logged = {}   # (topic, cause kind) -> time.monotonic() of the last log line
+        # (topic, cause kind) -> time.monotonic() of the last log line
+        self._logged: dict[tuple[str, str], float] = {}
 
-    def reject(self, topic, cause):
+    def reject(self, topic: str, cause: object) -> None:
         """Count and (throttled) log one rejected message on `topic` because of `cause`."""
         self.counts[topic] = self.counts.get(topic, 0) + 1
         text = ' '.join(str(cause).split())[:300]
@@ -35,19 +41,22 @@ class Rejections:
             self.node.get_logger().warning(
                 f'message on {topic} rejected ({self.counts[topic]} so far): {text}')
 
-    def total(self):
+    def total(self) -> int:
         return sum(self.counts.values())
 
-    def summary(self):
+    def summary(self) -> str:
         """'topic: n, ...' for diagnostics ('' when none)."""
         return ', '.join(f'{topic}: {n}' for topic, n in sorted(self.counts.items()))
 
 
-def rejections(node):
+_REJECTIONS: 'weakref.WeakKeyDictionary[Node, Rejections]' = weakref.WeakKeyDictionary()
+
+
+def rejections(node: Node) -> 'Rejections':
     """The node's Rejections, created on first use."""
-    found = getattr(node, '_rejections', None)
+    found = _REJECTIONS.get(node)
     if found is None:
-        found = node._rejections = Rejections(node)
+        found = _REJECTIONS[node] = Rejections(node)
     return found
 
 
@@ -58,13 +67,13 @@ class Guarded:
     two-argument callback (runtime.WithMessageInfo).
     """
 
-    def __init__(self, node, topic, fn):
+    def __init__(self, node: Node, topic: str, fn: Callable[..., Any]) -> None:
         self.fn = fn
         self.topic = topic
         self.book = rejections(node)
         self.__signature__ = inspect.signature(fn)
 
-    def __call__(self, *args):
+    def __call__(self, *args: Any) -> Any:
         try:
             return self.fn(*args)
         except Exception as exc:  # noqa: BLE001 - any message, any fault: rejected, not fatal

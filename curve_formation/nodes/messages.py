@@ -15,6 +15,7 @@ not a stamp, so that hosts' clocks need not agree); header.stamp = stamp of the 
 was computed from.
 """
 
+from collections.abc import Sequence
 import math
 
 from builtin_interfaces.msg import Time
@@ -29,16 +30,20 @@ from geometry_msgs.msg import (
     Vector3Stamped,
 )
 import numpy as np
+from numpy.typing import ArrayLike
 from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from curve_formation.core.controller.estop import estop_fields
+from curve_formation.core.controller.inputs import State, Tick
 from curve_formation.core.formation.curve_codec import (
     CodecError,
     curve_id_from_float,
+    CurveClock,
     encode_curve,
     quaternion_from_yaw,
 )
+from curve_formation.core.formation.curves import Curve
 from curve_formation.interface import (  # noqa: F401 (the readers, for the nodes)
     agent_parameters_from_msg,
     curve_clock_from_msg,
@@ -56,12 +61,14 @@ MessageError = CodecError
 
 
 
-def seconds_to_stamp(seconds):
+def seconds_to_stamp(seconds: float) -> Time:
     sec = math.floor(seconds)
     return Time(sec=int(sec), nanosec=int(round((seconds - sec) * 1e9)) % 1_000_000_000)
 
 
-def curve_to_msg(curve, curve_id, s=None, rate=None, clock=None):
+def curve_to_msg(curve: Curve, curve_id: int, s: ArrayLike | None = None,
+                 rate: Curve | None = None, clock: CurveClock | None = None
+                 ) -> Float64MultiArray:
     """Float64MultiArray of a curve and, if given, its coefficients' rate (a moving curve),
     when it holds (core.formation.curve_codec.CurveClock) and the agents' parameters s (n,).
     """
@@ -83,7 +90,8 @@ def curve_to_msg(curve, curve_id, s=None, rate=None, clock=None):
 
 
 
-def pose_to_msg(x, y, theta, stamp_s, frame_id='arena', msg=None):
+def pose_to_msg(x: float, y: float, theta: float, stamp_s: float, frame_id: str = 'arena',
+                msg: PoseStamped | None = None) -> PoseStamped:
     """PoseStamped of a planar pose; `msg`: one to fill instead of a new one (a publisher's
     own, reused: publish() serialises it at once; 3.6 us against 9.3 us).
     """
@@ -95,7 +103,7 @@ def pose_to_msg(x, y, theta, stamp_s, frame_id='arena', msg=None):
     return msg
 
 
-def twist_to_msg(v, w):
+def twist_to_msg(v: float, w: float) -> Twist:
     msg = Twist()
     msg.linear.x, msg.angular.z = float(v), float(w)
     return msg
@@ -107,7 +115,8 @@ STATE_FIELDS = ('e_x', 'e_y', 'curve_id', 'leader_age')
 NO_NEWS = -1.0   # leader_age before any news of the leader (real ages are above -0.25 s)
 
 
-def state_to_msg(state, frame_id='arena', msg=None):
+def state_to_msg(state: State, frame_id: str = 'arena', msg: JointState | None = None
+                 ) -> JointState:
     """JointState carrying a core.controller.agent.State; `msg`: one to fill, as pose_to_msg."""
     if msg is None:
         msg = JointState()
@@ -119,7 +128,7 @@ def state_to_msg(state, frame_id='arena', msg=None):
     return msg
 
 
-def state_from_msg(msg):
+def state_from_msg(msg: JointState) -> tuple[float, float, int, float, float | None]:
     """(ex, ey, curve_id, stamp_s, leader_age_s or None); MessageError if malformed."""
     values = dict(zip(msg.name, msg.position, strict=False))
     missing = [f for f in STATE_FIELDS if f not in values]
@@ -133,14 +142,14 @@ def state_from_msg(msg):
             stamp_to_seconds(msg.header.stamp), None if leader <= NO_NEWS else leader)
 
 
-def estimate_to_msg(dhat, stamp_s):
+def estimate_to_msg(dhat: Sequence[float], stamp_s: float) -> Vector3Stamped:
     msg = Vector3Stamped()
     msg.header.stamp = seconds_to_stamp(stamp_s)
     msg.vector.x, msg.vector.y = float(dhat[0]), float(dhat[1])
     return msg
 
 
-def tick_to_msg(tick, now_s):
+def tick_to_msg(tick: Tick, now_s: float) -> JointState:
     """JointState of one control tick at now_s: the command sent and the inputs it came from.
 
     names 'v' (m/s), 'w' (rad/s), 'pose_stamp' (s, NaN if none), 'x', 'y', 'theta' (m, rad:
@@ -154,11 +163,11 @@ def tick_to_msg(tick, now_s):
     msg.name = (['v', 'w', 'pose_stamp', 'x', 'y', 'theta']
                 + [f'stamp_{j}' for j, _ in tick.neighbour_stamps])
     msg.position = [float(tick.v), float(tick.w), float(pose_stamp)] + [float(v) for v in pose] + [
-        float(stamp) for _, stamp in tick.neighbour_stamps]
+        math.nan if stamp is None else float(stamp) for _, stamp in tick.neighbour_stamps]
     return msg
 
 
-def tick_from_msg(msg):
+def tick_from_msg(msg: JointState) -> dict[str, float]:
     """{name: value} of a control_tick message."""
     return dict(zip(msg.name, msg.position, strict=True))
 
@@ -167,7 +176,7 @@ def tick_from_msg(msg):
 IMAGE_CHANNELS = {'mono8': 1, '8UC1': 1, 'bgr8': 3, 'rgb8': 3, 'bgra8': 4, 'rgba8': 4}
 
 
-def image_to_msg(image, stamp_s, frame_id='camera'):
+def image_to_msg(image: np.ndarray, stamp_s: float, frame_id: str = 'camera') -> Image:
     """sensor_msgs/Image from a uint8 array: (h, w) -> mono8, (h, w, 3) -> bgr8 (OpenCV's)."""
     image = np.ascontiguousarray(image, dtype=np.uint8)
     msg = Image()
@@ -181,7 +190,7 @@ def image_to_msg(image, stamp_s, frame_id='camera'):
     return msg
 
 
-def gray_from_image_msg(msg):
+def gray_from_image_msg(msg: Image) -> np.ndarray:
     """(h, w) uint8 grey image from a mono8 / bgr8 / rgb8 / bgra8 / rgba8 Image.
 
     Raises MessageError on another encoding or a size that does not match the header.
@@ -204,7 +213,8 @@ def gray_from_image_msg(msg):
     return cv2.cvtColor(np.ascontiguousarray(pixels), code[(msg.encoding, channels)])
 
 
-def robot_poses_to_msg(poses, stamp_s, frame_id='arena'):
+def robot_poses_to_msg(poses: np.ndarray, stamp_s: float, frame_id: str = 'arena'
+                       ) -> JointState:
     """JointState of every robot's pose (n, 3) at stamp_s (the layout above)."""
     msg = JointState()
     msg.header.stamp = seconds_to_stamp(stamp_s)
@@ -213,7 +223,7 @@ def robot_poses_to_msg(poses, stamp_s, frame_id='arena'):
     return msg
 
 
-def robot_poses_from_msg(msg):
+def robot_poses_from_msg(msg: JointState) -> tuple[np.ndarray, float]:
     """(poses (n, 3), stamp_s) from a /formation/robot_poses message; MessageError if its
     length is not a multiple of 3.
     """
@@ -223,7 +233,8 @@ def robot_poses_from_msg(msg):
     return values.reshape(-1, 3), stamp_to_seconds(msg.header.stamp)
 
 
-def pose_array_to_msg(poses, count, stamp_s, frame_id='arena'):
+def pose_array_to_msg(poses: dict[int, Sequence[float]], count: int, stamp_s: float,
+                      frame_id: str = 'arena') -> PoseArray:
     """geometry_msgs/PoseArray of agents 1..count in order; an agent missing from `poses`
     ({agent: (x, y, theta)}) gets a NaN pose, so positions keep their meaning.
     """
@@ -241,7 +252,8 @@ def pose_array_to_msg(poses, count, stamp_s, frame_id='arena'):
     return msg
 
 
-def polygon_to_msg(points, closed, stamp_s, frame_id='arena'):
+def polygon_to_msg(points: np.ndarray, closed: bool, stamp_s: float,
+                   frame_id: str = 'arena') -> PolygonStamped:
     """PolygonStamped of ordered curve points (k, 2) (m); a closed curve repeats its first
     point last, which is how the curve server tells it from an open one.
     """
@@ -255,7 +267,7 @@ def polygon_to_msg(points, closed, stamp_s, frame_id='arena'):
     return msg
 
 
-def polygon_from_msg(msg):
+def polygon_from_msg(msg: PolygonStamped) -> tuple[np.ndarray, bool]:
     """(points (k, 2), closed) of an observed curve: closed when the last point repeats the
     first (then dropped).
     """
@@ -265,7 +277,8 @@ def polygon_from_msg(msg):
 
 
 
-def estop_state_to_msg(holder, role, robot, engaged, by, since, robots=0):
+def estop_state_to_msg(holder: str, role: str, robot: str, engaged: bool, by: str,
+                       since: float, robots: int = 0) -> DiagnosticStatus:
     """DiagnosticStatus of a node's e-stop state (core.controller.estop.EstopReport's fields):
     level
     WARN engaged, OK released.

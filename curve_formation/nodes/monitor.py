@@ -7,19 +7,27 @@ Not a console script: the runner and tests create it in-process.
 """
 
 from collections import deque
+from collections.abc import Callable
 import math
 import time
+from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseStamped, Twist, Vector3Stamped
 import numpy as np
 from rclpy.node import Node
+from rclpy.subscription import Subscription
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
 
 from curve_formation import diagnostics
 from curve_formation.core.config.agents import geofence
+from curve_formation.core.config.experiment import Experiment, Phase
 from curve_formation.core.controller.estop import stopped_intervals
 from curve_formation.core.record.received_phases import ReceivedPhases
 from curve_formation.core.record.sample_log import SampleLog
 from curve_formation.core.record.sampling import LatestValues
+from curve_formation.interface import robot_name
 from curve_formation.nodes import messages, qos, topics
 from curve_formation.nodes.command_source import command_publishers, WATCH_PERIOD
 from curve_formation.nodes.readiness import subscribe_to_curve
@@ -30,7 +38,7 @@ TIMING_WINDOW = 3000   # newest command arrivals / tick latencies kept per robot
 WAKE_LIMIT = 1.0       # s after a late timer call that samples wait at most for a fresh pose
 
 
-def recording_fields(n, ground_truth):
+def recording_fields(n: int, ground_truth: bool) -> dict[str, Any]:
     """The monitor's SampleLog fields for n robots: t (s since the first curve), poses (n, 3)
     (m, m, rad; world frame), commands (n, 2) (m/s, rad/s), dhat (n, 2), curve_id, unseen (n,)
     (robots missing from the poses), pose_stamps (n,) (s since t = 0: when each pose was
@@ -52,8 +60,9 @@ class Monitor(Node):
     where a holder's state changed, timing rows in windows of TIMING_WINDOW.
     """
 
-    def __init__(self, n, record_hz=20.0, ground_truth=False, watch=True, adoption=True,
-                 experiment=None, **kwargs):
+    def __init__(self, n: int, record_hz: float = 20.0, ground_truth: bool = False,
+                 watch: bool = True, adoption: bool = True,
+                 experiment: Experiment | None = None, **kwargs: Any) -> None:
         """ground_truth: also record the fake robots' true poses (when a camera tracks them).
         experiment: the run's (core.config.experiment.Experiment): the phases followed are told
         from
@@ -77,21 +86,24 @@ class Monitor(Node):
             [] for _ in range(n)]
         self.law_pose_tally = [0, 0.0]
         self.command_times = np.full(n, np.nan)
-        self.curve_id = None
-        self.t0 = None
-        self.curve_times = {}      # curve id -> DDS source timestamp of its first message (s)
+        self.curve_id: int | None = None
+        self.t0: float | None = None
+        # curve id -> DDS source timestamp of its first message (s)
+        self.curve_times: dict[int, float] = {}
         self.followed = None if experiment is None else ReceivedPhases(experiment)
         self.unseen = np.zeros(n, bool)   # robots missing from /formation/robot_poses now
         self.contacts = None       # fake_arena's contact summary, as last reported
         # robot_bridge name -> its reports [(t s, level, message, {key: value})]: the newest
         # and each that began a loss or an error (level 2 after a lower one)
-        self.links = {}
-        self._link_onset_last = set()   # links whose newest kept report began a loss
-        self.estop_events = []     # (received s, holder, engaged) where a holder's state changed
-        self._estop_held = {}      # holder -> its state last heard
-        self.node_deaths = []      # (t s since t = 0 or None, node key, how) reported here
+        self.links: dict[str, list[tuple[float, int, str, dict[str, str]]]] = {}
+        self._link_onset_last: set[str] = set()   # links whose newest kept report began a loss
+        # (received s, holder, engaged) where a holder's state changed
+        self.estop_events: list[tuple[float, str, bool]] = []
+        self._estop_held: dict[str, bool] = {}      # holder -> its state last heard
+        # (t s since t = 0 or None, node key, how) reported here
+        self.node_deaths: list[tuple[float | None, str, str]] = []
         # robot -> [[from s, to s or None, publishing nodes]] while its cmd_vel had several
-        self.command_sources = {}
+        self.command_sources: dict[str, list[list[Any]]] = {}
         # Per robot, one (published, received, handled) row per command (s, system clock):
         # the DDS source timestamp, the time DDS received it here, the time this callback ran.
         self.command_arrivals: list[deque[tuple[float, float, float]]] = [
@@ -100,7 +112,7 @@ class Monitor(Node):
         self.tick_latencies: list[deque[float]] = [deque(maxlen=TIMING_WINDOW)
                                                    for _ in range(n)]
         # (robot, curve id) -> DDS source timestamp of its first state on that curve (s)
-        self.adopted = {}
+        self.adopted: dict[tuple[int, int], float] = {}
         self.recording = SampleLog(recording_fields(n, ground_truth))
         for i in range(1, n + 1 if watch else 1):
             self._subscribe(topics.POSE, lambda m, i=i: self._on_pose(i, m), i)
@@ -122,21 +134,24 @@ class Monitor(Node):
             self.create_timer(WATCH_PERIOD, self._watch_command_sources)
             self.create_timer(1.0 / record_hz, self._sample)
         self.period = 1.0 / record_hz
-        self.last_call = None      # time.monotonic() of the sampling timer's last call
+        # time.monotonic() of the sampling timer's last call
+        self.last_call: float | None = None
         self.late_samples = 0      # samples skipped after the timer came late (see _sample)
         self.closed = False        # the run is over (close): nothing more is sampled
-        self._woke_at = None       # time.monotonic() of a late call whose fresh pose is awaited
+        # time.monotonic() of a late call whose fresh pose is awaited
+        self._woke_at: float | None = None
         self._pose_arrival = -np.inf   # time.monotonic() the newest pose message arrived
 
-    def _subscribe(self, name, callback, robot=None):
+    def _subscribe(self, name: str, callback: Callable[..., Any], robot: int | str | None = None
+                   ) -> Subscription:
         return topics.subscription(self, name, callback, robot,
                                    event_callbacks=qos.observer_events())
 
-    def _on_pose(self, i, msg):
+    def _on_pose(self, i: int, msg: PoseStamped) -> None:
         self._pose_arrival = time.monotonic()
         self.latest.pose(i, *messages.pose_from_msg(msg))
 
-    def _on_true_pose(self, i, msg):
+    def _on_true_pose(self, i: int, msg: PoseStamped) -> None:
         x, y, theta, stamp = messages.pose_from_msg(msg)
         assert self.true_poses is not None   # subscribed with ground truth only
         self.true_poses[i - 1] = (x, y, theta)
@@ -144,7 +159,7 @@ class Monitor(Node):
         history.append((stamp, x, y, theta))
         del history[:-2]
 
-    def _on_tick(self, i, msg):
+    def _on_tick(self, i: int, msg: JointState) -> None:
         """The pose robot i's law used at its tick against the truth then, extrapolated
         from the last two true poses (the fake robots and the controllers share this clock).
         """
@@ -160,31 +175,31 @@ class Monitor(Node):
         self.law_pose_tally[0] += 1
         self.law_pose_tally[1] += gap * gap
 
-    def law_pose_rms(self):
+    def law_pose_rms(self) -> float | None:
         """RMS (m) over every tick of every robot of how far the pose its law used was from
         the truth (None before any tick).
         """
         count, squares = self.law_pose_tally
         return math.sqrt(squares / count) if count else None
 
-    def _on_cmd(self, i, msg, info):
+    def _on_cmd(self, i: int, msg: Twist, info: dict[str, Any]) -> None:
         self.latest.command(i, *messages.twist_from_msg(msg))
         self.command_times[i - 1] = now_seconds(self)
         self.command_arrivals[i - 1].append((info['source_timestamp'] * 1e-9,
                                              info['received_timestamp'] * 1e-9,
                                              time.time()))
 
-    def _on_estimate(self, i, msg):
+    def _on_estimate(self, i: int, msg: Vector3Stamped) -> None:
         self.latest.estimate(i, msg.vector.x, msg.vector.y)
         if self.t0 is not None:
             self.tick_latencies[i - 1].append(
                 now_seconds(self) - messages.stamp_to_seconds(msg.header.stamp))
 
-    def _on_state(self, i, msg, info):
+    def _on_state(self, i: int, msg: JointState, info: dict[str, Any]) -> None:
         curve_id = messages.state_from_msg(msg)[2]
         self.adopted.setdefault((i, curve_id), info['source_timestamp'] * 1e-9)
 
-    def _on_curve(self, msg, info):
+    def _on_curve(self, msg: Float64MultiArray, info: dict[str, Any]) -> None:
         # Dated when received, as the recorder dates it in a bag (bags/analysis.py reads t = 0
         # from there): both run in the runner's process.
         curve, self.curve_id = messages.curve_from_msg(msg)
@@ -200,20 +215,20 @@ class Monitor(Node):
             self.followed.add(now - self.t0, self.curve_id, curve, given,
                               None if clock is None else clock.since(self.t0))
 
-    def _watch_command_sources(self):
+    def _watch_command_sources(self) -> None:
         if self.t0 is None:
             return
         t = now_seconds(self) - self.t0
         for i in range(1, self.n + 1):
             names = command_publishers(self, topics.robot_topic(i, topics.CMD_VEL))
-            episodes = self.command_sources.get(f'robot_{i}', [])
+            episodes = self.command_sources.get(robot_name(i), [])
             open_ = bool(episodes) and episodes[-1][1] is None
             if len(names) > 1 and not open_:
-                self.command_sources.setdefault(f'robot_{i}', []).append([t, None, names])
+                self.command_sources.setdefault(robot_name(i), []).append([t, None, names])
             elif len(names) <= 1 and open_:
                 episodes[-1][1] = t
 
-    def _on_estop_state(self, msg):
+    def _on_estop_state(self, msg: DiagnosticStatus) -> None:
         try:
             report = messages.estop_state_from_msg(msg)
         except messages.MessageError:
@@ -222,7 +237,7 @@ class Monitor(Node):
             self._estop_held[report.holder] = report.engaged
             self.estop_events.append((now_seconds(self), report.holder, report.engaged))
 
-    def estop_intervals(self, end):
+    def estop_intervals(self, end: float) -> list[tuple[float, float | None]]:
         """[(start, stop or None)] (s since t = 0, up to `end`) while a node held the e-stop
         (core.controller.estop.stopped_intervals); [] before t = 0.
         """
@@ -231,13 +246,13 @@ class Monitor(Node):
         return stopped_intervals([(t - self.t0, holder, engaged)
                                   for t, holder, engaged in self.estop_events], end)
 
-    def close(self):
+    def close(self) -> None:
         """The run is over: sample no more. Its nodes are stopped next, and what they do
         while stopping (zero commands, robots left behind a moving curve) is not the run.
         """
         self.closed = True
 
-    def report_death(self, key, how):
+    def report_death(self, key: str, how: str) -> tuple[float | None, DiagnosticArray]:
         """A node of the run died: kept (node_deaths). Returns (its t, s since t = 0 or None;
         the /diagnostics message that tells it, stamped now: diagnostics.NODE_DEATH_REPORTER).
 
@@ -255,11 +270,11 @@ class Monitor(Node):
         msg.header.stamp = messages.seconds_to_stamp(now)
         return t, msg
 
-    def followed_phases(self):
+    def followed_phases(self) -> tuple[Phase, ...]:
         """The phases the run followed (core.config.experiment.ReceivedPhases); () without one."""
         return () if self.followed is None else self.followed.phases
 
-    def _on_robot_poses(self, msg):
+    def _on_robot_poses(self, msg: JointState) -> None:
         try:
             poses, _ = messages.robot_poses_from_msg(msg)
         except messages.MessageError:
@@ -267,7 +282,7 @@ class Monitor(Node):
         if len(poses) == self.n:
             self.unseen = ~np.isfinite(poses).all(axis=1)
 
-    def _on_diagnostics(self, msg):
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
             if status.hardware_id == diagnostics.CONTACT_REPORTER:
                 self.contacts = diagnostics.contacts_from_report(
@@ -278,7 +293,8 @@ class Monitor(Node):
                           status.message, {kv.key: kv.value for kv in status.values})
                 self._keep_link_report(status.name, report)
 
-    def _keep_link_report(self, name, report):
+    def _keep_link_report(self, name: str, report: tuple[float, int, str, dict[str, str]]
+                          ) -> None:
         """Keep a link's newest report and each that began a loss or an error (level 2
         after a lower level): link reports come every second for the whole run.
         """
@@ -292,17 +308,17 @@ class Monitor(Node):
         else:
             self._link_onset_last.discard(name)
 
-    def ready(self):
+    def ready(self) -> bool:
         """Every robot's pose and every controller's command has been seen."""
         return not self.missing()
 
-    def missing(self):
+    def missing(self) -> list[str]:
         return ([topics.robot_topic(int(i) + 1, topics.POSE)
                  for i in np.flatnonzero(np.isnan(self.latest.pose_stamps))]
                 + [topics.robot_topic(int(i) + 1, topics.CMD_VEL)
                    for i in np.flatnonzero(np.isnan(self.command_times))])
 
-    def _sample(self):
+    def _sample(self) -> None:
         # A call more than half a period late means this process was held up (a stalled
         # machine, a garbage collection): the executor calls the timer before the messages
         # that queued meanwhile, and the publishers held up with it resume when the scheduler

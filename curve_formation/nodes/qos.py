@@ -31,7 +31,7 @@ ESTOP_RELIABLE = profile(QOS['ESTOP_RELIABLE'])
 IMAGE = profile(QOS['IMAGE'])
 
 
-def observer_events():
+def observer_events() -> SubscriptionEventCallbacks:
     """Event callbacks for the runner's own observers (monitor, recorder): none.
 
     rclpy gives every subscription two QoS event handlers by default (incompatible QoS and

@@ -13,6 +13,11 @@ links: a curve published before reaches only the readers it has matched, and the
 a later one).
 """
 
+from collections.abc import Callable
+from typing import Any
+
+from rclpy.node import Node
+from rclpy.subscription import Subscription
 from std_msgs.msg import String
 
 from curve_formation.nodes import topics
@@ -27,7 +32,7 @@ class ReadyReport:
     log: say so in the node's log (the runner's own monitor does not, to keep a terminal quiet).
     """
 
-    def __init__(self, node, subscription, log=True):
+    def __init__(self, node: Node, subscription: Subscription, log: bool = True) -> None:
         self._node = node
         self._log = log
         self._subscription = subscription
@@ -35,7 +40,7 @@ class ReadyReport:
         self._timer = node.create_timer(POLL, self._poll)
         self.reported = False
 
-    def _poll(self):
+    def _poll(self) -> None:
         if self._subscription.get_publisher_count() > 0:
             self.reported = True
             self._pub.publish(String(data=self._node.get_fully_qualified_name()))
@@ -44,7 +49,8 @@ class ReadyReport:
                 self._node.get_logger().info('ready: /formation/curve has a publisher')
 
 
-def subscribe_to_curve(node, callback, log=True, **kwargs):
+def subscribe_to_curve(node: Node, callback: Callable[..., Any], log: bool = True,
+                       **kwargs: Any) -> Subscription:
     """node's subscription to /formation/curve, reported ready once it has a publisher
     (kwargs go to create_subscription).
     """
@@ -56,14 +62,14 @@ def subscribe_to_curve(node, callback, log=True, **kwargs):
 class ReadyCount:
     """The names of the nodes that have reported ready (read by the curve server)."""
 
-    def __init__(self, node):
-        self.names = set()
+    def __init__(self, node: Node) -> None:
+        self.names: set[str] = set()
         topics.subscription(node, topics.READY, self._on_ready)
 
-    def _on_ready(self, msg):
+    def _on_ready(self, msg: String) -> None:
         self.names.add(msg.data)
 
-    def __len__(self):
+    def __len__(self) -> int:
         return len(self.names)
 
 

@@ -5,6 +5,9 @@ own it records a run whose nodes were started by hand. The bag is closed on Ctrl
 and at the end of the run; killed hard, it loses at most the last second.
 """
 
+from collections.abc import Sequence
+from typing import Any
+
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
@@ -38,12 +41,12 @@ class Recorder(Node):
     (they do from a single writer), from which analysis.bag_accounting tells what was lost.
     """
 
-    def __init__(self, writer, topic_list, **kwargs):
+    def __init__(self, writer: Any, topic_list: Sequence[Any], **kwargs: Any) -> None:
         """topic_list: [topics.Topic] by absolute names (topics.recorded)."""
         super().__init__(RECORDER_NODE, start_parameter_services=False, **kwargs)
         self.writer = writer
         self.received = {}
-        self.streams = {}
+        self.streams: dict[str, Any] = {}
         for recorded in topic_list:
             topic, msg_class, profile = (recorded.name, recorded.msg_class,
                                          recorded.reader_profile)
@@ -64,7 +67,7 @@ class Recorder(Node):
             if topic == topics.CURVE:   # the bag's t = 0 is its first curve: not a later one
                 ReadyReport(self, subscription, log=False)
 
-    def _on_message(self, topic, data, info, keyed):
+    def _on_message(self, topic: str, data: bytes, info: dict[str, Any], keyed: bool) -> None:
         self.received[topic] += 1
         self.writer.write(topic, self.get_clock().now().nanoseconds, data)
         key = topic if keyed is None else writer_key(topic, deserialize_message(data, keyed))
@@ -95,7 +98,7 @@ TOPICS = tuple(topics.Use('sub', t.name, robot='<i>' if t.per_robot else None)
 class RecorderNode(Recorder):
     """The recorder as a console script: opens the bag itself and closes it on shutdown."""
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         # Parameters must be read before the bag exists, so a bootstrap node reads them.
         probe = Node('formation_recorder_parameters', **kwargs)
         try:
@@ -116,19 +119,19 @@ class RecorderNode(Recorder):
             raise
         self.get_logger().info(f'recording {len(self.received)} topics to {p.bag}')
 
-    def on_shutdown(self):
+    def on_shutdown(self) -> None:
         # What arrived before the stop but is still queued goes into the bag too.
         if self.executor is not None:
             spin_until_quiet(self.executor, lambda: self.writer.count)
         self.writer.close()
         self.get_logger().info(f'bag closed: {self.writer.count} messages')
 
-    def destroy_node(self):
+    def destroy_node(self) -> None:
         self.writer.close()   # also when on_shutdown did not run (context already shut down)
         super().destroy_node()
 
 
-def main(args=None):
+def main(args: list[str] | None = None) -> int:
     return run_node(RecorderNode, args, large_data=True)   # camera frames
 
 

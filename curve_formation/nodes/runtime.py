@@ -1,5 +1,6 @@
 """Running a node as a console script: init, spin, clean shutdown, clear start-up errors."""
 
+from collections.abc import Callable, Iterator
 import contextlib
 import faulthandler
 import inspect
@@ -10,10 +11,14 @@ import signal
 import sys
 import threading
 import time
+from typing import Any, Optional
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.context import Context
+from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.publisher import Publisher
 from rclpy.signals import SignalHandlerOptions
 
 from curve_formation.bags.streams import stream_key
@@ -39,7 +44,7 @@ RECORDER_NODE = 'formation_recorder'
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
-def writer_key(topic, msg):
+def writer_key(topic: str, msg: Any) -> str:
     """Names one writer's stream within a topic, the same way for publisher and recorder.
 
     A formation topic has one writer, so its name suffices; /diagnostics and
@@ -61,34 +66,34 @@ class PublicationCounter:
     that one on, however late it was matched (see analysis.bag_accounting).
     """
 
-    def __init__(self, node):
-        self.counts = {}
+    def __init__(self, node: Node) -> None:
+        self.counts: dict[str, int] = {}
         for publisher in node.publishers:
             self._wrap(publisher)
 
-    def _wrap(self, publisher):
+    def _wrap(self, publisher: Publisher) -> None:
         topic = publisher.topic_name
         publish = publisher.publish
 
-        def counted(msg):
+        def counted(msg: Any) -> None:
             key = writer_key(topic, msg)
             self.counts[key] = self.counts.get(key, 0) + 1
             publish(msg)
-        publisher.publish = counted
+        publisher.publish = counted  # type: ignore[method-assign]
 
-    def save(self, folder, name):
+    def save(self, folder: str | Path, name: str) -> None:
         path = Path(folder) / f'{name.strip("/").replace("/", ".")}.json'
         path.write_text(json.dumps(self.counts))
 
 
-def now_seconds(node):
+def now_seconds(node: Node) -> float:
     """The node's clock (sim time when use_sim_time is set) in seconds, plus this process's
     injected clock offset (CLOCK_OFFSET_ENV; tests of hosts whose clocks disagree).
     """
     return node.get_clock().now().nanoseconds * 1e-9 + CLOCK_OFFSET
 
 
-def _clock_offset():
+def _clock_offset() -> float:
     text = os.environ.get(CLOCK_OFFSET_ENV, '')
     try:
         return float(text) if text else 0.0
@@ -99,7 +104,8 @@ def _clock_offset():
 CLOCK_OFFSET = _clock_offset()
 
 
-def run_node(node_factory, args=None, large_data=False):
+def run_node(node_factory: Callable[..., Node], args: list[str] | None = None,
+             large_data: bool = False) -> int:
     """Create the node, spin it until Ctrl-C, SIGTERM or shutdown, then shut it down cleanly.
 
     `--help` prints the node's parameters (nodes.command_line) and returns 0. A parameters
@@ -130,12 +136,12 @@ def run_node(node_factory, args=None, large_data=False):
     # A signal while the node is built only asks it to stop once built, so that it still ends
     # through its shutdown (e.g. the recorder writes what it already received); a second one
     # interrupts the building (it may block, e.g. opening a camera).
-    def while_building(signum, frame):
+    def while_building(signum: int, frame: Any) -> None:
         if stop.is_set():
             raise KeyboardInterrupt(f'signal {signum}')
         request_stop()
 
-    def request_stop(*_):
+    def request_stop(*_: Any) -> None:
         if not stop.is_set():
             _exit_hard_after(EXIT_DEADLINE)
         stop.set()
@@ -172,7 +178,7 @@ def run_node(node_factory, args=None, large_data=False):
     return status
 
 
-def realtime_priority(priority):
+def realtime_priority(priority: int) -> str | None:
     """Schedule the calling thread SCHED_FIFO at `priority` (1-99), so that processes woken
     around it (a busy PC's other nodes, the kernel's tty work) cannot delay what it does
     next; threads it starts later inherit it. Returns None, or why not (it needs root,
@@ -187,7 +193,7 @@ def realtime_priority(priority):
     return None
 
 
-def _exit_hard_after(seconds):
+def _exit_hard_after(seconds: float) -> None:
     """Dump every thread's stack to stderr and end the process if it still runs in `seconds`.
 
     A node must not outlive its run: Fast DDS has been seen to hang for good while tearing
@@ -197,7 +203,8 @@ def _exit_hard_after(seconds):
     faulthandler.dump_traceback_later(seconds, exit=True)
 
 
-def spin_until_quiet(executor, count, quiet=0.3, limit=3.0):
+def spin_until_quiet(executor: Executor, count: Callable[[], int], quiet: float = 0.3,
+                     limit: float = 3.0) -> None:
     """Spin until count() has not changed for `quiet` s, `limit` s at most.
 
     Takes what already arrived but is still queued (e.g. the last messages for a bag).
@@ -210,7 +217,7 @@ def spin_until_quiet(executor, count, quiet=0.3, limit=3.0):
             quiet_since, seen = time.monotonic(), count()
 
 
-def make_executor(context=None):
+def make_executor(context: Optional[Context] = None) -> Executor:
     """The executor chosen by $CURVE_FORMATION_EXECUTOR (default 'events').
 
     rclpy has the EventsExecutor since Jazzy's 7.1.4; an older rclpy gets the
@@ -235,7 +242,7 @@ def make_executor(context=None):
 
 
 @contextlib.contextmanager
-def _python_signal_handlers_kept():
+def _python_signal_handlers_kept() -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread():
         yield   # signal handlers can only be set from the main thread
         return
@@ -261,14 +268,14 @@ class WithMessageInfo:
         inspect.Parameter('msg', inspect.Parameter.POSITIONAL_ONLY),
         inspect.Parameter('info', inspect.Parameter.POSITIONAL_ONLY)])
 
-    def __init__(self, fn):
+    def __init__(self, fn: Callable[..., Any]) -> None:
         self.fn = fn
 
-    def __call__(self, *args):
+    def __call__(self, *args: Any) -> Any:
         msg, info = args if len(args) == 2 else args[0]
         return self.fn(msg, info)
 
 
-def _on_stop_signals(handler):
+def _on_stop_signals(handler: Callable[..., Any]) -> None:
     for sig in STOP_SIGNALS:
         signal.signal(sig, handler)

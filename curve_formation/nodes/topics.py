@@ -7,9 +7,15 @@ recorder records the topics marked `recorded`, and the node tables of docs/nodes
 a robot is placed by its namespace; `robot_topic` gives their absolute names.
 """
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from importlib import import_module
-from typing import NamedTuple
+from typing import Any, NamedTuple
+
+from rclpy.node import Node
+from rclpy.publisher import Publisher
+from rclpy.qos import QoSProfile
+from rclpy.subscription import Subscription
 
 from curve_formation.interface import (  # noqa: F401 (the names, for the nodes)
     CAMERA_DEBUG,
@@ -43,7 +49,7 @@ from curve_formation.nodes import qos
 from curve_formation.nodes.guard import Guarded
 
 
-def message_class(type_name):
+def message_class(type_name: str) -> type:
     """The rclpy message class of a type name such as 'geometry_msgs/msg/PoseStamped'."""
     package, kind, name = type_name.split('/')
     return getattr(import_module(f'{package}.{kind}'), name)
@@ -77,11 +83,11 @@ class Topic:
         return self.spec.recorded
 
     @property
-    def profile(self):
+    def profile(self) -> QoSProfile:
         return getattr(qos, self.spec.qos_name)
 
     @property
-    def reader_profile(self):
+    def reader_profile(self) -> QoSProfile:
         return getattr(qos, self.spec.reader_qos_key)
 
     @property
@@ -102,17 +108,18 @@ class Topic:
 REGISTRY = {name: Topic.of(spec) for name, spec in TOPICS.items()}
 
 
-def _placed(name, robot):
-    return name if robot is None else robot_topic(robot, name)
+def _placed(name: str, robot: int | str | None) -> str:
+    return name if robot is None else robot_topic(robot, name)  # type: ignore[arg-type]
 
 
-def publisher(node, name, robot=None):
+def publisher(node: Node, name: str, robot: int | str | None = None) -> Publisher:
     """node's publisher of the registered topic `name` (of robot `robot`, if given)."""
     topic = REGISTRY[name]
     return node.create_publisher(topic.msg_class, _placed(name, robot), topic.profile)
 
 
-def subscription(node, name, callback, robot=None, **kwargs):
+def subscription(node: Node, name: str, callback: Callable[..., Any],
+                 robot: int | str | None = None, **kwargs: Any) -> Subscription:
     """node's subscription to the registered topic `name` (of robot `robot`, if given), its
     callback guarded (nodes/guard.py: a message it cannot take is rejected, never fatal);
     kwargs go to create_subscription (raw, event_callbacks).
@@ -123,7 +130,7 @@ def subscription(node, name, callback, robot=None, **kwargs):
                                     topic.reader_profile, **kwargs)
 
 
-def recorded(n, images=False):
+def recorded(n: int, images: bool = False) -> list['Topic']:
     """[Topic] a run of n robots records, per-robot topics by their absolute names."""
     kinds = (EVERY_BAG, WITH_IMAGES) if images else (EVERY_BAG,)
     chosen = [t for t in REGISTRY.values() if t.recorded in kinds]
@@ -146,5 +153,5 @@ class Use(NamedTuple):
     robot: str | None = None
 
     @property
-    def shown_name(self):
+    def shown_name(self) -> str:
         return _placed(self.name, self.robot)

@@ -20,6 +20,7 @@ import os
 import sys
 import time
 
+from curve_formation.interface import robot_name
 from curve_formation.paths import discovery_text
 
 
@@ -60,7 +61,7 @@ class Tally:
         before any report tells it).
         """
         n = self.expect or max((r.robots for r in self.reports.values()), default=0)
-        return [f'robot_{i}' for i in range(1, n + 1)] if n else None
+        return [robot_name(i) for i in range(1, n + 1)] if n else None
 
     def missing(self):
         expected = self.expected()

@@ -18,7 +18,7 @@ from curve_formation.core.config.experiment import wheel_base, wheel_radius
 from curve_formation.core.config.loading import control_rate
 from curve_formation.core.config.parameters import node_parameters
 from curve_formation.core.config.variations import variations_text
-from curve_formation.interface import robot_namespace
+from curve_formation.interface import robot_name, robot_namespace
 from curve_formation.run.run_options import DEFAULTS
 
 
@@ -137,7 +137,7 @@ def robot_links(n, bridge, folder, rng=None):
     machine (from LINK_PORTS), or a pseudo-terminal at folder/robot_<i>.
     """
     if bridge == 'pty':
-        return [f'pty:{Path(folder).resolve() / f"robot_{i}"}' for i in range(1, n + 1)]
+        return [f'pty:{Path(folder).resolve() / robot_name(i)}' for i in range(1, n + 1)]
     if bridge != 'udp':
         raise ValueError(f"bridge must be 'udp' or 'pty', got {bridge!r}")
     rng = rng or random.SystemRandom()

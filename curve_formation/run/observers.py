@@ -118,7 +118,7 @@ class Observers:
 
     def drain(self):
         """Spin until the recorder has taken what already arrived."""
-        spin_until_quiet(self.executor, self.recorded_count)
+        spin_until_quiet(self._executor(), self.recorded_count)
 
     def recorded_count(self):
         return 0 if self.bag_writer is None else self.bag_writer.count
