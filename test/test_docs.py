@@ -14,22 +14,21 @@ from curve_formation.run.launches import node_class
 NODE_REFERENCE = Path(__file__).resolve().parent.parent / 'docs' / 'nodes.md'
 
 
-def test_the_node_reference_is_the_generated_one():
-    text = NODE_REFERENCE.read_text()
-    begin, end = '<!-- nodes:begin -->\n', '\n<!-- nodes:end -->'
-    assert begin in text and end in text, 'docs/nodes.md lacks the node reference markers'
-    current = text.split(begin, 1)[1].split(end, 1)[0]
-    assert current == docs.nodes_markdown(), (
-        'docs/nodes.md is stale: regenerate with `curve-formation nodes-doc`')
+GENERATED = [   # (page, marker, the table as the code makes it, the command that prints it)
+    ('nodes.md', 'nodes', docs.nodes_markdown, 'curve-formation nodes-doc'),
+    ('experiments.md', 'settings', docs.settings_markdown,
+     'curve-formation nodes-doc --settings'),
+]
 
 
-def test_the_settings_table_is_the_generated_one():
-    text = (NODE_REFERENCE.parent / 'experiments.md').read_text()
-    begin, end = '<!-- settings:begin -->\n', '\n<!-- settings:end -->'
-    assert begin in text and end in text, 'docs/experiments.md lacks the settings markers'
+@pytest.mark.parametrize('page, marker, generated, command', GENERATED,
+                         ids=[g[0] for g in GENERATED])
+def test_a_reference_table_is_the_generated_one(page, marker, generated, command):
+    text = (NODE_REFERENCE.parent / page).read_text()
+    begin, end = f'<!-- {marker}:begin -->\n', f'\n<!-- {marker}:end -->'
+    assert begin in text and end in text, f'docs/{page} lacks the {marker} markers'
     current = text.split(begin, 1)[1].split(end, 1)[0]
-    assert current == docs.settings_markdown(), (
-        'docs/experiments.md is stale: regenerate with `curve-formation nodes-doc --settings`')
+    assert current == generated(), f'docs/{page} is stale: regenerate with `{command}`'
 
 
 def test_a_run_records_every_robots_topics_once_with_their_registered_types():
