@@ -32,7 +32,7 @@ from curve_formation.core.config.starts import seeded_start
 from curve_formation.core.controller.law import agent_command
 from curve_formation.core.controller.safety import AVOIDANCE_OFF
 from curve_formation.core.formation import dynamics
-from curve_formation.core.record import metrics
+from curve_formation.core.record import body_metrics, metrics
 from curve_formation.core.sim.batch import simulate
 from curve_formation.paths import resolve_config
 
@@ -117,7 +117,7 @@ def arena_table(name, seeds):
                      'drift_time': lower_bounds(ours, drift=True),
                      'off_bound': lower_bounds(alone),
                      'contacts': ours.contacts['count'], 'gap': ours.contacts['smallest_gap'],
-                     'off_gap': metrics.closest_approach(alone.poses)[0] - 2 * case.radius,
+                     'off_gap': body_metrics.closest_approach(alone.poses)[0] - 2 * case.radius,
                      'reassigned': [p['reassignments'] for p in data['phases']],
                      'standstill': standstill(ours)})
     phases = len(case.phases)
@@ -172,10 +172,10 @@ def arena_table(name, seeds):
 
 
 def standstill(result):
-    """metrics.longest_standstill of a simulation: (s, robot index, end s)."""
+    """body_metrics.longest_standstill of a simulation: (s, robot index, end s)."""
     errors = metrics.target_errors(result.poses, result.phase, result.experiment, result.gains,
                                    result.t)
-    return metrics.longest_standstill(result.t, result.poses, np.linalg.norm(errors, axis=2))
+    return body_metrics.longest_standstill(result.t, result.poses, np.linalg.norm(errors, axis=2))
 
 
 def hard_cases():

@@ -16,7 +16,7 @@ from curve_formation.core.config.loading import load_experiment, with_start
 from curve_formation.core.config.starts import seeded_start
 from curve_formation.core.controller import safety
 from curve_formation.core.formation.assignment import nearest_order
-from curve_formation.core.record import metrics
+from curve_formation.core.record import body_metrics, metrics
 from curve_formation.core.sim.batch import simulate
 from curve_formation.core.world.bodies import separate
 from curve_formation.paths import resolve_config
@@ -103,7 +103,7 @@ def barriers(result):
     experiment = result.experiment
     av = experiment.avoidance
     safe = 2 * av.radius + av.margin
-    gaps = metrics.surface_gaps(result.poses, 0.0)   # centre distances
+    gaps = body_metrics.surface_gaps(result.poses, 0.0)   # centre distances
     low = av.radius + 0.5 * av.margin
     x, y = result.poses[..., 0], result.poses[..., 1]
     walls = np.minimum.reduce([x - low, av.width - low - x, y - low, av.height - low - y])
@@ -154,7 +154,7 @@ def test_the_arena_cases_settle_every_phase_without_a_contact(name, seed):
     assert data['bodies']['smallest_gap'] > 0.95 * case.avoidance.margin
     # The law alone (point robots) from the same start: the bodies would overlap.
     alone = simulate(with_start(point_robots(case), start))
-    assert metrics.closest_approach(alone.poses)[0] < 2 * case.radius
+    assert body_metrics.closest_approach(alone.poses)[0] < 2 * case.radius
 
 
 def test_the_drift_allowance_keeps_the_margin_while_the_drift_is_unlearnt():
@@ -221,7 +221,7 @@ def test_bodies_without_the_filter_push_each_other_but_never_overlap():
     experiment = load_experiment(DATA_DIR / 'head_on.yaml')
     result = simulate(experiment, avoidance=safety.AVOIDANCE_OFF, duration=40.0)
     assert result.contacts['count'] >= 1 and result.contacts['time'] > 1.0
-    gaps = metrics.surface_gaps(result.poses, experiment.radius)
+    gaps = body_metrics.surface_gaps(result.poses, experiment.radius)
     assert gaps.min() > -1e-4     # at most one 1 ms step's travel before resolution
 
 

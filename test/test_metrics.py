@@ -3,7 +3,7 @@ import pytest
 
 from curve_formation.core.formation.curve_sources import expression_samples
 from curve_formation.core.formation.curves import fit_curve, FourierBasis
-from curve_formation.core.record import metrics
+from curve_formation.core.record import body_metrics, metrics
 
 
 def test_settle_time_is_last_entry_below_tolerance():
@@ -60,7 +60,7 @@ def test_peak_wheel_speed():
 
 
 def test_closest_approach_finds_the_nearest_pair_over_time():
-    from curve_formation.core.record.metrics import closest_approach
+    from curve_formation.core.record.body_metrics import closest_approach
     poses = np.zeros((3, 3, 3))
     poses[:, 1, 0] = [1.0, 0.3, 0.8]
     poses[:, 2, 1] = [2.0, 2.0, 0.5]
@@ -96,9 +96,9 @@ def test_the_longest_standstill_away_from_the_target_is_found_with_its_robot_and
     poses[:, 1, 1] = np.where(t < 1.0, 0.01 * t, 0.01)            # robot 1 stops at 1 s
     errors = np.full((len(t), 2), 0.5)
     errors[t > 3.0, 1] = 0.0                                      # its target comes to it
-    seconds, robot, end = metrics.longest_standstill(t, poses, errors)
+    seconds, robot, end = body_metrics.longest_standstill(t, poses, errors)
     assert robot == 1
     assert seconds == pytest.approx(2.0)
     assert end == pytest.approx(3.0)
-    none = metrics.longest_standstill(t, poses, np.zeros_like(errors))
+    none = body_metrics.longest_standstill(t, poses, np.zeros_like(errors))
     assert none[0] == 0.0 and none[1] == -1

@@ -30,7 +30,6 @@ from geometry_msgs.msg import (
     Vector3Stamped,
 )
 import numpy as np
-from numpy.typing import ArrayLike
 from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
@@ -66,7 +65,7 @@ def seconds_to_stamp(seconds: float) -> Time:
     return Time(sec=int(sec), nanosec=int(round((seconds - sec) * 1e9)) % 1_000_000_000)
 
 
-def curve_to_msg(curve: Curve, curve_id: int, s: ArrayLike | None = None,
+def curve_to_msg(curve: Curve, curve_id: int, s: Sequence[float] | np.ndarray | None = None,
                  rate: Curve | None = None, clock: CurveClock | None = None
                  ) -> Float64MultiArray:
     """Float64MultiArray of a curve and, if given, its coefficients' rate (a moving curve),

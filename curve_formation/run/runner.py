@@ -25,7 +25,7 @@ from curve_formation.bags.analysis import bag_accounting, RUN_END_KEY
 from curve_formation.bags.bag import BagWriter
 from curve_formation.core.config.experiment import phase_index
 from curve_formation.core.config.loading import control_rate, load_experiment
-from curve_formation.core.record import metrics
+from curve_formation.core.record import body_metrics, metrics
 from curve_formation.nodes.runtime import now_seconds
 from curve_formation.nodes.topics import CURVE, DIAGNOSTICS
 from curve_formation.paths import discovery_text, resolve_config, ros_environment
@@ -396,7 +396,7 @@ class Run:
                                      data['dhat'], data['commands'], estops=estops,
                                      deaths=deaths, stamps=data['pose_stamps'])
         if 'bodies' in result:   # measured on the bodies, i.e. the true poses
-            result['bodies'] = metrics.body_metrics(experiment, data['t'], truth,
+            result['bodies'] = body_metrics.body_metrics(experiment, data['t'], truth,
                                                     self.monitor.contacts,
                                                     data['unseen'] if camera else None)
         if self.monitor.links:   # robot_bridge's link reports, per robot

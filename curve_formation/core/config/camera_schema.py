@@ -29,14 +29,14 @@ class FakeCameraSpec(Strict):
 
     @field_validator('distortion')
     @classmethod
-    def _distortion_size(cls, value):
+    def _distortion_size(cls, value: list[float]) -> list[float]:
         return distortion_count(value, (0, 4, 5), 'k1 k2 p1 p2 [k3]')
 
 
 OPENCV_DISTORTION_COUNTS = (0, 4, 5, 8, 12, 14)
 
 
-def distortion_count(value, counts, names):
+def distortion_count(value: list[float], counts: tuple[int, ...], names: str) -> list[float]:
     """`value` if it has one of `counts` coefficients (OpenCV's distortion vector lengths)."""
     if len(value) not in counts:
         expected = ', '.join(map(str, counts[:-1])) + f' or {counts[-1]}'
@@ -52,7 +52,7 @@ class Intrinsics(Strict):
 
     @field_validator('distortion')
     @classmethod
-    def _distortion_size(cls, value):
+    def _distortion_size(cls, value: list[float]) -> list[float]:
         return distortion_count(value, OPENCV_DISTORTION_COUNTS, 'k1 k2 p1 p2 [k3 ..]')
 
 
@@ -66,7 +66,7 @@ class IntrinsicsFile(Intrinsics):
 
     @field_validator('image_size')
     @classmethod
-    def _positive_size(cls, value):
+    def _positive_size(cls, value: tuple[int, int]) -> tuple[int, int]:
         if min(value) <= 0:
             raise ValueError('width and height must be > 0')
         return value
@@ -130,13 +130,13 @@ class CameraSpec(Strict):
         'server publishes what it finds instead of the `curves` schedule')
 
     @model_validator(mode='after')
-    def _one_lens_calibration(self):
+    def _one_lens_calibration(self) -> 'CameraSpec':
         if self.intrinsics is not None and self.intrinsics_file is not None:
             raise ValueError('give `intrinsics` or `intrinsics_file`, not both')
         return self
 
     @model_validator(mode='after')
-    def _distinct_ids(self):
+    def _distinct_ids(self) -> 'CameraSpec':
         ids = list(self.robot_ids) + [c.id for c in self.corners]
         repeated = sorted({i for i in ids if ids.count(i) > 1})
         if repeated:

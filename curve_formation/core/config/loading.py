@@ -210,13 +210,13 @@ def _fit_phase_curve(curve_spec: CurveSpec, source: str, key: str) -> Fit:
     try:
         basis = make_basis(curve_spec.basis, curve_spec.size)
         closed = basis.closed
-        if curve_spec.x is not None:
+        if curve_spec.x is not None and curve_spec.y is not None:
             s, pts = curve_sources.expression_samples(curve_spec.x, curve_spec.y,
                                                       curve_spec.samples, closed)
         elif curve_spec.bezier is not None:
             s, pts = curve_sources.bezier_samples(curve_spec.bezier, curve_spec.samples)
         else:
-            s, pts = curve_sources.point_samples(curve_spec.points, closed)
+            s, pts = curve_sources.point_samples(curve_spec.points or [], closed)
         fit = fit_curve(basis, s, pts)
     except (CurveError, ExpressionError) as exc:
         raise ConfigError(source, key, str(exc)) from None

@@ -5,9 +5,12 @@ them); a test checks the round trip for every agent of every shipped experiment.
 that is not set is infinite here as everywhere (`.inf` in a parameters file).
 """
 
+from typing import Any
+
+from curve_formation.core.controller.agent_config import AgentConfig
 
 
-def node_parameters(config):
+def node_parameters(config: AgentConfig) -> dict[str, Any]:
     """The parameters {name: value} of a node that runs AgentConfig `config`: agent_config of
     them gives `config` back (a test checks it for every agent of every shipped experiment).
     Empty lists are left out (a ROS parameter needs a type).

@@ -7,6 +7,8 @@ stream is scanned first, iteratively, so a deeply nested file cannot exhaust the
 limit of PyYAML's composer; only then is it composed, with a duplicate-key check.
 """
 
+from typing import Any
+
 import yaml
 
 
@@ -22,7 +24,7 @@ class InputError(ValueError):
 class _UniqueKeyLoader(yaml.SafeLoader):
     """PyYAML's safe loader, refusing a key that appears twice in one mapping."""
 
-    def construct_mapping(self, node, deep=False):
+    def construct_mapping(self, node: Any, deep: bool = False) -> dict[Any, Any]:
         seen: dict[object, int] = {}   # key -> its line (0-based)
         for key_node, _ in node.value:
             key = self.construct_object(key_node, deep=deep)
@@ -37,7 +39,7 @@ class _UniqueKeyLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
-def load(data):
+def load(data: str | bytes) -> Any:
     """The Python value of YAML `data` (bytes or str); InputError if it is not acceptable."""
     if isinstance(data, bytes):
         if len(data) > MAX_BYTES:
@@ -60,7 +62,7 @@ def load(data):
         raise InputError(f'not valid YAML: {shorten(str(exc), 300)}') from None
 
 
-def _scan(text):
+def _scan(text: str | bytes) -> None:
     """Refuse aliases, nesting deeper than MAX_DEPTH and more than MAX_EVENTS events."""
     depth = events = 0
     try:
@@ -82,7 +84,7 @@ def _scan(text):
         raise InputError(f'not valid YAML: {shorten(str(exc), 300)}') from None
 
 
-def shorten(value, limit=60):
+def shorten(value: str, limit: int = 60) -> str:
     """str(value) on one line (whitespace runs as one space), cut to `limit` characters
     with an ellipsis: for error lines.
     """

@@ -58,7 +58,7 @@ class RandomStart(Strict):
 
     @field_validator('half_width')
     @classmethod
-    def _positive(cls, value):
+    def _positive(cls, value: Pair) -> Pair:
         if min(value) <= 0:
             raise ValueError('half widths must be > 0')
         return value
@@ -71,7 +71,7 @@ class Initial(Strict):
     poses: Optional[list[tuple[float, float, float]]] = None
 
     @model_validator(mode='after')
-    def _one_of(self):
+    def _one_of(self) -> 'Initial':
         if (self.random is None) == (self.poses is None):
             raise ValueError('give exactly one of `random` or `poses`')
         return self
@@ -93,7 +93,7 @@ class Agents(Strict):
         'trips by 10 % (the curve server; robots whose ways cross swap targets); null = never')
 
     @model_validator(mode='after')
-    def _reassign_nearest(self):
+    def _reassign_nearest(self) -> 'Agents':
         if self.reassign_every is not None and self.assignment != 'nearest':
             raise ValueError('reassign_every needs assignment: nearest (with fixed assignment '
                              'agent i keeps the i-th point)')
@@ -169,7 +169,7 @@ class VariationSpec(Strict):
                                         'default all)')
 
     @model_validator(mode='after')
-    def _fields_of_kind(self):
+    def _fields_of_kind(self) -> 'VariationSpec':
         needs = {'sine': ('amplitude', 'period'), 'step': ('at', 'change'),
                  'ramp': ('start', 'end', 'change')}[self.kind]
         missing = [key for key in needs if getattr(self, key) is None]
@@ -204,7 +204,7 @@ class DisturbanceSpec(Strict):
         'curve): sines, steps, ramps, each on some agents or all')
 
     @model_validator(mode='after')
-    def _one_of(self):
+    def _one_of(self) -> 'DisturbanceSpec':
         if self.value is not None and self.per_agent is not None:
             raise ValueError('give at most one of `value` or `per_agent`')
         return self
@@ -274,7 +274,7 @@ class CurveSpec(Strict):
                                          'followed (scripted: a rope being moved)')
 
     @model_validator(mode='after')
-    def _consistent(self):
+    def _consistent(self) -> 'CurveSpec':
         size_key = 'harmonics' if self.basis == 'fourier' else 'order'
         other = 'order' if self.basis == 'fourier' else 'harmonics'
         if getattr(self, size_key) is None:
@@ -296,9 +296,11 @@ class CurveSpec(Strict):
         return self
 
     @property
-    def size(self):
+    def size(self) -> int:
         """K for Fourier, p for polynomial."""
-        return self.harmonics if self.basis == 'fourier' else self.order
+        size = self.harmonics if self.basis == 'fourier' else self.order
+        assert size is not None   # _consistent
+        return size
 
 
 class SimulationSpec(Strict):
@@ -354,7 +356,7 @@ class ExperimentSpec(Strict):
 
     @field_validator('avoidance', mode='before')
     @classmethod
-    def _on_off(cls, value):
+    def _on_off(cls, value: Any) -> Any:
         """`avoidance: on` (YAML true) = the defaults, `off` (false) = none."""
         if value is True:
             return {}

@@ -2,7 +2,8 @@
 
 import numpy as np
 
-from curve_formation.core.formation.curves import CurveError
+from curve_formation.core.base.shapes import FloatArray, IntArray
+from curve_formation.core.formation.curves import Basis, Curve, CurveError
 
 
 SPACINGS = ('uniform_s', 'arc_length')
@@ -13,14 +14,14 @@ class AssignmentError(ValueError):
     """Agent parameters the controller's proof does not cover."""
 
 
-def uniform_parameters(n, closed):
+def uniform_parameters(n: int, closed: bool) -> FloatArray:
     """The paper's s_i = (i-1)/n on closed curves; (i-1)/(n-1) on open ones (both ends)."""
     if n == 1:
         return np.zeros(1)
     return np.arange(n) / (n if closed else n - 1)
 
 
-def arc_length_parameters(curve, n):
+def arc_length_parameters(curve: Curve, n: int) -> FloatArray:
     """s_i that split the curve into equal arc lengths (closed: n gaps incl. the closing one)."""
     s_table, length = curve.arc_length_table()
     total = length[-1]
@@ -30,7 +31,7 @@ def arc_length_parameters(curve, n):
     return np.interp(fractions * total, length, s_table)
 
 
-def agent_parameters(curve, n, spacing='uniform_s'):
+def agent_parameters(curve: Curve, n: int, spacing: str = 'uniform_s') -> FloatArray:
     """s (n,) for n agents on `curve` with spacing 'uniform_s' (paper) or 'arc_length'."""
     if spacing == 'uniform_s':
         return uniform_parameters(n, curve.basis.closed)
@@ -39,7 +40,7 @@ def agent_parameters(curve, n, spacing='uniform_s'):
     raise AssignmentError(f'unknown spacing {spacing!r}; expected one of {SPACINGS}')
 
 
-def nearest_order(points, targets):
+def nearest_order(points: FloatArray, targets: FloatArray) -> IntArray:
     """perm (n,): agent i goes to targets[perm[i]], minimising the longest distance (m).
 
     Among the orders with the smallest longest distance (a bottleneck assignment, found by
@@ -66,7 +67,8 @@ def nearest_order(points, targets):
     return cols[np.argsort(rows)]
 
 
-def assigned_parameters(curve, s, points, assignment):
+def assigned_parameters(curve: Curve, s: FloatArray, points: FloatArray | None,
+                        assignment: str) -> FloatArray:
     """The agents' parameters: s (n,) as given ('fixed') or permuted so that each agent at
     `points` (n, 2, arena frame) gets the nearest of the curve's points at s ('nearest').
     """
@@ -74,6 +76,8 @@ def assigned_parameters(curve, s, points, assignment):
     if assignment == 'fixed':
         return s
     if assignment == 'nearest':
+        if points is None:
+            raise AssignmentError("nearest assignment needs the agents' points")
         return s[nearest_order(points, curve.points(s))]
     raise AssignmentError(f'unknown assignment {assignment!r}; expected one of {ASSIGNMENTS}')
 
@@ -88,7 +92,9 @@ REASSIGN_IMPROVEMENT = 0.1
 REASSIGN_LONGEST = 1.2
 
 
-def reassigned(curve, s, points, improvement=REASSIGN_IMPROVEMENT, longest=REASSIGN_LONGEST):
+def reassigned(curve: Curve, s: FloatArray, points: FloatArray,
+               improvement: float = REASSIGN_IMPROVEMENT,
+               longest: float = REASSIGN_LONGEST) -> FloatArray:
     """The agents' parameters s (n,) permuted among them so that the agents at `points` (n, 2;
     their control points, arena frame, m) go to the same n curve points with the smallest sum
     of squared distances, no trip longer than `longest` times the longest one now, if that
@@ -115,7 +121,8 @@ def reassigned(curve, s, points, improvement=REASSIGN_IMPROVEMENT, longest=REASS
     return s
 
 
-def phase_parameters(curve, n, spacing, assignment, from_points):
+def phase_parameters(curve: Curve, n: int, spacing: str, assignment: str,
+                     from_points: FloatArray | None) -> FloatArray:
     """The agents' curve parameters s (n,) for one curve of the schedule: the one source of s_i.
 
     The spacing's n points (agent i the i-th with `fixed`), or with `nearest` those points
@@ -128,7 +135,7 @@ def phase_parameters(curve, n, spacing, assignment, from_points):
     return s
 
 
-def check_assumptions(basis, s):
+def check_assumptions(basis: Basis, s: FloatArray) -> FloatArray:
     """Refuse s that break Assumption 1 (rank G_bar = min(2n, 2H)) or 2 (n <= H).
 
     Also refuses duplicate s_i (two agents sent to one point; on closed curves s and s+1 are

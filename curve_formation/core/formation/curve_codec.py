@@ -10,12 +10,21 @@ it unknown); and when the sender assigns the agents' parameters, ('s', n, n),
 whose n values s_1..s_n come last.
 """
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 import math
 
 import numpy as np
 
-from curve_formation.core.formation.curves import Curve, make_basis, MAX_HARMONICS, MAX_ORDER
+from curve_formation.core.base.shapes import FloatArray
+from curve_formation.core.formation.curves import (
+    Curve,
+    FourierBasis,
+    make_basis,
+    MAX_HARMONICS,
+    MAX_ORDER,
+    PolynomialBasis,
+)
 
 
 class CodecError(ValueError):
@@ -54,7 +63,7 @@ class CurveClock:
 MAX_CURVE_ID = 2 ** 31 - 1
 
 
-def curve_id_from_text(text):
+def curve_id_from_text(text: str) -> int:
     """A curve id from its label text ('curve_id=<k>'); CodecError unless a whole number in
     0..MAX_CURVE_ID.
     """
@@ -64,20 +73,27 @@ def curve_id_from_text(text):
     return int(text)
 
 
-def curve_id_from_float(value):
+def curve_id_from_float(value: float) -> int:
     """A curve id carried in a double; CodecError unless a whole number in 0..MAX_CURVE_ID."""
     if not (math.isfinite(value) and value == int(value) and 0 <= value <= MAX_CURVE_ID):
         raise CodecError(f'curve id {value!r} is not a whole number in 0..{MAX_CURVE_ID}')
     return int(value)
 
 
-def encode_curve(curve, curve_id, s=None, rate=None, clock=None):
+def encode_curve(curve: Curve, curve_id: int, s: Sequence[float] | FloatArray | None = None,
+                 rate: Curve | None = None, clock: 'CurveClock | None' = None
+                 ) -> tuple[list[tuple[str, int, int]], list[float]]:
     """(dims, data): dims [(label, size, stride)], data the 2H coefficients, then the 2H of
     `rate` (a Curve of the coefficients' rate, 1/s) if the curve moves, then `clock` if given
     (CurveClock), then s (n,) if given (the agents' curve parameters).
     """
     basis = curve.basis
-    size = basis.K if basis.kind == 'fourier' else basis.p
+    if isinstance(basis, FourierBasis):
+        size = basis.K
+    elif isinstance(basis, PolynomialBasis):
+        size = basis.p
+    else:
+        raise CodecError(f'a curve of basis {basis.kind!r} cannot be encoded')
     dims = [('xi', 2 * basis.H, 2 * basis.H), (f'basis={basis.kind}', int(size), 0),
             (f'curve_id={int(curve_id)}', 0, 0)]
     data = [float(v) for v in curve.xi]
@@ -95,7 +111,7 @@ def encode_curve(curve, curve_id, s=None, rate=None, clock=None):
     return dims, data
 
 
-def decode_curve(dims, data):
+def decode_curve(dims: Sequence[tuple[str, int]], data: Sequence[float]) -> tuple[Curve, int]:
     """(Curve, curve_id) from [(label, size)] and the coefficients; CodecError if malformed."""
     labels = {label.split('=')[0]: (label, size) for label, size in dims}
     try:
@@ -129,7 +145,8 @@ def decode_curve(dims, data):
     return Curve(basis, xi), curve_id
 
 
-def decode_curve_rate(dims, data):
+def decode_curve_rate(dims: Sequence[tuple[str, int]], data: Sequence[float]
+                      ) -> Curve | None:
     """The coefficients' rate of a moving curve as a Curve (its points(s) are the velocities
     of the curve's points, m/s), or None for a still curve; call after decode_curve.
     """
@@ -141,7 +158,8 @@ def decode_curve_rate(dims, data):
     return Curve(curve.basis, np.array(data[start:start + int(sizes['xi_dot'])], dtype=float))
 
 
-def decode_curve_clock(dims, data):
+def decode_curve_clock(dims: Sequence[tuple[str, int]], data: Sequence[float]
+                       ) -> 'CurveClock | None':
     """The CurveClock a curve message carries, or None; call after decode_curve."""
     sizes = {label.split('=')[0]: size for label, size in dims}
     if 'clock' not in sizes:
@@ -156,7 +174,8 @@ def decode_curve_clock(dims, data):
     return CurveClock(*values)
 
 
-def decode_agent_parameters(dims, data):
+def decode_agent_parameters(dims: Sequence[tuple[str, int]], data: Sequence[float]
+                            ) -> FloatArray | None:
     """The agents' parameters s (n,) a curve message carries, or None if it has none."""
     sizes = {label: size for label, size in dims}
     if 's' not in sizes:
@@ -168,11 +187,11 @@ def decode_agent_parameters(dims, data):
     return np.array(data[len(data) - n_s:], dtype=float)
 
 
-def yaw_from_quaternion(x, y, z, w):
+def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
     """Heading (rad) about +z of a quaternion."""
     return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
-def quaternion_from_yaw(theta):
+def quaternion_from_yaw(theta: float) -> tuple[float, float, float, float]:
     """(x, y, z, w) of a rotation by theta (rad) about +z."""
     return 0.0, 0.0, math.sin(theta / 2.0), math.cos(theta / 2.0)

@@ -6,12 +6,15 @@ Each source yields samples (s, points) that :func:`curves.fit_curve` turns into 
 from math import comb
 
 import numpy as np
+from numpy.typing import ArrayLike
 
+from curve_formation.core.base.shapes import FloatArray
 from curve_formation.core.formation.curves import Basis, CurveError, Fit, fit_curve
 from curve_formation.core.formation.expressions import Expression
 
 
-def expression_samples(x_text, y_text, count, closed):
+def expression_samples(x_text: str, y_text: str, count: int, closed: bool
+                       ) -> tuple[FloatArray, FloatArray]:
     """Sample c(s) = (x(s), y(s)) given as expressions at count values of s.
 
     Closed curves are sampled on [0, 1) (s = 1 repeats s = 0), open ones on [0, 1].
@@ -21,7 +24,7 @@ def expression_samples(x_text, y_text, count, closed):
     return s, np.column_stack([Expression(x_text)(s), Expression(y_text)(s)])
 
 
-def bezier_samples(control_points, count):
+def bezier_samples(control_points: ArrayLike, count: int) -> tuple[FloatArray, FloatArray]:
     """Sample the Bezier curve of the given control points ((m, 2), degree m - 1) on [0, 1]."""
     ctrl = np.asarray(control_points, dtype=float)
     if ctrl.ndim != 2 or ctrl.shape[1] != 2 or len(ctrl) < 2:
@@ -34,7 +37,7 @@ def bezier_samples(control_points, count):
     return s, weights @ ctrl
 
 
-def chord_length_parameters(points, closed):
+def chord_length_parameters(points: FloatArray, closed: bool) -> FloatArray:
     """Curve parameters for an ordered list of points, proportional to chord length.
 
     For a closed curve the closing chord (last -> first) counts, so s stays in [0, 1).
@@ -53,13 +56,13 @@ def chord_length_parameters(points, closed):
     return np.concatenate([[0.0], np.cumsum(chords)])[: len(pts)] / total
 
 
-def point_samples(points, closed):
+def point_samples(points: ArrayLike, closed: bool) -> tuple[FloatArray, FloatArray]:
     """Samples (s, points) for an ordered list of observed points, parameterised by chord."""
     pts = np.asarray(points, dtype=float)
     return chord_length_parameters(pts, closed), pts
 
 
-def fit_points(basis: Basis, points, passes: int = 60) -> Fit:
+def fit_points(basis: Basis, points: ArrayLike, passes: int = 60) -> Fit:
     """Fit ordered observed points (k, 2) with `basis` (closed or open as it is) by their
     shape, not their spacing: chord-length parameters to start, then `passes` rounds of moving
     each point's parameter to its foot on the fitted curve (one Gauss-Newton step of
@@ -96,13 +99,14 @@ def fit_points(basis: Basis, points, passes: int = 60) -> Fit:
     return fit
 
 
-def polyline_rms_distance(points, polyline, closed):
+def polyline_rms_distance(points: FloatArray, polyline: FloatArray, closed: bool) -> float:
     """RMS distance (m) from points (k, 2) to the polyline (m, 2) (closed: last joins first)."""
     distance, _ = polyline_distances(points, polyline, closed)
     return float(np.sqrt(np.mean(distance ** 2)))
 
 
-def polyline_distances(points, polyline, closed):
+def polyline_distances(points: FloatArray, polyline: FloatArray, closed: bool
+                       ) -> tuple[FloatArray, FloatArray]:
     """(distances (k,) from points (k, 2) to the polyline (m, 2), and where on it each
     point's nearest point lies: segment index + position along the segment in [0, 1]; 0 or
     the number of segments for an end of an open polyline, i.e. a point beyond it).

@@ -5,19 +5,20 @@ radians, seconds. Plain scalar math: the batch simulator compiles it with numba 
 robot node calls it as is.
 """
 
+from collections.abc import Sequence
 import math
 
 import numpy as np
 
-from curve_formation.core.base.shapes import Command, Point
+from curve_formation.core.base.shapes import Command, FloatArray, Point, Pose
 
 
-def chord_ratio(half):
+def chord_ratio(half: float) -> float:
     """sin(h) / h: chord over arc length of an arc turning 2 h (rad); accurate as h -> 0."""
     return math.sin(half) / half if abs(half) > 1e-4 else 1.0 - half * half / 6.0
 
 
-def arc_step(x, y, theta, v, w, dt):
+def arc_step(x: float, y: float, theta: float, v: float, w: float, dt: float) -> Pose:
     """Exact pose after dt (s) at constant body velocities v (m/s) and w (rad/s).
 
     The chord of the arc, v dt sin(h) / h with h = w dt / 2, points along the mid-period
@@ -34,13 +35,13 @@ def offset_point(x: float, y: float, theta: float, offset: float) -> Point:
     return x + offset * math.cos(theta), y + offset * math.sin(theta)
 
 
-def offset_points(poses, offset):
+def offset_points(poses: FloatArray, offset: float) -> FloatArray:
     """(..., 2) offset points xb = x + l [cos theta, sin theta] (m) of poses (..., 3)."""
     th = poses[..., 2]
     return poses[..., :2] + offset * np.stack([np.cos(th), np.sin(th)], axis=-1)
 
 
-def marker_centres(poses, marker_offset):
+def marker_centres(poses: FloatArray, marker_offset: Sequence[float]) -> FloatArray:
     """(..., 2) arena-frame centres of markers mounted at marker_offset (robot frame, m)."""
     c, s = np.cos(poses[..., 2]), np.sin(poses[..., 2])
     return np.stack([poses[..., 0] + c * marker_offset[0] - s * marker_offset[1],
@@ -60,14 +61,14 @@ def measured_velocity(x0: float, y0: float, theta0: float, x1: float, y1: float,
     return along / (dt * chord_ratio(0.5 * turn)), turn / dt
 
 
-def wheel_speeds(v, w, wheel_base):
+def wheel_speeds(v: float, w: float, wheel_base: float) -> tuple[float, float]:
     """(left, right) rim speeds (m/s) of body velocities (v, w) on a differential drive of
     wheel_base (m); no limit applied.
     """
     return v - 0.5 * wheel_base * w, v + 0.5 * wheel_base * w
 
 
-def body_from_wheels(left, right, wheel_base):
+def body_from_wheels(left: float, right: float, wheel_base: float) -> Command:
     """(v, w) (m/s, rad/s) of rim speeds left, right (m/s) on a differential drive of
     wheel_base (m): the inverse of wheel_speeds.
     """
@@ -81,7 +82,8 @@ class CommandQueue:
     command older than `timeout` s (a robot-side watchdog; 0 = none). Times in s.
     """
 
-    def __init__(self, latency=0.0, timeout=0.0, jitter=0.0, seed=None):
+    def __init__(self, latency: float = 0.0, timeout: float = 0.0, jitter: float = 0.0,
+                 seed: int | Sequence[int] | None = None) -> None:
         from collections import deque
         self.latency = latency
         self.timeout = timeout
@@ -90,10 +92,10 @@ class CommandQueue:
         self.last_due = -math.inf
         self.command = (0.0, 0.0)   # in force at self.time
         self.pending: deque[tuple[float, float, float]] = deque()   # (due s, v, w)
-        self.time = None
-        self.last_command_time = None
+        self.time: float | None = None
+        self.last_command_time: float | None = None
 
-    def push(self, v, w, now):
+    def push(self, v: float, w: float, now: float) -> None:
         """A command (m/s, rad/s) received at `now`."""
         due = now + self.latency
         if self.rng is not None:
@@ -102,11 +104,12 @@ class CommandQueue:
         self.pending.append((due, v, w))
         self.last_command_time = now
 
-    def upcoming(self, until):
+    def upcoming(self, until: float) -> list[Command]:
         """The commands in force from now up to `until`: the current one and those due."""
         return [self.command] + [(v, w) for due, v, w in self.pending if due <= until]
 
-    def segments(self, until):
+    def segments(self, until: float
+                 ) -> tuple[list[tuple[float, float, Command]], bool]:
         """Consume the queue up to `until`: [(from s, to s, (v, w)), ...] covering
         [self.time, until] with the command in force over each, and whether the watchdog
         turned the motors off on the way (at its own time, not at the caller's next step).
@@ -127,7 +130,7 @@ class CommandQueue:
         self._hold(until, out)
         return out, False
 
-    def watchdog_time(self):
+    def watchdog_time(self) -> float:
         """When (s) the watchdog turns the motors off if no command comes (inf: it will not,
         the motors are off already or there is no watchdog).
         """
@@ -135,12 +138,13 @@ class CommandQueue:
             return math.inf
         return self.last_command_time + self.timeout + self.latency
 
-    def next_change(self):
+    def next_change(self) -> float:
         """When (s) the command in force changes next: the next one due, or the watchdog."""
         due = self.pending[0][0] if self.pending else math.inf
         return min(due, self.watchdog_time())
 
-    def _hold(self, until, out):
+    def _hold(self, until: float, out: list[tuple[float, float, Command]]) -> None:
+        assert self.time is not None   # segments set it
         if until > self.time:
             out.append((self.time, until, self.command))
         self.time = max(self.time, until)
@@ -155,13 +159,14 @@ class DrivenUnicycle:
     rad/s) acts on a driven input only: motors off, it does not. Times in s.
     """
 
-    def __init__(self, pose, disturbance=(0.0, 0.0), latency=0.0, timeout=0.0, jitter=0.0,
-                 seed=None):
+    def __init__(self, pose: Sequence[float], disturbance: Sequence[float] = (0.0, 0.0),
+                 latency: float = 0.0, timeout: float = 0.0, jitter: float = 0.0,
+                 seed: int | Sequence[int] | None = None) -> None:
         self.pose = (float(pose[0]), float(pose[1]), float(pose[2]))
         self.disturbance = tuple(disturbance)
         self.queue = CommandQueue(latency, timeout, jitter, seed)
 
-    def drive(self, v, w, now, advance=True):
+    def drive(self, v: float, w: float, now: float, advance: bool = True) -> None:
         """A command received at `now`; it takes effect the queue's latency later.
         advance=False leaves moving up to `now` to the caller's next advance() (a world that
         steps every robot together).
@@ -171,18 +176,18 @@ class DrivenUnicycle:
         self.queue.push(v, w, now)
 
     @property
-    def command(self):
+    def command(self) -> Command:
         """The command (m/s, rad/s) in force up to where the robot was advanced."""
         return self.queue.command
 
-    def top_speed(self, until):
+    def top_speed(self, until: float) -> float:
         """The fastest (m/s) the centre moves up to `until` under the command in force and
         those due by then.
         """
         return max(0.0 if (v, w) == (0.0, 0.0) else abs(v + self.disturbance[0])
                    for v, w in self.queue.upcoming(until))
 
-    def advance(self, until):
+    def advance(self, until: float) -> bool:
         """Move exactly up to `until`, switching commands at their due times. Returns
         True when the watchdog turned the motors off on the way.
         """

@@ -8,8 +8,12 @@ evaluated on a numpy array of s values.
 
 import ast
 import math
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
+
+from curve_formation.core.base.shapes import FloatArray
 
 
 FUNCTIONS = {
@@ -42,7 +46,7 @@ class ExpressionError(ValueError):
 class Expression:
     """A validated scalar expression of s; call it with an array of s to evaluate."""
 
-    def __init__(self, text):
+    def __init__(self, text: str) -> None:
         if not isinstance(text, str) or not text.strip():
             raise ExpressionError(f'expected a non-empty expression in s, got '
                                   f'{_short(repr(text))}')
@@ -61,7 +65,7 @@ class Expression:
             raise ExpressionError(f'{self.label}: nested too deeply to parse') from None
         self._order = self._checked(tree.body)
 
-    def __call__(self, s):
+    def __call__(self, s: ArrayLike) -> FloatArray:
         """Evaluate on s (scalar or array); returns an array broadcast to s's shape."""
         s = np.asarray(s, dtype=float)
         values: dict[int, np.ndarray] = {}
@@ -73,7 +77,7 @@ class Expression:
             raise ExpressionError(f'{self.label} is not finite for some s in [0, 1]')
         return value
 
-    def _checked(self, root):
+    def _checked(self, root: ast.AST) -> list[ast.AST]:
         """The tree's nodes, each after its children; ExpressionError for what is not
         allowed. Iterative (a stack), bounded by MAX_NODES.
         """
@@ -90,7 +94,7 @@ class Expression:
             stack.extend((child, False) for child in reversed(_children(node)))
         return order
 
-    def _check(self, node):
+    def _check(self, node: ast.AST) -> None:
         if isinstance(node, ast.Constant):
             if isinstance(node.value, bool) or not isinstance(node.value, (int, float)):
                 raise ExpressionError(f'{self.label}: only numbers are allowed as constants, '
@@ -126,7 +130,7 @@ class Expression:
             raise ExpressionError(f'{self.label}: {type(node).__name__} is not allowed '
                                   '(only arithmetic and math functions of s)')
 
-    def _value(self, node, s, values):
+    def _value(self, node: Any, s: Any, values: dict[int, Any]) -> Any:
         if isinstance(node, ast.Constant):
             return float(node.value)   # type: ignore[arg-type]  # _checked: numbers only
         if isinstance(node, ast.Name):
@@ -142,7 +146,7 @@ class Expression:
             raise ExpressionError(f'{self.label}: {node.func.id}(): {exc}') from None
 
 
-def _children(node):
+def _children(node: ast.AST) -> list[ast.AST]:
     """The sub-expressions of an allowed node, in evaluation order."""
     if isinstance(node, ast.BinOp):
         return [node.left, node.right]
@@ -153,5 +157,5 @@ def _children(node):
     return []
 
 
-def _short(text, limit=60):
+def _short(text: str, limit: int = 60) -> str:
     return text if len(text) <= limit else text[:limit - 3] + '...'

@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from curve_formation.core.base.shapes import FloatArray, Point
-from curve_formation.core.formation.curves import Curve
+from curve_formation.core.formation.curves import Basis, Curve
 
 
 @dataclass(frozen=True)
@@ -83,7 +83,7 @@ class CurveMotion:
         if np.allclose(moved.coeffs, curve.coeffs, rtol=0.0, atol=1e-15):
             return None
 
-        def mismatch(tau):
+        def mismatch(tau: float) -> float:
             return float(((self.curve(curve, tau).coeffs - moved.coeffs) ** 2).sum())
 
         found = minimize_scalar(mismatch, bounds=(max(0.0, guess - window), guess + window),
@@ -98,7 +98,7 @@ class CurveMotion:
         return Curve(basis, basis.from_matrix(coeffs))
 
 
-def constant_coefficients(basis) -> FloatArray:
+def constant_coefficients(basis: Basis) -> FloatArray:
     """(H,) the coefficients w with phi(s) w = 1 for every s (Fourier and polynomial bases
     both hold the constant function).
     """

@@ -2,24 +2,32 @@
 
 Inputs are plain arrays so that a batch simulation, a ROS run and a bag are measured the same
 way: t (R,) s, poses (R, n, 3), dhat (R, n, 2) or None, commands (R, n, 2) or None, phase (R,)
-index of the active curve, and the experiment (curves, gains, graph, disturbance).
+index of the active curve, and the experiment (curves, gains, graph, disturbance). The
+bodies' metrics are record.body_metrics.
 """
 
+from collections.abc import Sequence
 import math
+from typing import Any
 
 import numpy as np
 
+from curve_formation.core.base.shapes import BoolArray, FloatArray, IntArray
 from curve_formation.core.controller.estop import stopped_time
-from curve_formation.core.formation.dynamics import marker_centres, offset_points
+from curve_formation.core.controller.gains import Gains
+from curve_formation.core.controller.limits import WheelLimits
+from curve_formation.core.formation.curves import Curve
+from curve_formation.core.formation.dynamics import offset_points
+from curve_formation.core.record.body_metrics import body_metrics, closest_approach
 
 
-def strict_json(data):
+def strict_json(data: Any) -> str:
     """JSON text of a metrics dict: every number that is not finite becomes null (JSON has no
     NaN or Infinity; a bare NaN would make the file unreadable by strict parsers).
     """
     import json
 
-    def clean(value):
+    def clean(value: Any) -> Any:
         if isinstance(value, dict):
             return {key: clean(v) for key, v in value.items()}
         if isinstance(value, (list, tuple)):
@@ -36,13 +44,14 @@ def strict_json(data):
     return json.dumps(clean(data), indent=2, allow_nan=False) + '\n'
 
 
-def finite_or_none(value):
+def finite_or_none(value: float) -> float | None:
     """value as a float, or None when it is NaN or infinite (JSON has no NaN)."""
     value = float(value)
     return value if np.isfinite(value) else None
 
 
-def target_errors(poses, phase, experiment, gains=None, t=None, stamps=None):
+def target_errors(poses: FloatArray, phase: IntArray, experiment: Any, gains: Gains | None = None,
+                  t: FloatArray | None = None, stamps: FloatArray | None = None) -> FloatArray:
     """(R, n, 2) e_i = xb_i - G(s_i) xi of the active curve (offset l from gains; the point
     steered, steered_points).
 
@@ -55,7 +64,7 @@ def target_errors(poses, phase, experiment, gains=None, t=None, stamps=None):
     return steered_points(poses, targets, gains) - targets
 
 
-def steered_points(poses, targets, gains):
+def steered_points(poses: FloatArray, targets: FloatArray, gains: Gains) -> FloatArray:
     """(R, n, 2) the points the robots steer to their targets (R, n, 2; m, arena frame):
     xb, offset l ahead of the axle.
 
@@ -73,7 +82,8 @@ def steered_points(poses, targets, gains):
     return points
 
 
-def sample_targets(experiment, phase, t=None, stamps=None):
+def sample_targets(experiment: Any, phase: IntArray, t: FloatArray | None = None,
+                   stamps: FloatArray | None = None) -> FloatArray:
     """(R, n, 2) every agent's target at each sample: its phase's, as re-assigned by then,
     and carried with its curve in a moving phase, to the time its pose was taken.
 
@@ -91,6 +101,7 @@ def sample_targets(experiment, phase, t=None, stamps=None):
         for when, _, points in p.changes:
             targets[(phase == k) & (np.asarray(t) >= when)] = points
         if p.motion is not None:
+            assert t is not None   # refused above without it
             for r in np.flatnonzero(phase == k):
                 taus = np.full(targets.shape[1], t[r] - p.start)
                 if stamps is not None:
@@ -106,12 +117,13 @@ def sample_targets(experiment, phase, t=None, stamps=None):
 MAX_STAMP_GAP = 0.5
 
 
-def error_norm(errors):
+def error_norm(errors: FloatArray) -> FloatArray:
     """(R,) ||xb_e|| over all agents."""
     return np.linalg.norm(errors.reshape(len(errors), -1), axis=1)
 
 
-def lyapunov(errors, dhat, experiment, disturbance=None, gains=None):
+def lyapunov(errors: FloatArray, dhat: FloatArray | None, experiment: Any,
+             disturbance: FloatArray | None = None, gains: Gains | None = None) -> FloatArray:
     """(R,) the Lyapunov function of the run's law (docs/control-laws.md).
 
     paper, adaptive: V = xe^T (P kron I2) xe + sum_i p_i dtilde_i^T Gamma^-1 dtilde_i with
@@ -141,10 +153,13 @@ def lyapunov(errors, dhat, experiment, disturbance=None, gains=None):
 # the phase (or the run) ends: SETTLE_HOLD s, or SETTLE_HOLD_SHARE of a shorter phase. A
 # norm that ripples about the tolerance and dips below it in the last samples has not settled.
 SETTLE_HOLD = 5.0
+
+
 SETTLE_HOLD_SHARE = 0.1
 
 
-def settle_time(t, norm, tolerance, start, end, hold=0.0):
+def settle_time(t: FloatArray, norm: FloatArray, tolerance: float, start: float, end: float,
+                hold: float = 0.0) -> float | None:
     """Time after `start` (s) from which norm stays below tolerance until `end`, else None;
     None also if it stays there less than `hold` s before the window's last sample.
 
@@ -163,12 +178,13 @@ def settle_time(t, norm, tolerance, start, end, hold=0.0):
     return float(times[above[-1] + 1] - start)
 
 
-def settle_hold(start, end):
+def settle_hold(start: float, end: float) -> float:
     """How long (s) a phase observed from `start` to `end` (s) must stay settled."""
     return min(SETTLE_HOLD, SETTLE_HOLD_SHARE * max(end - start, 0.0))
 
 
-def estop_hold(intervals, start, end):
+def estop_hold(intervals: Sequence[tuple[float, float | None]], start: float, end: float
+               ) -> float:
     """When a phase [start, end) (s) was last released from an e-stop: -inf if no e-stop
     interval overlaps it, inf if one still holds at its end, else the last release time.
     """
@@ -182,7 +198,7 @@ def estop_hold(intervals, start, end):
     return last
 
 
-def orientation_rates(t, poses, window=1.0):
+def orientation_rates(t: FloatArray, poses: FloatArray, window: float = 1.0) -> FloatArray:
     """(n,) mean heading rates (rad/s) over the last `window` seconds."""
     last = t >= t[-1] - window
     heading = np.unwrap(poses[last, :, 2], axis=0)
@@ -190,7 +206,8 @@ def orientation_rates(t, poses, window=1.0):
     return (heading[-1] - heading[0]) / span if span > 0 else np.zeros(poses.shape[1])
 
 
-def arc_coordinates(curve, points, count=4000):
+def arc_coordinates(curve: Curve, points: FloatArray, count: int = 4000
+                    ) -> tuple[FloatArray, float]:
     """Arc-length coordinate (units of c) of the nearest curve point to each of points (m, 2)."""
     s_table, length = curve.arc_length_table(count)
     dense = curve.points(s_table)
@@ -198,7 +215,7 @@ def arc_coordinates(curve, points, count=4000):
     return length[nearest], length[-1]
 
 
-def spacing_uniformity(curve, points):
+def spacing_uniformity(curve: Curve, points: FloatArray) -> dict[str, float]:
     """Gaps in arc length between consecutive agents along the curve.
 
     Returns {'cv': std/mean of the gaps, 'min_over_max': smallest/largest gap}; closed curves
@@ -213,92 +230,7 @@ def spacing_uniformity(curve, points):
             'min_over_max': float(gaps.min() / gaps.max())}
 
 
-def closest_approach(poses):
-    """Smallest distance (m) between two robots' axle centres over a run, with when (index).
-
-    The law has no collision avoidance: compare with the robots' size.
-    """
-    from scipy.spatial.distance import pdist  # scipy.spatial: 0.4 s to import
-    if poses.shape[1] < 2:
-        return float('inf'), 0
-    # One sample at a time: n (n - 1) / 2 distances each, never the whole R x n x n array.
-    per_row = np.array([np.nan_to_num(pdist(row[:, :2]), nan=np.inf).min() for row in poses])
-    k = int(np.argmin(per_row))   # robots not seen yet (NaN) count as infinitely far
-    return float(per_row[k]), k
-
-
-def longest_standstill(t, poses, errors, away=0.03, still=1e-3):
-    """The longest time (s) one robot stood still (axle centre slower than `still`, m/s)
-    while more than `away` (m) from its target, with which robot (index) and when it ended
-    (s): waiting to give way, or a deadlock. t (R,), poses (R, n, 3), errors (R, n): each
-    robot's distance to its target (m). (0.0, -1, nan) if none ever did.
-    """
-    t = np.asarray(t, float)
-    if len(t) < 2:
-        return 0.0, -1, math.nan
-    speed = np.linalg.norm(np.diff(poses[:, :, :2], axis=0), axis=2) / np.diff(t)[:, None]
-    standing = (speed < still) & (np.asarray(errors)[1:] > away)
-    best = (0.0, -1, math.nan)
-    for i in range(standing.shape[1]):
-        # runs of True: starts and ends as indices into the R - 1 intervals
-        edges = np.diff(np.concatenate([[0], standing[:, i].astype(np.int8), [0]]))
-        for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True):
-            if t[b] - t[a] > best[0]:
-                best = (float(t[b] - t[a]), i, float(t[b]))
-    return best
-
-
-def surface_gaps(poses, radius):
-    """(R,) smallest distance (m) between two bodies' surfaces at each sample (NaN: unknown)."""
-    from scipy.spatial.distance import pdist  # scipy.spatial: 0.4 s to import
-    if poses.shape[1] < 2:
-        return np.full(len(poses), np.inf)
-    return np.array([np.nan_to_num(pdist(row[:, :2]), nan=np.inf).min() for row in poses]) \
-        - 2 * radius
-
-
-def markers_covered(poses, radius, marker_offset, marker_size):
-    """(R,) whether some robot's body covers part of another robot's marker (a square of
-    marker_size at marker_offset, robot frame): its centre is within radius plus the marker's
-    half-diagonal of the marker's centre.
-    """
-    centres = marker_centres(poses, marker_offset)
-    reach = radius + marker_size / np.sqrt(2)
-    near = np.linalg.norm(centres[:, :, None, :] - poses[:, None, :, :2], axis=3) < reach
-    n = poses.shape[1]
-    near[:, np.arange(n), np.arange(n)] = False
-    return near.any(axis=(1, 2))
-
-
-def body_metrics(experiment, t, poses, contacts=None, unseen=None):
-    """Bodies in the arena: contacts (count and total time, counted where the bodies are
-    simulated: `contacts`), the smallest gap between two surfaces (exact from `contacts`,
-    else from the samples), and how long some robot's marker was hidden: from `unseen`
-    (R, n), the robots a camera did not see, else where a body covered another's marker.
-    """
-    radius = experiment.radius
-    gaps = surface_gaps(poses, radius)
-    sampled = float(np.nanmin(gaps)) if len(gaps) else None
-    out = {'radius': radius, 'smallest_gap_sampled': sampled,
-           'contacts': None if contacts is None else {
-               key: contacts[key] for key in ('count', 'time', 'walls', 'largest_push')
-               if key in contacts},
-           'smallest_gap': (contacts.get('smallest_gap') if contacts is not None
-                            and contacts.get('smallest_gap') is not None else sampled)}
-    if unseen is not None and len(unseen) == len(t):
-        hidden = np.asarray(unseen).any(axis=1)
-    elif experiment.spec.camera is not None:
-        camera = experiment.spec.camera
-        hidden = markers_covered(poses, radius, camera.marker_offset, camera.marker_size)
-    else:
-        hidden = None
-    if hidden is not None:
-        period = np.diff(t, append=t[-1] + (t[-1] - t[-2] if len(t) > 1 else 0.0))
-        out['marker_hidden_time'] = float(period[hidden].sum())
-    return out
-
-
-def peak_speeds(commands, wheel_base):
+def peak_speeds(commands: FloatArray | None, wheel_base: float) -> dict[str, float]:
     """Peak |v|, |w| and, with a wheel base, peak wheel speed of the sent commands."""
     if commands is None or len(commands) == 0:
         return {}
@@ -309,9 +241,14 @@ def peak_speeds(commands, wheel_base):
     return out
 
 
-def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance=None,
-                gains=None, disturbance=None, limits=None, contacts=None, unseen=None,
-                estops=None, deaths=(), stamps=None):
+def run_metrics(experiment: Any, t: FloatArray, poses: FloatArray, phase: IntArray,
+                dhat: FloatArray | None = None, commands: FloatArray | None = None,
+                tolerance: float | None = None, gains: Gains | None = None,
+                disturbance: FloatArray | None = None, limits: WheelLimits | None = None,
+                contacts: dict[str, Any] | None = None, unseen: BoolArray | None = None,
+                estops: Sequence[tuple[float, float | None]] | None = None,
+                deaths: Sequence[Any] = (), stamps: FloatArray | None = None
+                ) -> dict[str, Any]:
     """All metrics of a run as a JSON-ready dict (one entry per curve phase).
 
     gains, disturbance and limits default to the experiment's; pass the ones the run used
@@ -405,7 +342,7 @@ def run_metrics(experiment, t, poses, phase, dhat=None, commands=None, tolerance
     return out
 
 
-def result_metrics(result, tolerance=None):
+def result_metrics(result: Any, tolerance: float | None = None) -> dict[str, Any]:
     """run_metrics for a simulator.SimResult."""
     out = run_metrics(result.experiment, result.t, result.poses, result.phase, result.dhat,
                       result.commands, tolerance, result.gains, result.disturbance,
@@ -417,7 +354,10 @@ def result_metrics(result, tolerance=None):
     return out
 
 
-def ground_truth_metrics(experiment, data, phase, law_pose_rms=None, estops=None, deaths=()):
+def ground_truth_metrics(experiment: Any, data: dict[str, Any], phase: IntArray,
+                         law_pose_rms: float | None = None,
+                         estops: Sequence[tuple[float, float | None]] | None = None,
+                         deaths: Sequence[Any] = ()) -> dict[str, Any]:
     """With a camera: the formation measured on the fake robots' true poses, how far the
     tracked poses (as last received, up to a frame and its latency old) were from them, and
     law_pose_rms (m): the RMS over every tick of every robot of how far the pose its law used

@@ -35,7 +35,7 @@ class ReceivedPhases:
     receives a curve every second or faster: only the phases are kept, not the messages).
     """
 
-    def __init__(self, experiment: Experiment):
+    def __init__(self, experiment: Experiment) -> None:
         self.experiment = experiment
         self._phases: list[Phase] = []
         self._ids: list[int] = []

@@ -9,6 +9,7 @@ grow with the run; `arrays()` reads everything back when the run is measured.
 from pathlib import Path
 import shutil
 import tempfile
+from typing import Any
 import weakref
 
 import numpy as np
@@ -24,7 +25,8 @@ class SampleLog:
     default a private temporary directory, removed by close() or when the log is collected).
     """
 
-    def __init__(self, fields, directory=None, block_rows=BLOCK_ROWS):
+    def __init__(self, fields: dict[str, tuple[tuple[int, ...], Any]],
+                 directory: str | Path | None = None, block_rows: int = BLOCK_ROWS) -> None:
         self._remove: weakref.finalize | None = None
         if directory is None:
             directory = tempfile.mkdtemp(prefix='curve_formation-samples-')
@@ -39,17 +41,17 @@ class SampleLog:
                        for name, (shape, dtype) in self.fields.items()}
         self._held = 0       # rows in the block
         self._written = 0    # rows on disk
-        self._last = None
+        self._last: dict[str, Any] | None = None
         for name in self.fields:
             self._path(name).write_bytes(b'')
 
-    def _path(self, name):
+    def _path(self, name: str) -> Path:
         return self.directory / f'{name}.bin'
 
-    def __len__(self):
+    def __len__(self) -> int:
         return self._written + self._held
 
-    def append(self, **row):
+    def append(self, **row: Any) -> None:
         """Add one row: a value for every field, of its shape."""
         if row.keys() != self.fields.keys():
             raise KeyError(f'a row has fields {sorted(row)}; expected {sorted(self.fields)}')
@@ -60,11 +62,11 @@ class SampleLog:
         if self._held == self.block_rows:
             self.flush()
 
-    def last(self, name):
+    def last(self, name: str) -> Any:
         """The newest row's value of a field (None before the first row)."""
         return None if self._last is None else self._last[name]
 
-    def flush(self):
+    def flush(self) -> None:
         """Append the rows held in memory to the field files."""
         if not self._held:
             return
@@ -74,7 +76,7 @@ class SampleLog:
         self._written += self._held
         self._held = 0
 
-    def arrays(self):
+    def arrays(self) -> dict[str, np.ndarray]:
         """{name: array (rows, *shape)} of every row so far (read from disk: a copy)."""
         out = {}
         for name, (shape, dtype) in self.fields.items():
@@ -82,13 +84,13 @@ class SampleLog:
             out[name] = np.concatenate([stored, self._block[name][:self._held]])
         return out
 
-    def close(self):
+    def close(self) -> None:
         """Remove the field files of a temporary directory (a given directory is kept)."""
         if self._remove is not None:
             self._remove()
 
-    def __enter__(self):
+    def __enter__(self) -> 'SampleLog':
         return self
 
-    def __exit__(self, *exc):
+    def __exit__(self, *exc: object) -> None:
         self.close()

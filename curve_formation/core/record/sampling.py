@@ -9,9 +9,12 @@ fields, so a run and the analysis of its bag measure the same thing.
 """
 
 import math
+from typing import Any
 
 import numpy as np
 
+from curve_formation.core.base.shapes import FloatArray
+from curve_formation.core.controller.agent_config import Fence
 from curve_formation.core.controller.plausibility import plausible_box, position_problem
 
 
@@ -27,7 +30,7 @@ class LatestValues:
     pose is believed where the controllers believe it (core.controller.plausibility.plausible_box).
     """
 
-    def __init__(self, n, fence=None):
+    def __init__(self, n: int, fence: Fence = None) -> None:
         self.box = plausible_box(fence)
         self.poses = np.full((n, 3), np.nan)
         self.pose_stamps = np.full(n, np.nan)
@@ -35,7 +38,7 @@ class LatestValues:
         self.dhat = np.full((n, 2), np.nan)
         self.refused = 0   # poses refused as unbelievable
 
-    def pose(self, i, x, y, theta, stamp):
+    def pose(self, i: int, x: float, y: float, theta: float, stamp: float) -> bool:
         """Robot i's (1-based) pose taken at `stamp` s; False (and counted) if refused."""
         if position_problem(x, y, self.box) is not None or not math.isfinite(theta):
             self.refused += 1
@@ -44,13 +47,13 @@ class LatestValues:
         self.pose_stamps[i - 1] = stamp
         return True
 
-    def command(self, i, v, w):
+    def command(self, i: int, v: float, w: float) -> None:
         self.commands[i - 1] = (v, w)
 
-    def estimate(self, i, dx, dy):
+    def estimate(self, i: int, dx: float, dy: float) -> None:
         self.dhat[i - 1] = (dx, dy)
 
-    def row(self, t, t0):
+    def row(self, t: float, t0: float) -> dict[str, Any]:
         """The sample at time t (s, the receiver's clock) of a run whose t = 0 is at t0:
         t and pose_stamps in s since t = 0, the values as they are now (copies).
         """
@@ -66,23 +69,23 @@ class GridSampler:
     rows due before `end` and drops any taken at or after it.
     """
 
-    def __init__(self, latest, hz):
+    def __init__(self, latest: LatestValues, hz: float) -> None:
         self.latest = latest
         self.period = 1.0 / hz
-        self.t0 = None
-        self.rows = []
+        self.t0: float | None = None
+        self.rows: list[dict[str, Any]] = []
 
-    def start(self, t0):
+    def start(self, t0: float) -> None:
         """t = 0 (s, the receiver's clock): the first row is due then."""
         self.t0 = t0
 
-    def until(self, t):
+    def until(self, t: float) -> None:
         if self.t0 is None:
             return
         while self.t0 + len(self.rows) * self.period < t:
             self.rows.append(self.latest.row(self.t0 + len(self.rows) * self.period, self.t0))
 
-    def finish(self, end):
+    def finish(self, end: float) -> dict[str, FloatArray]:
         """The rows before `end` (s, the receiver's clock) as arrays: {field: (R, ...)}."""
         self.until(end)
         while self.rows and self.rows[-1]['t'] + self.t0 >= end:

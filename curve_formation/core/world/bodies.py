@@ -25,7 +25,8 @@ CONTACT_PASSES = 4
 TOUCHING = 1e-9
 
 
-def separate(poses, radius, width, height, touching):
+def separate(poses: FloatArray, radius: float, width: float, height: float,
+             touching: BoolArray) -> tuple[int, bool, float]:
     """Resolve contacts in place; returns (new contacts, touching now, smallest gap).
 
     poses (n, 3): moved so that no two discs of `radius` overlap and none crosses a wall.
@@ -105,7 +106,7 @@ def contacts_of(n: int, radius: float, width: float, height: float) -> Contacts:
                     np.array([0.0, 0.0, math.inf]))
 
 
-def touch(poses, contacts, step):
+def touch(poses: FloatArray, contacts: 'Contacts', step: float) -> float:
     """Resolve contacts after a step of `step` s (bodies only: radius > 0) and keep the tally;
     the smallest gap between two surfaces (m; -inf while two touch).
     """
@@ -127,7 +128,8 @@ def contact_summary(contacts: Contacts) -> dict[str, float | int | None]:
             'smallest_gap': float(gap) if contacts.radius > 0 and math.isfinite(gap) else None}
 
 
-def _inside_walls(poses, i, radius, width, height):
+def _inside_walls(poses: FloatArray, i: int, radius: float, width: float, height: float
+                  ) -> bool:
     """Put body i back inside the walls; True if it had to move."""
     moved = False
     if width > 0.0:
