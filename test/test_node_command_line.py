@@ -3,6 +3,7 @@ given as a parameters file, a file keyed for another node, a missing parameter. 
 parameters files and start scripts `curve-formation params` writes without starting anything.
 """
 
+import math
 import os
 import subprocess
 import sys
@@ -145,6 +146,11 @@ def test_a_generated_file_applies_under_the_namespace_the_user_chooses(params_di
         '--ros-args', '-r', '__ns:=/mona_3', '--params-file', str(path)]))
     assert node.get_fully_qualified_name() == '/mona_3/formation_controller'
     assert node.params.index == 3 and node.params.agent_count == 9
+    # file -> parameters file (as rcl reads it, no limit as .inf) -> node: the same controller
+    from curve_formation.core.config.agents import agent_configs
+    from curve_formation.core.config.loading import load_experiment
+    assert node.config == agent_configs(load_experiment(ARENA_DEMO), 10.0)[2]
+    assert node.config.limits.max_angular_rate == math.inf
 
 
 def test_params_with_an_observer_waits_for_it_and_measures(tmp_path):
