@@ -12,6 +12,7 @@ import sys
 import time
 
 import lossy_controller
+import node_faults
 import numpy as np
 import pytest
 import rclpy
@@ -148,7 +149,7 @@ def test_estop_a_killed_follower_and_the_killed_leader_each_stop_whom_they_shoul
         # this test's reader and not to the robot, which then never drove (inferred from
         # one failed run)
         run.spin_for(0.5)
-        run.kill('robot_2.formation_controller')
+        node_faults.kill(run, 'robot_2.formation_controller')
         wait_for(run, lambda: stopped(run, [3, 4]), 'robots 3 and 4 (out-neighbours of 2) to stop')
         # `estop on` cannot stop a robot whose controller is dead, and says so
         status, out, err = estop_cli(run, 'on', '--expect', '6', wait=4.0)
@@ -165,11 +166,11 @@ def test_estop_a_killed_follower_and_the_killed_leader_each_stop_whom_they_shoul
             wait_for(run, lambda: logged(tmp_path, 'robot_2.fake_robot', 'no command for 1 s'),
                      "robot 2's watchdog")
         still_standing(run, [2], standing_still(run, [2]), 0.5)
-        run.restart('robot_2.formation_controller')
+        node_faults.restart(run, 'robot_2.formation_controller')
         wait_for(run, lambda: driving(run, [2, 3, 4]), 'robots 2, 3, 4 to drive again', 30.0)
         # 3. the leader killed
         wait_for(run, lambda: driving(run, FOLLOWERS), 'every follower to drive')
-        run.kill('robot_1.formation_controller')
+        node_faults.kill(run, 'robot_1.formation_controller')
         wait_for(run, lambda: stopped(run, FOLLOWERS), 'every follower to stop')
         run.spin_for(1.0)
         assert stopped(run, FOLLOWERS)
@@ -496,8 +497,8 @@ def test_estop_cli_stops_all_nine_robots_at_once_holds_them_and_releases(ros_dom
         assert 'Ctrl-C' not in out + err
         still = standing_still(run, range(1, 10))
         run.spin_for(2.0)
-        run.kill('robot_4.formation_controller')
-        run.restart('robot_4.formation_controller')
+        node_faults.kill(run, 'robot_4.formation_controller')
+        node_faults.restart(run, 'robot_4.formation_controller')
         run.spin_until(lambda: clock.time() >= exited + 10.0, 20.0, '10 s after the command')
         held = log.since(exited)
         assert {row[0] for row in held} == set(range(1, 10))

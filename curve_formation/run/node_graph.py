@@ -120,18 +120,6 @@ class NodeGraph:
                     self.on_death(death)
         return False
 
-    def kill(self, key, sig=signal.SIGKILL):
-        """Kill one node process (fault injection); it is forgotten by check_processes."""
-        proc = self.processes.pop(key)
-        proc.send_signal(sig)
-        proc.wait(10)
-        self.ended_hard = True
-        return proc.returncode
-
-    def restart(self, key):
-        """Start a killed node again; its log goes on after what it wrote before."""
-        self.start(next(launch for launch in self.launches if launch.key == key), mode='a')
-
     def stop(self):
         """SIGINT every node process (they send a last zero command), then kill what lingers;
         in-process nodes run their shutdown hooks (the host destroys them once it stops).

@@ -225,13 +225,6 @@ class Run:
     def processes(self):
         return self._started()[1].processes
 
-    def kill(self, key, sig=signal.SIGKILL):
-        """Kill one node process (fault injection)."""
-        return self._started()[1].kill(key, sig)
-
-    def restart(self, key):
-        self._started()[1].restart(key)
-
     def _on_death(self, death):
         """A node process ended on its own: said now, written into the bag (a /diagnostics
         message, diagnostics.NODE_DEATH_REPORTER) and later into metrics.json; the run goes on
