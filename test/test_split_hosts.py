@@ -22,11 +22,15 @@ PARTS = {1: 'curve_server', 2: 'controllers', 3: 'robots', 4: 'observer'}
 DURATION = 45.0
 DOWN_AT, DOWN_FOR = 15.0, 2.0   # s after the first curve: the robots' host loses its link
 CLI = str(Path(sys.executable).parent / 'curve-formation')
+HOST_CLOCK = Path(__file__).resolve().parent / 'support' / 'host_clock'
 
 
 def start(hosts, k, out, domain, discovery, clock_offset=0.0):
+    # the host's clock clock_offset s ahead: test/support/host_clock (its sitecustomize)
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='SUBNET',
-               PYTHONUNBUFFERED='1', CURVE_FORMATION_CLOCK_OFFSET=str(clock_offset))
+               PYTHONUNBUFFERED='1', CURVE_FORMATION_TEST_CLOCK_OFFSET=str(clock_offset),
+               PYTHONPATH=os.pathsep.join([str(HOST_CLOCK), *filter(None, [
+                   os.environ.get('PYTHONPATH')])]))
     argv = [CLI, 'run', 'arena_demo', '--only', PARTS[k], '--out', str(out / f'host{k}'),
             '--duration', str(DURATION)]
     if discovery:

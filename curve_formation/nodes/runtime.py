@@ -35,7 +35,6 @@ EXIT_DEADLINE = 15.0        # s from a stop signal to a forced exit (_exit_hard_
 EXECUTOR_ENV = 'CURVE_FORMATION_EXECUTOR'
 # Fault injection: seconds added to every stamp and time this process's nodes take from their
 # clock, as on a host whose clock is that far ahead (namespaces share the kernel's clock).
-CLOCK_OFFSET_ENV = 'CURVE_FORMATION_CLOCK_OFFSET'
 EXECUTORS = ('events', 'single')
 # Set by the runner: a folder where each node process writes, when it ends, how many messages
 # it published per writer stream (to check that a bag lost nothing).
@@ -87,21 +86,8 @@ class PublicationCounter:
 
 
 def now_seconds(node: Node) -> float:
-    """The node's clock (sim time when use_sim_time is set) in seconds, plus this process's
-    injected clock offset (CLOCK_OFFSET_ENV; tests of hosts whose clocks disagree).
-    """
-    return node.get_clock().now().nanoseconds * 1e-9 + CLOCK_OFFSET
-
-
-def _clock_offset() -> float:
-    text = os.environ.get(CLOCK_OFFSET_ENV, '')
-    try:
-        return float(text) if text else 0.0
-    except ValueError:
-        raise SystemExit(f'error: {CLOCK_OFFSET_ENV}={text!r}: expected seconds') from None
-
-
-CLOCK_OFFSET = _clock_offset()
+    """The node's clock (sim time when use_sim_time is set) in seconds."""
+    return node.get_clock().now().nanoseconds * 1e-9
 
 
 def run_node(node_factory: Callable[..., Node], args: list[str] | None = None,
