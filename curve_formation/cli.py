@@ -93,7 +93,10 @@ def _cmd_run(args):
                          bag_storage=args.bag_storage, bridge=args.bridge,
                          discovery_server=args.discovery_server, only=only,
                          agents=_agents(args.agents), isolated=args.isolated,
-                         physics=args.physics, animate=args.animate)
+                         physics=args.physics, animate=args.animate,
+                         preflight=not args.no_preflight,
+                         allow_missing=frozenset(_agents(args.allow_missing, '--allow-missing')
+                                                 or ()))
     result = run_experiment(args.config, args.out, args.duration, options)
     if not options.runs('observer'):
         print(f'ran {", ".join(sorted(only or ()))} of {result["experiment"]}; logs/ in '
@@ -110,8 +113,9 @@ def _cmd_run(args):
 
 def _bridge_needs_simulated_robots(args):
     if args.bridge and args.no_sim:
-        raise ValueError('--bridge drives emulated robots and --no-sim has none; for real '
-                         'robots start one robot_bridge per robot (docs/connecting-robots.md)')
+        raise ValueError('--bridge drives emulated robots and --no-sim has none; real '
+                         "robots' bridges start from the file's robots.fleet "
+                         '(docs/arena-setup.md)')
 
 
 def _cmd_params(args):
@@ -137,8 +141,8 @@ def _cmd_params(args):
           f'(e.g. `ROS_DOMAIN_ID=42 {out / "start_all.sh"}`)')
 
 
-def _agents(text):
-    """The frozenset of agents `--agents` names ('1-5,9'), or None for every agent."""
+def _agents(text, flag='--agents'):
+    """The frozenset of agents `flag` names ('1-5,9'), or None for every agent."""
     if text is None:
         return None
     agents: set[int] = set()
@@ -147,10 +151,10 @@ def _agents(text):
             low, _, high = item.strip().partition('-')
             agents.update(range(int(low), int(high or low) + 1))
     except ValueError:
-        raise ValueError(f'--agents: expected agent numbers and ranges such as 1-5,9, got '
+        raise ValueError(f'{flag}: expected agent numbers and ranges such as 1-5,9, got '
                          f'{text!r}') from None
     if not agents or min(agents) < 1:
-        raise ValueError(f'--agents: expected agent numbers from 1, got {text!r}')
+        raise ValueError(f'{flag}: expected agent numbers from 1, got {text!r}')
     return frozenset(agents)
 
 
@@ -446,6 +450,13 @@ def build_parser():
     run.add_argument('--agents', metavar='LIST',
                      help="with --only: run only these agents' controllers and robots here, "
                      'e.g. 1-5,9 (a team spread over several hosts)')
+    run.add_argument('--allow-missing', metavar='LIST',
+                     help='robots (e.g. 4,7) that may fail the pre-flight: the run goes on '
+                     'without those that do, the others renumbered 1.. in order (the graph '
+                     "must stay rooted at the leader); metrics.json's preflight says who")
+    run.add_argument('--no-preflight', action='store_true',
+                     help='skip the pre-flight of the robots behind links (robots.fleet, or '
+                     '--bridge): marker seen, link answering, stop confirmed')
     _physics_option(run, "the fake robots' world (fake_arena)")
     _force_option(run)
     run.set_defaults(func=_cmd_run)

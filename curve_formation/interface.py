@@ -33,6 +33,8 @@ READY = '/formation/ready'
 CURVE_PATH = '/formation/curve_path'
 CURVE_MARKERS = '/formation/markers'
 ROBOT_POSES = '/formation/robot_poses'
+FLEET = '/formation/fleet'
+PREFLIGHT = '/formation/preflight'
 CAMERA_IMAGE = '/camera/image_raw'
 CAMERA_POSES = '/camera/robot_poses'
 CAMERA_DEBUG = '/camera/debug_image'
@@ -162,6 +164,13 @@ TOPICS = {t.name: t for t in (
               'a newly observed curve as ordered points (arena frame, m)'),
     TopicSpec(CURVE_MARKERS, 'visualization_msgs/msg/MarkerArray', 'LATCHED',
               "curve line and each agent's target point", EVERY_BAG),
+    TopicSpec(FLEET, 'diagnostic_msgs/msg/DiagnosticArray', 'LATCHED',
+              "the fleet's status, 1 Hz: one status per robot (name robot_<i>, hardware_id its "
+              'link), values seen, pose_age_s, link, reply_age_s, battery, estopped, motion, '
+              'controller, lost (when its marker or link was lost, s since t = 0)', EVERY_BAG),
+    TopicSpec(PREFLIGHT, 'diagnostic_msgs/msg/DiagnosticArray', 'LATCHED',
+              "the pre-flight's result: one status per robot (seen, link, reply age, stop "
+              'confirmed, problems), and one for the whole fleet', EVERY_BAG),
     TopicSpec(READY, 'std_msgs/msg/String', 'ROLL_CALL',
               'names of the nodes that can receive /formation/curve (start-up handshake)'),
 )}

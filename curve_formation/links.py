@@ -13,6 +13,8 @@ import time
 
 import serial
 
+from curve_formation.core.config.fleet import DEFAULT_BAUD, parse_link
+
 
 MAX_LINE = 4096           # bytes a line may hold before it is dropped as garbage
 REOPEN_PERIOD = 1.0       # s between two attempts to reopen a serial port
@@ -59,17 +61,13 @@ def _datagram_lines(sock, lines):
 
 def parse_address(text):
     """('udp', (host, port)), ('serial', device) or ('pty', path) of 'udp:HOST:PORT',
-    'serial:DEVICE' or 'pty:PATH'; ValueError if it is none of them.
+    'serial:DEVICE[@BAUD]' or 'pty:PATH' (core.config.fleet.parse_link); ValueError if it is
+    none of them.
     """
-    kind, _, rest = text.partition(':')
-    if kind == 'udp':
-        host, _, port = rest.rpartition(':')
-        if not host or not port.isdigit() or not 0 < int(port) < 65536:
-            raise ValueError(f'expected udp:HOST:PORT, got {text!r}')
-        return kind, (host, int(port))
-    if kind in ('serial', 'pty') and rest:
-        return kind, rest
-    raise ValueError(f'expected udp:HOST:PORT, serial:DEVICE or pty:PATH, got {text!r}')
+    address = parse_link(text)
+    if address.kind == 'udp':
+        return 'udp', (address.host, address.port)
+    return address.kind, address.device
 
 
 class UdpLink:
@@ -156,8 +154,12 @@ class SerialLink:
         self.port = None
 
 
-def robot_link(address, baud=115200):
-    """The bridge's link to a robot at 'udp:HOST:PORT' or 'serial:DEVICE'."""
+def robot_link(address, baud=DEFAULT_BAUD):
+    """The bridge's link to a robot at 'udp:HOST:PORT' or 'serial:DEVICE' (at `baud`, or at
+    the address's own '@BAUD').
+    """
+    parsed = parse_link(address)
+    baud = parsed.baud if '@' in address else baud
     kind, where = parse_address(address)
     if kind == 'udp':
         return UdpLink(where)

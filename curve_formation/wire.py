@@ -45,6 +45,7 @@ PRESETS = {
                        '{{"seq": {seq}, "stop": true}}\n', 'm/s'),
 }
 FIELDS = ('left', 'right', 'seq')
+DEFAULT_PRESET = 'mona-serial'   # what a robot bridge writes unless told
 
 
 def wire_format(preset='', command='', stop='', unit='rad/s'):
@@ -139,3 +140,23 @@ def _pattern(template):
         elif field:
             parts.append(f'(?P<{field}>{_NUMBER})')
     return re.compile(''.join(parts))
+
+
+def is_reply(line):
+    """Whether a line from a robot is a firmware's answer to one of ours: 'ok' (or 'ok ...',
+    e.g. with a battery voltage) or 'err'.
+    """
+    text = (line.decode(errors='replace') if isinstance(line, bytes) else line).strip()
+    return text in ('ok', 'err') or text.startswith('ok ')
+
+
+def battery(line):
+    """The battery voltage (V) an answer 'ok <volts>' carries, else None."""
+    parts = (line.decode(errors='replace') if isinstance(line, bytes) else line).split()
+    if len(parts) == 2 and parts[0] == 'ok':
+        try:
+            volts = float(parts[1])
+        except ValueError:
+            return None
+        return volts if math.isfinite(volts) else None
+    return None

@@ -84,7 +84,7 @@ def test_a_bridge_without_simulated_robots_is_refused_with_the_way_to_real_ones(
     for command in ('run', 'params'):
         assert main([command, 'arena_demo', '--no-sim', '--bridge', 'udp',
                      '--out', str(tmp_path / command)]) == 2
-        assert 'one robot_bridge per robot' in capsys.readouterr().err
+        assert "robots' bridges start from the file's robots.fleet" in capsys.readouterr().err
 
 
 def test_a_split_run_names_its_parts_and_needs_a_shared_domain(capsys, monkeypatch, tmp_path):

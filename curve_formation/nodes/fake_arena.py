@@ -58,6 +58,8 @@ from curve_formation.nodes.topics import Use
 
 # How often the emulated robots' firmware reads its links (s).
 FIRMWARE_POLL = 0.005
+# (v m/s, w rad/s) of a runaway robot (fault_runaway)
+RUNAWAY = (0.01, 0.0)
 
 
 NODE_NAME = 'fake_arena'   # also its console script's name
@@ -77,6 +79,10 @@ PARAMETERS = (
           'cmd_vel; empty = cmd_vel'),
     Param('fault_link_down', 'double[]', [], 'fault injection: [robot (0 = all), from (s), '
           'for (s)] after the first line received: the firmware hears nothing'),
+    Param('fault_runaway', 'int[]', [], 'fault injection: these robots (1-based) answer every '
+          'line but drive on at RUNAWAY speed whatever they are told (a stuck motor driver)'),
+    Param('fault_hidden', 'int[]', [], "fault injection: these robots' poses are never "
+          'published (a marker face-down)'),
 ) + ROBOT_PARAMETERS + WIRE_PARAMETERS
 
 TOPICS = (
@@ -178,7 +184,9 @@ class FakeArena(Node):
                 if said is None:
                     endpoint.send(b'err\n')
                     continue
-                if said[0] == 'command':
+                if i in self.params.fault_runaway:
+                    v, w = RUNAWAY
+                elif said[0] == 'command':
                     v, w = body_from_wheels(said[1], said[2], self.wheel_base)
                 else:
                     v, w = 0.0, 0.0
@@ -225,8 +233,10 @@ class FakeArena(Node):
         poses = self.world.poses()
         if noise[0] > 0 or noise[1] > 0:
             poses = poses + self.rng.normal(0.0, [noise[0], noise[0], noise[1]], poses.shape)
-        for pub, msg, (x, y, th) in zip(self.pose_pubs, self.pose_msgs, poses, strict=True):
-            if self.rng.random() >= self.params.fault_pose_drop:
+        hidden = self.params.fault_hidden
+        for i, (pub, msg, (x, y, th)) in enumerate(zip(self.pose_pubs, self.pose_msgs, poses,
+                                                       strict=True), 1):
+            if self.rng.random() >= self.params.fault_pose_drop and i not in hidden:
                 pub.publish(messages.pose_to_msg(x, y, th, now, self.params.frame_id, msg))
         if self.all_pub is not None:
             self.all_pub.publish(messages.robot_poses_to_msg(poses, now, self.params.frame_id))

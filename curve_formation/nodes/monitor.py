@@ -86,6 +86,7 @@ class Monitor(Node):
             [] for _ in range(n)]
         self.law_pose_tally = [0, 0.0]
         self.command_times = np.full(n, np.nan)
+        self.pose_received = np.full(n, np.nan)   # s, this node's clock, of the newest pose
         self.curve_id: int | None = None
         self.t0: float | None = None
         # curve id -> DDS source timestamp of its first message (s)
@@ -149,6 +150,7 @@ class Monitor(Node):
 
     def _on_pose(self, i: int, msg: PoseStamped) -> None:
         self._pose_arrival = time.monotonic()
+        self.pose_received[i - 1] = now_seconds(self)
         self.latest.pose(i, *messages.pose_from_msg(msg))
 
     def _on_true_pose(self, i: int, msg: PoseStamped) -> None:
@@ -236,6 +238,11 @@ class Monitor(Node):
         if self._estop_held.get(report.holder) != report.engaged:
             self._estop_held[report.holder] = report.engaged
             self.estop_events.append((now_seconds(self), report.holder, report.engaged))
+
+    @property
+    def estop_engaged(self) -> bool:
+        """Whether some e-stop holder holds the robots now, as last heard."""
+        return any(self._estop_held.values())
 
     def estop_intervals(self, end: float) -> list[tuple[float, float | None]]:
         """[(start, stop or None)] (s since t = 0, up to `end`) while a node held the e-stop

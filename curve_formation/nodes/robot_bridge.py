@@ -9,7 +9,8 @@ replaces it), from a thread at real-time priority (`realtime_priority`) when the
 a process of its own.
 The stop line is sent while cmd_vel is older than `command_timeout`, while the e-stop is
 engaged, and `stop_repeats` times on shutdown (a UDP datagram can be lost). Lines from the
-robot (its replies) are counted; what is not a reply is counted as malformed and dropped.
+robot (its replies, 'ok' with its battery voltage where the firmware adds it) are counted;
+what is not a reply is counted as malformed and dropped.
 /diagnostics (1 Hz): sent, failed, malformed, last error, time since the robot last answered
 (a link lost for longer than `reply_timeout` is reported), and the bridge's latency
 from a cmd_vel received to its bytes written.
@@ -41,7 +42,7 @@ from curve_formation.nodes.topics import Use
 
 # How the robot's firmware reads its lines (robot_bridge, and fake_arena's emulated robots).
 WIRE_PARAMETERS = (
-    Param('wire_format', 'string', 'mona-serial', 'a preset of wire.PRESETS, or empty '
+    Param('wire_format', 'string', wire.DEFAULT_PRESET, 'a preset of wire.PRESETS, or empty '
           'for command_template and stop_template', choices=('',) + tuple(wire.PRESETS)),
     Param('command_template', 'string', '', "wire_format '': the command line, with {left} "
           'and {right} (wheel speeds) and optionally {seq}, terminator included'),
@@ -118,6 +119,7 @@ class RobotBridge(Node):
         self.last_error = ''          # the latest send error, kept for the diagnostics
         self.failing = False          # the latest send failed
         self.last_reply: float | None = None
+        self.battery: float | None = None   # V, where the firmware's answers say it
         self.latencies: collections.deque[float] = collections.deque(maxlen=LATENCY_WINDOW)
         self.diag_pub = topics.publisher(self, topics.DIAGNOSTICS)
         topics.subscription(self, topics.CMD_VEL, self._on_cmd)
@@ -232,10 +234,10 @@ class RobotBridge(Node):
 
     def _read_replies(self) -> None:
         for line in self.link.lines():
-            text = line.decode(errors='replace').strip()
-            if text in ('ok', 'err') or text.startswith('ok '):
+            if wire.is_reply(line):
                 self.counts['replies'] += 1
                 self.last_reply = now_seconds(self)
+                self.battery = wire.battery(line) or self.battery
             else:
                 self.counts['malformed'] += 1
 
@@ -263,6 +265,8 @@ class RobotBridge(Node):
                KeyValue(key='command_publishers', value=', '.join(self.source.names)),
                KeyValue(key='last_error', value=self.last_error),
                KeyValue(key='reply_age_s', value=age),
+               KeyValue(key='battery_v', value='unknown' if self.battery is None
+                        else f'{self.battery:.2f}'),
                KeyValue(key='latency_ms_p50', value=f'{latency[0]:.3f}'),
                KeyValue(key='latency_ms_p99', value=f'{latency[1]:.3f}')])
         msg = DiagnosticArray(status=[status])

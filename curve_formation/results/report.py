@@ -53,6 +53,8 @@ def write_report(folder, title=None):
              '<h2>Verdict</h2>', _verdicts(result),
              '<h2>Curves</h2>', _phase_table(result),
              '<h2>Metrics</h2>', _metrics_table(result, units)]
+    if result.get('fleet') or result.get('preflight'):
+        parts += ['<h2>Fleet</h2>', _fleet_table(result)]
     film = next((folder / f for f in FILMS if (folder / f).exists()), None)
     if film is not None:
         parts += ['<h2>Animation</h2>', _film(film)]
@@ -99,6 +101,17 @@ def verdicts(result):
     for start, stop in intervals:
         out.append((True, f'The e-stop held the robots from t = {_number(start)} s '
                           + ('to the end.' if stop is None else f'to {_number(stop)} s.')))
+    preflight = result.get('preflight')
+    if preflight is not None:
+        left = preflight.get('left_out') or []
+        out.append((not left, f"Pre-flight passed for {len(preflight.get('robots', []))} "
+                    'robots' + (': robots left out for failing it: ' + '; '.join(
+                        f"{r['robot']} ({', '.join(r.get('problems', []))})" for r in left)
+                        + '.' if left else '.')))
+    for event in (result.get('fleet') or {}).get('events', ()):
+        lost = event['what'].endswith('lost')
+        out.append((not lost, f"Robot {event['robot']}: {event['what']} at t = "
+                              f"{_number(event['t'])} s."))
     for death in result.get('node_deaths') or ():
         when = 'before t = 0' if death.get('t') is None else f"at t = {_number(death['t'])} s"
         out.append((False, f"Node {death['node']} died {when} ({death.get('how', '')})."))
@@ -126,6 +139,24 @@ def _phase_table(result):
         f"<td>{_number(p.get('final_max_agent_error'))}</td></tr>"
         for p in result.get('phases', ()))
     return f'<table>{head}{rows}</table>'
+
+
+def _fleet_table(result):
+    """The pre-flight per robot, then the fleet's timeline (markers and links lost, back)."""
+    rows = ''.join(
+        f"<tr><td>robot {r['robot']}</td><td>{_e(r.get('link', ''))}</td>"
+        f"<td>{'yes' if r.get('seen') else 'no'}</td>"
+        f"<td>{'yes' if r.get('stop_confirmed') else 'no'}</td>"
+        f"<td>{_e(', '.join(r.get('problems', [])) or 'ok')}</td></tr>"
+        for r in (result.get('preflight') or {}).get('robots', ()))
+    table = ('<table><tr><th>pre-flight</th><th>link</th><th>marker seen</th>'
+             f'<th>stop confirmed</th><th>problems</th></tr>{rows}</table>' if rows else '')
+    events = ''.join(f"<tr><td>{_number(e['t'])}</td><td>robot {e['robot']}</td>"
+                     f"<td>{_e(e['what'])}</td></tr>"
+                     for e in (result.get('fleet') or {}).get('events', ()))
+    timeline = (f'<table><tr><th>t (s)</th><th>robot</th><th>event</th></tr>{events}</table>'
+                if events else '<p>No marker or link was lost during the run.</p>')
+    return table + timeline
 
 
 def _metrics_table(result, units):

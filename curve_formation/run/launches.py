@@ -14,10 +14,11 @@ import socket
 import yaml
 
 from curve_formation.core.config.agents import agent_configs
-from curve_formation.core.config.experiment import wheel_base, wheel_radius
+from curve_formation.core.config.experiment import wheel_radius
 from curve_formation.core.config.loading import control_rate
 from curve_formation.core.config.parameters import node_parameters
 from curve_formation.core.config.variations import variations_text
+from curve_formation.fleet import bridge_parameters, emulated_fleet, fleet_robots
 from curve_formation.interface import robot_name, robot_namespace
 from curve_formation.run.run_options import DEFAULTS
 
@@ -51,11 +52,12 @@ class NodeLaunch:
 
 
 def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None,
-                  observed=True):
+                  observed=True, fleet=None):
     """The node graph of an experiment: curve server, controllers and, as the RunOptions say,
     fake robots or one fake arena, robot bridges (their pseudo-terminals in links_dir) and
     the camera nodes. observed: a runner's monitor (and with a bag, its recorder) reads the
-    run, and the curve server waits for it too; False for a graph started by hand.
+    run, and the curve server waits for it too; False for a graph started by hand. fleet:
+    the robots behind bridges (fleet.FleetRobot; None: bridged_fleet's).
     """
     with_robots, camera, bridge = options.with_robots, options.camera, options.bridge
     pose_noise, command_latency = options.pose_noise, options.command_latency
@@ -70,7 +72,8 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None,
     varies = variations_text(experiment)   # the disturbance's changes, as JSON
     engine = options.physics or spec.physics.engine
     one_world = uses_fake_arena(experiment, engine) or bridge is not None
-    links = robot_links(experiment.n, bridge, links_dir) if bridge and with_robots else []
+    if fleet is None:
+        fleet = bridged_fleet(experiment, options, links_dir)
     # The curve server waits until the n controllers, the runner's monitor, its bag recorder
     # and the camera nodes (they draw the curve) can receive from it (nodes/readiness.py).
     observers = (1 + (options.bag_path is not None)) if observed else 0
@@ -81,7 +84,6 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None,
                             'wait_for_poses': True,
                             # a drawn curve comes from the camera, not from the schedule
                             'schedule': not (cameras and spec.camera.drawn_curve is not None)})]
-    bridges = [bridge_parameters(experiment, rate, link) for link in links]
     for i, config in enumerate(agent_configs(experiment, rate), 1):
         ns = robot_namespace(i)
         d = [float(v) for v in experiment.disturbance[i - 1]]
@@ -91,9 +93,10 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None,
         module = 'curve_formation.nodes.formation_controller'
         launches.append(NodeLaunch(module, ns, 'formation_controller', controller,
                                    (options.node_variants or {}).get(module, '')))
-        if links:
+        if fleet:
             launches.append(NodeLaunch('curve_formation.nodes.robot_bridge', ns,
-                                       'robot_bridge', bridges[i - 1]))
+                                       'robot_bridge',
+                                       bridge_parameters(experiment, rate, fleet[i - 1])))
         if with_robots and not one_world:
             launches.append(NodeLaunch('curve_formation.nodes.fake_robot', ns, 'fake_robot', {
                 'index': i,
@@ -113,11 +116,15 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None,
                  'fault_pose_drop': float(faults.get('pose_drop', 0.0)),
                  'pose_topic': 'pose' if camera is None else 'true_pose',
                  'publish_robot_poses': camera is None, 'physics': engine}
-        if links:   # emulated robots behind their links, reading what the bridges write
-            arena['links'] = links
+        if fleet:   # emulated robots behind their links, reading what the bridges write
+            arena['links'] = [robot.address.text for robot in fleet]
             arena['wheel_radius'] = wheel_radius(experiment)
             if 'link_down' in faults:
                 arena['fault_link_down'] = [float(v) for v in faults['link_down']]
+            if 'runaway' in faults:
+                arena['fault_runaway'] = [int(v) for v in faults['runaway']]
+        if 'hidden' in faults:
+            arena['fault_hidden'] = [int(v) for v in faults['hidden']]
         launches.append(NodeLaunch('curve_formation.nodes.fake_arena', '/', 'fake_arena',
                                    arena))
     return launches + cameras
@@ -154,15 +161,16 @@ def robot_links(n, bridge, folder, rng=None):
     raise RuntimeError(f'no {n} free UDP ports in {LINK_PORTS}')
 
 
-def bridge_parameters(experiment, rate, link):
-    """robot_bridge parameters for a robot behind `link` (the emulated robot's end of it)."""
-    limits = experiment.limits
-    kind, _, where = link.partition(':')
-    return {'link': link if kind == 'udp' else f'serial:{where}',
-            'wheel_base': wheel_base(experiment),
-            'wheel_radius': wheel_radius(experiment),
-            'max_wheel_speed': float(limits.max_wheel_speed),
-            'rate_hz': float(rate)}
+def bridged_fleet(experiment, options, links_dir):
+    """The robots a run drives through robot bridges: with simulated robots and a bridge,
+    fake_arena's emulated ones (links in links_dir for pseudo-terminals); with real robots,
+    the file's robots.fleet (none listed: their drivers are started by hand); else none.
+    """
+    if options.with_robots:
+        if not options.bridge:
+            return []
+        return emulated_fleet(experiment, robot_links(experiment.n, options.bridge, links_dir))
+    return fleet_robots(experiment)
 
 
 def uses_fake_arena(experiment, engine='kinematic'):
@@ -213,7 +221,7 @@ def write_params_files(launches, folder):
 # is named as its node (the module's NODE_NAME).
 NODES = {'curve_formation.nodes.curve_server': ('CurveServer', 'curve_server'),
          'curve_formation.nodes.formation_controller': ('FormationController', 'controllers'),
-         'curve_formation.nodes.robot_bridge': ('RobotBridge', 'controllers'),
+         'curve_formation.nodes.robot_bridge': ('RobotBridge', 'robots'),
          'curve_formation.nodes.fake_robot': ('FakeRobot', 'robots'),
          'curve_formation.nodes.fake_arena': ('FakeArena', 'robots'),
          'curve_formation.nodes.camera_tracker': ('CameraTracker', 'camera'),

@@ -18,7 +18,9 @@ class RunOptions:
     command_latency: delay (s) of every command at the simulated robots; command_jitter: how
         much each command's delay varies either way (s, uniform).
     faults: faults of the simulated robots, {'pose_drop': p (each pose lost with that
-        probability), 'link_down': [robot, from s, for s] (fake_arena's link to a robot cut)}.
+        probability), 'link_down': [robot, from s, for s] (fake_arena's link to a robot cut),
+        'runaway': [robots] (answering, driving on whatever they are told), 'hidden':
+        [robots] (fake_arena publishes no pose of them)}.
     node_variants: {package node module: module run in its place with the same parameters},
         e.g. a lab's own variant of formation_controller; the module defines NODE_CLASS.
     camera: None, or fake_camera parameter overrides ({} for none): poses then come from
@@ -39,6 +41,9 @@ class RunOptions:
         otherwise the caller's ROS_DOMAIN_ID (0 when unset) and discovery range, where the
         lab's RViz, `ros2 topic echo` and robot drivers are.
     animate: also write animation.mp4 of the run beside its figures (figures.animation).
+    preflight: check every robot behind a link before the formation starts (run.preflight;
+        runs with robot bridges only). allow_missing: robots (1-based) that may fail it: the
+        run then goes on without them (the team renumbered, core.config.team).
     """
 
     single_process: bool = False
@@ -61,6 +66,8 @@ class RunOptions:
     isolated: bool = False
     physics: str | None = None
     animate: bool = False
+    preflight: bool = True
+    allow_missing: frozenset[int] = frozenset()
 
     def runs(self, part: str) -> bool:
         """Whether this host runs `part` (one of PARTS)."""
@@ -72,7 +79,8 @@ class RunOptions:
 
 
 # The parts of a node graph one host can run (`run --only`): the curve server; the
-# controllers (with their robot bridges); the simulated robots (fake_robot or fake_arena);
+# controllers; the robots (simulated: fake_robot or fake_arena; and the robot bridges, on the
+# PC the robots' radios hang off);
 # the camera nodes (camera_tracker, fake_camera); the observer (monitor, recorder, metrics).
 PARTS = ('curve_server', 'controllers', 'robots', 'camera', 'observer')
 

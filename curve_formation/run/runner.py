@@ -9,10 +9,12 @@ is stopped with SIGINT and metrics and figures are written.
 
 from contextlib import ExitStack
 import dataclasses
+import json
 import math
 import os
 from pathlib import Path
 import random
+import shutil
 import signal
 import threading
 import time
@@ -31,13 +33,23 @@ from curve_formation.nodes.topics import CURVE, DIAGNOSTICS
 from curve_formation.paths import discovery_text, resolve_config, ros_environment
 from curve_formation.results.outputs import write_outputs
 from curve_formation.results.provenance import provenance_text
-from curve_formation.run.launches import node_launches, part_of
+from curve_formation.run.fleet_status import FleetStatus
+from curve_formation.run.launches import bridged_fleet, node_launches, part_of
 from curve_formation.run.node_graph import NodeGraph
 from curve_formation.run.observers import Observers
+from curve_formation.run.preflight import (
+    MissingRobotsError,
+    PoseWatch,
+    PreflightError,
+    PreflightResult,
+    run_preflight,
+)
 from curve_formation.run.run_options import DEFAULTS
 from curve_formation.run.start_scripts import write_node_files
+from curve_formation.run.team_file import write_team_file
 
 
+BRIDGE = 'curve_formation.nodes.robot_bridge'
 READY_TIMEOUT = 90.0   # s; nine Python processes start in ~10 s on two cores
 STATUS_PERIOD = 5.0    # s between the status lines of a run, and of its waiting
 # s of discovery in which a curve server already on the domain is looked for before real
@@ -90,22 +102,32 @@ class Run:
     """
 
     def __init__(self, experiment_path, out_dir, options=DEFAULTS, log=print):
+        self.out = Path(out_dir)
+        self.log = log
+        self.stop_requested = threading.Event()   # set by run_experiment's signal handlers
+        self._setup(experiment_path, options)
+
+    def _setup(self, experiment_path, options):
+        """The run of an experiment file, nothing started (again, for a team left short)."""
         self.experiment_path = resolve_config(experiment_path)
         self.experiment = load_experiment(self.experiment_path)
         self.options = options
-        self.out = Path(out_dir)
-        self.log = log
         if options.agents and max(options.agents) > self.experiment.n:
             raise ValueError(f'--agents: agent {max(options.agents)} is not in 1..'
                              f'{self.experiment.n} ({self.experiment.name})')
         self.rate_hz = control_rate(self.experiment, options.rate_hz)
+        self.fleet = bridged_fleet(self.experiment, options, self.out / 'links')
         self.launches = node_launches(self.experiment, self.experiment_path, options,
-                                      self.out / 'links')
+                                      self.out / 'links', fleet=self.fleet)
+        # the pre-flight's result (None: none ran) and, where robots were left out, the
+        # first one's, of the whole team, with {new agent: robot of the file} (team)
+        self.preflight: PreflightResult | None = None
+        self.fleet_status: FleetStatus | None = None   # with the observer
+        self.left_out: dict | None = None
         self.domain_id = run_domain_id(options.isolated)
         self.publications_dir = self.out / 'publications'
         self.bag_writer = (None if options.bag_path is None
                            else BagWriter(options.bag_path, options.bag_storage))
-        self.stop_requested = threading.Event()   # set by run_experiment's signal handlers
         self.observers: Observers | None = None   # set by start()
         self.graph: NodeGraph | None = None
         self._stack = ExitStack()
@@ -123,6 +145,17 @@ class Run:
         self.stop()
 
     def start(self):
+        """Start the node graph (see the module); with robots behind links, pre-flight first.
+        Robots that fail it and may be missing (allow_missing) are left out: the graph is
+        stopped and started again with the team without them (team.yaml in the output
+        folder).
+        """
+        try:
+            self._start()
+        except MissingRobotsError as leave:
+            self._restart_without(leave.result)
+
+    def _start(self):
         options = self.options
         params_files, _ = write_node_files(self.launches, self.out, self.experiment.name)
         recording = self.bag_writer is not None
@@ -138,6 +171,8 @@ class Run:
             provenance_text=provenance_text(self.experiment_path),
             parameters_text='\n'.join(path.read_text() for path in params_files.values()),
             watch=options.runs('observer') or options.runs('curve_server')))
+        if options.runs('observer'):
+            self.fleet_status = FleetStatus(self.observers.monitor)
         self.graph = self._stack.enter_context(NodeGraph(
             self.launches, params_files, self.out / 'logs', self.observers,
             options.single_process, self.publications_dir if recording else None))
@@ -149,7 +184,10 @@ class Run:
         server, *others = self.launches
         ours = [launch for launch in others   # every node of this host but the curve server
                 if options.runs(part_of(launch.module)) and options.runs_agent(launch.agent)]
-        moving = [launch for launch in ours if part_of(launch.module) == 'controllers']
+        # what can move a robot: the controllers, and the bridges (which also hold the
+        # robots' links, so the pre-flight goes first)
+        moving = [launch for launch in ours if part_of(launch.module) == 'controllers'
+                  or launch.module == BRIDGE]
         for launch in ours:   # what cannot move a robot starts while the domain is looked at
             if launch not in moving:
                 self.graph.start(launch)
@@ -161,6 +199,8 @@ class Run:
             except TimeoutError:
                 pass
             self._refuse_another_formation()
+        if self.fleet and options.preflight and options.runs('robots'):
+            self._preflight()
         for launch in moving:
             self.graph.start(launch)
         if options.runs('curve_server'):
@@ -172,6 +212,60 @@ class Run:
         self.spin_until(lambda: self.monitor.t0 is not None, READY_TIMEOUT, 'the first curve')
         self.log('curve server started: t = 0' if options.runs('curve_server')
                  else 'first curve received: t = 0')
+
+    def _preflight(self):
+        """Pre-flight of the robots behind links (run.preflight), published latched on
+        /formation/preflight; PreflightError if a robot fails that may not be missing,
+        MissingRobotsError if only such robots fail.
+        """
+        observers, _ = self._started()
+        watch = PoseWatch(self.experiment.n, context=observers.context)
+        observers.add_node(watch)
+
+        def spin(seconds):   # every callback that comes within `seconds`
+            end = time.monotonic() + seconds
+            while time.monotonic() < end:
+                if self.stop_requested.is_set():
+                    raise KeyboardInterrupt('stop requested')
+                observers.spin_once(max(end - time.monotonic(), 0.0))
+        result = self.preflight = run_preflight(self.experiment, self.fleet, watch, spin,
+                                                self.log)
+        if self.left_out is not None:
+            result.left_out = [robot['robot'] for robot in self.left_out['robots']]
+        watch.publisher.publish(result.message(now_seconds(watch)))
+        self.out.mkdir(parents=True, exist_ok=True)
+        (self.out / 'preflight.json').write_text(json.dumps(result.as_dict(), indent=2))
+        if result.passed:
+            return
+        failing = set(result.failing)
+        if result.problems or not failing <= self.options.allow_missing:
+            allowed = ','.join(map(str, sorted(failing)))
+            raise PreflightError(result, '' if result.problems
+                                 else f'--allow-missing {allowed} runs the others')
+        raise MissingRobotsError(result)
+
+    def _restart_without(self, result):
+        """Stop what started, and start again with the team without the robots that failed
+        the pre-flight `result` (team.yaml in the output folder; an aborted bag removed: it
+        held the pre-flight's seconds only, and the new one records its result).
+        """
+        missing = set(result.failing)
+        self.log(f'pre-flight: robots {sorted(missing)} left out (--allow-missing); starting '
+                 'again with the others')
+        self.stop()
+        if self.options.bag_path is not None and Path(self.options.bag_path).exists():
+            shutil.rmtree(self.options.bag_path)
+        path = write_team_file(self.experiment_path, missing, self.out / 'team.yaml')
+        kept = [i for i in range(1, self.experiment.n + 1) if i not in missing]
+        left_out = {'robots': [robot.as_dict() for robot in result.robots
+                               if robot.agent in missing],
+                    'team': {str(new): old for new, old in enumerate(kept, 1)}}
+        number = {old: new for new, old in enumerate(kept, 1)}
+        options = dataclasses.replace(self.options, allow_missing=frozenset(),
+                                      faults=_faults_of_team(self.options.faults, number))
+        self._setup(path, options)
+        self.left_out = left_out
+        self._start()
 
     def wind_down(self):
         """Stop every node and close the bag after their last messages, keeping the
@@ -326,9 +420,10 @@ class Run:
                   else f'{driving} driving, {n - driving} standing')
         at_target = int(np.sum(np.linalg.norm(errors, axis=1) < tolerance / math.sqrt(n)))
         settled = 'within' if norm < tolerance else 'above'
+        fleet = '' if self.fleet_status is None else f'  {self.fleet_status.summary()}'
         return (f't {t:6.1f} s  phase {k}  error {norm:.3g} ({settled} tolerance '
                 f'{tolerance:.3g})  worst robot {1e3 * worst:.1f} mm  robots: {moving}, '
-                f'{at_target} at their targets')
+                f'{at_target} at their targets{fleet}')
 
     def spin_until(self, predicate, timeout, what='a condition'):
         """Spin the monitor (and in-process nodes) until predicate() or timeout (s).
@@ -397,6 +492,13 @@ class Run:
                                for name, reports in sorted(self.monitor.links.items())}
         # robot -> [[from, to or null (s), nodes]] while its cmd_vel had several publishers
         result['command_sources'] = self.monitor.command_sources
+        if self.fleet_status is not None:
+            result['fleet'] = self.fleet_status.as_dict()
+        if self.preflight is not None:
+            result['preflight'] = {**self.preflight.as_dict(),
+                                   **({'left_out': self.left_out['robots'],
+                                       'team': self.left_out['team']}
+                                      if self.left_out else {})}
         result['control'] = f'ROS nodes at {self.rate_hz:g} Hz'
         result['mode'] = ('single process' if self.options.single_process
                           else 'one process per node')
@@ -419,6 +521,25 @@ class Run:
         return (dataclasses.replace(self.experiment, phases=phases),
                 phase_index([p.start for p in phases], t))
 
+
+
+def _faults_of_team(faults, number):
+    """The simulated robots' faults (RunOptions.faults) of a team renumbered by `number`
+    ({robot of the file: robot of the team}): a left-out robot's dropped.
+    """
+    if not faults:
+        return faults
+    out = dict(faults)
+    for key in ('runaway', 'hidden'):
+        if key in out:
+            out[key] = [number[i] for i in out[key] if i in number]
+    if 'link_down' in out:
+        robot, *when = out['link_down']
+        if robot != 0 and int(robot) not in number:
+            del out['link_down']
+        elif robot != 0:
+            out['link_down'] = [number[int(robot)], *when]
+    return out
 
 
 def run_experiment(config, out_dir, duration=None, options=DEFAULTS, log=print):

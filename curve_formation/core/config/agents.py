@@ -4,6 +4,9 @@ the tick pipeline build their AgentControllers from.
 Units: m, s, rad; the geofence in the arena frame.
 """
 
+import dataclasses
+from typing import Any
+
 from curve_formation.core.config.experiment import Experiment
 from curve_formation.core.controller.agent_config import AgentConfig, Fence
 
@@ -27,7 +30,7 @@ def agent_configs(experiment: Experiment, rate_hz: float) -> list[AgentConfig]:
     spec = experiment.spec
     on_pc = spec.disturbance.injected == 'on_pc'
     fence = geofence(experiment)
-    return [AgentConfig(
+    return [dataclasses.replace(AgentConfig(
         index=i, agent_count=experiment.n, neighbours=tuple(experiment.graph.in_neighbours(i)),
         pinning=experiment.graph.follower_pinning, gains=experiment.gains,
         limits=experiment.limits, rate_hz=float(rate_hz),
@@ -40,5 +43,23 @@ def agent_configs(experiment: Experiment, rate_hz: float) -> list[AgentConfig]:
         feed_forward=spec.controller.feed_forward,
         min_wheel_speed=(spec.limits.min_wheel_speed or 0.0) if spec.limits else 0.0,
         motor_time_constant=(spec.limits.motor_time_constant or 0.0) if spec.limits else 0.0,
-        estimate_latency=spec.controller.estimate_latency)
+        estimate_latency=spec.controller.estimate_latency), **robot_own(experiment, i))
         for i in range(1, experiment.n + 1)]
+
+
+def robot_own(experiment: Experiment, i: int) -> dict[str, Any]:
+    """AgentConfig fields in which agent i's robot differs from the file's limits, as
+    robots.fleet lists it: its wheel base (in its limits), motor lag and dead band.
+    """
+    fleet = experiment.spec.robots.fleet
+    if not fleet:
+        return {}
+    robot = fleet[i - 1]
+    own: dict[str, Any] = {}
+    if robot.wheel_base is not None:
+        own['limits'] = experiment.limits._replace(wheel_base=float(robot.wheel_base))
+    if robot.motor_time_constant is not None:
+        own['motor_time_constant'] = float(robot.motor_time_constant)
+    if robot.min_wheel_speed is not None:
+        own['min_wheel_speed'] = float(robot.min_wheel_speed)
+    return own

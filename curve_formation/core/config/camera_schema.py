@@ -96,7 +96,8 @@ class CameraSpec(Strict):
     """The overhead camera: markers, arena calibration, fake camera options."""
 
     dictionary: str = Field('DICT_4X4_50', description='cv2.aruco predefined dictionary name')
-    robot_ids: list[int] = Field(description='marker id on agent 1, 2, .., n')
+    robot_ids: list[int] = Field([], description='marker id on agent 1, 2, .., n (left out: '
+                                 "robots.fleet's markers)")
     marker_size: float = Field(gt=0, description="side of a robot marker's black square (m)")
     marker_offset: Pair = Field((0.0, 0.0), description='marker centre relative to the axle '
                                 'centre in the robot frame, x forward (m)')

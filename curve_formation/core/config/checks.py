@@ -50,7 +50,8 @@ def check_camera(spec: ExperimentSpec, source: str) -> None:
         raise ConfigError(source, 'camera', 'a camera needs `arena` (its size frames the view)')
     if len(camera.robot_ids) != spec.agents.count:
         raise ConfigError(source, 'camera.robot_ids', f'expected {spec.agents.count} marker '
-                          f'ids (one per agent), got {len(camera.robot_ids)}')
+                          f'ids (one per agent, here or as robots.fleet[].marker), got '
+                          f'{len(camera.robot_ids)}')
     if camera.dictionary not in MARKER_IDS:
         raise ConfigError(source, 'camera.dictionary', f'unknown ArUco dictionary '
                           f'{safe_yaml.shorten(camera.dictionary)!r}; one of '

@@ -24,6 +24,7 @@ from curve_formation.core.config.checks import (
 )
 from curve_formation.core.config.errors import ConfigError, validation_problem
 from curve_formation.core.config.experiment import Experiment, Phase
+from curve_formation.core.config.fleet import check_fleet
 from curve_formation.core.config.schema import (
     ControllerSpec,
     CurveSpec,
@@ -143,6 +144,7 @@ def _build(spec: ExperimentSpec, source: str) -> Experiment:
         if k > 0 and curve_spec.start <= spec.curves[k - 1].start:
             raise ConfigError(source, f'{key}.start', f'switch times must increase, got '
                               f'{curve_spec.start} after {spec.curves[k - 1].start}')
+    check_fleet(spec, source)
     check_camera(spec, source)
     check_time(spec, source)
     gains = _gains(spec.controller)

@@ -313,10 +313,38 @@ class ArenaSpec(Strict):
     size: Pair = Field(description='arena width and height (m), origin at a corner')
 
 
+class FleetRobotSpec(Strict):
+    """One robot of the lab's fleet (robots.fleet lists them in agent order): its marker, the
+    link its robot_bridge writes and the firmware's wire format, and what differs from the
+    file's limits for this robot (left out: the limits').
+    """
+
+    marker: Optional[int] = Field(None, ge=0, description='ArUco id of the marker on the '
+                                  'robot (default: camera.robot_ids, where listed)')
+    link: str = Field(description="where the robot's radio hangs: 'serial:DEVICE' (e.g. "
+                      "serial:/dev/ttyUSB0@115200, 115200 baud when no @BAUD) or "
+                      "'udp:HOST:PORT'")
+    format: Optional[str] = Field(None, description="the firmware's wire format: a preset "
+                                  'of wire.PRESETS (mona-serial, wheel-m-s, json; left out: '
+                                  'mona-serial)')
+    replies: bool = Field(True, description="the firmware answers each line ('ok' or "
+                          "'err'): pre-flight and robot_bridge expect answers")
+    wheel_base: Optional[float] = Field(None, gt=0, description='distance between its '
+                                        'wheels (m)')
+    wheel_radius: Optional[float] = Field(None, gt=0, description='its wheel radius (m)')
+    motor_time_constant: Optional[float] = Field(None, ge=0, description="its motors' "
+                                                 'measured first-order lag (s)')
+    min_wheel_speed: Optional[float] = Field(None, ge=0, description='its measured dead band: '
+                                             'the smallest rim speed that moves a wheel (m/s)')
+
+
 class RobotsSpec(Strict):
-    """The robots' bodies."""
+    """The robots' bodies, and the lab's robots with their links (fleet; empty: simulated
+    robots only, or robots whose drivers are started by hand).
+    """
 
     radius: float = setting('robots.radius')
+    fleet: list[FleetRobotSpec] = Field([], description='one entry per agent, agent 1 first')
 
 
 class AvoidanceSpec(Strict):
@@ -353,6 +381,15 @@ class ExperimentSpec(Strict):
     robots: RobotsSpec = RobotsSpec()
     avoidance: Optional[AvoidanceSpec] = None
     physics: PhysicsSpec = PhysicsSpec()
+
+    @model_validator(mode='after')
+    def _markers_from_fleet(self) -> 'ExperimentSpec':
+        """camera.robot_ids left out: the fleet's markers, where it lists every one."""
+        markers = [robot.marker for robot in self.robots.fleet]
+        if (self.camera is not None and not self.camera.robot_ids and markers
+                and None not in markers):
+            self.camera.robot_ids = [int(m) for m in markers if m is not None]
+        return self
 
     @field_validator('avoidance', mode='before')
     @classmethod

@@ -1,0 +1,34 @@
+"""The team a run drives once pre-flight has left robots out: the experiment file without
+them, written beside the run's outputs (team.yaml).
+"""
+
+from pathlib import Path
+
+import yaml
+
+from curve_formation.core.config.errors import ConfigError
+from curve_formation.core.config.loading import load_experiment, parse_experiment_text
+from curve_formation.core.config.team import without_robots
+
+
+def write_team_file(experiment_path, missing, path):
+    """The experiment file at experiment_path without the robots `missing` (1-based), written
+    to `path` (core.config.team.without_robots; files it names made absolute) and checked
+    (the graph left must still be rooted at the leader); returns path.
+    """
+    source = str(experiment_path)
+    data = without_robots(parse_experiment_text(Path(experiment_path).read_bytes(), source),
+                          missing, source)
+    camera = data.get('camera') or {}
+    for key in ('calibration_file', 'intrinsics_file'):
+        if camera.get(key) and not Path(camera[key]).is_absolute():
+            camera[key] = str((Path(experiment_path).parent / camera[key]).resolve())
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    try:
+        load_experiment(path)
+    except ConfigError as exc:
+        raise ConfigError(source, exc.key, f'without robots {sorted(missing)}: '
+                          f'{str(exc).split(": ", 2)[-1]}') from None
+    return path
