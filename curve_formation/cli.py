@@ -1,9 +1,10 @@
 """`curve-formation`: simulate, run, record and analyse formation experiments.
 
 Subcommands: check, sim (batch simulator), demo (the headless main job), run (ROS 2 node
-graph), params (its parameters files and `ros2 run` start scripts), analyze, replay and bag
-(info, repair) for recorded bags, measure-link, estop, calibrate-camera
-(the lens, from ChArUco board views), discovery-server, clean-shm, nodes-doc.
+graph), params (its parameters files and `ros2 run` start scripts), preflight (the robots
+behind their links), analyze, replay and bag (info, repair) for recorded bags, measure-link,
+estop, calibrate-camera (the lens, from ChArUco board views), discovery-server, clean-shm,
+nodes-doc.
 Bad input ends with one line `error: FILE: KEY: ...` and exit status 2, never a traceback.
 """
 
@@ -31,11 +32,15 @@ from curve_formation.workflows import (
 
 
 def _cmd_check(args):
+    from curve_formation.fleet import fleet_robots
     from curve_formation.vision.camera_files import check_camera_files
     experiment = load_experiment(resolve_config(args.config))
     warn(experiment)
     report = experiment.report()
     report['camera_files'] = check_camera_files(experiment)
+    report['fleet'] = [{'robot': r.agent, 'marker': r.marker, 'link': r.address.text,
+                        'baud': r.address.baud, 'format': r.format}
+                       for r in fleet_robots(experiment)]
     if args.json:
         print(json.dumps(report, indent=2))
         return
@@ -52,6 +57,10 @@ def _cmd_check(args):
         print('    s_i = ' + ', '.join(f'{v:.4f}' for v in c['s']))
     for line in report['camera_files']:
         print(line)
+    for robot in report['fleet']:
+        baud = f' at {robot["baud"]} baud' if robot['link'].startswith('serial:') else ''
+        print(f'robot {robot["robot"]}: {robot["link"]}{baud}, {robot["format"]}, marker '
+              f'{robot["marker"] if robot["marker"] is not None else "(none)"}')
 
 
 def _animate_option(parser):
@@ -305,6 +314,16 @@ def _cmd_estop(args):
     return send_estop(args.state == 'on', expect, args.wait, args.hold)
 
 
+def _cmd_preflight(args):
+    from curve_formation.fleet import fleet_robots
+    from curve_formation.run.preflight import preflight_command
+    experiment = load_experiment(resolve_config(args.config))
+    result = preflight_command(experiment, fleet_robots(experiment),
+                               frozenset(_agents(args.allow_missing, '--allow-missing') or ()))
+    if args.json:
+        write_json(Path(args.json), result.as_dict())
+
+
 def _cmd_calibrate_camera(args):
     from curve_formation.vision.intrinsics import (
         BoardSpec,
@@ -549,6 +568,14 @@ def build_parser():
                        help='once confirmed, keep sending it every second until Ctrl-C (each '
                        'node holds it anyway)')
     estop.set_defaults(func=_cmd_estop)
+    pre = sub.add_parser('preflight', help="check every robot of the file's robots.fleet "
+                         'before a run: marker seen, link answering, stop confirmed; exit 2 '
+                         'naming each robot that fails (run it before the robot bridges start)')
+    pre.add_argument('config', help='experiment YAML path or shipped name')
+    pre.add_argument('--allow-missing', metavar='LIST',
+                     help='robots (e.g. 4,7) whose failure does not fail the pre-flight')
+    pre.add_argument('--json', metavar='FILE', help='also write the result as JSON')
+    pre.set_defaults(func=_cmd_preflight)
     server = sub.add_parser('discovery-server', help='run a Fast DDS discovery server (for '
                             'networks where multicast fails; runs use it with '
                             '--discovery-server HOST:PORT)')

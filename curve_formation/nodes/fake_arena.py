@@ -78,7 +78,10 @@ PARAMETERS = (
           "'pty:PATH'), read as its firmware would, wheel speeds in wire_format, instead of "
           'cmd_vel; empty = cmd_vel'),
     Param('fault_link_down', 'double[]', [], 'fault injection: [robot (0 = all), from (s), '
-          'for (s)] after the first line received: the firmware hears nothing'),
+          'for (s)] after the first command line received (not a stop line: a pre-flight '
+          'sends those): the firmware hears nothing'),
+    Param('fault_silent', 'int[]', [], 'fault injection: the firmware of these robots '
+          '(1-based) hears nothing, ever (a dead radio or battery)'),
     Param('fault_runaway', 'int[]', [], 'fault injection: these robots (1-based) answer every '
           'line but drive on at RUNAWAY speed whatever they are told (a stuck motor driver)'),
     Param('fault_hidden', 'int[]', [], "fault injection: these robots' poses are never "
@@ -166,6 +169,8 @@ class FakeArena(Node):
 
     def _deaf(self, i: int, now: float) -> bool:
         """Fault injection: robot i's firmware hears nothing now."""
+        if i in self.params.fault_silent:
+            return True
         fault = self.params.fault_link_down
         if not fault or self.first_line is None or fault[0] not in (0, i):
             return False
@@ -176,11 +181,11 @@ class FakeArena(Node):
         now = now_seconds(self)
         for i, endpoint in enumerate(self.endpoints, 1):
             for line in endpoint.lines():
-                if self.first_line is None:
-                    self.first_line = now
                 if self._deaf(i, now):
                     continue
                 said = wire.decode(self.format, line, self.params.wheel_radius)
+                if self.first_line is None and said is not None and said[0] == 'command':
+                    self.first_line = now
                 if said is None:
                     endpoint.send(b'err\n')
                     continue

@@ -23,6 +23,9 @@ from curve_formation.interface import robot_name, robot_namespace
 from curve_formation.run.run_options import DEFAULTS
 
 
+BRIDGE = 'curve_formation.nodes.robot_bridge'   # the node that holds a robot's link
+
+
 @dataclass(frozen=True)
 class NodeLaunch:
     """One node to start: its module, namespace, name and parameters; runs: the module to run
@@ -121,6 +124,8 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None,
             arena['wheel_radius'] = wheel_radius(experiment)
             if 'link_down' in faults:
                 arena['fault_link_down'] = [float(v) for v in faults['link_down']]
+            if 'silent' in faults:
+                arena['fault_silent'] = [int(v) for v in faults['silent']]
             if 'runaway' in faults:
                 arena['fault_runaway'] = [int(v) for v in faults['runaway']]
         if 'hidden' in faults:

@@ -336,3 +336,42 @@ def run_preflight(experiment: Experiment, fleet: Sequence[FleetRobot], watch: Po
     result = PreflightResult(checks, problems, time.monotonic() - started)
     log(result.table())
     return result
+
+
+def preflight_command(experiment: Experiment, fleet: Sequence[FleetRobot],
+                      allow_missing: frozenset[int] = frozenset(),
+                      log: Callable[[str], None] = print) -> PreflightResult:
+    """`curve-formation preflight`: the pre-flight of the file's fleet on this process' ROS
+    domain, with the robots' poses from whatever publishes them (the camera tracker, or the
+    robots' own drivers); to run before the robot bridges start (they hold the links). Raises
+    PreflightError if a robot fails that is not in allow_missing, or for another formation.
+    """
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.signals import SignalHandlerOptions
+
+    from curve_formation.nodes.runtime import make_executor
+    if not fleet:
+        raise ValueError(f'{experiment.source}: robots.fleet: no robots listed: pre-flight '
+                         'checks the robots behind their links')
+    context = Context()
+    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        watch = PoseWatch(experiment.n, context=context)
+        executor = make_executor(context)
+        executor.add_node(watch)
+
+        def spin(seconds: float) -> None:
+            end = time.monotonic() + seconds
+            while time.monotonic() < end:
+                executor.spin_once(timeout_sec=max(end - time.monotonic(), 0.0))
+        result = run_preflight(experiment, fleet, watch, spin, log)
+        watch.publisher.publish(result.message(now_seconds(watch)))
+        executor.shutdown(timeout_sec=1.0)
+        watch.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)
+    failing = set(result.failing)
+    if result.problems or not failing <= allow_missing:
+        raise PreflightError(result)
+    return result

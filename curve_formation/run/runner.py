@@ -34,7 +34,7 @@ from curve_formation.paths import discovery_text, resolve_config, ros_environmen
 from curve_formation.results.outputs import write_outputs
 from curve_formation.results.provenance import provenance_text
 from curve_formation.run.fleet_status import FleetStatus
-from curve_formation.run.launches import bridged_fleet, node_launches, part_of
+from curve_formation.run.launches import BRIDGE, bridged_fleet, node_launches, part_of
 from curve_formation.run.node_graph import NodeGraph
 from curve_formation.run.observers import Observers
 from curve_formation.run.preflight import (
@@ -49,7 +49,6 @@ from curve_formation.run.start_scripts import write_node_files
 from curve_formation.run.team_file import write_team_file
 
 
-BRIDGE = 'curve_formation.nodes.robot_bridge'
 READY_TIMEOUT = 90.0   # s; nine Python processes start in ~10 s on two cores
 STATUS_PERIOD = 5.0    # s between the status lines of a run, and of its waiting
 # s of discovery in which a curve server already on the domain is looked for before real
@@ -530,7 +529,7 @@ def _faults_of_team(faults, number):
     if not faults:
         return faults
     out = dict(faults)
-    for key in ('runaway', 'hidden'):
+    for key in ('silent', 'runaway', 'hidden'):
         if key in out:
             out[key] = [number[i] for i in out[key] if i in number]
     if 'link_down' in out:

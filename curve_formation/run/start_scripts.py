@@ -8,6 +8,8 @@ started again by hand. Each script:
   range its nodes use;
 - starts each node as `ros2 run curve_formation <node> --ros-args -r __ns:=... --params-file
   "$HERE/params/<key>.yaml" &`, the curve server last (it waits for the others anyway);
+- with robot bridges, runs `curve-formation preflight` before them (it needs the links they
+  would hold) and stops, exit status 2, if it refuses;
 - stops them all on Ctrl-C (SIGINT: each sends a last zero command) and exits when they do;
   start_all.sh with an observer also stops them when the observer has measured the run.
 """
@@ -16,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 import shlex
 
-from curve_formation.run.launches import executable, part_of, write_params_files
+from curve_formation.run.launches import BRIDGE, executable, part_of, write_params_files
 
 
 PACKAGE = 'curve_formation'
@@ -44,11 +46,23 @@ def observer_line(run_args):
             '--out "$HERE/run"')
 
 
-def script_text(title, lines, measured=False):
-    """A script that starts each line in the background. measured: the first line is the
-    observer, whose end (the run's duration is over) stops the others.
+def preflight_line(experiment_path):
+    """The pre-flight of the experiment's robots (`curve-formation preflight`), run before
+    the robot bridges take their links; its failure stops what the script started.
     """
-    body = '\n'.join(f'{line} &\npids+=($!)' for line in lines)
+    return (f'ros2 run {PACKAGE} curve-formation preflight {shlex.quote(str(experiment_path))}'
+            ' || { echo "pre-flight refused: no robot bridge started"; stop 2; }')
+
+
+def script_text(title, lines, measured=False, gate=None):
+    """A script that starts each line in the background. measured: the first line is the
+    observer, whose end (the run's duration is over) stops the others. gate: (index, line):
+    `line` runs in the foreground before lines[index:] start (the pre-flight).
+    """
+    started = [f'{line} &\npids+=($!)' for line in lines]
+    if gate is not None:
+        started.insert(gate[0], gate[1])
+    body = '\n'.join(started)
     if measured:
         body += ('\nwait "${pids[0]}"; status=$?   # the observer ends the run\n'
                  'kill -INT "${pids[@]:1}" 2>/dev/null\nwait\nexit $status')
@@ -64,7 +78,7 @@ HERE="$(cd "$(dirname "${{BASH_SOURCE[0]}}")" && pwd)"
 export ROS_DOMAIN_ID="${{ROS_DOMAIN_ID:-0}}"
 echo "ROS_DOMAIN_ID=$ROS_DOMAIN_ID, discovery range ${{ROS_AUTOMATIC_DISCOVERY_RANGE:-SUBNET}}"
 pids=()
-stop() {{ kill -INT "${{pids[@]}}" 2>/dev/null; wait; exit 130; }}
+stop() {{ kill -INT "${{pids[@]}}" 2>/dev/null; wait; exit "${{1:-130}}"; }}
 trap stop INT TERM
 {body}
 """
@@ -77,13 +91,31 @@ def start_scripts(launches, experiment_name, run_args=None):
     parts = {}
     if run_args is not None:
         parts[OBSERVER] = [observer_line(run_args)]
-    for launch in server_last(launches):
-        parts.setdefault(part_of(launch.module), []).append(node_line(launch))
-    scripts = {f'start_{part}.sh': script_text(f'{experiment_name}: {part}', lines)
+    ordered = server_last(launches)
+    bridges = [launch for launch in ordered if launch.module == BRIDGE]
+    for launch in ordered:
+        if launch not in bridges:
+            parts.setdefault(part_of(launch.module), []).append(node_line(launch))
+    gate = {}
+    if bridges:   # the robots behind links: pre-flight, then their bridges
+        check = preflight_line(ordered[-1].parameters['experiment'])
+        robots = parts.setdefault('robots', [])
+        gate['robots'] = (len(robots), check)
+        robots += [node_line(launch) for launch in bridges]
+    scripts = {f'start_{part}.sh': script_text(f'{experiment_name}: {part}', lines,
+                                               gate=gate.get(part))
                for part, lines in parts.items()}
-    scripts['start_all.sh'] = script_text(f'{experiment_name}: the whole graph on one host',
-                                          [line for lines in parts.values() for line in lines],
-                                          measured=run_args is not None)
+    # on one host: what moves no robot, the pre-flight, then the bridges, controllers, server
+    moving = ('controllers', 'curve_server')
+    still = [line for part, lines in parts.items() if part not in moving
+             for line in (lines if part != 'robots' or not bridges
+                          else lines[:gate['robots'][0]])]
+    rest = ([node_line(launch) for launch in bridges]
+            + [line for part in moving for line in parts.get(part, [])])
+    scripts['start_all.sh'] = script_text(
+        f'{experiment_name}: the whole graph on one host', still + rest,
+        measured=run_args is not None,
+        gate=(len(still), gate['robots'][1]) if bridges else None)
     return scripts
 
 

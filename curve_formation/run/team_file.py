@@ -29,6 +29,12 @@ def write_team_file(experiment_path, missing, path):
     try:
         load_experiment(path)
     except ConfigError as exc:
-        raise ConfigError(source, exc.key, f'without robots {sorted(missing)}: '
-                          f'{str(exc).split(": ", 2)[-1]}') from None
+        kept = [i for i in range(1, int(data['agents']['count']) + len(missing) + 1)
+                if i not in missing]
+        said = str(exc).split(': ', 2)[-1]
+        what = ('the graph left is not rooted at the leader, so the formation cannot run: '
+                if exc.key == 'graph' else '')
+        raise ConfigError(source, exc.key, f'without robots {sorted(missing)} {what}{said} '
+                          f"(the team's agents 1..{len(kept)} are the file's robots "
+                          f'{", ".join(map(str, kept))})') from None
     return path
