@@ -176,10 +176,16 @@ class PoseWatch(Node):
         # robot (1-based) -> [(received s, x, y, theta)]
         self.poses: dict[int, list[tuple[float, float, float, float]]] = {
             i: [] for i in range(1, n + 1)}
-        for i in range(1, n + 1):
-            topics.subscription(self, topics.POSE, lambda msg, i=i: self._on_pose(i, msg),
-                                robot=i)
+        self.watching = [topics.subscription(self, topics.POSE,
+                                             lambda msg, i=i: self._on_pose(i, msg), robot=i)
+                         for i in range(1, n + 1)]
         self.publisher = topics.publisher(self, topics.PREFLIGHT)
+
+    def stop_watching(self) -> None:
+        """Drop the pose subscriptions (the result's publisher stays, latched)."""
+        for subscription in self.watching:
+            self.destroy_subscription(subscription)
+        self.watching = []
 
     def _on_pose(self, i: int, msg: PoseStamped) -> None:
         x, y, theta, _ = messages.pose_from_msg(msg)

@@ -231,6 +231,7 @@ class Run:
                                                 self.log)
         if self.left_out is not None:
             result.left_out = [robot['robot'] for robot in self.left_out['robots']]
+        watch.stop_watching()
         watch.publisher.publish(result.message(now_seconds(watch)))
         self.out.mkdir(parents=True, exist_ok=True)
         (self.out / 'preflight.json').write_text(json.dumps(result.as_dict(), indent=2))

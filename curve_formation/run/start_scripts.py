@@ -31,6 +31,21 @@ def server_last(launches):
     return [launch for launch in launches if launch not in server] + server
 
 
+MOVING = ('controllers', 'curve_server')   # the parts whose nodes make robots move
+
+
+def start_order(launches):
+    """The order one host starts a graph in: what moves no robot (camera, simulated robots),
+    then the robot bridges (after the pre-flight, which needs their links), the controllers,
+    the curve server.
+    """
+    ordered = server_last(launches)
+    bridges = [launch for launch in ordered if launch.module == BRIDGE]
+    moving = [launch for launch in ordered if part_of(launch.module) in MOVING]
+    return ([launch for launch in ordered if launch not in bridges and launch not in moving]
+            + bridges + moving)
+
+
 def node_line(launch):
     """The `ros2 run` line of one node (its parameters file under $HERE/params)."""
     return (f'ros2 run {PACKAGE} {executable(launch.module)} --ros-args -r '
@@ -106,16 +121,14 @@ def start_scripts(launches, experiment_name, run_args=None):
                                                gate=gate.get(part))
                for part, lines in parts.items()}
     # on one host: what moves no robot, the pre-flight, then the bridges, controllers, server
-    moving = ('controllers', 'curve_server')
-    still = [line for part, lines in parts.items() if part not in moving
-             for line in (lines if part != 'robots' or not bridges
-                          else lines[:gate['robots'][0]])]
-    rest = ([node_line(launch) for launch in bridges]
-            + [line for part in moving for line in parts.get(part, [])])
+    ordered = start_order(launches)
+    first = parts.get(OBSERVER, [])
+    still = len(first) + len(ordered) - len(bridges) - sum(
+        part_of(launch.module) in MOVING for launch in ordered)
     scripts['start_all.sh'] = script_text(
-        f'{experiment_name}: the whole graph on one host', still + rest,
-        measured=run_args is not None,
-        gate=(len(still), gate['robots'][1]) if bridges else None)
+        f'{experiment_name}: the whole graph on one host',
+        first + [node_line(launch) for launch in ordered], measured=run_args is not None,
+        gate=(still, gate['robots'][1]) if bridges else None)
     return scripts
 
 
@@ -166,11 +179,12 @@ def graph_launches(experiment_path, folder, with_robots=True, camera=False, brid
 
 def graph_starts(experiment, folder, **graph):
     """The nodes of an experiment's graph (a path or shipped name) as
-    launch/formation.launch.py starts them, curve server last, their parameters files written
+    launch/formation.launch.py starts them, in start_order (no pre-flight: a launch file
+    cannot wait for one), their parameters files written
     into folder/params; graph: graph_launches's options.
     """
     from curve_formation.paths import resolve_config
     _, launches = graph_launches(resolve_config(experiment), folder, **graph)
     params = write_params_files(launches, Path(folder) / 'params')
     return [NodeStart(executable(launch.module), launch.namespace, launch.name,
-                      params[launch.key]) for launch in server_last(launches)]
+                      params[launch.key]) for launch in start_order(launches)]
