@@ -63,6 +63,12 @@ def _cmd_check(args):
               f'{robot["marker"] if robot["marker"] is not None else "(none)"}')
 
 
+def _allow_missing_option(parser, then):
+    """--allow-missing: robots that may fail the pre-flight; `then`: what follows."""
+    parser.add_argument('--allow-missing', metavar='LIST',
+                        help=f'robots (e.g. 4,7) that may fail the pre-flight{then}')
+
+
 def _animate_option(parser):
     parser.add_argument('--animate', action='store_true',
                         help='also write animation.mp4 of the run (robots, targets, curve)')
@@ -469,10 +475,9 @@ def build_parser():
     run.add_argument('--agents', metavar='LIST',
                      help="with --only: run only these agents' controllers and robots here, "
                      'e.g. 1-5,9 (a team spread over several hosts)')
-    run.add_argument('--allow-missing', metavar='LIST',
-                     help='robots (e.g. 4,7) that may fail the pre-flight: the run goes on '
-                     'without those that do, the others renumbered 1.. in order (the graph '
-                     "must stay rooted at the leader); metrics.json's preflight says who")
+    _allow_missing_option(run, ': the run goes on without those that do, the others '
+                          'renumbered 1.. in order (the graph must stay rooted at the '
+                          "leader); metrics.json's preflight says who")
     run.add_argument('--no-preflight', action='store_true',
                      help='skip the pre-flight of the robots behind links (robots.fleet, or '
                      '--bridge): marker seen, link answering, stop confirmed')
@@ -572,8 +577,7 @@ def build_parser():
                          'before a run: marker seen, link answering, stop confirmed; exit 2 '
                          'naming each robot that fails (run it before the robot bridges start)')
     pre.add_argument('config', help='experiment YAML path or shipped name')
-    pre.add_argument('--allow-missing', metavar='LIST',
-                     help='robots (e.g. 4,7) whose failure does not fail the pre-flight')
+    _allow_missing_option(pre, ' and the pre-flight still passes')
     pre.add_argument('--json', metavar='FILE', help='also write the result as JSON')
     pre.set_defaults(func=_cmd_preflight)
     server = sub.add_parser('discovery-server', help='run a Fast DDS discovery server (for '
