@@ -221,6 +221,9 @@ def test_a_bridged_run_passes_its_preflight_and_the_fleet_status_shows_a_link_cu
     result = run_experiment('arena_demo', tmp_path / 'out', 12.0, options, log=quiet)
     preflight = result['preflight']
     assert preflight['passed'] and len(preflight['robots']) == 9
+    ticks = result['ticks']   # every controller's ticks over the run, one command each
+    assert sorted(ticks['robots']) == [f'robot_{i}' for i in range(1, 10)]
+    assert all(abs(t['ticks'] - 10.0 * 12.0) <= 12 for t in ticks['robots'].values()), ticks
     assert all(r['seen'] and r['link_up'] and r['stop_confirmed'] for r in preflight['robots'])
     assert json.loads((tmp_path / 'out' / 'preflight.json').read_text())['passed']
     with AnyReader([bag]) as reader:

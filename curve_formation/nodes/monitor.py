@@ -239,6 +239,15 @@ class Monitor(Node):
             self._estop_held[report.holder] = report.engaged
             self.estop_events.append((now_seconds(self), report.holder, report.engaged))
 
+    def command_times_since(self, since: float) -> dict[int, tuple[list[float], list[float]]]:
+        """{robot: (published, received)} of its commands (one per control tick; s, system
+        clock, DDS timestamps) published from `since` (s, system clock) on, the newest
+        TIMING_WINDOW at most.
+        """
+        return {i + 1: ([sent for sent, _, _ in rows if sent >= since],
+                        [got for sent, got, _ in rows if sent >= since])
+                for i, rows in enumerate(self.command_arrivals)}
+
     @property
     def estop_engaged(self) -> bool:
         """Whether some e-stop holder holds the robots now, as last heard."""

@@ -101,6 +101,15 @@ def verdicts(result):
     for start, stop in intervals:
         out.append((True, f'The e-stop held the robots from t = {_number(start)} s '
                           + ('to the end.' if stop is None else f'to {_number(stop)} s.')))
+    ticks = result.get('ticks')
+    if ticks and ticks.get('slowest'):
+        slowest = ticks['slowest']
+        below = ticks.get('below_rate') or []
+        out.append((not below, (f"The controllers of robots {', '.join(map(str, below))} fell "
+                                f"below 95 % of {_number(ticks['rate_hz'])} Hz; "
+                                if below else 'Every controller kept its rate: ')
+                    + f"slowest robot {slowest['robot']} at {_number(slowest['rate_hz'])} Hz, "
+                    f"period jitter p99 up to {_number(ticks.get('jitter_ms_p99_worst'))} ms."))
     preflight = result.get('preflight')
     if preflight is not None:
         left = preflight.get('left_out') or []

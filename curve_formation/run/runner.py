@@ -28,6 +28,7 @@ from curve_formation.bags.bag import BagWriter
 from curve_formation.core.config.experiment import phase_index
 from curve_formation.core.config.loading import control_rate, load_experiment
 from curve_formation.core.record import body_metrics, metrics
+from curve_formation.core.record.tick_timing import run_timing
 from curve_formation.nodes.runtime import now_seconds
 from curve_formation.nodes.topics import CURVE, DIAGNOSTICS
 from curve_formation.paths import discovery_text, resolve_config, ros_environment
@@ -421,6 +422,11 @@ class Run:
         at_target = int(np.sum(np.linalg.norm(errors, axis=1) < tolerance / math.sqrt(n)))
         settled = 'within' if norm < tolerance else 'above'
         fleet = '' if self.fleet_status is None else f'  {self.fleet_status.summary()}'
+        timing = run_timing(monitor.command_times_since(time.time() - STATUS_PERIOD),
+                            self.rate_hz)['slowest']
+        if timing is not None:
+            fleet += (f'  slowest controller robot {timing["robot"]} at '
+                      f'{timing["rate_hz"]:.2f} Hz')
         return (f't {t:6.1f} s  phase {k}  error {norm:.3g} ({settled} tolerance '
                 f'{tolerance:.3g})  worst robot {1e3 * worst:.1f} mm  robots: {moving}, '
                 f'{at_target} at their targets{fleet}')
@@ -499,6 +505,9 @@ class Run:
                                    **({'left_out': self.left_out['robots'],
                                        'team': self.left_out['team']}
                                       if self.left_out else {})}
+        if self.monitor.t0 is not None:   # the controllers' ticks over the run
+            result['ticks'] = run_timing(self.monitor.command_times_since(self.monitor.t0),
+                                         self.rate_hz)
         result['control'] = f'ROS nodes at {self.rate_hz:g} Hz'
         result['mode'] = ('single process' if self.options.single_process
                           else 'one process per node')
