@@ -312,3 +312,45 @@ def test_the_preflight_command_exits_2_naming_every_robot_nobody_answers_for(ros
     assert 'pre-flight FAILED for robot(s) 1, 2, 3, 4, 5, 6, 7, 8, 9' in done.stdout
     assert not (tmp_path / 'pre.json').exists()
     assert Path(path).exists()
+
+
+def test_real_robots_listed_in_the_file_are_driven_from_one_command(ros_domain, tmp_path):
+    """The lab's first run: the robots (here fake_arena's emulated firmware, started apart as
+    the lab's robots and camera would be) are listed with their UDP links in robots.fleet;
+    `curve-formation run FILE --no-sim` runs the pre-flight, starts one robot_bridge per
+    robot with its link, and the formation drives: no -p flag typed.
+    """
+    from curve_formation.run.launches import robot_links
+    data = lab_dict()
+    data['camera']['robot_ids'] = list(range(11, 20))   # the same ids, given twice: allowed
+    links_found = robot_links(9, 'udp', tmp_path)
+    for robot, link in zip(data['robots']['fleet'], links_found, strict=True):
+        robot.update(link=link, format='wheel-m-s')
+    data['robots']['fleet'][2].pop('wheel_base')
+    path = tmp_path / 'lab.yaml'
+    path.write_text(yaml.safe_dump(data))
+    arena = tmp_path / 'fake_arena.yaml'
+    arena.write_text(yaml.safe_dump({'/**/fake_arena': {'ros__parameters': {
+        'experiment': str(path), 'links': links_found, 'wire_format': 'wheel-m-s'}}}))
+    robots = subprocess.Popen([sys.executable, '-m', 'curve_formation.nodes.fake_arena',
+                               '--ros-args', '--params-file', str(arena)],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
+    try:
+        done = subprocess.run([str(Path(sys.executable).parent / 'curve-formation'), 'run',
+                               str(path), '--no-sim', '--duration', '5', '--out',
+                               str(tmp_path / 'run')], capture_output=True, text=True,
+                              timeout=180)
+    finally:
+        robots.terminate()
+        robots.wait(20)
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    assert 'pre-flight passed (9 robots' in done.stdout
+    result = json.loads((tmp_path / 'run' / 'metrics.json').read_text())
+    assert result['preflight']['passed']
+    bridges = yaml.safe_load((tmp_path / 'run' / 'params' / 'robot_3.robot_bridge.yaml')
+                             .read_text())['/**/robot_bridge']['ros__parameters']
+    assert bridges['link'] == links_found[2] and bridges['wire_format'] == 'wheel-m-s'
+    assert all(link['replies'] > 20 and not link['lost_at']
+               for link in result['links'].values()), result['links']
+    commands = np.load(tmp_path / 'run' / 'trajectory.npz')['commands']
+    assert (np.abs(commands[-20:]).max(axis=(0, 2)) > 0).all()   # every robot driven

@@ -189,3 +189,11 @@ def test_a_udp_robot_that_is_not_there_does_not_break_the_link():
             assert 'udp 127.0.0.1' in str(exc)
         assert bridge.lines() == []
     bridge.close()
+
+
+def test_a_firmware_answer_may_carry_the_battery_voltage():
+    assert wire.is_reply(b'ok\n') and wire.is_reply('ok 3.71') and wire.is_reply(b'err\n')
+    assert not wire.is_reply(b'okay\n') and not wire.is_reply(b'set 1 2\n')
+    assert wire.battery(b'ok 3.71\n') == 3.71
+    assert wire.battery(b'ok\n') is None and wire.battery('ok nan') is None
+    assert wire.battery('ok three') is None and wire.battery('err 3.7') is None
