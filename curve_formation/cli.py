@@ -32,6 +32,7 @@ from curve_formation.workflows import (
 
 
 def _cmd_check(args):
+    from curve_formation.core.config.agents import leader_relays
     from curve_formation.fleet import fleet_robots
     from curve_formation.vision.camera_files import check_camera_files
     experiment = load_experiment(resolve_config(args.config))
@@ -57,6 +58,14 @@ def _cmd_check(args):
         print('    s_i = ' + ', '.join(f'{v:.4f}' for v in c['s']))
     for line in report['camera_files']:
         print(line)
+    relays = leader_relays(experiment)
+    deepest = int(relays.argmax())
+    if relays[deepest] > 0.0:
+        timeout = experiment.spec.safety.leader_timeout
+        hops = int(experiment.graph.hops_from_leader()[deepest])
+        print(f"leader's news: robot {deepest + 1} is {hops} hops from the leader, relayed "
+              f'with each pose: it stops after {timeout:g} s + {relays[deepest]:.2f} s without '
+              'news (safety.leader_timeout, plus a pose period and delivery a hop)')
     for robot in report['fleet']:
         baud = f' at {robot["baud"]} baud' if robot['link'].startswith('serial:') else ''
         print(f'robot {robot["robot"]}: {robot["link"]}{baud}, {robot["format"]}, marker '

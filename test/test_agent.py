@@ -5,10 +5,11 @@ import math
 
 import numpy as np
 import pytest
+import yaml
 
-from conftest import DATA_DIR, paper_arena
-from curve_formation.core.config.agents import agent_configs
-from curve_formation.core.config.loading import load_experiment, with_start
+from conftest import CONFIG_DIR, DATA_DIR, paper_arena
+from curve_formation.core.config.agents import agent_configs, leader_relays
+from curve_formation.core.config.loading import build_experiment, load_experiment, with_start
 from curve_formation.core.controller.agent import AgentController
 from curve_formation.core.controller.agent_config import AgentConfig
 from curve_formation.core.controller.gains import Gains
@@ -289,6 +290,55 @@ def test_a_state_held_in_a_queue_does_not_revive_a_dead_leader():
     send(2, 3, 1.63)
     stopped = ctrls[3].tick(1.65).stopped
     assert stopped is not None and stopped.startswith('no news from the leader (1.33 s'), stopped
+
+
+def test_leader_news_relayed_hop_by_hop_with_each_pose_does_not_stall_a_long_chain():
+    """A chain of 9: each follower passes the leader's news on with its state when its own
+    pose comes (30 Hz, each a frame later than the one before it), so the news ages by a
+    pose period a hop: 0.27 s at the tail, past a 0.15 s leader timeout. The timeout each
+    follower is given grows with its hops from the leader (config.agents.leader_relays):
+    nobody stops, and a leader that is gone still stops the tail, after 0.15 s + 8 hops.
+    """
+    data = yaml.safe_load((CONFIG_DIR / 'arena_demo.yaml').read_text())
+    data['graph']['edges'] = [{'from': k, 'to': k + 1} for k in range(1, 9)]
+    data['safety'] = {'leader_timeout': 0.15}
+    data.pop('avoidance')   # the robots' poses for the safety filter are not the point here
+    experiment = build_experiment(data, 'chain')
+    relays = leader_relays(experiment)
+    assert relays == pytest.approx(np.arange(9) * (1 / 30 + 0.01))
+    for told in (True, False):
+        ctrls = controllers_for(experiment, 10.0)
+        if not told:   # the timeout as it was: the same for every follower
+            ctrls = [AgentController(dataclasses.replace(c.config, leader_relay=0.0))
+                     for c in ctrls]
+            for c in ctrls:
+                c.set_curve(experiment.phases[0].curve, 0, experiment.phases[0].s)
+        stopped = set()
+        period = 1 / 30
+        # 2 s of poses, robot i + 1's a tenth of a period before robot i's: the news robot
+        # i passes on waits 0.9 of a period at robot i + 1 for its next pose
+        frames = sorted(((frame + 0.9 * (8 - i) / 8) * period, i)
+                        for frame in range(60) for i in range(9))
+        for t, i in frames:
+            c = ctrls[i]
+            frame = int(t / period)
+            x, y, th = experiment.initial_poses[i]
+            c.on_pose(x, y, th, t)
+            if i + 1 < len(ctrls):   # its state (with the news) to the next one
+                st = c.state()
+                ctrls[i + 1].on_neighbour(i + 1, *st.error, st.curve_id, st.stamp,
+                                          st.leader_age, received=t + 0.002)
+            why = c.tick(t + 0.005).stopped
+            if why and 'leader' in why and frame > 15:   # news there after 0.5 s
+                stopped.add(i + 1)
+        assert (stopped == set()) if told else (stopped >= {8, 9}), (told, stopped)
+    last = ctrls[-1]   # the timeout as told again, and the leader gone from t = 2 s
+    last = AgentController(dataclasses.replace(last.config, leader_relay=float(relays[-1])))
+    last.set_curve(experiment.phases[0].curve, 0, experiment.phases[0].s)
+    last.on_pose(*experiment.initial_poses[8], 2.0)
+    last.on_neighbour(8, 0.0, 0.0, 0, 2.0, 0.27, received=2.0)   # news made at 1.73 s
+    assert last.tick(1.73 + 0.15 + relays[-1] - 0.01).stopped is None
+    assert 'no news from the leader' in last.tick(1.73 + 0.15 + relays[-1] + 0.01).stopped
 
 
 def test_acceleration_limit_ramps_up_but_stops_at_once():

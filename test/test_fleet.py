@@ -104,6 +104,8 @@ def test_check_lists_the_fleet(tmp_path, capsys):
     out = capsys.readouterr().out
     assert 'robot 3: serial:/dev/ttyUSB2 at 57600 baud, wheel-m-s, marker 13' in out
     assert 'robot 9: udp:10.0.0.8:4210, mona-serial, marker 19' in out
+    assert "leader's news: robot 4 is 3 hops from the leader, relayed with each pose: it " \
+        'stops after 1 s + 0.13 s without news' in out
 
 
 def test_the_team_without_robots_keeps_their_order_and_every_per_agent_key():

@@ -206,7 +206,7 @@ def test_no_limit_is_infinity_in_a_file_and_in_a_nodes_parameters():
 def test_agent_configs_defaults_are_the_schemas():
     """AgentConfig's own defaults (what a controller built in code gets) are the experiment's:
     an experiment that leaves every optional controller, safety and limit key out gives each
-    agent the AgentConfig that its required settings alone give.
+    agent the AgentConfig that its required settings (and what its graph gives) alone give.
     """
     import dataclasses
 
@@ -224,7 +224,7 @@ def test_agent_configs_defaults_are_the_schemas():
     for config in agent_configs(experiment, 10.0):
         required = {f: getattr(config, f) for f in (
             'index', 'agent_count', 'neighbours', 'pinning', 'gains', 'limits', 'rate_hz',
-            'geofence', 'pc_disturbance', 'avoidance')}
+            'geofence', 'pc_disturbance', 'avoidance', 'leader_relay')}
         assert config == AgentConfig(**required), [
             (f.name, getattr(config, f.name), f.default) for f in dataclasses.fields(config)
             if f.name not in required and getattr(config, f.name) != f.default]

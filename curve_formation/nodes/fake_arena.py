@@ -32,7 +32,7 @@ from rclpy.duration import Duration
 from rclpy.node import Node
 
 from curve_formation import diagnostics, wire
-from curve_formation.core.config.experiment import Experiment, wheel_base
+from curve_formation.core.config.experiment import DEFAULT_POSE_RATE, Experiment, wheel_base
 from curve_formation.core.controller.disturbance import RunTime
 from curve_formation.core.formation.dynamics import body_from_wheels
 from curve_formation.core.world.worlds import ENGINES, make_world
@@ -66,8 +66,8 @@ NODE_NAME = 'fake_arena'   # also its console script's name
 PARAMETERS = (
     Param('experiment', 'string', None, 'experiment YAML (path or shipped name): robots, '
           'start poses, body radius, arena and disturbance'),
-    Param('rate_hz', 'double', 30.0, 'pose publishing rate (Hz), as an overhead camera',
-          positive=True),
+    Param('rate_hz', 'double', DEFAULT_POSE_RATE, 'pose publishing rate (Hz), as an overhead '
+          'camera', positive=True),
     Param('physics', 'string', '', f"the world: {' or '.join(ENGINES)}; empty = the "
           "experiment's physics.engine"),
     Param('physics_dt', 'double', 0.005, 'kinematic world: longest step between two contact '

@@ -21,6 +21,7 @@ import numpy as np
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
 
+from curve_formation.core.config.experiment import DEFAULT_POSE_RATE
 from curve_formation.core.controller.disturbance import RunTime, varied
 from curve_formation.core.formation.dynamics import DrivenUnicycle
 from curve_formation.interface import robot_name
@@ -61,8 +62,8 @@ NODE_NAME = 'fake_robot'   # also its console script's name
 PARAMETERS = (
     Param('index', 'int', 1, 'robot number i (for logs)', low=1),
     Param('initial_pose', 'double[]', [0.0, 0.0, 0.0], 'start pose [x, y, theta] (m, rad)'),
-    Param('rate_hz', 'double', 30.0, 'pose publishing rate (Hz), as an overhead camera',
-          positive=True),
+    Param('rate_hz', 'double', DEFAULT_POSE_RATE, 'pose publishing rate (Hz), as an overhead '
+          'camera', positive=True),
     Param('disturbance', 'double[]', [0.0, 0.0], 'input disturbance [d_v, d_w] (m/s, rad/s) '
           'added to a non-zero command'),
     Param('disturbance_varies', 'string', '', "how the disturbance changes over the run's "

@@ -70,6 +70,9 @@ PARAMETERS = (
           "(s since the first curve, from the curve's clock): the experiment's "
           "disturbance.varies as JSON (sines, steps, ramps); '' = constant"),
     Param('frame_id', 'string', 'arena', 'frame of poses and errors'),
+    Param('leader_relay', 'double', 0.0, "s the leader's news may take to reach this robot "
+          'beyond leader_timeout: its hops from the leader times a pose period and delivery '
+          '(config.agents.leader_relays)', low=0.0),
     Param('compiled_law', 'bool', False, 'run the control step compiled by numba, as the '
           'batch simulator does (the same source): ~15x faster a tick, ~0.7 s and ~65 MB '
           'more to start; the runner sets it when every node shares one process'),
@@ -128,6 +131,7 @@ def agent_config(p: SimpleNamespace) -> AgentConfig:
         limits=limits,
         rate_hz=p.rate_hz, pose_timeout=p.pose_timeout, neighbour_timeout=p.neighbour_timeout,
         pc_disturbance=tuple(p.pc_disturbance), leader_timeout=p.leader_timeout,
+        leader_relay=p.leader_relay,
         geofence=None if fence is None else tuple(fence), predict_pose=p.predict_pose,
         command_latency=p.command_latency, feed_forward=p.feed_forward, compiled=p.compiled_law,
         min_wheel_speed=p.min_wheel_speed, motor_time_constant=p.motor_time_constant,

@@ -7,7 +7,8 @@ Units: m, s, rad; the geofence in the arena frame.
 import dataclasses
 from typing import Any
 
-from curve_formation.core.config.experiment import Experiment
+from curve_formation.core.base.shapes import FloatArray
+from curve_formation.core.config.experiment import Experiment, pose_rate, RELAY_DELIVERY
 from curve_formation.core.controller.agent_config import AgentConfig, Fence
 
 
@@ -30,6 +31,7 @@ def agent_configs(experiment: Experiment, rate_hz: float) -> list[AgentConfig]:
     spec = experiment.spec
     on_pc = spec.disturbance.injected == 'on_pc'
     fence = geofence(experiment)
+    relay = leader_relays(experiment)
     return [dataclasses.replace(AgentConfig(
         index=i, agent_count=experiment.n, neighbours=tuple(experiment.graph.in_neighbours(i)),
         pinning=experiment.graph.follower_pinning, gains=experiment.gains,
@@ -43,8 +45,19 @@ def agent_configs(experiment: Experiment, rate_hz: float) -> list[AgentConfig]:
         feed_forward=spec.controller.feed_forward,
         min_wheel_speed=(spec.limits.min_wheel_speed or 0.0) if spec.limits else 0.0,
         motor_time_constant=(spec.limits.motor_time_constant or 0.0) if spec.limits else 0.0,
-        estimate_latency=spec.controller.estimate_latency), **robot_own(experiment, i))
+        estimate_latency=spec.controller.estimate_latency,
+        leader_relay=float(relay[i - 1])), **robot_own(experiment, i))
         for i in range(1, experiment.n + 1)]
+
+
+def leader_relays(experiment: Experiment) -> FloatArray:
+    """(n,) s the leader's news may take to reach each agent beyond leader_timeout: a
+    follower relays it with its state when its next pose comes, so each hop on the shortest
+    path from the leader adds up to a pose period (config.experiment.pose_rate) and the
+    delivery (RELAY_DELIVERY). A follower h hops down stops after leader_timeout + that.
+    """
+    hop = 1.0 / pose_rate(experiment) + RELAY_DELIVERY
+    return experiment.graph.hops_from_leader().astype(float) * hop
 
 
 def robot_own(experiment: Experiment, i: int) -> dict[str, Any]:

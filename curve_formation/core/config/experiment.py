@@ -32,6 +32,13 @@ from curve_formation.core.formation.graph import DirectedGraph
 from curve_formation.core.formation.motion import CurveMotion
 
 
+# Poses a second (Hz) of each simulated robot without a camera (fake_arena, fake_robot and the
+# tick pipeline): an overhead camera's.
+DEFAULT_POSE_RATE = 30.0
+# s a neighbour's state takes to arrive beyond waiting for the relaying robot's next pose
+RELAY_DELIVERY = 0.01
+
+
 # How long (s) before its start a curve that only begins to move where it is gets published
 # (Experiment.announce_lead; the curve server's announce_ahead default).
 ANNOUNCE_AHEAD = 0.2
@@ -189,6 +196,14 @@ def whole_steps(interval: float, dt: float, what: str) -> int:
 
 
 # Control rate (Hz) of the ROS controllers when the experiment gives none (continuous).
+
+
+def pose_rate(experiment: Experiment) -> float:
+    """Poses a second (Hz) of each robot: the camera's rate, else a fake arena's or robot's
+    (DEFAULT_POSE_RATE).
+    """
+    camera = experiment.spec.camera
+    return float(camera.rate_hz) if camera is not None else DEFAULT_POSE_RATE
 
 
 def wheel_radius(experiment: Experiment) -> float:

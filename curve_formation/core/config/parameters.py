@@ -36,6 +36,7 @@ def node_parameters(config: AgentConfig) -> dict[str, Any]:
         'pose_timeout': float(config.pose_timeout),
         'neighbour_timeout': float(config.neighbour_timeout),
         'leader_timeout': float(config.leader_timeout),
+        'leader_relay': float(config.leader_relay),
         'geofence': [float(v) for v in config.geofence or ()],
         'pc_disturbance': [float(v) for v in config.pc_disturbance],
         'in_neighbours': [int(j) for j, _ in config.neighbours],

@@ -38,6 +38,9 @@ class AgentConfig:
     pose_timeout: float = default('safety.pose_timeout')
     neighbour_timeout: float = default('safety.neighbour_timeout')
     leader_timeout: float = default('safety.leader_timeout')
+    # s the leader's news may take on its way here beyond leader_timeout: each hop from the
+    # leader relays it with the next pose (config.agents.leader_relay)
+    leader_relay: float = 0.0
     geofence: Fence = None
     pc_disturbance: Command = (0.0, 0.0)  # added to the command before the limits (m/s, rad/s)
     avoidance: Avoidance = AVOIDANCE_OFF   # the safety filter, from every robot's pose

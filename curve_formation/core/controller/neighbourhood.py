@@ -68,10 +68,11 @@ class Neighbourhood:
 
     def leader_silent(self, now: float) -> str | None:
         """Why a follower must stop at `now` for want of news of the leader (none within
-        leader_timeout); None if it may go on (and always for the leader).
+        leader_timeout plus the time its relay may take, leader_relay); None if it may go on
+        (and always for the leader).
         """
-        if self.config.is_leader or not is_stale(self.leader_heard, now,
-                                                 self.config.leader_timeout):
+        timeout = self.config.leader_timeout + self.config.leader_relay
+        if self.config.is_leader or not is_stale(self.leader_heard, now, timeout):
             return None
         return ('no news from the leader yet' if self.leader_heard is None
                 else f'no news from the leader ({now - self.leader_heard:.2f} s old)')

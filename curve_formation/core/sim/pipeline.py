@@ -27,7 +27,13 @@ import numpy as np
 
 from curve_formation.core.base.shapes import BoolArray, FloatArray
 from curve_formation.core.config.agents import agent_configs
-from curve_formation.core.config.experiment import ANNOUNCE_AHEAD, Experiment, Phase, phase_index
+from curve_formation.core.config.experiment import (
+    ANNOUNCE_AHEAD,
+    Experiment,
+    Phase,
+    phase_index,
+)
+from curve_formation.core.config.experiment import pose_rate as experiment_pose_rate
 from curve_formation.core.config.loading import control_rate
 from curve_formation.core.controller.agent import AgentController
 from curve_formation.core.formation import dynamics
@@ -39,8 +45,6 @@ from curve_formation.core.world.worlds import make_world, World
 
 # How often (Hz) the curve server renews a moving curve (its moving_rate_hz default).
 MOVING_RATE = 10.0
-# Poses per second (Hz) when the experiment has no camera (the fake arena's default).
-POSE_RATE = 30.0
 # Event kinds, in their order at equal times.
 CURVE, REASSIGN, POSE, TICK, RECORD = range(5)
 
@@ -242,7 +246,7 @@ def simulate_pipeline(experiment: Experiment, engine: Literal['kinematic', 'mujo
 
     rate_hz: control rate (Hz; default the experiment's, checked as the file's); seed:
     each controller's phase of the control period (uniform in [0, 1)); pose_rate: poses per
-    second (Hz; default the camera's rate, else POSE_RATE); link: the link's delays and
+    second (Hz; default config.experiment.pose_rate); link: the link's delays and
     losses (default: a link as long as the controllers are told, controller.command_latency,
     and no loss); synchronous: every controller ticks at the start of the period (no
     phases drawn), as the batch simulator's do by default.
@@ -252,7 +256,7 @@ def simulate_pipeline(experiment: Experiment, engine: Literal['kinematic', 'mujo
     duration = spec.simulation.duration if duration is None else duration
     record_dt = spec.simulation.record_dt if record_dt is None else record_dt
     if pose_rate is None:
-        pose_rate = spec.camera.rate_hz if spec.camera is not None else POSE_RATE
+        pose_rate = experiment_pose_rate(experiment)
     world = make_world(experiment, engine)
     phases = (np.zeros(experiment.n) if synchronous
               else np.random.default_rng(seed).random(experiment.n))
