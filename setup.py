@@ -15,6 +15,7 @@ NODES = {
     'formation_recorder': 'curve_formation.nodes.recorder:main',
     'camera_tracker': 'curve_formation.nodes.camera_tracker:main',
     'fake_camera': 'curve_formation.nodes.fake_camera:main',
+    'node_group': 'curve_formation.nodes.node_group:main',
 }
 
 setup(

@@ -119,6 +119,7 @@ def _cmd_run(args):
                          agents=_agents(args.agents), isolated=args.isolated,
                          physics=args.physics, animate=args.animate,
                          preflight=not args.no_preflight,
+                         controllers_per_process=args.controllers_per_process,
                          allow_missing=frozenset(_agents(args.allow_missing, '--allow-missing')
                                                  or ()))
     result = run_experiment(args.config, args.out, args.duration, options)
@@ -143,13 +144,15 @@ def _bridge_needs_simulated_robots(args):
 
 
 def _cmd_params(args):
+    from curve_formation.run.run_options import RunOptions
     from curve_formation.run.start_scripts import graph_launches, write_node_files
     _bridge_needs_simulated_robots(args)
     path = resolve_config(args.config)
     out = _output_folder(args.out, args.force)
     observed = args.observer or args.bag is not None
     experiment, launches = graph_launches(path, out, not args.no_sim, args.camera, args.bridge,
-                                          args.rate, args.bag, observed, args.physics)
+                                          args.rate, args.bag, observed, args.physics,
+                                          args.controllers_per_process)
     run_args = None
     if observed:
         run_args = [str(path)] + (['--rate', f'{args.rate:g}'] if args.rate else []) \
@@ -157,7 +160,9 @@ def _cmd_params(args):
             + (['--bridge', args.bridge] if args.bridge else []) \
             + (['--physics', args.physics] if args.physics else []) \
             + (['--bag', str(Path(args.bag).resolve())] if args.bag else [])
-    params, scripts = write_node_files(launches, out, experiment.name, run_args)
+    size = RunOptions(controllers_per_process=args.controllers_per_process).group_size(
+        experiment.n)
+    params, scripts = write_node_files(launches, out, experiment.name, run_args, size)
     print(f'wrote {len(params)} parameters files in {out / "params"} and start scripts:')
     for script in scripts:
         print(f'  {script}')
@@ -452,6 +457,10 @@ def build_parser():
     run.add_argument('--rate', type=positive, help="control rate (Hz; default: the file's or 10)")
     run.add_argument('--single-process', action='store_true',
                      help='all nodes in one process and executor')
+    run.add_argument('--controllers-per-process', type=_at_least_one, metavar='K',
+                     help='K controllers share each process (one context and executor, as a '
+                     'component container): a team of N needs about N/K DDS participants; '
+                     'default 1 up to 12 robots, beyond that as many as keep 12 groups')
     run.add_argument('--bag', help='record a ROS 2 bag at this new path')
     _animate_option(run)
     run.add_argument('--bag-storage', choices=tuple(STORAGES), default=DEFAULT_STORAGE,
@@ -501,6 +510,8 @@ def build_parser():
     params.add_argument('--no-sim', action='store_true',
                         help='no fake robots (real robots publish /robot_<i>/pose)')
     params.add_argument('--camera', action='store_true', help='poses from camera_tracker')
+    params.add_argument('--controllers-per-process', type=_at_least_one, metavar='K',
+                        help='K controllers share each process (see run)')
     params.add_argument('--bridge', choices=('udp', 'pty'),
                         help='each cmd_vel through a robot_bridge (see run --bridge)')
     params.add_argument('--observer', action='store_true',

@@ -5,7 +5,8 @@ Arguments: experiment (a YAML path or shipped name), out (where the nodes' param
 go; default /tmp/curve_formation/<experiment>), sim (true: fake robots; false: real robots
 publish /robot_<i>/pose), camera (true: poses from camera_tracker), bridge ('', udp or pty),
 observer (true: `curve-formation run --only observer` measures the run into OUT/run and the
-curve server waits for it). The nodes and their parameters come from the same generator as
+curve server waits for it), controllers_per_process (K controllers to a process, node_group).
+The nodes and their parameters come from the same generator as
 `curve-formation params` and `run` (curve_formation.run.start_scripts.graph_starts).
 """
 
@@ -27,6 +28,8 @@ ARGUMENTS = (
     ('camera', 'false', 'true: poses from camera_tracker (the experiment needs `camera`)'),
     ('bridge', '', "'', udp or pty: each cmd_vel through a robot_bridge"),
     ('observer', 'false', 'true: curve-formation run --only observer measures the run'),
+    ('controllers_per_process', '', "K controllers share each process ('': 1 up to 12 "
+     'robots, beyond that as many as keep 12 groups)'),
 )
 
 
@@ -38,10 +41,14 @@ def _nodes(context):
     observed = arg('observer') == 'true'
     starts = graph_starts(experiment, out, with_robots=arg('sim') == 'true',
                           camera=arg('camera') == 'true', bridge=arg('bridge') or None,
-                          observed=observed)
+                          observed=observed,
+                          controllers_per_process=int(arg('controllers_per_process') or 0)
+                          or None)
     actions = [Node(package='curve_formation', executable=start.executable,
-                    namespace=start.namespace, name=start.name,
-                    parameters=[str(start.params_file)], output='screen')
+                    arguments=list(start.arguments), output='screen') if start.arguments
+               else Node(package='curve_formation', executable=start.executable,
+                         namespace=start.namespace, name=start.name,
+                         parameters=[str(start.params_file)], output='screen')
                for start in starts]
     if observed:
         command = [ExecutableInPackage('curve-formation', 'curve_formation'), 'run',

@@ -1,6 +1,6 @@
 """Running a node as a console script: init, spin, clean shutdown, clear start-up errors."""
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 import contextlib
 import faulthandler
 import inspect
@@ -115,6 +115,14 @@ def run_node(node_factory: Callable[..., Node], args: list[str] | None = None,
         except ParameterError as exc:
             print(f'error: {exc}', file=sys.stderr)
             return 2
+    return run_nodes([node_factory], args, large_data)
+
+
+def run_nodes(node_factories: Sequence[Callable[..., Node]], args: list[str] | None = None,
+              large_data: bool = False) -> int:
+    """run_node's life (signals, shutdown hooks, a bounded exit) for several nodes in one
+    process: one context and one executor, as a ROS component container holds them.
+    """
     use_dds_profile(large_data=large_data)   # before the first ROS context; see paths
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop = threading.Event()
@@ -132,15 +140,16 @@ def run_node(node_factory: Callable[..., Node], args: list[str] | None = None,
             _exit_hard_after(EXIT_DEADLINE)
         stop.set()
     _on_stop_signals(while_building)
-    node = None
-    counter = None
+    nodes: list[tuple[Node, PublicationCounter | None]] = []
     status = 0
     try:
         executor = make_executor()
-        node = node_factory()
+        for factory in node_factories:
+            node = factory()
+            counter = PublicationCounter(node) if os.environ.get(PUBLICATIONS_ENV) else None
+            nodes.append((node, counter))
+            executor.add_node(node)
         _on_stop_signals(request_stop)
-        counter = PublicationCounter(node) if os.environ.get(PUBLICATIONS_ENV) else None
-        executor.add_node(node)
         # A bounded wait returns to Python regularly, so the flag is seen even when no timer
         # fires (e.g. on sim time after /clock stopped).
         while rclpy.ok() and not stop.is_set():
@@ -153,7 +162,7 @@ def run_node(node_factory: Callable[..., Node], args: list[str] | None = None,
     finally:
         if not stop.is_set():   # ended otherwise (error, shutdown): bounded all the same
             _exit_hard_after(EXIT_DEADLINE)
-        if node is not None:
+        for node, counter in nodes:
             hook = getattr(node, 'on_shutdown', None)
             if hook is not None and rclpy.ok():
                 hook()

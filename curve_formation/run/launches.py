@@ -92,7 +92,9 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None,
         d = [float(v) for v in experiment.disturbance[i - 1]]
         controller = {**node_parameters(config),
                       'disturbance_varies': varies if on_pc else '',
-                      'compiled_law': options.single_process}
+                      # compiled once a process for the controllers that share one
+                      'compiled_law': options.group_size(experiment.n) > 1
+                      or options.single_process}
         module = 'curve_formation.nodes.formation_controller'
         launches.append(NodeLaunch(module, ns, 'formation_controller', controller,
                                    (options.node_variants or {}).get(module, '')))
@@ -203,6 +205,54 @@ def camera_launches(experiment, experiment_path, with_fake_camera, overrides):
             **({'distortion': [float(v) for v in fake.distortion]} if fake.distortion else {}),
             **overrides}))
     return launches
+
+
+CONTROLLER_GROUP = 'controllers_'   # the key of a process of grouped controllers, + agents
+NODE_GROUP = 'curve_formation.nodes.node_group'
+
+
+@dataclass(frozen=True)
+class GroupLaunch:
+    """Controllers that share one process (nodes.node_group): key controllers_<first>-<last>
+    and their launches; the group file params/<key>.group.yaml lists them.
+    """
+
+    key: str
+    launches: tuple
+
+    @property
+    def file_name(self):
+        return f'{self.key}.group.yaml'
+
+
+def grouped(launches, size):
+    """The launches in their order with the controllers in groups of `size` (a GroupLaunch
+    where each group's first controller was); unchanged for size 1.
+    """
+    if size <= 1:
+        return list(launches)
+    controllers = [launch for launch in launches if part_of(launch.module) == 'controllers']
+    grouped_keys = {launch.key for launch in controllers}
+    groups = {}   # the key of each group's first controller -> the group
+    for first in range(0, len(controllers), size):
+        chunk = tuple(controllers[first:first + size])
+        groups[chunk[0].key] = GroupLaunch(
+            f'{CONTROLLER_GROUP}{chunk[0].agent}-{chunk[-1].agent}', chunk)
+    return [groups.get(launch.key, launch) for launch in launches
+            if launch.key in groups or launch.key not in grouped_keys]
+
+
+def write_group_file(group, folder):
+    """folder/<key>.group.yaml: the group's nodes for nodes.node_group, each with its
+    parameters file (beside it in folder); returns its path.
+    """
+    path = Path(folder) / group.file_name
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(yaml.safe_dump([
+        {'module': launch.program, 'class': node_class(launch.program).__name__,
+         'namespace': launch.namespace, 'params_file': f'{launch.key}.yaml'}
+        for launch in group.launches], sort_keys=False))
+    return path
 
 
 def write_params_files(launches, folder):

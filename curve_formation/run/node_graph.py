@@ -2,6 +2,7 @@
 
 from dataclasses import dataclass
 import os
+from pathlib import Path
 import signal
 import subprocess
 import sys
@@ -10,7 +11,7 @@ import time
 import yaml
 
 from curve_formation.nodes.runtime import PublicationCounter, PUBLICATIONS_ENV
-from curve_formation.run.launches import node_class
+from curve_formation.run.launches import CONTROLLER_GROUP, node_class, NODE_GROUP
 
 
 STOP_TIMEOUT = 10.0    # s for a group of nodes to exit after SIGINT before it is killed
@@ -83,18 +84,30 @@ class NodeGraph:
             self.in_process.append((node, counter))
             self.host.add_node(node)
             return
-        self.logs_dir.mkdir(parents=True, exist_ok=True)
-        env = dict(os.environ, PYTHONUNBUFFERED='1')
-        if self.publications_dir is not None:   # each node reports what it published
-            env[PUBLICATIONS_ENV] = str(self.publications_dir)
         cmd = [sys.executable, '-m', launch.program, '--ros-args', '-r',
                f'__ns:={launch.namespace}', '--params-file', str(self.params_files[launch.key])]
         for key, value in overrides.items():
             cmd += ['-p', f'{key}:={yaml.safe_dump(value).splitlines()[0]}']
-        with open(self.logs_dir / f'{launch.key}.log', mode) as log_file:
-            self.processes[launch.key] = subprocess.Popen(
+        self._popen(launch.key, cmd, mode)
+
+    def _popen(self, key, cmd, mode='w'):
+        """Start a node process `cmd` known as `key`, its output in logs_dir/<key>.log."""
+        self.logs_dir.mkdir(parents=True, exist_ok=True)
+        env = dict(os.environ, PYTHONUNBUFFERED='1')
+        if self.publications_dir is not None:   # each node reports what it published
+            env[PUBLICATIONS_ENV] = str(self.publications_dir)
+        with open(self.logs_dir / f'{key}.log', mode) as log_file:
+            self.processes[key] = subprocess.Popen(
                 cmd, env=env, stdout=log_file, stderr=subprocess.STDOUT,
                 start_new_session=True, preexec_fn=_stop_with_parent)
+
+    def start_group(self, group):
+        """Start a GroupLaunch's nodes in one process (nodes.node_group, from its group file
+        beside their parameters files), its output in logs_dir/<key>.log.
+        """
+        folder = Path(self.params_files[group.launches[0].key]).parent
+        self._popen(group.key, [sys.executable, '-m', NODE_GROUP,
+                                str(folder / group.file_name)])
 
     def check_processes(self):
         """Note every node process that ended on its own (deaths, on_death) and forget it;
@@ -128,7 +141,8 @@ class NodeGraph:
         the fake robots and the recorder, which are all still there; the host spins
         meanwhile, so the recorder keeps draining its queue.
         """
-        first = {k: p for k, p in self.processes.items() if k.endswith('formation_controller')}
+        first = {k: p for k, p in self.processes.items()
+                 if k.endswith('formation_controller') or k.startswith(CONTROLLER_GROUP)}
         for group in (first, {k: p for k, p in self.processes.items() if k not in first}):
             deadline = time.monotonic() + STOP_TIMEOUT   # for the whole group together
             for proc in group.values():

@@ -1,6 +1,7 @@
 """What a run of an experiment's node graph is asked to do, beyond the experiment file."""
 
 from dataclasses import dataclass
+import math
 from pathlib import Path
 
 from curve_formation.bags.bag import DEFAULT_STORAGE
@@ -42,6 +43,8 @@ class RunOptions:
         otherwise the caller's ROS_DOMAIN_ID (0 when unset) and discovery range, where the
         lab's RViz, `ros2 topic echo` and robot drivers are.
     animate: also write animation.mp4 of the run beside its figures (figures.animation).
+    controllers_per_process: controllers sharing one process (one context and executor, as a
+        component container; nodes.node_group); None: group_size's choice from the team.
     preflight: check every robot behind a link before the formation starts (run.preflight;
         runs with robot bridges only). allow_missing: robots (1-based) that may fail it: the
         run then goes on without them (the team renumbered, core.config.team).
@@ -67,12 +70,25 @@ class RunOptions:
     isolated: bool = False
     physics: str | None = None
     animate: bool = False
+    controllers_per_process: int | None = None
     preflight: bool = True
     allow_missing: frozenset[int] = frozenset()
 
     def runs(self, part: str) -> bool:
         """Whether this host runs `part` (one of PARTS)."""
         return self.only is None or part in self.only
+
+    def group_size(self, n: int) -> int:
+        """Controllers per process for a team of n: as asked, else one each up to
+        SOLO_TEAM robots and beyond that as few as keep the groups to SOLO_TEAM (a team of
+        100 in 12 processes: with the curve server, the robots and the runner, 15 DDS
+        participants). 1 in a single-process run (every node shares it anyway).
+        """
+        if self.single_process:
+            return 1
+        if self.controllers_per_process is not None:
+            return self.controllers_per_process
+        return 1 if n <= SOLO_TEAM else math.ceil(n / SOLO_TEAM)
 
     def runs_agent(self, agent: int | None) -> bool:
         """Whether this host runs the nodes of `agent` (None: a node of the whole team)."""
@@ -83,6 +99,10 @@ class RunOptions:
 # controllers; the robots (simulated: fake_robot or fake_arena; and the robot bridges, on the
 # PC the robots' radios hang off);
 # the camera nodes (camera_tracker, fake_camera); the observer (monitor, recorder, metrics).
+# The largest team whose controllers each run in a process of their own by default (past it,
+# grouped: RunOptions.group_size); measured: one process per node holds 10 Hz up to 16 robots
+# on 2 cores, 25 miss ticks (docs/performance.md).
+SOLO_TEAM = 12
 PARTS = ('curve_server', 'controllers', 'robots', 'camera', 'observer')
 
 DEFAULTS = RunOptions()

@@ -35,7 +35,15 @@ from curve_formation.paths import discovery_text, resolve_config, ros_environmen
 from curve_formation.results.outputs import write_outputs
 from curve_formation.results.provenance import provenance_text
 from curve_formation.run.fleet_status import FleetStatus
-from curve_formation.run.launches import BRIDGE, bridged_fleet, node_launches, part_of
+from curve_formation.run.launches import (
+    BRIDGE,
+    bridged_fleet,
+    CONTROLLER_GROUP,
+    grouped,
+    GroupLaunch,
+    node_launches,
+    part_of,
+)
 from curve_formation.run.node_graph import NodeGraph
 from curve_formation.run.observers import Observers
 from curve_formation.run.preflight import (
@@ -157,7 +165,8 @@ class Run:
 
     def _start(self):
         options = self.options
-        params_files, _ = write_node_files(self.launches, self.out, self.experiment.name)
+        params_files, _ = write_node_files(self.launches, self.out, self.experiment.name,
+                                           group_size=options.group_size(self.experiment.n))
         recording = self.bag_writer is not None
         if recording:
             self.publications_dir.mkdir(parents=True, exist_ok=True)
@@ -201,8 +210,7 @@ class Run:
             self._refuse_another_formation()
         if self.fleet and options.preflight and options.runs('robots'):
             self._preflight()
-        for launch in moving:
-            self.graph.start(launch)
+        self._start_moving(moving)
         if options.runs('curve_server'):
             self._wait_ready()
             # Every robot's pose has come (the monitor's): the server need not wait for them
@@ -212,6 +220,21 @@ class Run:
         self.spin_until(lambda: self.monitor.t0 is not None, READY_TIMEOUT, 'the first curve')
         self.log('curve server started: t = 0' if options.runs('curve_server')
                  else 'first curve received: t = 0')
+
+    def _start_moving(self, moving):
+        """Start the bridges, then the controllers: a process each, or grouped
+        (RunOptions.group_size) into processes keyed controllers_<first>-<last>.
+        """
+        graph = self._started()[1]
+        controllers = [launch for launch in moving if part_of(launch.module) == 'controllers']
+        for launch in moving:
+            if launch not in controllers:
+                graph.start(launch)
+        for unit in grouped(controllers, self.options.group_size(self.experiment.n)):
+            if isinstance(unit, GroupLaunch):
+                graph.start_group(unit)
+            else:
+                graph.start(unit)
 
     def _preflight(self):
         """Pre-flight of the robots behind links (run.preflight), published latched on
@@ -330,8 +353,10 @@ class Run:
             self.bag_writer.write(DIAGNOSTICS, self.monitor.get_clock().now().nanoseconds,
                                   serialize_message(report))
         when = 'before t = 0' if t is None else f'at t = {t:.1f} s'
-        self.log(f'node {death.key} died {when} ({death.how}); the run goes on without it '
-                 f'(its log: {self.out / "logs" / (death.key + ".log")})')
+        held = held_robots(death.key)
+        robots = f' with the controllers of robots {held}' if len(held) > 1 else ''
+        self.log(f'node {death.key} died {when} ({death.how}){robots}; the run goes on '
+                 f'without it (its log: {self.out / "logs" / (death.key + ".log")})')
 
     def _another_formation(self):
         """Whether a curve server other than ours (not started yet) serves this domain."""
@@ -551,6 +576,17 @@ def _faults_of_team(faults, number):
     return out
 
 
+def held_robots(key):
+    """The robots whose nodes a node process held, by its key: [3] for robot_3.<node>,
+    [5, 6, 7, 8] for a group of controllers controllers_5-8, [] for the team's nodes.
+    """
+    if key.startswith(CONTROLLER_GROUP):
+        first, _, last = key[len(CONTROLLER_GROUP):].partition('-')
+        return list(range(int(first), int(last) + 1))
+    name = key.split('.')[0]
+    return [int(name[len('robot_'):])] if name.startswith('robot_') else []
+
+
 def run_experiment(config, out_dir, duration=None, options=DEFAULTS, log=print):
     """Run an experiment's node graph for `duration` s (default: the file's) and measure it.
 
@@ -606,7 +642,7 @@ def _run_and_measure(run, duration, options, log):
             raise
         raise failure from None   # nothing recorded: the runner's error is what matters
     result['interrupted'] = interrupted
-    result['node_deaths'] = [{'node': key, 't': t, 'how': how}
+    result['node_deaths'] = [{'node': key, 't': t, 'how': how, 'robots': held_robots(key)}
                              for t, key, how in run.monitor.node_deaths]
     if failure is not None:
         result['runner_error'] = f'{type(failure).__name__}: {failure}'

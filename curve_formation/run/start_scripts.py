@@ -18,7 +18,15 @@ from dataclasses import dataclass
 from pathlib import Path
 import shlex
 
-from curve_formation.run.launches import BRIDGE, executable, part_of, write_params_files
+from curve_formation.run.launches import (
+    BRIDGE,
+    executable,
+    grouped,
+    GroupLaunch,
+    part_of,
+    write_group_file,
+    write_params_files,
+)
 
 
 PACKAGE = 'curve_formation'
@@ -99,47 +107,69 @@ trap stop INT TERM
 """
 
 
-def start_scripts(launches, experiment_name, run_args=None):
+def group_line(group):
+    """The line of a group of controllers sharing a process (nodes.node_group)."""
+    return f'ros2 run {PACKAGE} node_group "$HERE/params/{group.file_name}"'
+
+
+def _part(unit):
+    return 'controllers' if isinstance(unit, GroupLaunch) else part_of(unit.module)
+
+
+def _line(unit):
+    return group_line(unit) if isinstance(unit, GroupLaunch) else node_line(unit)
+
+
+def _is_bridge(unit):
+    return not isinstance(unit, GroupLaunch) and unit.module == BRIDGE
+
+
+def start_scripts(launches, experiment_name, run_args=None, group_size=1):
     """{file name: text}: start_<part>.sh for each part of the graph that has nodes (and
-    start_observer.sh with run_args), and start_all.sh with every line, for one host.
+    start_observer.sh with run_args), and start_all.sh with every line, for one host; the
+    controllers `group_size` to a process (launches.grouped).
     """
     parts = {}
     if run_args is not None:
         parts[OBSERVER] = [observer_line(run_args)]
-    ordered = server_last(launches)
-    bridges = [launch for launch in ordered if launch.module == BRIDGE]
-    for launch in ordered:
-        if launch not in bridges:
-            parts.setdefault(part_of(launch.module), []).append(node_line(launch))
+    units = grouped(server_last(launches), group_size)
+    bridges = [unit for unit in units if _is_bridge(unit)]
+    for unit in units:
+        if unit not in bridges:
+            parts.setdefault(_part(unit), []).append(_line(unit))
     gate = {}
     if bridges:   # the robots behind links: pre-flight, then their bridges
-        check = preflight_line(ordered[-1].parameters['experiment'])
+        check = preflight_line(units[-1].parameters['experiment'])
         robots = parts.setdefault('robots', [])
         gate['robots'] = (len(robots), check)
-        robots += [node_line(launch) for launch in bridges]
+        robots += [_line(unit) for unit in bridges]
     scripts = {f'start_{part}.sh': script_text(f'{experiment_name}: {part}', lines,
                                                gate=gate.get(part))
                for part, lines in parts.items()}
     # on one host: what moves no robot, the pre-flight, then the bridges, controllers, server
-    ordered = start_order(launches)
+    ordered = grouped(start_order(launches), group_size)
     first = parts.get(OBSERVER, [])
-    still = len(first) + len(ordered) - len(bridges) - sum(
-        part_of(launch.module) in MOVING for launch in ordered)
+    still = len(first) + sum(not _is_bridge(unit) and _part(unit) not in MOVING
+                             for unit in ordered)
     scripts['start_all.sh'] = script_text(
         f'{experiment_name}: the whole graph on one host',
-        first + [node_line(launch) for launch in ordered], measured=run_args is not None,
+        first + [_line(unit) for unit in ordered], measured=run_args is not None,
         gate=(still, gate['robots'][1]) if bridges else None)
     return scripts
 
 
-def write_node_files(launches, folder, experiment_name, run_args=None):
-    """Each node's parameters file in folder/params and the start scripts in folder;
-    returns ({launch key: parameters file}, [script paths]).
+def write_node_files(launches, folder, experiment_name, run_args=None, group_size=1):
+    """Each node's parameters file in folder/params (and each group's file, with the
+    controllers group_size to a process) and the start scripts in folder; returns ({launch
+    key: parameters file}, [script paths]).
     """
     folder = Path(folder)
     params = write_params_files(launches, folder / 'params')
+    for unit in grouped(launches, group_size):
+        if isinstance(unit, GroupLaunch):
+            write_group_file(unit, folder / 'params')
     written = []
-    for name, text in start_scripts(launches, experiment_name, run_args).items():
+    for name, text in start_scripts(launches, experiment_name, run_args, group_size).items():
         path = folder / name
         path.write_text(text)
         path.chmod(0o755)
@@ -150,29 +180,34 @@ def write_node_files(launches, folder, experiment_name, run_args=None):
 @dataclass(frozen=True)
 class NodeStart:
     """One node as a launch file starts it: `ros2 run curve_formation <executable>` in
-    `namespace` with its parameters file.
+    `namespace` with its parameters file; or, with arguments, a group of controllers
+    (node_group with its group file).
     """
 
     executable: str
     namespace: str
     name: str
     params_file: Path
+    arguments: tuple = ()
 
 
 def graph_launches(experiment_path, folder, with_robots=True, camera=False, bridge=None,
-                   rate_hz=None, bag_path=None, observed=False, physics=None):
+                   rate_hz=None, bag_path=None, observed=False, physics=None,
+                   controllers_per_process=None):
     """(Experiment, [NodeLaunch]) of an experiment file's graph for `params` and the launch
     file, as `run` builds it (launches.node_launches; a bridge's links in folder/links).
     observed: a `curve-formation run --only observer` (with bag_path, its recorder too) will
     measure the run, and the curve server waits for it. physics: the simulated robots' world
-    (None: the experiment's).
+    (None: the experiment's). controllers_per_process: as `run` takes it (None: its default
+    for the team).
     """
     from curve_formation.core.config.loading import load_experiment
     from curve_formation.run.launches import node_launches
     from curve_formation.run.run_options import RunOptions
     experiment = load_experiment(experiment_path)
     options = RunOptions(with_robots=with_robots, camera={} if camera else None,
-                         bridge=bridge, rate_hz=rate_hz, bag_path=bag_path, physics=physics)
+                         bridge=bridge, rate_hz=rate_hz, bag_path=bag_path, physics=physics,
+                         controllers_per_process=controllers_per_process)
     return experiment, node_launches(experiment, experiment_path, options,
                                       Path(folder) / 'links', observed=observed)
 
@@ -184,7 +219,17 @@ def graph_starts(experiment, folder, **graph):
     into folder/params; graph: graph_launches's options.
     """
     from curve_formation.paths import resolve_config
-    _, launches = graph_launches(resolve_config(experiment), folder, **graph)
+    from curve_formation.run.run_options import RunOptions
+    found, launches = graph_launches(resolve_config(experiment), folder, **graph)
+    size = RunOptions(controllers_per_process=graph.get('controllers_per_process')
+                      ).group_size(found.n)
     params = write_params_files(launches, Path(folder) / 'params')
-    return [NodeStart(executable(launch.module), launch.namespace, launch.name,
-                      params[launch.key]) for launch in start_order(launches)]
+    starts = []
+    for unit in grouped(start_order(launches), size):
+        if isinstance(unit, GroupLaunch):
+            path = write_group_file(unit, Path(folder) / 'params')
+            starts.append(NodeStart('node_group', '/', unit.key, path, (str(path),)))
+        else:
+            starts.append(NodeStart(executable(unit.module), unit.namespace, unit.name,
+                                    params[unit.key]))
+    return starts

@@ -1,0 +1,80 @@
+"""node_group: several of the package's nodes in one process, one context and one executor,
+as a ROS component container holds its components: a team of N controllers in groups of K
+needs about N / K DDS participants instead of N (`run --controllers-per-process K`).
+
+Started as `node_group GROUP.yaml [--ros-args ...]`; GROUP.yaml lists the nodes:
+`[{module: curve_formation.nodes.formation_controller, class: FormationController, namespace:
+/robot_3, params_file: PATH}, ...]`, each node taking its parameters from its own
+parameters file (keyed `/**/<node name>`, as `params` writes them). One node's error at
+start ends the process (exit status 2, naming the node); a crash takes down this group, not
+the others.
+"""
+
+from functools import partial
+import importlib
+from pathlib import Path
+import sys
+from typing import Any
+
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+import yaml
+
+from curve_formation.nodes.params import ParameterError
+from curve_formation.nodes.runtime import run_nodes
+
+
+NODE_NAME = 'node_group'   # also its console script's name
+FIELDS = {'module', 'class', 'namespace', 'params_file'}   # of each node a group lists
+
+
+def group_entries(path: str | Path) -> list[dict[str, str]]:
+    """The nodes a group file lists; ParameterError naming the file if it lists none well."""
+    try:
+        entries = yaml.safe_load(Path(path).read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise ParameterError(f'{path}: cannot read the group ({exc})') from None
+    if not isinstance(entries, list) or not entries or not all(
+            isinstance(e, dict) and FIELDS <= set(e) for e in entries):
+        raise ParameterError(f'{path}: expected a list of {{{", ".join(sorted(FIELDS))}}}')
+    return entries
+
+
+def node_parameters(params_file: str | Path) -> dict[str, Any]:
+    """The parameters a `params`-written file sets (its one `/**/<name>` entry)."""
+    data = yaml.safe_load(Path(params_file).read_text())
+    (entry,) = data.values()
+    return dict(entry['ros__parameters'])
+
+
+def make_node(entry: dict[str, str]) -> Node:
+    """One listed node, in its namespace with its file's parameters (a relative path is
+    read beside the group file).
+    """
+    try:
+        return getattr(importlib.import_module(entry['module']), entry['class'])(
+            namespace=entry['namespace'],
+            parameter_overrides=[Parameter(k, value=v) for k, v in
+                                 node_parameters(entry['params_file']).items()])
+    except ParameterError as exc:
+        raise ParameterError(f"{entry['namespace']} {entry['module']}: {exc}") from None
+
+
+def main(args: list[str] | None = None) -> int:
+    argv = sys.argv if args is None else args
+    if len(argv) < 2 or argv[1].startswith('-'):
+        print('usage: node_group GROUP.yaml [--ros-args ...]', file=sys.stderr)
+        return 2
+    try:
+        entries = group_entries(argv[1])
+    except ParameterError as exc:
+        print(f'error: {exc}', file=sys.stderr)
+        return 2
+    folder = Path(argv[1]).resolve().parent
+    entries = [{**entry, 'params_file': str(folder / entry['params_file'])}
+               for entry in entries]
+    return run_nodes([partial(make_node, entry) for entry in entries], argv[2:] or None)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

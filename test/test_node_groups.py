@@ -1,0 +1,92 @@
+"""Controllers grouped into few processes (run --controllers-per-process, nodes.node_group):
+one context and executor a group, so a team of N needs about N / K DDS participants; a
+group's crash takes down only its robots' controllers, and the run says which.
+"""
+
+import os
+import signal
+
+import numpy as np
+import yaml
+
+from curve_formation.run.run_options import RunOptions, SOLO_TEAM
+from curve_formation.run.runner import held_robots, Run
+
+
+def quiet(_):
+    pass
+
+
+def test_the_default_groups_any_team_up_to_100_into_at_most_16_participants():
+    options = RunOptions()
+    assert [options.group_size(n) for n in (1, 9, SOLO_TEAM)] == [1, 1, 1]
+    for n in range(SOLO_TEAM + 1, 101):
+        size = options.group_size(n)
+        groups = -(-n // size)
+        # with the curve server, the robots (a fake arena or the bridges' PC) and the runner
+        assert groups + 3 <= 16, (n, size)
+    assert RunOptions(controllers_per_process=4).group_size(9) == 4
+    assert RunOptions(single_process=True, controllers_per_process=4).group_size(9) == 1
+    assert held_robots('controllers_5-8') == [5, 6, 7, 8]
+    assert held_robots('robot_3.formation_controller') == [3] and held_robots('curve_server') == []
+
+
+def test_grouped_controllers_drive_the_team_and_a_group_that_dies_is_named(ros_domain,
+                                                                          tmp_path):
+    """arena_demo's nine controllers in three processes of three: every robot is driven from
+    them; killing the group of robots 4-6 is reported with its robots; robots 1-3 drive on
+    (robots 7-9, which hear from 5 and 6, stop for a missing neighbour, as they should).
+    """
+    options = RunOptions(controllers_per_process=3)
+    said = []
+    with Run('arena_demo', tmp_path, options, log=said.append) as run:
+        keys = sorted(k for k in run.processes if 'controller' in k)
+        assert keys == ['controllers_1-3', 'controllers_4-6', 'controllers_7-9'], keys
+        run.spin_for(4.0)
+        os.kill(run.processes['controllers_4-6'].pid, signal.SIGKILL)
+        run.spin_for(4.0)
+        data = run.recording()
+        deaths = list(run.monitor.node_deaths)
+    assert [key for _, key, _ in deaths] == ['controllers_4-6']
+    assert any('controllers_4-6 died at t = ' in line and 'robots [4, 5, 6]' in line
+               for line in said), said
+    group = yaml.safe_load((tmp_path / 'params' / 'controllers_4-6.group.yaml').read_text())
+    assert [entry['namespace'] for entry in group] == ['/robot_4', '/robot_5', '/robot_6']
+    params = yaml.safe_load((tmp_path / 'params' / 'robot_5.formation_controller.yaml')
+                            .read_text())['/**/formation_controller']['ros__parameters']
+    assert params['compiled_law']   # compiled once a process, for the three it holds
+    t, commands = data['t'], np.abs(data['commands']).max(axis=2)
+    before = (t > 1.0) & (t < 3.5)
+    assert (commands[before] > 0).any(axis=0).all()       # all nine driven by their groups
+    late = t > t[-1] - 1.0
+    assert (commands[late][:, :3] > 0).any(axis=0).all()   # their group drives on
+
+
+def test_params_and_the_launch_file_group_the_controllers_as_run_does(tmp_path):
+    from curve_formation.cli import main
+    from curve_formation.run.start_scripts import graph_starts
+    assert main(['params', 'arena_demo', '--out', str(tmp_path), '--controllers-per-process',
+                 '4']) == 0
+    lines = (tmp_path / 'start_controllers.sh').read_text().splitlines()
+    groups = [line for line in lines if line.startswith('ros2 run')]
+    assert groups == [f'ros2 run curve_formation node_group "$HERE/params/controllers_{k}'
+                      '.group.yaml" &' for k in ('1-4', '5-8', '9-9')]
+    group = yaml.safe_load((tmp_path / 'params' / 'controllers_5-8.group.yaml').read_text())
+    assert [entry['params_file'] for entry in group] == [
+        f'robot_{i}.formation_controller.yaml' for i in (5, 6, 7, 8)]
+    assert all((tmp_path / 'params' / entry['params_file']).exists() for entry in group)
+    starts = graph_starts('arena_demo', tmp_path / 'launch', controllers_per_process=4)
+    grouped = [start for start in starts if start.arguments]
+    assert [start.name for start in grouped] == ['controllers_1-4', 'controllers_5-8',
+                                                 'controllers_9-9']
+    assert all(start.executable == 'node_group' for start in grouped)
+    assert not any(start.executable == 'formation_controller' for start in starts)
+
+
+def test_a_group_file_that_lists_no_nodes_is_refused_naming_it(tmp_path, capsys):
+    from curve_formation.nodes.node_group import main
+    path = tmp_path / 'group.yaml'
+    path.write_text('- {module: x}\n')
+    assert main(['node_group', str(path)]) == 2
+    assert f'{path}: expected a list of {{class, module, namespace, params_file}}' in \
+        capsys.readouterr().err
