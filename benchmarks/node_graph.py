@@ -1,7 +1,8 @@
-"""ROS node graph timing: N fake robots + N controllers, one process each or all in one.
+"""ROS node graph timing: N fake robots + N controllers, one process each, controllers
+grouped into few processes (run's default past 12 robots) or all in one.
 
-Run: scripts/bench node_graph [--sizes 9 16 25 50] [--seconds 15] [--modes multi single]
-                              [--avoidance]
+Run: scripts/bench node_graph [--sizes 9 16 25 50] [--seconds 15]
+                              [--modes multi grouped single] [--avoidance]
 
 For each N and mode it prints: cmd_vel rate per robot (Hz, mean over robots), period jitter
 |interval - 100 ms| (p50/p99 over all robots) of the commands as published (DDS source
@@ -76,17 +77,22 @@ def cpu_seconds(pids):
     return total
 
 
-def measure(n, single_process, seconds, folder, avoidance=False):
+MODES = {'multi': {'controllers_per_process': 1}, 'grouped': {},
+         'single': {'single_process': True}}
+
+
+def measure(n, mode, seconds, folder, avoidance=False):
     path = experiment_file(n, folder, avoidance)
-    out = Path(folder) / f'run_{n}_{"single" if single_process else "multi"}'
+    out = Path(folder) / f'run_{n}_{mode}'
     with quiet_stderr(Path(folder) / f'nodes_{n}.log'), \
-            Run(path, out, RunOptions(single_process=single_process, isolated=True),
+            Run(path, out, RunOptions(isolated=True, **MODES[mode]),
                 log=lambda *_: None) as run:
         run.spin_for(2.0)   # let every controller start driving
         monitor = run.monitor
         for lst in monitor.command_arrivals + monitor.tick_latencies:
             lst.clear()
         pids = [p.pid for p in run.processes.values()] or [os.getpid()]
+        processes = len(run.processes) + 1   # and the runner's
         cpu0, wall0 = cpu_seconds(pids), monitor.get_clock().now().nanoseconds * 1e-9
         run.spin_for(seconds)
         cpu1, wall1 = cpu_seconds(pids), monitor.get_clock().now().nanoseconds * 1e-9
@@ -97,7 +103,7 @@ def measure(n, single_process, seconds, folder, avoidance=False):
     # counting those handled in the window would also count the monitor's backlog at its ends.
     rates = [(len(a) - 1) / (a[-1, 0] - a[0, 0]) for a in arrivals]
     late = sum(int(np.sum(np.diff(a[:, 0]) > 0.15)) for a in arrivals)
-    result = {'n': n, 'mode': 'single' if single_process else 'multi',
+    result = {'n': n, 'mode': mode, 'processes': processes,
               'rate_mean': float(np.mean(rates)), 'rate_min': float(np.min(rates)),
               'late_ticks': late}
     for column, name in enumerate(('published', 'received', 'handled')):
@@ -128,30 +134,30 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--sizes', type=int, nargs='+', default=[9, 16, 25, 50])
     parser.add_argument('--seconds', type=float, default=15.0)
-    parser.add_argument('--modes', nargs='+', default=['multi', 'single'],
-                        choices=['multi', 'single'])
+    parser.add_argument('--modes', nargs='+', default=list(MODES), choices=list(MODES))
     parser.add_argument('--avoidance', action='store_true',
                         help='bodies and the safety filter in every controller')
     args = parser.parse_args()
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     print('jitter |interval - 100 ms| p50/p99 in ms as published, received and handled; '
           'pose-to-command latency p50/p99 in ms; CPU in % of one core')
-    print(f'{"N":>4s} {"mode":>6s} {"Hz mean":>8s} {"Hz min":>7s} {"published":>12s} '
-          f'{"received":>12s} {"handled":>12s} {"latency":>12s} {"CPU/robot":>9s} '
-          f'{"late":>7s}')
+    print(f'{"N":>4s} {"mode":>7s} {"procs":>5s} {"Hz mean":>8s} {"Hz min":>7s} '
+          f'{"published":>12s} {"received":>12s} {"handled":>12s} {"latency":>12s} '
+          f'{"CPU/robot":>9s} {"late":>7s}')
     with tempfile.TemporaryDirectory() as folder:
         for n in args.sizes:
             for mode in args.modes:
                 try:
-                    r = measure(n, mode == 'single', args.seconds, folder, args.avoidance)
+                    r = measure(n, mode, args.seconds, folder, args.avoidance)
                 except (TimeoutError, RuntimeError) as exc:
-                    print(f'{n:4d} {mode:>6s} failed: {str(exc).splitlines()[0]}', flush=True)
+                    print(f'{n:4d} {mode:>7s} failed: {str(exc).splitlines()[0]}', flush=True)
                     continue
                 holds = 'holds 10 Hz' if r['rate_min'] >= 9.9 else 'below 10 Hz'
                 cells = ' '.join(f'{r[name + "_p50_ms"]:5.1f}/{r[name + "_p99_ms"]:<6.1f}'
                                  for name in ('published', 'received', 'handled', 'latency'))
-                print(f'{r["n"]:4d} {r["mode"]:>6s} {r["rate_mean"]:8.2f} {r["rate_min"]:7.2f} '
-                      f'{cells} {r["cpu_per_robot_pct"]:8.1f}% {r["late_ticks"]:7d}   {holds}',
+                print(f'{r["n"]:4d} {r["mode"]:>7s} {r["processes"]:5d} {r["rate_mean"]:8.2f} '
+                      f'{r["rate_min"]:7.2f} {cells} {r["cpu_per_robot_pct"]:8.1f}% '
+                      f'{r["late_ticks"]:7d}   {holds}',
                       flush=True)
 
 

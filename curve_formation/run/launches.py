@@ -20,7 +20,7 @@ from curve_formation.core.config.parameters import node_parameters
 from curve_formation.core.config.variations import variations_text
 from curve_formation.fleet import bridge_parameters, emulated_fleet, fleet_robots
 from curve_formation.interface import robot_name, robot_namespace
-from curve_formation.run.run_options import DEFAULTS
+from curve_formation.run.run_options import DEFAULTS, SOLO_TEAM
 
 
 BRIDGE = 'curve_formation.nodes.robot_bridge'   # the node that holds a robot's link
@@ -74,7 +74,10 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None,
     on_pc = spec.disturbance.injected == 'on_pc'
     varies = variations_text(experiment)   # the disturbance's changes, as JSON
     engine = options.physics or spec.physics.engine
-    one_world = uses_fake_arena(experiment, engine) or bridge is not None
+    # one world for the team when its robots meet, sit behind links, or are many (a process
+    # each would cost a DDS participant and a Python interpreter per robot)
+    one_world = (uses_fake_arena(experiment, engine) or bridge is not None
+                 or experiment.n > SOLO_TEAM)
     if fleet is None:
         fleet = bridged_fleet(experiment, options, links_dir)
     # The curve server waits until the n controllers, the runner's monitor, its bag recorder
