@@ -10,6 +10,10 @@ CONTACT_REPORTER = 'fake_arena'
 NODE_DEATH_REPORTER = 'node_death'
 
 
+# The status name under which camera_tracker reports its camera (frames, latency, and
+# calibration_rms_px: its arena calibration's residual, 'none' without one).
+CAMERA_STATUS = 'camera_tracker: camera'
+
 # The node name under which each robot_bridge reports its link on /diagnostics.
 LINK_REPORTER = '/robot_bridge'
 LINK_COUNTS = ('sent', 'failed', 'stops', 'replies', 'malformed', 'dropped_lines')

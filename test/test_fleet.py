@@ -356,3 +356,51 @@ def test_real_robots_listed_in_the_file_are_driven_from_one_command(ros_domain, 
                for link in result['links'].values()), result['links']
     commands = np.load(tmp_path / 'run' / 'trajectory.npz')['commands']
     assert (np.abs(commands[-20:]).max(axis=(0, 2)) > 0).all()   # every robot driven
+
+
+def test_run_preflight_over_real_links_refuses_a_camera_without_its_calibration():
+    """Nine emulated firmwares on UDP answer every stop line; the poses come from a stand-in
+    for the camera tracker, which says on /diagnostics that it has no arena calibration: every
+    robot passes and the pre-flight refuses for the camera, saying why.
+    """
+    from curve_formation import links, wire
+    from curve_formation.run.preflight import run_preflight
+    endpoints = [links.UdpEndpoint(('127.0.0.1', 0)) for _ in range(9)]
+    data = lab_dict()
+    for robot, endpoint in zip(data['robots']['fleet'], endpoints, strict=True):
+        robot['link'] = f'udp:127.0.0.1:{endpoint.socket.getsockname()[1]}'
+    experiment = build_experiment(data, 'lab.yaml')
+    fleet = fleet_robots(experiment)
+    start = experiment.initial_poses
+
+    class Watch:   # PoseWatch's interface, fed by hand
+        poses = {i: [] for i in range(1, 10)}
+        calibration = 'none'
+
+        def now(self):
+            return time.monotonic()
+
+        def another_formation(self):
+            return False
+
+    watch = Watch()
+    heard = []
+
+    def spin(seconds):
+        time.sleep(seconds)
+        for i, endpoint in enumerate(endpoints, 1):
+            for line in endpoint.lines():
+                said = wire.decode(wire.PRESETS[fleet[i - 1].format], line, 0.015)
+                heard.append(said and said[0])
+                endpoint.send(b'ok\n')
+            watch.poses[i].append((watch.now(), *start[i - 1]))
+    try:
+        result = run_preflight(experiment, fleet, watch, spin, quiet)
+    finally:
+        for endpoint in endpoints:
+            endpoint.close()
+    assert result.failing == [] and all(r.stop_confirmed for r in result.robots)
+    assert heard and set(heard) == {'stop'}   # stop lines only, in each robot's format
+    assert result.problems == ['the camera tracker has no arena calibration (corner markers '
+                               'not seen, or no calibration_file)']
+    assert not result.passed and 'camera: arena calibration residual none px' in result.table()

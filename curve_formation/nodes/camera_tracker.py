@@ -27,6 +27,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import Image
 from std_msgs.msg import Float64MultiArray
 
+from curve_formation import diagnostics
 from curve_formation.core.config.camera_schema import CameraSpec
 from curve_formation.core.config.experiment import beside_experiment
 from curve_formation.core.formation.curves import Curve
@@ -307,7 +308,7 @@ class CameraTracker(Node):
                              KeyValue(key='last_seen_age_s', value='never' if seen is None
                                       else f'{now - seen:.3f}')]
             msg.status.append(status)
-        camera = DiagnosticStatus(name='camera_tracker: camera', hardware_id='camera')
+        camera = DiagnosticStatus(name=diagnostics.CAMERA_STATUS, hardware_id='camera')
         calibration = self.tracker.calibration
         calibrated = calibration is not None
         camera.level = DiagnosticStatus.OK if calibrated and self.frames else DiagnosticStatus.WARN

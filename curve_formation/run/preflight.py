@@ -6,7 +6,8 @@ bridge holds the link yet), and its answers are counted; meanwhile every robot's
 read from /robot_<i>/pose. A robot passes when its marker is seen (pose fresh, inside the
 arena, not on top of another robot), its link answers (where its firmware answers at all),
 and the stop is confirmed: answered, and the robot does not move while stopped. Nothing on
-the domain may serve another formation. The result is a table, a PreflightResult for
+the domain may serve another formation, and a camera tracker heard on /diagnostics must have
+its arena calibration. The result is a table, a PreflightResult for
 metrics.json, and a latched /formation/preflight message for the bag.
 
 Poses in the arena frame (m); times in s.
@@ -23,7 +24,7 @@ from geometry_msgs.msg import PoseStamped
 import numpy as np
 from rclpy.node import Node
 
-from curve_formation import wire
+from curve_formation import diagnostics, wire
 from curve_formation.core.config.experiment import Experiment
 from curve_formation.fleet import FleetRobot
 from curve_formation.interface import robot_name
@@ -38,7 +39,6 @@ STOP_PERIOD = 0.1        # s between two stop lines to a robot
 SETTLE = 0.3             # s a robot may take to come to rest after the first stop line
 STILL = 0.005            # m a stopped robot may seem to move over the window (camera noise)
 REPLY_FRESH = 0.5        # s: an older last answer is a link that does not answer
-EXIT_REFUSED = 2         # exit status of a pre-flight that refuses to start
 
 
 class MissingRobotsError(Exception):
@@ -111,6 +111,7 @@ class PreflightResult:
     problems: list[str] = field(default_factory=list)
     duration: float = 0.0
     left_out: list[int] = field(default_factory=list)   # robots --allow-missing removed
+    calibration: str | None = None   # the camera tracker's residual (px), 'none', or unheard
 
     @property
     def failing(self) -> list[int]:
@@ -133,6 +134,8 @@ class PreflightResult:
         widths = [max(len(row[k]) for row in rows) for k in range(len(rows[0]) - 1)]
         lines = ['  '.join(cell.ljust(w) for cell, w in zip(row, widths, strict=False))
                  + '  ' + row[-1] for row in rows]
+        if self.calibration is not None:
+            lines.append(f'camera: arena calibration residual {self.calibration} px')
         lines += [f'pre-flight: {p}' for p in self.problems]
         verdict = ('passed' if self.passed else
                    f'FAILED for robot(s) {", ".join(map(str, self.failing))}' if self.failing
@@ -142,6 +145,7 @@ class PreflightResult:
 
     def as_dict(self) -> dict[str, Any]:
         return {'passed': self.passed, 'duration_s': round(self.duration, 3),
+                'camera_calibration_rms_px': self.calibration,
                 'robots': [r.as_dict() for r in self.robots], 'problems': list(self.problems),
                 'failing': self.failing, 'left_out': list(self.left_out)}
 
@@ -180,6 +184,17 @@ class PoseWatch(Node):
                                              lambda msg, i=i: self._on_pose(i, msg), robot=i)
                          for i in range(1, n + 1)]
         self.publisher = topics.publisher(self, topics.PREFLIGHT)
+        # the camera tracker's arena calibration as its /diagnostics says: None before it
+        # reported, 'none' while it has none, else its residual (px)
+        self.calibration: str | None = None
+        self.watching.append(topics.subscription(self, topics.DIAGNOSTICS,
+                                                 self._on_diagnostics))
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.name == diagnostics.CAMERA_STATUS:
+                self.calibration = next((kv.value for kv in status.values
+                                         if kv.key == 'calibration_rms_px'), None)
 
     def stop_watching(self) -> None:
         """Drop the pose subscriptions (the result's publisher stays, latched)."""
@@ -339,7 +354,11 @@ def run_preflight(experiment: Experiment, fleet: Sequence[FleetRobot], watch: Po
     problems = []
     if watch.another_formation():
         problems.append('a curve server of another formation is on this domain')
-    result = PreflightResult(checks, problems, time.monotonic() - started)
+    if watch.calibration == 'none':
+        problems.append('the camera tracker has no arena calibration (corner markers not '
+                        'seen, or no calibration_file)')
+    result = PreflightResult(checks, problems, time.monotonic() - started,
+                             calibration=watch.calibration)
     log(result.table())
     return result
 
