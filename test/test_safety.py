@@ -19,6 +19,8 @@ import rclpy
 from std_msgs.msg import Bool
 
 from conftest import CONFIG_DIR, DATA_DIR, no_history_qos, SUPPORT
+from curve_formation.core.config.agents import leader_relays
+from curve_formation.core.config.loading import load_experiment
 from curve_formation.core.record import metrics
 from curve_formation.core.sim.batch import simulate
 from curve_formation.nodes import qos, topics
@@ -124,7 +126,7 @@ def test_estop_a_killed_follower_and_the_killed_leader_each_stop_whom_they_shoul
     robot within a tick and its release lets them drive again; a killed follower stops its
     out-neighbours at their first tick past the neighbour timeout (and its own motors, by the
     driver's watchdog) and, restarted, rejoins; the killed leader stops every follower within
-    leader_timeout.
+    its leader timeout (leader_timeout, plus the relay its hops from the leader may take).
     """
     with Run(DATA_DIR / 'fast_closed.yaml', tmp_path, log=quiet) as run:
         commands = CommandLog(run.observers.context, 6)
@@ -189,13 +191,15 @@ def test_estop_a_killed_follower_and_the_killed_leader_each_stop_whom_they_shoul
         assert stops, robot
         assert_first_tick_past(commands, robot, stops[0][0], float(stops[0][1]), timeout)
     # The killed leader: each follower's last stop came at its first tick past its timeout
-    # (leader_timeout 1 s; neighbour_timeout for an out-neighbour of the leader).
+    # (leader_timeout 1 s plus the relay its hops from the leader may take, leader_relays;
+    # neighbour_timeout for an out-neighbour of the leader).
+    relays = leader_relays(load_experiment(DATA_DIR / 'fast_closed.yaml'))
     for i in FOLLOWERS:
         log = (tmp_path / 'logs' / f'robot_{i}.formation_controller.log').read_text()
         last = logged(tmp_path, f'robot_{i}.formation_controller',
                       r'stopped: (no news from the leader|neighbour 1 stale) '
                       r'\((\d+\.\d+) s old\)')[-1]
-        limit = 1.0 if last[1].startswith('no news') else timeout
+        limit = 1.0 + relays[i - 1] if last[1].startswith('no news') else timeout
         assert_first_tick_past(commands, i, last[0], float(last[2]), limit)
         # logged when the reason changes, not on every tick while it lasts
         kinds = [re.sub(r'\(.*?\)|for [\d.]+ s', '#', line)   # the reason, not its age
