@@ -281,6 +281,10 @@ def test_preflight_refuses_naming_each_failing_robot_and_moves_none(ros_domain, 
     assert not (tmp_path / 'metrics.json').exists()   # nothing ran
 
 
+# Behind `-m slow` (28 s, two start-ups), as the next one (29 s), to keep the default run
+# under 10 minutes; the default run refuses the same faults (above) and checks the team file
+# (test_the_team_without_robots_...) and the fleet's bridges (test_the_fleet_gives_...).
+@pytest.mark.slow
 def test_allow_missing_runs_the_others_and_says_who_was_missing(ros_domain, tmp_path):
     from curve_formation.run.runner import run_experiment
     options = RunOptions(bridge='udp', faults={'silent': [5]}, allow_missing=frozenset({5}))
@@ -297,9 +301,10 @@ def test_allow_missing_runs_the_others_and_says_who_was_missing(ros_domain, tmp_
     assert commands.shape[1] == 8 and (np.abs(commands[-20:]).max(axis=(0, 2)) > 0).all()
 
 
-def test_the_preflight_command_exits_2_naming_every_robot_nobody_answers_for(ros_domain,
-                                                                              tmp_path):
-    """No camera, no robot: every robot is named, the command says why and exits 2."""
+def test_the_preflight_command_exits_2_naming_every_robot_nobody_answers_for(ros, tmp_path):
+    """No camera, no robot: every robot is named, the command says why and exits 2 (on the
+    `ros` fixture's private domain: it runs beside the other node processes' tests).
+    """
     data = lab_dict()
     for k, robot in enumerate(data['robots']['fleet']):
         robot['link'] = f'udp:127.0.0.1:{4900 + k}'   # nobody listens there
@@ -316,6 +321,7 @@ def test_the_preflight_command_exits_2_naming_every_robot_nobody_answers_for(ros
     assert Path(path).exists()
 
 
+@pytest.mark.slow
 def test_real_robots_listed_in_the_file_are_driven_from_one_command(ros_domain, tmp_path):
     """The lab's first run: the robots (here fake_arena's emulated firmware, started apart as
     the lab's robots and camera would be) are listed with their UDP links in robots.fleet;
