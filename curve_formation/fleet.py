@@ -61,8 +61,7 @@ def bridge_parameters(experiment: Experiment, rate: float, robot: FleetRobot) ->
     baud, wire format, wheels, the file's wheel speed limit and the control rate (Hz).
     """
     address = robot.address
-    link = address.text if address.kind != 'pty' else f'serial:{address.device}'
-    return {'link': link, 'baud': address.baud, 'wire_format': robot.format,
+    return {'link': address.bridge_text, 'baud': address.baud, 'wire_format': robot.format,
             'wheel_base': robot.wheel_base, 'wheel_radius': robot.wheel_radius,
             'max_wheel_speed': float(experiment.limits.max_wheel_speed),
             'rate_hz': float(rate),

@@ -178,11 +178,23 @@ TOPICS = {t.name: t for t in (
 _ROBOT_TOPIC = re.compile(r'^/robot_(\d+)/([A-Za-z0-9_]+)$')
 
 
+ROBOT_PREFIX = 'robot_'   # of every robot's name: robot_<i>
+
+
 def robot_name(index: int) -> str:
     """Name of robot `index` (1-based): robot_<i>, as its namespace, e-stop and diagnostics
     know it.
     """
-    return f'robot_{index}'
+    return f'{ROBOT_PREFIX}{index}'
+
+
+def robot_index(name: str) -> int | None:
+    """The robot (1-based) a name belongs to: 3 for robot_3, /robot_3, /robot_3/robot_bridge
+    or robot_3.formation_controller (its first part); None for any other name.
+    """
+    first = name.strip('/').split('/')[0].split('.')[0]
+    number = first.removeprefix(ROBOT_PREFIX) if first.startswith(ROBOT_PREFIX) else ''
+    return int(number) if number.isdigit() else None
 
 
 def robot_namespace(index: int) -> str:

@@ -14,7 +14,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 
 from curve_formation import diagnostics
-from curve_formation.interface import robot_name, robot_of
+from curve_formation.interface import robot_index, robot_name
 from curve_formation.nodes import messages, topics
 from curve_formation.nodes.runtime import now_seconds
 
@@ -72,12 +72,12 @@ class FleetStatus:
         for status in msg.status:
             if not status.name.endswith(diagnostics.LINK_REPORTER):
                 continue
-            placed = robot_of(status.name.rsplit('/', 1)[0] + '/x')
-            if placed is None:
+            robot = robot_index(status.name)
+            if robot is None:
                 continue
             values = {kv.key: kv.value for kv in status.values}
             level = status.level[0] if isinstance(status.level, bytes) else status.level
-            self.link_reports[placed[0]] = (int(level), values.get('reply_age_s', 'never'),
+            self.link_reports[robot] = (int(level), values.get('reply_age_s', 'never'),
                                             values.get('battery_v', 'unknown'))
 
     def statuses(self) -> list[RobotStatus]:

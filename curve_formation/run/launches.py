@@ -19,8 +19,8 @@ from curve_formation.core.config.loading import control_rate
 from curve_formation.core.config.parameters import node_parameters
 from curve_formation.core.config.variations import variations_text
 from curve_formation.fleet import bridge_parameters, emulated_fleet, fleet_robots
-from curve_formation.interface import robot_name, robot_namespace
-from curve_formation.run.run_options import DEFAULTS, SOLO_TEAM
+from curve_formation.interface import robot_index, robot_name, robot_namespace
+from curve_formation.run.run_options import DEFAULTS, ROBOT_FAULTS, SOLO_TEAM
 
 
 BRIDGE = 'curve_formation.nodes.robot_bridge'   # the node that holds a robot's link
@@ -46,8 +46,7 @@ class NodeLaunch:
     @property
     def agent(self):
         """The agent (1-based) whose node this is (namespace /robot_<i>), or None."""
-        name = self.namespace.strip('/')
-        return int(name[len('robot_'):]) if name.startswith('robot_') else None
+        return robot_index(self.namespace)
 
     @property
     def key(self):
@@ -129,12 +128,9 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None,
             arena['wheel_radius'] = wheel_radius(experiment)
             if 'link_down' in faults:
                 arena['fault_link_down'] = [float(v) for v in faults['link_down']]
-            if 'silent' in faults:
-                arena['fault_silent'] = [int(v) for v in faults['silent']]
-            if 'runaway' in faults:
-                arena['fault_runaway'] = [int(v) for v in faults['runaway']]
-        if 'hidden' in faults:
-            arena['fault_hidden'] = [int(v) for v in faults['hidden']]
+        for key in ROBOT_FAULTS:   # fake_arena's fault_<key>: the robots that have it
+            if key in faults:
+                arena[f'fault_{key}'] = [int(v) for v in faults[key]]
         launches.append(NodeLaunch('curve_formation.nodes.fake_arena', '/', 'fake_arena',
                                    arena))
     return launches + cameras

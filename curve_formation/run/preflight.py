@@ -218,11 +218,9 @@ class LinkProbe:
     """Stop lines to one robot over its link, straight from this process, and its answers."""
 
     def __init__(self, robot: FleetRobot) -> None:
-        address = robot.address
-        text = address.text if address.kind != 'pty' else f'serial:{address.device}'
         self.robot = robot
         self.format = wire.wire_format(robot.format)
-        self.link = robot_link(text, address.baud)
+        self.link = robot_link(robot.address.bridge_text, robot.address.baud)
         self.seq = 0
         self.replies = 0
         self.first_reply: float | None = None

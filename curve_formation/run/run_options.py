@@ -99,6 +99,9 @@ class RunOptions:
 # controllers; the robots (simulated: fake_robot or fake_arena; and the robot bridges, on the
 # PC the robots' radios hang off);
 # the camera nodes (camera_tracker, fake_camera); the observer (monitor, recorder, metrics).
+# The faults of RunOptions.faults that name robots (fake_arena's fault_<name>): silent,
+# runaway and hidden.
+ROBOT_FAULTS = ('silent', 'runaway', 'hidden')
 # The largest team whose controllers each run in a process of their own by default (past it,
 # grouped: RunOptions.group_size); measured: one process per node holds 10 Hz up to 16 robots
 # on 2 cores, 25 miss ticks (docs/performance.md).

@@ -29,6 +29,7 @@ from curve_formation.core.config.experiment import phase_index
 from curve_formation.core.config.loading import control_rate, load_experiment
 from curve_formation.core.record import body_metrics, metrics
 from curve_formation.core.record.tick_timing import run_timing
+from curve_formation.interface import robot_index
 from curve_formation.nodes.runtime import now_seconds
 from curve_formation.nodes.topics import CURVE, DIAGNOSTICS
 from curve_formation.paths import discovery_text, resolve_config, ros_environment
@@ -53,7 +54,7 @@ from curve_formation.run.preflight import (
     PreflightResult,
     run_preflight,
 )
-from curve_formation.run.run_options import DEFAULTS
+from curve_formation.run.run_options import DEFAULTS, ROBOT_FAULTS
 from curve_formation.run.start_scripts import write_node_files
 from curve_formation.run.team_file import write_team_file
 
@@ -564,7 +565,7 @@ def _faults_of_team(faults, number):
     if not faults:
         return faults
     out = dict(faults)
-    for key in ('silent', 'runaway', 'hidden'):
+    for key in ROBOT_FAULTS:
         if key in out:
             out[key] = [number[i] for i in out[key] if i in number]
     if 'link_down' in out:
@@ -583,8 +584,8 @@ def held_robots(key):
     if key.startswith(CONTROLLER_GROUP):
         first, _, last = key[len(CONTROLLER_GROUP):].partition('-')
         return list(range(int(first), int(last) + 1))
-    name = key.split('.')[0]
-    return [int(name[len('robot_'):])] if name.startswith('robot_') else []
+    robot = robot_index(key)
+    return [] if robot is None else [robot]
 
 
 def run_experiment(config, out_dir, duration=None, options=DEFAULTS, log=print):

@@ -30,6 +30,13 @@ class LinkAddress(NamedTuple):
             return f'udp:{self.host}:{self.port}'
         return f'{self.kind}:{self.device}'
 
+    @property
+    def bridge_text(self) -> str:
+        """The link as a robot bridge (or the pre-flight) opens it: an emulated robot's
+        pseudo-terminal as a serial line.
+        """
+        return f'serial:{self.device}' if self.kind == 'pty' else self.text
+
 
 def parse_link(text: str) -> LinkAddress:
     """The LinkAddress of 'udp:HOST:PORT', 'serial:DEVICE[@BAUD]' or 'pty:PATH'; ValueError
