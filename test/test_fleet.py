@@ -207,6 +207,16 @@ def quiet(_):
     pass
 
 
+def longest_stand(t, xy, tolerance):
+    """The longest time (s) over which the positions xy (m) stay within `tolerance` (m)."""
+    best, start = 0.0, 0
+    for end in range(len(t)):
+        while np.ptp(xy[start:end + 1], axis=0).max() >= tolerance:
+            start += 1
+        best = max(best, t[end] - t[start])
+    return best
+
+
 def test_a_bridged_run_passes_its_preflight_and_the_fleet_status_shows_a_link_cut(
         ros_domain, tmp_path):
     """arena_demo through UDP bridges to the emulated robots, robot 4's firmware hearing
@@ -248,9 +258,13 @@ def test_a_bridged_run_passes_its_preflight_and_the_fleet_status_shows_a_link_cu
     assert all(robot == 4 for robot, *_ in events), events
     data = np.load(tmp_path / 'out' / 'trajectory.npz')
     t, xy = data['t'], data['poses'][:, 3, :2]
-    during = (t > lost[0]) & (t < back[0] - 1.5)
-    assert during.sum() > 5, (lost, back)
-    assert np.ptp(xy[during], axis=0).max() < 1e-3   # standing while cut off
+    # The firmware's watchdog (1 s) stops it 1 s into the 3 s cut, it drives again when the
+    # link is back; the status notices each change up to 2 s late (1 Hz bridge diagnostics,
+    # then the 1 Hz fleet status), so the stand is looked for near the events, not inside them.
+    near = (t > lost[0] - 3.0) & (t < back[0])
+    assert longest_stand(t[near], xy[near], 1e-3) >= 1.5, (lost, back)
+    assert np.ptp(xy[t < lost[0] - 1.0], axis=0).max() > 3e-3   # driving before the cut,
+    assert np.ptp(xy[t > back[0]], axis=0).max() > 0.01          # and once the link is back
     report = (tmp_path / 'out' / 'report.html').read_text()
     assert 'Robot 4: link lost at t =' in report and 'Pre-flight passed for 9 robots' in report
 
