@@ -237,7 +237,9 @@ class MujocoWorld:
                         if bits is not None and math.isfinite(limits.max_wheel_speed) else 0.0)
         self.sag = imperfect.battery_sag / 600.0   # gain lost per s
         on_robot = self.on_robot = spec.disturbance.injected == 'on_robot'
-        self.disturbance = (np.asarray(experiment.disturbance, float) if on_robot
+        # a copy: disturb() changes it, never the experiment's own (a varying disturbance
+        # is the experiment's value times its variation, taken afresh each time)
+        self.disturbance = (np.array(experiment.disturbance, float) if on_robot
                             else np.zeros((self.n, 2)))
         self.queues = [CommandQueue(latency, timeout, jitter, (seed, i)) for i in range(self.n)]
         self.wheels = np.zeros((self.n, 2))   # wheel speed commands in force (m/s)
