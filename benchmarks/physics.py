@@ -14,7 +14,11 @@ mona_arena, the nodes' tick pipeline (core.sim.pipeline) runs in three worlds:
   injected disturbance: the observer learns a physical one; the controllers are told the
   motors' dead band and time constant (limits.min_wheel_speed, motor_time_constant), as a lab
   measures them (goal: every phase settles, no contact, within 1.3x of mujoco);
-- untold (with --untold): the imperfect robots, nothing told.
+- untold (with --worlds ...,untold): the imperfect robots, nothing told, nothing learnt;
+- learnt (with --worlds ...,learnt): the imperfect robots, nothing told, the controllers
+  estimating their link's latency and their motors' lag online (controller.estimate_latency,
+  estimate_motors; goal: every phase within 1.2x of mujoco, no contact); the estimates
+  are reported against the motors' 50 ms.
 Part `speed`: seconds of world per second of wall clock, MuJoCo and kinematic worlds alone,
 9 robots (mona_arena) and 50 (a 5 m x 5 m arena), every robot driven on its own circle with
 commands renewed at 10 Hz (goals: MuJoCo >= 20x for 9, >= 1x for 50).
@@ -42,7 +46,7 @@ from curve_formation.paths import resolve_config
 CASES = ('arena_demo', 'mona_arena')
 IMPERFECTIONS = {'wheel_radius_mismatch': 0.03, 'motor_gain_spread': 0.1, 'dead_band': 0.05,
                  'command_bits': 8, 'battery_sag': 0.1}
-GOALS = {'mujoco': 1.15, 'imperfect': 1.3, 'untold': 1.3}
+GOALS = {'mujoco': 1.15, 'imperfect': 1.3, 'untold': 1.3, 'learnt': 1.2}
 WORLDS = ('kinematic', 'mujoco', 'imperfect')
 
 
@@ -54,10 +58,12 @@ def experiment(name, seed, world):
         data['physics'] = {'engine': 'mujoco'}
     if world in ('mujoco', 'imperfect'):   # the motors' lag, measured on the robots, told
         data['limits']['motor_time_constant'] = PhysicsSpec().motor_time_constant
-    if world in ('imperfect', 'untold'):
+    if world in ('imperfect', 'untold', 'learnt'):
         data['physics']['imperfections'] = {**IMPERFECTIONS, 'seed': seed}
         data['disturbance'] = {**data.get('disturbance', {}), 'value': [0.0, 0.0]}
         data['disturbance'].pop('per_agent', None)
+    if world == 'learnt':   # nothing told: learnt online
+        data['controller'].update(estimate_latency=True, estimate_motors=True)
     if world == 'imperfect':   # and their dead band
         limits = data['limits']
         limits['min_wheel_speed'] = IMPERFECTIONS['dead_band'] * limits['max_wheel_speed']
@@ -76,7 +82,9 @@ def one_start(job):
         data = metrics.result_metrics(result)
         row[world] = {'settle': [p['settle_time'] for p in data['phases']],
                       'final_mm': [1000 * p['final_max_agent_error'] for p in data['phases']],
-                      'contacts': result.contacts, 'wall_s': time.perf_counter() - begin}
+                      'contacts': result.contacts, 'wall_s': time.perf_counter() - begin,
+                      'motor_lags': data.get('estimated_motor_time_constant'),
+                      'latencies': data.get('estimated_latency')}
     return row
 
 
@@ -95,7 +103,8 @@ def starts_report(rows):
         summary = {}
         for k in range(phases):
             for world, against in (('kinematic', None), ('mujoco', 'kinematic'),
-                                   ('imperfect', 'mujoco'), ('untold', 'mujoco')):
+                                   ('imperfect', 'mujoco'), ('untold', 'mujoco'),
+                                   ('learnt', 'mujoco')):
                 if world not in case_rows[0]:
                     continue
                 times = [r[world]['settle'][k] for r in case_rows]
@@ -118,6 +127,13 @@ def starts_report(rows):
                       f'{max(done) if done else float("nan"):7.1f} '
                       f'{"" if worst is None else f"{worst:.2f}x":>12} '
                       f'{"" if goal is None else f"{goal}x":>5} {contacts:>9} {final:15.2f}')
+        lags = [1000 * v for r in case_rows if r.get('learnt', {}).get('motor_lags')
+                for v in r['learnt']['motor_lags']]
+        if lags:
+            summary['learnt_motor_lag_ms'] = {'min': min(lags), 'median': float(np.median(lags)),
+                                              'max': max(lags)}
+            print(f"learnt motor lags (ms, the motors' 50): min {min(lags):.1f}, median "
+                  f'{np.median(lags):.1f}, max {max(lags):.1f} over {len(lags)} robots')
         out[name] = summary
     return out
 
@@ -180,8 +196,9 @@ def main():
     parser.add_argument('--part', choices=('starts', 'speed', 'all'), default='all')
     parser.add_argument('--seeds', type=int, default=20)
     parser.add_argument('--workers', type=int, default=2)
-    parser.add_argument('--untold', action='store_true',
-                        help='also the imperfect robots with the dead band not told')
+    parser.add_argument('--worlds', default=','.join(WORLDS),
+                        help='comma-separated, of kinematic, mujoco, imperfect, untold, learnt '
+                        '(default %(default)s; the ratios need kinematic and mujoco)')
     parser.add_argument('--out', default='out/bench/physics')
     args = parser.parse_args()
     out = Path(args.out)
@@ -190,7 +207,7 @@ def main():
     if args.part in ('speed', 'all'):
         results['speed'] = speed_report(30.0)
     if args.part in ('starts', 'all'):
-        worlds = WORLDS + (('untold',) if args.untold else ())
+        worlds = tuple(args.worlds.split(','))
         jobs = [(name, seed, worlds) for name in CASES for seed in range(1, args.seeds + 1)]
         with Pool(args.workers) as pool:
             rows = pool.map(one_start, jobs, chunksize=1)

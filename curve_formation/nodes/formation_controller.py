@@ -135,7 +135,7 @@ def agent_config(p: SimpleNamespace) -> AgentConfig:
         geofence=None if fence is None else tuple(fence), predict_pose=p.predict_pose,
         command_latency=p.command_latency, feed_forward=p.feed_forward, compiled=p.compiled_law,
         min_wheel_speed=p.min_wheel_speed, motor_time_constant=p.motor_time_constant,
-        estimate_latency=p.estimate_latency)
+        estimate_latency=p.estimate_latency, estimate_motors=p.estimate_motors)
 
 
 def _avoidance(p: SimpleNamespace) -> Avoidance:
@@ -333,6 +333,8 @@ class FormationController(Node):
                     KeyValue(key='dhat', value=f'{c.dhat[0]:.6g} {c.dhat[1]:.6g}'),
                     # s: as told, or as estimated online (estimate_latency)
                     KeyValue(key='command_latency', value=f'{c.latency:.4f}'),
+                    # s: as told, or as estimated online (estimate_motors)
+                    KeyValue(key='motor_time_constant', value=f'{c.motor_time_constant:.4f}'),
                     KeyValue(key='rejected_inputs', value=str(c.rejected)),
                     KeyValue(key='rejected_messages', value=self.rejections.summary()),
                     KeyValue(key='last_rejection', value=self.rejections.last),

@@ -46,6 +46,7 @@ def agent_configs(experiment: Experiment, rate_hz: float) -> list[AgentConfig]:
         min_wheel_speed=(spec.limits.min_wheel_speed or 0.0) if spec.limits else 0.0,
         motor_time_constant=(spec.limits.motor_time_constant or 0.0) if spec.limits else 0.0,
         estimate_latency=spec.controller.estimate_latency,
+        estimate_motors=spec.controller.estimate_motors,
         leader_relay=float(relay[i - 1])), **robot_own(experiment, i))
         for i in range(1, experiment.n + 1)]
 

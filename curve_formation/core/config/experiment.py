@@ -229,11 +229,12 @@ def beside_experiment(experiment: Experiment, value: str | None) -> Path | None:
 def point_robots(experiment: Experiment) -> Experiment:
     """The experiment with the formation law alone, as the paper has it: robots are points
     that pass through each other (no bodies), no safety filter, no re-assignment, no online
-    estimate of the link's latency.
+    estimate of the link's latency or the motors' lag.
     """
     spec = experiment.spec
     agents = spec.agents.model_copy(update={'reassign_every': None})
-    controller = spec.controller.model_copy(update={'estimate_latency': False})
+    controller = spec.controller.model_copy(update={'estimate_latency': False,
+                                                    'estimate_motors': False})
     spec = spec.model_copy(update={'agents': agents, 'avoidance': None,
                                    'robots': RobotsSpec(), 'controller': controller})
     return dataclasses.replace(experiment, spec=spec, radius=0.0, avoidance=AVOIDANCE_OFF,

@@ -48,6 +48,7 @@ def node_parameters(config: AgentConfig) -> dict[str, Any]:
         'motor_time_constant': float(config.motor_time_constant),
         'observer_order': int(gains.observer_order),
         'estimate_latency': bool(config.estimate_latency),
+        'estimate_motors': bool(config.estimate_motors),
         'compiled_law': bool(config.compiled),
     }
     if av.on:

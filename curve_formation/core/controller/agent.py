@@ -42,7 +42,7 @@ from curve_formation.core.controller.inputs import (
     Tick,
 )
 from curve_formation.core.controller.limits import inside_fence
-from curve_formation.core.controller.link_estimate import ONLINE_LAGS, OnlineLatency
+from curve_formation.core.controller.link_estimate import ONLINE_LAGS, OnlineLink
 from curve_formation.core.controller.motion_observer import MotionObserver
 from curve_formation.core.controller.neighbourhood import Neighbourhood, NO_ERRORS
 from curve_formation.core.controller.others import OtherRobots
@@ -117,8 +117,12 @@ class AgentController:
                                  + 2)
         # s from a command leaving to the wheels: as told, or as estimated online
         self.latency = cfg.command_latency
-        self.link = (OnlineLatency(self.latency, cfg.rate_hz, cfg.motor_time_constant)
-                     if cfg.estimate_latency else None)
+        # s: the motors' lag, as told, or as estimated online (estimate_motors, where not told)
+        self.motor_time_constant = cfg.motor_time_constant
+        estimate_motor = cfg.estimate_motors and cfg.motor_time_constant <= 0.0
+        self.link = (OnlineLink(self.latency, cfg.rate_hz, cfg.motor_time_constant,
+                                cfg.estimate_latency, estimate_motor)
+                     if cfg.estimate_latency or estimate_motor else None)
         self.step = compiled_step(cfg) if cfg.compiled else agent_step
         # added to the command before the limits (m/s, rad/s): the config's, or as it varies
         self.pc_disturbance: Command = cfg.pc_disturbance
@@ -312,6 +316,7 @@ class AgentController:
         """One control step at time `now` (s, this controller's clock)."""
         if self.link is not None:
             self.latency = self.link.update(now)
+            self.motor_time_constant = self.link.motor_time_constant
         tick = self._tick(now)
         self.sent.append(self.observer.sent(now, tick.v, tick.w, tick.stopped is not None))
         if self.link is not None:
@@ -396,7 +401,7 @@ class AgentController:
         if law.code == OBSERVER:
             self.observer.update(self.dhat, self.pose, stamp,
                                  self._taken_at(stamp, self.pose_received), self.sent,
-                                 self.latency)
+                                 self.latency, self.motor_time_constant)
         period = 1.0 / cfg.rate_hz
         ahead = (0.0, 0.0)
         if cfg.feed_forward:
@@ -432,7 +437,7 @@ class AgentController:
         """
         assert self.pose_stamp is not None and self.pose_received is not None
         return self.sent.realised(self._taken_at(self.pose_stamp, self.pose_received),
-                                  elapsed, self.latency, self.config.motor_time_constant,
+                                  elapsed, self.latency, self.motor_time_constant,
                                   self.observer.updates)
 
     @property

@@ -50,6 +50,7 @@ class AgentConfig:
     min_wheel_speed: float = default('limits.min_wheel_speed')
     motor_time_constant: float = default('limits.motor_time_constant')
     estimate_latency: bool = default('controller.estimate_latency')
+    estimate_motors: bool = default('controller.estimate_motors')
     # The control step (step.agent_step) compiled by numba as in the batch simulator:
     # the same source, about 15x faster a tick; loading it costs ~0.7 s and ~65 MB.
     compiled: bool = False

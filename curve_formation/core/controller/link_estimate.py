@@ -1,4 +1,5 @@
-"""How late a robot's commands act, measured from what was sent and how the robot moved.
+"""How late a robot's commands act, and how slowly its motors follow them, measured from what
+was sent and how the robot moved.
 
 Commands (v, w) sent at times tc and held until the next act L s later; the robot's poses are
 measured at times tp (an overhead camera's stamps). Between two poses the robot's mean forward
@@ -9,6 +10,10 @@ motors, a quadratic in time over the fit so that one that changes is not read as
 (fitted by least squares for each L). The latency is the L of least squared
 residual; its spread over windows of a few seconds tells the jitter (and the estimate's own
 noise). A robot whose commands hardly change tells nothing: then no latency is given.
+
+The motors' first-order lag (time constant tau) is fitted the same way, over a grid of
+(L, tau) at once: a lag rounds each change of the commands off where a latency only shifts
+it, so a robot whose commands change every tick tells the two apart (estimate_link).
 
 Times in s (one clock for commands and poses), speeds in m/s and rad/s.
 """
@@ -36,13 +41,18 @@ DRIFT_DEGREE = 2    # the disturbance over a fit: a polynomial in time of this d
 @dataclass(frozen=True)
 class LinkEstimate:
     """latency (s, None if not observable), spread (s: std of the windows' latencies),
-    windows (how many told a latency), residual (rms m/s of the fit at the latency).
+    windows (how many told a latency), residual (rms m/s of the fit at the latency),
+    motor_time_constant (s: the motors' lag the fit took, as told or as estimated with the
+    latency; None if it was to be estimated and nothing told one), motor_spread (s: std of
+    the windows' motor lags; None unless estimated).
     """
 
     latency: float | None
     spread: float | None
     windows: int
     residual: float | None
+    motor_time_constant: float | None = None
+    motor_spread: float | None = None
 
 
 def _measured_rates(tp: FloatArray, poses: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -141,6 +151,17 @@ def _best_lag(residuals: FloatArray, lags: FloatArray) -> float:
     return float(lags[k])
 
 
+def _best_pair(surface: FloatArray, lags: FloatArray, taus: FloatArray
+               ) -> tuple[float, float]:
+    """(lag, tau) of least residual over the surface (len(taus), len(lags)), each refined
+    by a parabola along its own axis through the least and its neighbours.
+    """
+    k, j = np.unravel_index(int(np.argmin(surface)), surface.shape)
+    lag = _best_lag(surface[k], lags) if len(lags) > 1 else float(lags[0])
+    tau = _best_lag(surface[:, j], taus) if len(taus) > 1 else float(taus[0])
+    return lag, max(tau, 0.0)
+
+
 def _cleaned(command_times: ArrayLike, commands: ArrayLike, pose_times: ArrayLike,
              poses: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """Arrays of commands and poses, the poses finite, in time order, one per stamp."""
@@ -182,33 +203,65 @@ class _Fit:
                           self.v_meas[idx], self.w_meas[idx],
                           self.lags if lags is None else lags, self.tau), len(idx)
 
+    def surface(self, begin: float, end: float, taus: FloatArray
+                ) -> tuple[FloatArray, int] | None:
+        """The residuals (len(taus), len(lags)) over the lags for each motor time constant
+        in taus (s), of the intervals from begin to end, and their count; None as residuals.
+        """
+        rows, count = [], 0
+        for tau in taus:
+            self.tau = float(tau)
+            found = self.residuals(begin, end)
+            if found is None:
+                return None
+            rows.append(found[0])
+            count = found[1]
+        return np.array(rows), count
+
+
+# Candidate motor time constants (s) where the motors' lag is estimated with the latency:
+# offline (estimate_latency) on a fine grid, online on a coarse one refined by the parabola
+MOTOR_LAGS = np.arange(0.0, 0.2001, 0.005)
+ONLINE_MOTOR_LAGS = np.arange(0.0, 0.1401, 0.02)
+
 
 def estimate_latency(command_times: ArrayLike, commands: ArrayLike, pose_times: ArrayLike,
                      poses: ArrayLike, lags: ArrayLike = LAGS, window: float = WINDOW,
-                     motor_time_constant: float = 0.0) -> LinkEstimate:
+                     motor_time_constant: float | None = 0.0,
+                     motor_lags: ArrayLike = MOTOR_LAGS) -> LinkEstimate:
     """The latency of one robot's commands (see the module): command_times (k,) and commands
     (k, 2) as sent; pose_times (m,) and poses (m, 3) as measured (x, y m; theta rad);
     motor_time_constant (s): the motors' first-order lag, through which each command acts
-    (told: limits.motor_time_constant), so that the lag is not read as latency.
+    (told: limits.motor_time_constant), so that the lag is not read as latency; None: it is
+    estimated with the latency, over motor_lags (s).
     """
     tc, cmd, tp, pose = _cleaned(command_times, commands, pose_times, poses)
     lags = np.asarray(lags, float)
+    estimating = motor_time_constant is None
+    taus = np.asarray(motor_lags if estimating else [motor_time_constant], float)
     if len(tc) < 2 or len(tp) < 3:
         return LinkEstimate(None, None, 0, None)
-    fit = _Fit(tc, cmd, tp, pose, lags, motor_time_constant)
-    lats = []
+    fit = _Fit(tc, cmd, tp, pose, lags)
+    pairs, total = [], np.zeros((len(taus), len(lags)))
     for begin in np.arange(tp[0], tp[-1], window):
-        found = fit.residuals(begin, begin + window)
+        found = fit.surface(begin, begin + window, taus)
         if found is not None and _clear(*found):
-            lats.append(_best_lag(found[0], lags))
-    if not lats:
-        return LinkEstimate(None, None, 0, None)
-    # the windows' median: a window whose disturbance changed (the fit holds it constant)
-    # does not pull it, as it would a fit over the whole run
-    latency = float(np.median(lats))
+            pairs.append(_best_pair(found[0], lags, taus))
+            total += found[0]
+    if not pairs:
+        return LinkEstimate(None, None, 0, None,
+                            None if estimating else motor_time_constant)
+    lats, motors = np.array(pairs).T
+    if estimating:   # the windows' fits summed: a camera's noise blurs the lag in any one
+        latency, tau = _best_pair(total, lags, taus)
+    else:   # the windows' median: a window whose disturbance changed (the fit holds it
+        # constant) does not pull it, as it would a fit over the whole run
+        latency, tau = float(np.median(lats)), float(taus[0])
+    fit.tau = tau
     whole = fit.residuals(-np.inf, np.inf, np.array([latency]))
     residual = None if whole is None else math.sqrt(float(whole[0][0]) / whole[1])
-    return LinkEstimate(latency, float(np.std(lats)), len(lats), residual)
+    return LinkEstimate(latency, float(np.std(lats)), len(pairs), residual, tau,
+                        float(np.std(motors)) if estimating else None)
 
 
 def _clear(residuals: FloatArray, count: int) -> bool:
@@ -220,13 +273,16 @@ def _clear(residuals: FloatArray, count: int) -> bool:
     return typical > 0.0 and typical - best > best * math.sqrt(2.0 / count)
 
 
-def _excited(tc: FloatArray, cmd: FloatArray, begin: float, end: float) -> bool:
-    """Whether the commands in force between begin and end (s) change enough to time."""
+def _excited(tc: FloatArray, cmd: FloatArray, begin: float, end: float,
+             least: float = MIN_EXCITATION) -> bool:
+    """Whether the commands in force between begin and end (s) change by at least `least`
+    (m/s; turn rates scaled by TURN_SCALE): enough to time.
+    """
     sel = (tc >= begin) & (tc <= end)
     if sel.sum() < 2:
         return False
     v, w = cmd[sel, 0], cmd[sel, 1] * TURN_SCALE
-    return bool(max(np.ptp(v), np.ptp(w)) >= MIN_EXCITATION)
+    return bool(max(np.ptp(v), np.ptp(w)) >= least)
 
 
 # Online: candidate latencies on a coarser grid (refined by the parabola), how often (s) a
@@ -242,33 +298,46 @@ AGREEING = 3
 AGREEMENT = 0.02
 
 
-class OnlineLatency:
-    """A controller's running estimate of its command latency. Every ONLINE_EVERY s (every
-    ONLINE_FIRST_EVERY s until a first value is taken: the value it starts from is the one
-    most likely wrong) the last ONLINE_SPAN s of commands and poses are fitted (as
-    estimate_latency fits a window) and the fit's residual curve, weighted by the time since
-    the fit before, is added to those before it, which fade over ONLINE_MEMORY s: the
-    estimate is the least of the sum, a least-squares fit over the run's last minute, so one
-    large command change (whose own delay is one draw of the jitter) does not decide it, and
-    overlapping windows that repeat the same data are not taken for agreement. A new value
-    is taken only when AGREEING estimates in a row lie within AGREEMENT of each other (their
-    median), so one that wanders is not. Times in s on the controller's clock;
-    motor_time_constant (s) as estimate_latency takes it.
+MOTOR_AGREEMENT = 0.01   # s: the motor lags of the AGREEING estimates, as AGREEMENT
+# Least variation of the commands (m/s, as MIN_EXCITATION) over ONLINE_SPAN for a fit that
+# estimates the motors' lag: a robot creeping about its target at a few mm/s does so in its
+# motors' dead band and command steps, which a lag fits better than the motors' response.
+MOTOR_EXCITATION = 5e-3
+
+
+class OnlineLink:
+    """A controller's running estimate of its command latency and, with `estimate_motor`,
+    of its motors' lag. Every ONLINE_EVERY s (every ONLINE_FIRST_EVERY s until a first value
+    is taken: the value it starts from is the one most likely wrong) the last ONLINE_SPAN s
+    of commands and poses are fitted (as estimate_latency fits a window) and the fit's
+    residual surface over (motor lag, latency), weighted by the time since the fit before, is
+    added to those before it, which fade over ONLINE_MEMORY s: the estimate is the least of
+    the sum, a least-squares fit over the run's last minute, so one large command change
+    (whose own delay is one draw of the jitter) does not decide it, and overlapping windows
+    that repeat the same data are not taken for agreement. New values are taken only when
+    AGREEING estimates in a row lie within AGREEMENT (the latencies) and MOTOR_AGREEMENT (the
+    motor lags) of each other (their medians), so one that wanders is not. Times in s on the
+    controller's clock. initial: the latency to start from; estimate_latency False: it is
+    held (only the motors' lag is fitted); motor_time_constant (s): the motors' lag, held
+    unless estimate_motor, then where the estimate starts from.
     """
 
-    def __init__(self, initial: float, rate_hz: float, motor_time_constant: float = 0.0
-                 ) -> None:
+    def __init__(self, initial: float, rate_hz: float, motor_time_constant: float = 0.0,
+                 estimate_latency: bool = True, estimate_motor: bool = False) -> None:
         from collections import deque
         self.latency = initial
         self.motor_time_constant = motor_time_constant
+        self.lags = ONLINE_LAGS if estimate_latency else np.array([initial])
+        self.taus = ONLINE_MOTOR_LAGS if estimate_motor else np.array([motor_time_constant])
         self.commands: deque[tuple[float, float, float]] = deque(
             maxlen=int(rate_hz * (ONLINE_SPAN + ONLINE_LAGS.max() + 1.0)) + 2)
         self.poses: deque[tuple[float, float, float, float]] = deque()
-        self.recent: deque[float] = deque(maxlen=AGREEING)
+        self.recent: deque[tuple[float, float]] = deque(maxlen=AGREEING)
         self.next_at: float | None = None
         self.cadence = ONLINE_EVERY   # s from the last fit to the next
-        self.total: FloatArray | None = None   # the remembered residual curve over ONLINE_LAGS
+        self.total: FloatArray | None = None   # the remembered residual surface
         self.taken: list[tuple[float, float]] = []   # (when, latency) of each value taken
+        self.motor_taken: list[tuple[float, float]] = []   # (when, motor lag) likewise
 
     def sent(self, at: float, v: float, w: float) -> None:
         self.commands.append((at, v, w))
@@ -280,48 +349,59 @@ class OnlineLatency:
                 self.poses.popleft()
 
     def update(self, now: float) -> float:
-        """The latency to use from `now` on (s): a new estimate every cadence s."""
+        """The latency to use from `now` on (s; motor_time_constant likewise): new estimates
+        every cadence s.
+        """
         if self.next_at is None:
             self.next_at = now + self.cadence
         if now < self.next_at or len(self.commands) < 2 or len(self.poses) < 3:
             return self.latency
         weight = self.cadence / ONLINE_EVERY   # each second of the run weighs alike
         fade = math.exp(-self.cadence / ONLINE_MEMORY)
-        self.cadence = ONLINE_EVERY if self.taken else ONLINE_FIRST_EVERY
+        self.cadence = ONLINE_EVERY if self.taken or self.motor_taken else ONLINE_FIRST_EVERY
         self.next_at = now + self.cadence
         sent = np.array(self.commands)
-        if not _excited(sent[:, 0], sent[:, 1:], -np.inf, np.inf):
+        least = MOTOR_EXCITATION if len(self.taus) > 1 else MIN_EXCITATION
+        if not _excited(sent[:, 0], sent[:, 1:], -np.inf, np.inf, least):
             return self.latency   # the fit below would tell nothing either: spare it
         seen = np.array(self.poses)
         tc, cmd, tp, pose = _cleaned(sent[:, 0], sent[:, 1:], seen[:, 0], seen[:, 1:])
-        found = _Fit(tc, cmd, tp, pose, ONLINE_LAGS,
-                     self.motor_time_constant).residuals(-np.inf, np.inf)
+        found = _Fit(tc, cmd, tp, pose, self.lags).surface(-np.inf, np.inf, self.taus)
         if found is None or not _clear(*found):
             return self.latency
         self.total = weight * found[0] if self.total is None else (
             fade * self.total + weight * found[0])
-        self.recent.append(_best_lag(self.total, ONLINE_LAGS))
-        if len(self.recent) == AGREEING and max(self.recent) - min(self.recent) <= AGREEMENT:
-            latency = float(np.median(self.recent))
+        self.recent.append(_best_pair(self.total, self.lags, self.taus))
+        if len(self.recent) < AGREEING:
+            return self.latency
+        lats, taus = np.array(self.recent).T
+        if np.ptp(lats) <= AGREEMENT and np.ptp(taus) <= MOTOR_AGREEMENT:
+            latency, tau = float(np.median(lats)), float(np.median(taus))
             if abs(latency - self.latency) > 1e-3:
                 self.latency = latency
                 self.taken.append((now, latency))
+            if abs(tau - self.motor_time_constant) > 1e-3:
+                self.motor_time_constant = tau
+                self.motor_taken.append((now, tau))
         return self.latency
 
 
 def replay_online(tick_times: ArrayLike, commands: ArrayLike, pose_times: ArrayLike,
                   poses: ArrayLike, initial: float, rate_hz: float,
-                  motor_time_constant: float = 0.0) -> OnlineLatency:
-    """OnlineLatency fed as a controller feeds it: before each tick (tick_times (k,), s) the
-    poses taken by then (pose_times (m,), poses (m, 3): x, y m, theta rad), then the tick's
-    update, then its command (commands (k, 2): v m/s, w rad/s as sent). Returns it, with
-    every value it took in `taken` (none: it kept `initial` throughout).
+                  motor_time_constant: float = 0.0, estimate_latency: bool = True,
+                  estimate_motor: bool = False) -> OnlineLink:
+    """OnlineLink(initial, rate_hz, motor_time_constant, estimate_latency, estimate_motor)
+    fed as a controller feeds it: before each tick (tick_times (k,), s) the poses taken by
+    then (pose_times (m,), poses (m, 3): x, y m, theta rad), then the tick's update, then
+    its command (commands (k, 2): v m/s, w rad/s as sent). Returns it, with every value it
+    took in `taken` and `motor_taken` (none: it kept its initial values throughout).
     """
     ticks = np.asarray(tick_times, float)
     sent = np.asarray(commands, float).reshape(-1, 2)
     seen_at = np.asarray(pose_times, float)
     seen = np.asarray(poses, float).reshape(-1, 3)
-    online = OnlineLatency(initial, rate_hz, motor_time_constant)
+    online = OnlineLink(initial, rate_hz, motor_time_constant, estimate_latency,
+                        estimate_motor)
     k = 0
     for at, (v, w) in zip(ticks, sent, strict=True):
         while k < len(seen_at) and seen_at[k] <= at:

@@ -97,10 +97,11 @@ class MotionObserver:
                                 self.config.law)
 
     def update(self, dhat: list[float], pose: Pose, stamp: float, ended: float,
-               sent: CommandsSent, latency: float) -> None:
+               sent: CommandsSent, latency: float, tau: float) -> None:
         """Move dhat (in place) towards (motion measured since the last tick - command) / k2.
 
-        pose: the robot's latest, stamped `stamp`, taken at `ended`. The motion is the
+        pose: the robot's latest, stamped `stamp`, taken at `ended`; latency and tau (s):
+        the commands' latency and the motors' lag, as told or estimated. The motion is the
         constant (v, w) that carries the previous tick's pose to it over the difference of
         their stamps; the command is the one sent at the previous tick, or with a command
         latency, a motor time constant or a motion that began before the previous tick (a
@@ -120,7 +121,7 @@ class MotionObserver:
         # A pose taken before the last tick cannot show that tick's command: waiting for one
         # that can keeps the pose's age out of the estimate's loop as it keeps the latency.
         waits = latency > 0.0 or ended < ticked
-        acting = self._acting_over(sent, latency, elapsed, ended, ticked, waits)
+        acting = self._acting_over(sent, latency, tau, elapsed, ended, ticked, waits)
         if acting is None or not acting.driven:
             return
         if waits and acting.estimate < self.updates:
@@ -131,7 +132,7 @@ class MotionObserver:
                 return
             (x0, y0, th0), stamp0 = later
             elapsed = stamp - stamp0
-            acting = self._acting_over(sent, latency, elapsed, ended, ticked, waits)
+            acting = self._acting_over(sent, latency, tau, elapsed, ended, ticked, waits)
             if acting is None or not acting.driven or acting.estimate < self.updates:
                 return
         measured_v, measured_w = measured_velocity(x0, y0, th0, *pose, elapsed)
@@ -149,8 +150,8 @@ class MotionObserver:
         self.ray = (growth, last_right, last_left)
         self.updates += 1
 
-    def _acting_over(self, sent: CommandsSent, latency: float, elapsed: float, ended: float,
-                     ticked: float, waits: bool) -> Sent | None:
+    def _acting_over(self, sent: CommandsSent, latency: float, tau: float, elapsed: float,
+                     ended: float, ticked: float, waits: bool) -> Sent | None:
         """What was commanded over the motion of `elapsed` s ending at `ended` that the
         observer measures at the tick after `ticked`.
         """
@@ -159,7 +160,6 @@ class MotionObserver:
         # acted in it, and whether the limits cut is the last tick's command's, as when the
         # motion is wholly its own (the search along its ray is that command's).
         mixed = ended - elapsed < ticked - 1e-9
-        tau = self.config.motor_time_constant
         if tau > 0.0 or waits:
             return sent.realised(ended, elapsed, latency, tau, self.updates)
         if mixed:

@@ -123,6 +123,10 @@ SETTINGS = _settings(
             'last 6 s of commands and poses, each fit added to those of about the last minute '
             '(core.controller.link_estimate), starting from command_latency; a new value is '
             'taken when 3 estimates in a row agree within 20 ms'),
+    Setting('controller.estimate_motors', 'estimate_motors', 'bool', False, '',
+            "estimate the motors' lag (limits.motor_time_constant) online where it is not "
+            'told, fitted with the latency (as estimate_latency fits it; 0 to 140 ms); a new '
+            'value is taken when 3 estimates in a row agree within 10 ms; a told lag wins'),
     Setting('controller.predict_pose', 'predict_pose', 'bool', False, '',
             "carry the robot's pose forward from its stamp (capture time) to the tick, through "
             'the commands sent since, so a pose that is 80 ms old does not make an 80 ms old '

@@ -351,6 +351,8 @@ def result_metrics(result: Any, tolerance: float | None = None) -> dict[str, Any
                       else f'zero-order hold at {result.rate_hz:g} Hz')
     if result.experiment.spec.controller.estimate_latency and result.latencies is not None:
         out['estimated_latency'] = [float(v) for v in result.latencies]
+    if result.motor_lags is not None:
+        out['estimated_motor_time_constant'] = [float(v) for v in result.motor_lags]
     return out
 
 

@@ -77,6 +77,9 @@ class SimResult:
     # each controller's command latency at the end (s), where estimated online
     # (controller.estimate_latency) or in the nodes' pipeline; None otherwise
     latencies: list[float] | None = None
+    # each controller's motors' lag at the end (s), as told or estimated online
+    # (controller.estimate_motors); None where not estimated
+    motor_lags: list[float] | None = None
 
     @property
     def errors(self) -> FloatArray:
@@ -191,7 +194,7 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
     feed_forward = spec.controller.feed_forward
     graph = edge_arrays(*experiment.graph.edge_arrays(), experiment.graph.pins)
     clock = Clock(dt, control_every, record_every)
-    if spec.controller.estimate_latency:
+    if spec.controller.estimate_latency or spec.controller.estimate_motors:
         check_replayable(experiment, control_every, record_every, dt)
     ticks = (tick_offsets, start_steps)
     every = experiment.spec.agents.reassign_every
@@ -249,7 +252,7 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
     t = np.arange(n_rec) * record_every * dt
     sample_phase = phase_index(np.array(starts[:-1]) * dt, t)
     latencies = None
-    if spec.controller.estimate_latency:
+    if spec.controller.estimate_latency or spec.controller.estimate_motors:
         assert rate_hz is not None   # check_replayable
         latencies = held_estimates(experiment, rate_hz, clock, t, record[0], record[2],
                                    (tick_offsets, start_steps))

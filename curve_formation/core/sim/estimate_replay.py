@@ -1,4 +1,5 @@
-"""A batch run's online latency estimates (controller.estimate_latency), replayed.
+"""A batch run's online estimates of the latency and the motors' lag
+(controller.estimate_latency, estimate_motors), replayed.
 
 The batch simulator's robots act on each command at once. Each controller's OnlineLatency is
 replayed over the run on the commands it sent at its ticks and its poses there: while none
@@ -66,14 +67,23 @@ def held_estimates(experiment: Experiment, rate_hz: float, clock: tuple[float, i
     have been taken; else returns each controller's (unchanged) latency.
     """
     dt, control_every, record_every = clock
-    initial = experiment.spec.controller.command_latency
+    controller = experiment.spec.controller
+    initial = controller.command_latency
     latencies = []
     for i, (steps, rows) in enumerate(_tick_records(*schedule, control_every, record_every,
                                                     len(t))):
         keep = rows < len(t)
         steps, rows = steps[keep], rows[keep]
         online = replay_online(steps * dt, commands[rows, i], t[rows], poses[rows, i],
-                               initial, rate_hz)
+                               initial, rate_hz, 0.0, controller.estimate_latency,
+                               controller.estimate_motors)
+        if online.motor_taken:   # the batch simulator's robots have no motors
+            when, value = online.motor_taken[0]
+            raise EstimateTakenError(
+                experiment.source, 'controller.estimate_motors', f'robot {i + 1} would have '
+                f"taken a motor lag of {1000 * value:.0f} ms at {when:.1f} s, where the batch "
+                "simulator's robots have no motors: simulate it with "
+                'core.sim.pipeline.simulate_pipeline (as sim does)')
         if online.taken:
             when, value = online.taken[0]
             raise EstimateTakenError(

@@ -273,7 +273,9 @@ def simulate_pipeline(experiment: Experiment, engine: Literal['kinematic', 'mujo
                      experiment.disturbance_at(t) if experiment.variations
                      else np.asarray(experiment.disturbance, float), t, poses, dhat, commands,
                      sample_phase, experiment.radius, world.contact_summary(),
-                     [c.latency for c in pipeline.controllers])
+                     [c.latency for c in pipeline.controllers],
+                     [c.motor_time_constant for c in pipeline.controllers]
+                     if spec.controller.estimate_motors else None)
 
 
 def simulate_kinematic(experiment: Experiment,
