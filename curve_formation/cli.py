@@ -240,15 +240,18 @@ def _cmd_animate(args):
 def _cmd_measure_link(args):
     from curve_formation.bags.measure_link import measure_bag
     found = measure_bag(args.bag, args.motor_time_constant)
-    if found['motor_time_constant'] > 0:
+    estimated = found['motor_estimated']
+    if not estimated and found['motor_time_constant'] > 0:
         print(f"the commands taken through the motors' {_ms(found['motor_time_constant'])} ms "
               'lag (limits.motor_time_constant)')
     print(f'{"robot":>5s} {"latency (ms)":>12s} {"spread (ms)":>11s} {"windows":>7s} '
-          f'{"commands":>8s} {"poses":>6s}')
+          f'{"commands":>8s} {"poses":>6s}' + (f' {"motor lag (ms)":>14s}' if estimated
+                                                 else ''))
     for i, row in found['robots'].items():
         told = row['latency'] is not None
         print(f'{i:5d} {_ms(row["latency"]):>12s} {_ms(row["spread"]):>11s} '
               f'{row["windows"]:7d} {row["commands"]:8d} {row["poses"]:6d}'
+              + (f' {_ms(row["motor_time_constant"]):>14s}' if estimated else '')
               + ('' if told else '  (its commands hardly changed: nothing to time)'))
     if found['latency'] is None:
         print('no robot told its latency: record a run in which the robots drive')
@@ -259,6 +262,10 @@ def _cmd_measure_link(args):
           f'{{command_latency: {found["latency"]:.3f}, estimate_latency: false}}\n'
           '(with estimate_latency: true they estimate it online, starting from '
           'command_latency)')
+    if estimated and found['motor_time_constant'] is not None:
+        print("the motors' lag, fitted with the latency (the median over the robots, s):\n"
+              f'limits: {{motor_time_constant: {found["motor_time_constant"]:.3f}}}\n'
+              '(or controller: {estimate_motors: true} to estimate it online)')
     if args.json:
         write_json(Path(args.json), found)
     return 0
@@ -545,14 +552,15 @@ def build_parser():
                               "the experiment's camera and arena)")
     _force_option(animate)
     animate.set_defaults(func=_cmd_animate)
-    link = sub.add_parser('measure-link', help="each robot's command latency from a recorded "
-                          'bag (its cmd_vel against its poses), and the experiment setting')
+    link = sub.add_parser('measure-link', help="each robot's command latency and motors' lag "
+                          'from a recorded bag (its cmd_vel against its poses), and the '
+                          'experiment settings')
     link.add_argument('bag', help='bag folder of a run in which the robots drive')
     link.add_argument('--json', help='also write the figures to this JSON file')
     link.add_argument('--motor-time-constant', type=float, metavar='S',
                       help="the motors' first-order lag (s) the commands act through, not "
                            "to be read as latency (default: the bag's experiment's "
-                           'limits.motor_time_constant, else 0)')
+                           'limits.motor_time_constant, else estimated with the latency)')
     link.set_defaults(func=_cmd_measure_link)
     bag = sub.add_parser('bag', help='inspect or repair a bag (no ROS CLI needed)')
     bag_sub = bag.add_subparsers(dest='bag_command', required=True, parser_class=_Parser)

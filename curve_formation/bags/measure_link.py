@@ -1,8 +1,8 @@
-"""The link's latency per robot from a recorded bag: each robot's cmd_vel (dated when the
-recorder got it, as the robot's link would) against its poses (dated by their stamps, when the
-camera saw them), by core.controller.link_estimate. What `curve-formation measure-link` prints,
-and the
-experiment setting it suggests (controller.command_latency).
+"""The link's latency and the motors' lag per robot from a recorded bag: each robot's
+cmd_vel (dated when the recorder got it, as the robot's link would) against its poses (dated
+by their stamps, when the camera saw them), by core.controller.link_estimate. What
+`curve-formation measure-link` prints, and the experiment settings it suggests
+(controller.command_latency, limits.motor_time_constant).
 """
 
 import numpy as np
@@ -33,14 +33,17 @@ def told_motor_lag(path):
 
 
 def measure_bag(path, motor_time_constant=None):
-    """{'robots': {i: {'latency', 'spread', 'windows', 'residual', 'commands', 'poses'}},
-    'latency': the median over the robots that told one (s, or None), 'motor_time_constant':
-    the motors' lag (s) the fit took the commands through} of a bag; motor_time_constant
-    None: the bag's experiment's (told_motor_lag), so that the motors' lag is not read as
+    """{'robots': {i: {'latency', 'spread', 'windows', 'residual', 'motor_time_constant',
+    'commands', 'poses'}}, 'latency': the median over the robots that told one (s, or None),
+    'motor_time_constant': the motors' lag (s) the fit took the commands through (the median
+    of the robots' where estimated, None if none told one), 'motor_estimated': whether it
+    was} of a bag; motor_time_constant None: the bag's experiment's (told_motor_lag), so
+    that the motors' lag is not read as latency, or where it tells none, estimated with the
     latency.
     """
     if motor_time_constant is None:
-        motor_time_constant = told_motor_lag(path)
+        motor_time_constant = told_motor_lag(path) or None
+    estimated = motor_time_constant is None
     topics = [t for t in bag_summary(path) if robot_of(t, MEASURED) is not None]
     commands: dict[int, list] = {}
     poses: dict[int, list] = {}
@@ -67,7 +70,12 @@ def measure_bag(path, motor_time_constant=None):
         found = estimate_latency(sent[:, 0], sent[:, 1:], seen[:, 0], seen[:, 1:],
                                  motor_time_constant=motor_time_constant)
         out[i] = {'latency': found.latency, 'spread': found.spread, 'windows': found.windows,
-                  'residual': found.residual, 'commands': len(sent), 'poses': len(seen)}
+                  'residual': found.residual, 'motor_time_constant': found.motor_time_constant,
+                  'commands': len(sent), 'poses': len(seen)}
     told = [r['latency'] for r in out.values() if r['latency'] is not None]
+    if estimated:
+        lags = [r['motor_time_constant'] for r in out.values()
+                if r['motor_time_constant'] is not None]
+        motor_time_constant = float(np.median(lags)) if lags else None
     return {'robots': out, 'latency': float(np.median(told)) if told else None,
-            'motor_time_constant': motor_time_constant}
+            'motor_time_constant': motor_time_constant, 'motor_estimated': estimated}
