@@ -246,18 +246,21 @@ def _cmd_measure_link(args):
               'lag (limits.motor_time_constant)')
     print(f'{"robot":>5s} {"latency (ms)":>12s} {"spread (ms)":>11s} {"windows":>7s} '
           f'{"commands":>8s} {"poses":>6s}' + (f' {"motor lag (ms)":>14s}' if estimated
-                                                 else ''))
+                                                 else '') + f' {"wheel gains (l, r)":>18s}')
     for i, row in found['robots'].items():
         told = row['latency'] is not None
+        gains = row['wheel_gains']
         print(f'{i:5d} {_ms(row["latency"]):>12s} {_ms(row["spread"]):>11s} '
               f'{row["windows"]:7d} {row["commands"]:8d} {row["poses"]:6d}'
               + (f' {_ms(row["motor_time_constant"]):>14s}' if estimated else '')
+              + f' {"-" if gains is None else f"{gains[0]:.3f}, {gains[1]:.3f}":>18s}'
               + ('' if told else '  (its commands hardly changed: nothing to time)'))
     if found['latency'] is None:
         print('no robot told its latency: record a run in which the robots drive')
         return 1
     print('spread: how much the latency of 4 s windows varies (the jitter, and the '
-          "estimate's own noise)")
+          "estimate's own noise); wheel gains: each wheel's speed per unit of command, - where "
+          "the commands did not tell it (within 1 %) or the experiment gives no wheel base")
     print(f'to tell the controllers (the median over the robots, s):\ncontroller: '
           f'{{command_latency: {found["latency"]:.3f}, estimate_latency: false}}\n'
           '(with estimate_latency: true they estimate it online, starting from '

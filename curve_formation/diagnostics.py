@@ -17,6 +17,24 @@ CAMERA_STATUS = 'camera_tracker: camera'
 # The node name under which each robot_bridge reports its link on /diagnostics.
 LINK_REPORTER = '/robot_bridge'
 LINK_COUNTS = ('sent', 'failed', 'stops', 'replies', 'malformed', 'dropped_lines')
+# The node name under which each formation_controller reports on /diagnostics, and the
+# values of its report that are its robot as it has estimated it (s, s, 'left right' or '-')
+CONTROLLER_REPORTER = '/formation_controller'
+ESTIMATES = ('command_latency', 'motor_time_constant', 'wheel_gains')
+
+
+def robot_estimates(values):
+    """A controller's report's values {key: text} -> {'command_latency' s,
+    'motor_time_constant' s, 'wheel_gains': [left, right] or None} (those it has).
+    """
+    out: dict[str, object] = {}
+    for key in ESTIMATES:
+        text = values.get(key)
+        if text is None:
+            continue
+        out[key] = (None if text == '-' else [float(v) for v in text.split()]
+                    if key == 'wheel_gains' else float(text))
+    return out
 
 
 def link_summary(reports):

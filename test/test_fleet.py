@@ -220,7 +220,7 @@ def longest_stand(t, xy, tolerance):
 def test_a_bridged_run_passes_its_preflight_and_the_fleet_status_shows_a_link_cut(
         ros_domain, tmp_path):
     """arena_demo through UDP bridges to the emulated robots, robot 4's firmware hearing
-    nothing for 3 s from 6 s after its first command: metrics.json's preflight lists 9 robots
+    nothing for 3 s from 6 s after it first drives: metrics.json's preflight lists 9 robots
     passed; the bag carries the pre-flight and the fleet's status; robot 4 stops (its
     firmware's watchdog) and the fleet's events list its link lost, then back, with times;
     the report says so.
@@ -238,6 +238,11 @@ def test_a_bridged_run_passes_its_preflight_and_the_fleet_status_shows_a_link_cu
     assert all(abs(t['ticks'] - 10.0 * 12.0) <= 12 for t in ticks['robots'].values()), ticks
     assert all(r['seen'] and r['link_up'] and r['stop_confirmed'] for r in preflight['robots'])
     assert json.loads((tmp_path / 'out' / 'preflight.json').read_text())['passed']
+    # each robot as its controller reported it last (arena_demo estimates its latency)
+    estimates = result['robot_estimates']
+    assert sorted(estimates) == [f'robot_{i}' for i in range(1, 10)], estimates
+    assert all(0.0 <= e['command_latency'] <= 0.5 and e['motor_time_constant'] == 0.0
+               and e['wheel_gains'] is None for e in estimates.values()), estimates
     with AnyReader([bag]) as reader:
         fleet = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages(
             [c for c in reader.connections if c.topic == '/formation/fleet'])]

@@ -147,3 +147,25 @@ def test_the_mujoco_world_leaves_the_experiments_disturbance_as_it_was():
         world.advance(t)
     np.testing.assert_array_equal(experiment.disturbance, before)
     np.testing.assert_allclose(experiment.disturbance_at(2.5), before * 1.5)
+
+
+def test_the_wheel_gains_told_online_are_within_3_percent():
+    """arena_demo's imperfect robots (wheel radii within 3 %, motor gains within 10 %), the
+    link 100 ms late, nothing told: after 40 s most controllers tell their wheels' gains
+    (speed per unit of command; a wheel whose commands hardly vary beyond the drift tells
+    none), each within 3 % of the robot's drawn radius times motor gain, and the metrics
+    carry them.
+    """
+    from curve_formation.core.record.metrics import result_metrics
+    from curve_formation.core.world.mujoco_world import draw_robots
+    experiment = imperfect_case('arena_demo', 1)
+    robots = draw_robots(experiment)
+    true = robots.wheel_radii / robots.nominal_radius * robots.gains
+    controllers, result = learnt(experiment, 0.1, seconds=40.0)
+    told = {c.config.index: c.wheel_gains for c in controllers if c.wheel_gains is not None}
+    assert len(told) >= 5, told
+    for i, gains in told.items():
+        np.testing.assert_allclose(gains, true[i - 1], rtol=0.03, err_msg=f'robot {i}')
+    metrics = result_metrics(result)
+    assert [g is not None for g in metrics['estimated_wheel_gains']] == [
+        c.wheel_gains is not None for c in controllers]

@@ -269,7 +269,7 @@ def test_a_robot_whose_link_goes_down_stops_on_its_watchdog_and_drives_on_after(
     hears nothing, so its watchdog (1 s) stops the motors; its bridge reports the link lost,
     then ok again once the robot answers, and the robot drives on.
     """
-    down_from, down_for, watchdog = 8.0, 2.0, 1.0
+    down_from, down_for, watchdog = 5.0, 2.0, 1.0   # from when robot 3 first drives
     options = RunOptions(bridge='pty', faults={'link_down': [3, down_from, down_for]})
     with Run(DATA_DIR / 'fast_closed.yaml', tmp_path, options, log=quiet) as run:
         run.spin_for(16.0)

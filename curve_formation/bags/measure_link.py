@@ -5,10 +5,13 @@ by their stamps, when the camera saw them), by core.controller.link_estimate. Wh
 (controller.command_latency, limits.motor_time_constant).
 """
 
+import math
+
 import numpy as np
 
 from curve_formation.bags.bag import bag_summary, BagError, read_messages
 from curve_formation.core.controller.link_estimate import estimate_latency
+from curve_formation.core.controller.wheel_estimate import estimate_gains, NO_GAINS
 from curve_formation.core.formation.curve_codec import CodecError
 from curve_formation.interface import CMD_VEL, POSE, pose_from_msg, robot_of, twist_from_msg
 
@@ -17,33 +20,44 @@ from curve_formation.interface import CMD_VEL, POSE, pose_from_msg, robot_of, tw
 MEASURED = (POSE, CMD_VEL)
 
 
-def told_motor_lag(path):
-    """limits.motor_time_constant (s) of the experiment the bag carries; 0 if it tells none
-    (or carries no experiment).
+def bag_limits(path):
+    """The `limits` section of the experiment the bag carries ({} if none, or no
+    experiment).
     """
     from curve_formation.bags.analysis import EXPERIMENT_KEY
     from curve_formation.bags.bag import bag_info
     from curve_formation.core.config.loading import parse_experiment_text
     _, custom = bag_info(path)
     if EXPERIMENT_KEY not in custom:
-        return 0.0
+        return {}
     data = parse_experiment_text(custom[EXPERIMENT_KEY], f'{path} (metadata)')
     limits = data.get('limits') if isinstance(data, dict) else None
-    return float((limits or {}).get('motor_time_constant') or 0.0)
+    return limits if isinstance(limits, dict) else {}
+
+
+def told_motor_lag(path):
+    """limits.motor_time_constant (s) of the experiment the bag carries; 0 if it tells none
+    (or carries no experiment).
+    """
+    return float(bag_limits(path).get('motor_time_constant') or 0.0)
 
 
 def measure_bag(path, motor_time_constant=None):
     """{'robots': {i: {'latency', 'spread', 'windows', 'residual', 'motor_time_constant',
-    'commands', 'poses'}}, 'latency': the median over the robots that told one (s, or None),
-    'motor_time_constant': the motors' lag (s) the fit took the commands through (the median
-    of the robots' where estimated, None if none told one), 'motor_estimated': whether it
-    was} of a bag; motor_time_constant None: the bag's experiment's (told_motor_lag), so
-    that the motors' lag is not read as latency, or where it tells none, estimated with the
-    latency.
+    'wheel_gains' ([left, right] or None: core.controller.wheel_estimate, with the
+    experiment's wheel base and speed), 'wheel_gain_errors', 'commands', 'poses'}},
+    'latency': the median over the robots that told one (s, or None), 'motor_time_constant':
+    the motors' lag (s) the fit took the commands through (the median of the robots' where
+    estimated, None if none told one), 'motor_estimated': whether it was} of a bag;
+    motor_time_constant None: the bag's experiment's, so that the motors' lag is not read as
+    latency, or where it tells none, estimated with the latency.
     """
+    limits = bag_limits(path)
     if motor_time_constant is None:
-        motor_time_constant = told_motor_lag(path) or None
+        motor_time_constant = float(limits.get('motor_time_constant') or 0.0) or None
     estimated = motor_time_constant is None
+    wheel_base = float(limits.get('wheel_base') or 0.0)
+    max_wheel_speed = float(limits.get('max_wheel_speed') or math.inf)
     topics = [t for t in bag_summary(path) if robot_of(t, MEASURED) is not None]
     commands: dict[int, list] = {}
     poses: dict[int, list] = {}
@@ -69,8 +83,15 @@ def measure_bag(path, motor_time_constant=None):
         seen = np.array(poses[i])
         found = estimate_latency(sent[:, 0], sent[:, 1:], seen[:, 0], seen[:, 1:],
                                  motor_time_constant=motor_time_constant)
+        gains = NO_GAINS
+        if found.latency is not None and found.motor_time_constant is not None:
+            gains = estimate_gains(sent[:, 0], sent[:, 1:], seen[:, 0], seen[:, 1:],
+                                   wheel_base, max_wheel_speed, found.latency,
+                                   found.motor_time_constant)
         out[i] = {'latency': found.latency, 'spread': found.spread, 'windows': found.windows,
                   'residual': found.residual, 'motor_time_constant': found.motor_time_constant,
+                  'wheel_gains': None if gains.gains is None else list(gains.gains),
+                  'wheel_gain_errors': None if gains.errors is None else list(gains.errors),
                   'commands': len(sent), 'poses': len(seen)}
     told = [r['latency'] for r in out.values() if r['latency'] is not None]
     if estimated:

@@ -78,8 +78,9 @@ PARAMETERS = (
           "'pty:PATH'), read as its firmware would, wheel speeds in wire_format, instead of "
           'cmd_vel; empty = cmd_vel'),
     Param('fault_link_down', 'double[]', [], 'fault injection: [robot (0 = all), from (s), '
-          'for (s)] after the first command line received (not a stop line: a pre-flight '
-          'sends those): the firmware hears nothing'),
+          'for (s)] after the first command line received that turns a wheel (not a stop or '
+          'a standing command: a pre-flight and controllers waiting for a curve send those), '
+          'so from when the robots first drive: the firmware hears nothing'),
     Param('fault_silent', 'int[]', [], 'fault injection: the firmware of these robots '
           '(1-based) hears nothing, ever (a dead radio or battery)'),
     Param('fault_runaway', 'int[]', [], 'fault injection: these robots (1-based) answer every '
@@ -184,7 +185,8 @@ class FakeArena(Node):
                 if self._deaf(i, now):
                     continue
                 said = wire.decode(self.format, line, self.params.wheel_radius)
-                if self.first_line is None and said is not None and said[0] == 'command':
+                if (self.first_line is None and said is not None and said[0] == 'command'
+                        and (said[1] != 0.0 or said[2] != 0.0)):
                     self.first_line = now
                 if said is None:
                     endpoint.send(b'err\n')

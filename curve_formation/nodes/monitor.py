@@ -97,6 +97,8 @@ class Monitor(Node):
         # robot_bridge name -> its reports [(t s, level, message, {key: value})]: the newest
         # and each that began a loss or an error (level 2 after a lower one)
         self.links: dict[str, list[tuple[float, int, str, dict[str, str]]]] = {}
+        # robot name -> its controller's latest estimates of it (diagnostics.robot_estimates)
+        self.estimates: dict[str, dict[str, object]] = {}
         self._link_onset_last: set[str] = set()   # links whose newest kept report began a loss
         # (received s, holder, engaged) where a holder's state changed
         self.estop_events: list[tuple[float, str, bool]] = []
@@ -302,6 +304,9 @@ class Monitor(Node):
         for status in msg.status:
             if status.hardware_id == diagnostics.CONTACT_REPORTER:
                 self.contacts = diagnostics.contacts_from_report(
+                    {kv.key: kv.value for kv in status.values})
+            elif status.name.endswith(diagnostics.CONTROLLER_REPORTER):
+                self.estimates[status.hardware_id] = diagnostics.robot_estimates(
                     {kv.key: kv.value for kv in status.values})
             elif status.name.endswith(diagnostics.LINK_REPORTER) and self.t0 is not None:
                 level = status.level[0] if isinstance(status.level, bytes) else status.level

@@ -55,6 +55,9 @@ def write_report(folder, title=None):
              '<h2>Metrics</h2>', _metrics_table(result, units)]
     if result.get('fleet') or result.get('preflight'):
         parts += ['<h2>Fleet</h2>', _fleet_table(result)]
+    estimates = _estimates_table(result)
+    if estimates:
+        parts += ['<h2>The robots as their controllers found them</h2>', estimates]
     film = next((folder / f for f in FILMS if (folder / f).exists()), None)
     if film is not None:
         parts += ['<h2>Animation</h2>', _film(film)]
@@ -166,6 +169,47 @@ def _fleet_table(result):
     timeline = (f'<table><tr><th>t (s)</th><th>robot</th><th>event</th></tr>{events}</table>'
                 if events else '<p>No marker or link was lost during the run.</p>')
     return table + timeline
+
+
+def robot_estimates(result):
+    """{robot (1-based): {'command_latency' s, 'motor_time_constant' s, 'wheel_gains'
+    [left, right] or None}} from a run's metrics: a ROS run's `robot_estimates` (its
+    controllers' last reports) or a simulation's estimated_* lists; {} if neither.
+    """
+    if result.get('robot_estimates'):
+        return {int(name.rsplit('_', 1)[-1]): values
+                for name, values in result['robot_estimates'].items()}
+    lists = {'command_latency': result.get('estimated_latency'),
+             'motor_time_constant': result.get('estimated_motor_time_constant'),
+             'wheel_gains': result.get('estimated_wheel_gains')}
+    count = max((len(v) for v in lists.values() if v), default=0)
+    return {i + 1: {key: values[i] for key, values in lists.items() if values}
+            for i in range(count)}
+
+
+def _estimates_table(result):
+    """Each robot's latency, motors' lag and wheel gains as its controller held them at the
+    end (told or estimated online); '' if the run has none.
+    """
+    found = robot_estimates(result)
+    if not found:
+        return ''
+
+    def ms(value):
+        return '-' if value is None else f'{1000 * value:.0f}'
+
+    def gains(value):
+        return '-' if not value else ' / '.join(f'{g:.3f}' for g in value)
+
+    rows = ''.join(
+        f"<tr><td>robot {i}</td><td>{ms(v.get('command_latency'))}</td>"
+        f"<td>{ms(v.get('motor_time_constant'))}</td><td>{gains(v.get('wheel_gains'))}</td>"
+        '</tr>' for i, v in sorted(found.items()))
+    return ("<table><tr><th>robot</th><th>command latency (ms)</th><th>motors' lag (ms)</th>"
+            f'<th>wheel gains (left / right)</th></tr>{rows}</table>'
+            '<p>As told, or as each controller estimated it online (controller.estimate_latency, '
+            'estimate_motors); a wheel gain is its speed per unit of command, - where none was '
+            'told.</p>')
 
 
 def _metrics_table(result, units):

@@ -20,7 +20,7 @@ class RunOptions:
         much each command's delay varies either way (s, uniform).
     faults: faults of the simulated robots, {'pose_drop': p (each pose lost with that
         probability), 'link_down': [robot, from s, for s] (fake_arena's link to a robot cut,
-        from its first command), 'silent': [robots] (links that never answer),
+        from its first command that turns a wheel), 'silent': [robots] (links that never answer),
         'runaway': [robots] (answering, driving on whatever they are told), 'hidden':
         [robots] (fake_arena publishes no pose of them)}.
     node_variants: {package node module: module run in its place with the same parameters},

@@ -522,6 +522,9 @@ class Run:
         if self.monitor.links:   # robot_bridge's link reports, per robot
             result['links'] = {name.strip('/').split('/')[0]: diagnostics.link_summary(reports)
                                for name, reports in sorted(self.monitor.links.items())}
+        if self.monitor.estimates:   # each robot as its controller estimated it, at the end
+            result['robot_estimates'] = dict(sorted(self.monitor.estimates.items(),
+                                                    key=lambda kv: robot_index(kv[0]) or 0))
         # robot -> [[from, to or null (s), nodes]] while its cmd_vel had several publishers
         result['command_sources'] = self.monitor.command_sources
         if self.fleet_status is not None:

@@ -54,6 +54,7 @@ from curve_formation.core.controller.plausibility import (
 )
 from curve_formation.core.controller.safety import STOPPED, with_latency
 from curve_formation.core.controller.step import agent_step, target_error
+from curve_formation.core.controller.wheel_estimate import OnlineGains
 from curve_formation.core.formation.curves import Curve
 
 
@@ -123,6 +124,10 @@ class AgentController:
         self.link = (OnlineLink(self.latency, cfg.rate_hz, cfg.motor_time_constant,
                                 cfg.estimate_latency, estimate_motor)
                      if cfg.estimate_latency or estimate_motor else None)
+        # each wheel's speed per unit of command, estimated online (estimate_motors): reported
+        self.wheels = (OnlineGains(cfg.rate_hz, cfg.limits.wheel_base,
+                                   cfg.limits.max_wheel_speed)
+                       if cfg.estimate_motors and cfg.limits.wheel_base > 0.0 else None)
         self.step = compiled_step(cfg) if cfg.compiled else agent_step
         # added to the command before the limits (m/s, rad/s): the config's, or as it varies
         self.pc_disturbance: Command = cfg.pc_disturbance
@@ -194,6 +199,8 @@ class AgentController:
         self.pose_dated = self.neighbourhood.own_pose(stamp, at)
         if self.link is not None:
             self.link.seen(self._taken_at(stamp, at), x, y, theta)
+        if self.wheels is not None:
+            self.wheels.seen(self._taken_at(stamp, at), x, y, theta)
         if self.config.gains.reverse and self.target is not None:   # the point steered
             self.front = drive_direction(self.front, x, y, theta, *self.target, self.dhat[0],
                                          self.dhat[1], self.config.law, self.config.limits,
@@ -321,7 +328,15 @@ class AgentController:
         self.sent.append(self.observer.sent(now, tick.v, tick.w, tick.stopped is not None))
         if self.link is not None:
             self.link.sent(now, tick.v, tick.w)
+        if self.wheels is not None:
+            self.wheels.update(now, self.latency, self.motor_time_constant)
+            self.wheels.sent(now, tick.v, tick.w)
         return tick
+
+    @property
+    def wheel_gains(self) -> tuple[float, float] | None:
+        """(left, right) wheel gains as estimated online (estimate_motors), or None."""
+        return None if self.wheels is None else self.wheels.gains
 
     def predicted(self, pose: Pose, stamp: float, received: float, now: float) -> Pose:
         """The pose taken at `stamp` (received at `received`) carried forward to when this

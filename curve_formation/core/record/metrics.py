@@ -353,6 +353,9 @@ def result_metrics(result: Any, tolerance: float | None = None) -> dict[str, Any
         out['estimated_latency'] = [float(v) for v in result.latencies]
     if result.motor_lags is not None:
         out['estimated_motor_time_constant'] = [float(v) for v in result.motor_lags]
+    if result.wheel_gains is not None:
+        out['estimated_wheel_gains'] = [None if g is None else [float(g[0]), float(g[1])]
+                                        for g in result.wheel_gains]
     return out
 
 

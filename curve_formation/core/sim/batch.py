@@ -80,6 +80,9 @@ class SimResult:
     # each controller's motors' lag at the end (s), as told or estimated online
     # (controller.estimate_motors); None where not estimated
     motor_lags: list[float] | None = None
+    # each controller's (left, right) wheel gains as estimated online (estimate_motors; None
+    # for one that told none), where estimated
+    wheel_gains: list[tuple[float, float] | None] | None = None
 
     @property
     def errors(self) -> FloatArray:

@@ -275,6 +275,8 @@ def simulate_pipeline(experiment: Experiment, engine: Literal['kinematic', 'mujo
                      sample_phase, experiment.radius, world.contact_summary(),
                      [c.latency for c in pipeline.controllers],
                      [c.motor_time_constant for c in pipeline.controllers]
+                     if spec.controller.estimate_motors else None,
+                     [c.wheel_gains for c in pipeline.controllers]
                      if spec.controller.estimate_motors else None)
 
 

@@ -1,0 +1,197 @@
+"""Each wheel's gain (its speed per unit of command: unequal wheels, motor spread, a sagging
+battery) measured from what was sent and how the robot moved.
+
+Each command (v, w) is split into its wheels' rim speeds (left, right = v -+ b w / 2, b the
+wheel base). Between two poses at least INTERVAL apart each wheel's mean speed is measured (from the
+robot's forward speed and turn rate, as the latency fit measures them) and compared with g times the mean
+of its commands, acting the link's latency L late through the motors' lag tau (as told or
+estimated: core.controller.link_estimate), plus a disturbance while driven that drifts as a
+quadratic in time over each WINDOW s (a disturbance that changes is not read as gain): one
+least-squares fit per wheel, its gain shared by the windows; a gain is told where its
+standard error is at most GAIN_ERROR (a wheel whose commands vary little beyond what the
+drift follows tells none). Only intervals in which both
+wheels are commanded at least GAIN_FLOOR of the fastest wheel speed are fitted: a slower
+command may lie in the motors' dead band, which a gain would not describe. Commands that
+hardly change (or change only as the drift does) tell no gain.
+
+Times in s (one clock for commands and poses), speeds in m/s.
+"""
+
+from dataclasses import dataclass
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from curve_formation.core.base.shapes import FloatArray
+from curve_formation.core.controller.link_estimate import (
+    _cleaned,
+    _held_means,
+    _lagged_means,
+    _measured_rates,
+    DRIFT_DEGREE,
+)
+
+
+WINDOW = 6.0        # s over which the drift is one quadratic
+GAIN_FLOOR = 0.2    # share of the fastest wheel speed below which a command is not fitted
+GAIN_ERROR = 0.01   # largest standard error of a gain told
+MIN_INTERVALS = 20
+# Shortest interval (s) between the poses a speed is measured over: a pose's time is known
+# to about a millisecond (a camera's stamp, a simulated world's step), 3 % of a 30 Hz
+# interval, which would blur a gain; the latency fit needs the short ones, this does not
+INTERVAL = 0.15
+
+
+def _thinned(tp: FloatArray, poses: FloatArray, interval: float
+             ) -> tuple[FloatArray, FloatArray]:
+    """The poses at least `interval` s apart (each the first at or after the last kept's
+    time plus interval).
+    """
+    keep = [0]
+    for k in range(1, len(tp)):
+        if tp[k] - tp[keep[-1]] >= interval - 1e-9:
+            keep.append(k)
+    return tp[keep], poses[keep]
+
+
+@dataclass(frozen=True)
+class WheelGains:
+    """gains (left, right; None if not told) and their standard errors, the fit's residual
+    (rms m/s) and the intervals fitted.
+    """
+
+    gains: tuple[float, float] | None
+    errors: tuple[float, float] | None
+    residual: float | None
+    intervals: int
+
+
+NO_GAINS = WheelGains(None, None, None, 0)
+
+
+def _drift_basis(mid: FloatArray, on: FloatArray, window: float) -> FloatArray:
+    """(intervals, windows * (DRIFT_DEGREE + 1)): a quadratic in time per window, while
+    driven (on: the driven share of each interval).
+    """
+    index = np.floor((mid - mid[0]) / window).astype(int)
+    columns = []
+    for k in np.unique(index):
+        inside = index == k
+        centre = 0.5 * window + mid[0] + k * window
+        tau = (mid - centre) / (0.5 * window)
+        columns += [np.where(inside, on * tau ** p, 0.0) for p in range(DRIFT_DEGREE + 1)]
+    return np.column_stack(columns)
+
+
+def _gain(x: FloatArray, measured: FloatArray, drift: FloatArray
+          ) -> tuple[float, float, FloatArray]:
+    """Least squares of measured ~ g x + drift: (g, its standard error, residuals)."""
+    basis = np.column_stack([x, drift])
+    coef, *_ = np.linalg.lstsq(basis, measured, rcond=None)
+    residuals = measured - basis @ coef
+    own = x - drift @ np.linalg.lstsq(drift, x, rcond=None)[0]   # what tells the gain
+    spread = float(own @ own)
+    dof = max(len(x) - basis.shape[1], 1)
+    error = (math.sqrt(float(residuals @ residuals) / dof / spread) if spread > 1e-18
+             else math.inf)
+    return float(coef[0]), error, residuals
+
+
+def estimate_gains(command_times: ArrayLike, commands: ArrayLike, pose_times: ArrayLike,
+                   poses: ArrayLike, wheel_base: float, max_wheel_speed: float,
+                   latency: float, motor_time_constant: float,
+                   window: float = WINDOW) -> WheelGains:
+    """Each wheel's gain of one robot (see the module): command_times (k,) and commands
+    (k, 2; v m/s, w rad/s) as sent; pose_times (m,) and poses (m, 3) as measured;
+    wheel_base (m); max_wheel_speed (m/s; infinite: every command is fitted); latency and
+    motor_time_constant (s) as told or estimated.
+    """
+    tc, cmd, tp, pose = _cleaned(command_times, commands, pose_times, poses)
+    tp, pose = _thinned(tp, pose, INTERVAL)
+    if len(tc) < 2 or len(tp) < MIN_INTERVALS or wheel_base <= 0.0:
+        return NO_GAINS
+    tc = tc + latency
+    v_meas, w_meas = _measured_rates(tp, pose)
+    half = 0.5 * wheel_base
+    measured = np.stack([v_meas - half * w_meas, v_meas + half * w_meas])   # left, right
+    wheels = np.stack([cmd[:, 0] - half * cmd[:, 1], cmd[:, 0] + half * cmd[:, 1]])
+    driven = ((cmd[:, 0] != 0.0) | (cmd[:, 1] != 0.0)).astype(float)
+    starts, ends = tp[:-1], tp[1:]
+    x = np.stack([_lagged_means(tc, wheels[k], starts, ends, motor_time_constant)
+                  for k in range(2)])
+    on = _held_means(tc, driven, starts, ends)
+    floor = GAIN_FLOOR * max_wheel_speed if math.isfinite(max_wheel_speed) else 0.0
+    # the interval's commands (not their lag) all beyond the floor: none in a dead band
+    lowest = np.minimum(*[np.minimum(np.abs(_held_means(tc, wheels[k], starts - 2.0
+                                                          * motor_time_constant, ends)),
+                                     np.abs(x[k])) for k in range(2)])
+    sel = (starts >= tc[0] + 3.0 * motor_time_constant) & (ends <= tc[-1] + 1.0) \
+        & (lowest >= floor) & (on > 0.999)
+    if sel.sum() < MIN_INTERVALS:
+        return NO_GAINS
+    mid = 0.5 * (starts[sel] + ends[sel])
+    drift = _drift_basis(mid, on[sel], window)
+    gains, errors, squares = [], [], 0.0
+    for k in range(2):
+        gain, error, residuals = _gain(x[k, sel], measured[k, sel], drift)
+        gains.append(gain)
+        errors.append(error)
+        squares += float(residuals @ residuals)
+    residual = math.sqrt(squares / (2 * int(sel.sum())))
+    if max(errors) > GAIN_ERROR:
+        return WheelGains(None, (errors[0], errors[1]), residual, int(sel.sum()))
+    return WheelGains((gains[0], gains[1]), (errors[0], errors[1]), residual, int(sel.sum()))
+
+
+# Online: how often (s) a controller fits its wheels' gains, over how much of the past (s)
+GAINS_EVERY = 5.0
+GAINS_SPAN = 60.0
+
+
+class OnlineGains:
+    """A controller's running estimate of its wheels' gains: every GAINS_EVERY s the last
+    GAINS_SPAN s of its commands (at its ticks) and poses (when taken) are fitted
+    (estimate_gains) through the latency and motors' lag it holds then; the gains are those
+    of the last fit that told them (None before), with their errors. Times in s on the
+    controller's clock.
+    """
+
+    def __init__(self, rate_hz: float, wheel_base: float, max_wheel_speed: float) -> None:
+        from collections import deque
+        self.wheel_base, self.max_wheel_speed = wheel_base, max_wheel_speed
+        self.commands: deque[tuple[float, float, float]] = deque(
+            maxlen=int(rate_hz * GAINS_SPAN) + 2)
+        self.poses: deque[tuple[float, float, float, float]] = deque()
+        self.next_at: float | None = None
+        self.found: WheelGains = NO_GAINS   # the last fit that told gains
+        self.taken: list[tuple[float, tuple[float, float]]] = []   # (when, gains) each fit
+
+    def sent(self, at: float, v: float, w: float) -> None:
+        self.commands.append((at, v, w))
+
+    def seen(self, taken: float, x: float, y: float, theta: float) -> None:
+        if not self.poses or taken > self.poses[-1][0]:
+            self.poses.append((taken, x, y, theta))
+            while self.poses[0][0] < taken - GAINS_SPAN:
+                self.poses.popleft()
+
+    def update(self, now: float, latency: float, motor_time_constant: float) -> None:
+        """Fit again if GAINS_EVERY s have passed since the last fit."""
+        if self.next_at is None:
+            self.next_at = now + GAINS_EVERY
+        if now < self.next_at or len(self.commands) < 2 or len(self.poses) < MIN_INTERVALS:
+            return
+        self.next_at = now + GAINS_EVERY
+        sent, seen = np.array(self.commands), np.array(self.poses)
+        found = estimate_gains(sent[:, 0], sent[:, 1:], seen[:, 0], seen[:, 1:],
+                               self.wheel_base, self.max_wheel_speed, latency,
+                               motor_time_constant)
+        if found.gains is not None:
+            self.found = found
+            self.taken.append((now, found.gains))
+
+    @property
+    def gains(self) -> tuple[float, float] | None:
+        """(left, right) as last told, or None."""
+        return self.found.gains
