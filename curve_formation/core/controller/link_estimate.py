@@ -305,7 +305,28 @@ MOTOR_AGREEMENT = 0.01   # s: the motor lags of the AGREEING estimates, as AGREE
 MOTOR_EXCITATION = 5e-3
 
 
-class OnlineLink:
+class MotionRecord:
+    """A controller's recent commands (at, v, w; the last `commands` of them) and poses
+    (taken, x, y, theta; the last `span` s, in time order), as its online fits read them.
+    """
+
+    def __init__(self, commands: int, span: float) -> None:
+        from collections import deque
+        self.span = span
+        self.commands: deque[tuple[float, float, float]] = deque(maxlen=commands)
+        self.poses: deque[tuple[float, float, float, float]] = deque()
+
+    def sent(self, at: float, v: float, w: float) -> None:
+        self.commands.append((at, v, w))
+
+    def seen(self, taken: float, x: float, y: float, theta: float) -> None:
+        if not self.poses or taken > self.poses[-1][0]:
+            self.poses.append((taken, x, y, theta))
+            while self.poses[0][0] < taken - self.span:
+                self.poses.popleft()
+
+
+class OnlineLink(MotionRecord):
     """A controller's running estimate of its command latency and, with `estimate_motor`,
     of its motors' lag. Every ONLINE_EVERY s (every ONLINE_FIRST_EVERY s until a first value
     is taken: the value it starts from is the one most likely wrong) the last ONLINE_SPAN s
@@ -325,28 +346,18 @@ class OnlineLink:
     def __init__(self, initial: float, rate_hz: float, motor_time_constant: float = 0.0,
                  estimate_latency: bool = True, estimate_motor: bool = False) -> None:
         from collections import deque
+        super().__init__(int(rate_hz * (ONLINE_SPAN + ONLINE_LAGS.max() + 1.0)) + 2,
+                         ONLINE_SPAN)
         self.latency = initial
         self.motor_time_constant = motor_time_constant
         self.lags = ONLINE_LAGS if estimate_latency else np.array([initial])
         self.taus = ONLINE_MOTOR_LAGS if estimate_motor else np.array([motor_time_constant])
-        self.commands: deque[tuple[float, float, float]] = deque(
-            maxlen=int(rate_hz * (ONLINE_SPAN + ONLINE_LAGS.max() + 1.0)) + 2)
-        self.poses: deque[tuple[float, float, float, float]] = deque()
         self.recent: deque[tuple[float, float]] = deque(maxlen=AGREEING)
         self.next_at: float | None = None
         self.cadence = ONLINE_EVERY   # s from the last fit to the next
         self.total: FloatArray | None = None   # the remembered residual surface
         self.taken: list[tuple[float, float]] = []   # (when, latency) of each value taken
         self.motor_taken: list[tuple[float, float]] = []   # (when, motor lag) likewise
-
-    def sent(self, at: float, v: float, w: float) -> None:
-        self.commands.append((at, v, w))
-
-    def seen(self, stamp: float, x: float, y: float, theta: float) -> None:
-        if not self.poses or stamp > self.poses[-1][0]:
-            self.poses.append((stamp, x, y, theta))
-            while self.poses[0][0] < stamp - ONLINE_SPAN:
-                self.poses.popleft()
 
     def update(self, now: float) -> float:
         """The latency to use from `now` on (s; motor_time_constant likewise): new estimates

@@ -2,17 +2,16 @@
 battery) measured from what was sent and how the robot moved.
 
 Each command (v, w) is split into its wheels' rim speeds (left, right = v -+ b w / 2, b the
-wheel base). Between two poses at least INTERVAL apart each wheel's mean speed is measured (from the
-robot's forward speed and turn rate, as the latency fit measures them) and compared with g times the mean
-of its commands, acting the link's latency L late through the motors' lag tau (as told or
-estimated: core.controller.link_estimate), plus a disturbance while driven that drifts as a
-quadratic in time over each WINDOW s (a disturbance that changes is not read as gain): one
-least-squares fit per wheel, its gain shared by the windows; a gain is told where its
-standard error is at most GAIN_ERROR (a wheel whose commands vary little beyond what the
-drift follows tells none). Only intervals in which both
+wheel base). Between two poses at least INTERVAL apart each wheel's mean speed is measured
+(from the robot's forward speed and turn rate, as the latency fit measures them) and
+compared with g times the mean of its commands, acting the link's latency L late through the
+motors' lag tau (as told or estimated: core.controller.link_estimate), plus a disturbance
+while driven that drifts as a quadratic in time over each WINDOW s (a disturbance that
+changes is not read as gain): one least-squares fit per wheel, its gain shared by the
+windows; a gain is told where its standard error is at most GAIN_ERROR (a wheel whose
+commands vary little beyond what the drift follows tells none). Only intervals in which both
 wheels are commanded at least GAIN_FLOOR of the fastest wheel speed are fitted: a slower
-command may lie in the motors' dead band, which a gain would not describe. Commands that
-hardly change (or change only as the drift does) tell no gain.
+command may lie in the motors' dead band, which a gain would not describe.
 
 Times in s (one clock for commands and poses), speeds in m/s.
 """
@@ -30,6 +29,7 @@ from curve_formation.core.controller.link_estimate import (
     _lagged_means,
     _measured_rates,
     DRIFT_DEGREE,
+    MotionRecord,
 )
 
 
@@ -149,7 +149,7 @@ GAINS_EVERY = 5.0
 GAINS_SPAN = 60.0
 
 
-class OnlineGains:
+class OnlineGains(MotionRecord):
     """A controller's running estimate of its wheels' gains: every GAINS_EVERY s the last
     GAINS_SPAN s of its commands (at its ticks) and poses (when taken) are fitted
     (estimate_gains) through the latency and motors' lag it holds then; the gains are those
@@ -158,23 +158,11 @@ class OnlineGains:
     """
 
     def __init__(self, rate_hz: float, wheel_base: float, max_wheel_speed: float) -> None:
-        from collections import deque
+        super().__init__(int(rate_hz * GAINS_SPAN) + 2, GAINS_SPAN)
         self.wheel_base, self.max_wheel_speed = wheel_base, max_wheel_speed
-        self.commands: deque[tuple[float, float, float]] = deque(
-            maxlen=int(rate_hz * GAINS_SPAN) + 2)
-        self.poses: deque[tuple[float, float, float, float]] = deque()
         self.next_at: float | None = None
         self.found: WheelGains = NO_GAINS   # the last fit that told gains
         self.taken: list[tuple[float, tuple[float, float]]] = []   # (when, gains) each fit
-
-    def sent(self, at: float, v: float, w: float) -> None:
-        self.commands.append((at, v, w))
-
-    def seen(self, taken: float, x: float, y: float, theta: float) -> None:
-        if not self.poses or taken > self.poses[-1][0]:
-            self.poses.append((taken, x, y, theta))
-            while self.poses[0][0] < taken - GAINS_SPAN:
-                self.poses.popleft()
 
     def update(self, now: float, latency: float, motor_time_constant: float) -> None:
         """Fit again if GAINS_EVERY s have passed since the last fit."""
