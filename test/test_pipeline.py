@@ -233,5 +233,5 @@ def test_a_drift_that_swings_is_not_read_as_latency():
     phases = np.random.default_rng(14).random(case.n)   # as simulate_pipeline(seed=14)
     pipeline = Pipeline(case, make_world(case, 'kinematic'), 10.0, phases, 30.0)
     pipeline.run(20.0, 0.1, case.spec.agents.reassign_every)
-    taken = [value for c in pipeline.controllers for _, value in c.link.taken]
+    taken = [value for c in pipeline.controllers for _, value in c.robot.link.taken]
     assert max(taken, default=0.0) <= 0.02, taken

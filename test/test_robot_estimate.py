@@ -111,13 +111,13 @@ def test_each_controller_learns_its_motors_lag_and_latency_within_10_s(swinging)
     assert excited.sum() >= 7, excited
     for c, told in zip(controllers, excited, strict=True):
         if not told:
-            assert c.motor_time_constant == 0.0 and not c.link.motor_taken
+            assert c.motor_time_constant == 0.0 and not c.robot.link.motor_taken
             continue
-        first = c.link.motor_taken[0][0] if c.link.motor_taken else None
-        assert first is not None and first <= 10.0, (c.config.index, c.link.motor_taken)
+        first = c.robot.link.motor_taken[0][0] if c.robot.link.motor_taken else None
+        assert first is not None and first <= 10.0, (c.config.index, c.robot.link.motor_taken)
         assert abs(c.motor_time_constant - FIRST_ORDER) <= 0.015, (c.config.index,
-                                                                  c.link.motor_taken)
-        assert abs(c.latency - 0.1) <= 0.02, (c.config.index, c.link.taken)
+                                                                  c.robot.link.motor_taken)
+        assert abs(c.latency - 0.1) <= 0.02, (c.config.index, c.robot.link.taken)
         whole = c.latency + c.motor_time_constant
         assert abs(whole - (0.1 + MOTOR_LAG)) <= 0.015, (c.config.index, whole)
     assert result.motor_lags == [c.motor_time_constant for c in controllers]
@@ -128,8 +128,8 @@ def test_a_told_motor_lag_wins_over_the_estimate():
     estimate_motors: every controller keeps the told value; the latency is still estimated.
     """
     controllers, _ = learnt(imperfect_case('arena_demo', 1, told=0.08), 0.1, seconds=8.0)
-    assert all(c.motor_time_constant == 0.08 and not c.link.motor_taken for c in controllers)
-    assert any(c.link.taken for c in controllers)
+    assert all(c.motor_time_constant == 0.08 and not c.robot.link.motor_taken for c in controllers)
+    assert any(c.robot.link.taken for c in controllers)
 
 
 def test_the_mujoco_world_leaves_the_experiments_disturbance_as_it_was():
@@ -162,10 +162,11 @@ def test_the_wheel_gains_told_online_are_within_3_percent():
     robots = draw_robots(experiment)
     true = robots.wheel_radii / robots.nominal_radius * robots.gains
     controllers, result = learnt(experiment, 0.1, seconds=40.0)
-    told = {c.config.index: c.wheel_gains for c in controllers if c.wheel_gains is not None}
+    told = {c.config.index: c.robot.wheel_gains for c in controllers
+            if c.robot.wheel_gains is not None}
     assert len(told) >= 5, told
     for i, gains in told.items():
         np.testing.assert_allclose(gains, true[i - 1], rtol=0.03, err_msg=f'robot {i}')
     metrics = result_metrics(result)
     assert [g is not None for g in metrics['estimated_wheel_gains']] == [
-        c.wheel_gains is not None for c in controllers]
+        c.robot.wheel_gains is not None for c in controllers]

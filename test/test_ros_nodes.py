@@ -256,9 +256,11 @@ def test_console_script_exits_2_with_one_line(ros_domain):
 
 
 def test_a_curve_that_begins_to_move_is_announced_ahead_and_dated_to_its_start(ros, tmp_path):
-    """The loop, still, then the same loop moving from 1.5 s: the moving phase's first message
-    comes announce_ahead (0.2 s) before its start, its clock saying it begins to move at the
-    start; renewals follow from then, each dated where its curve is.
+    """The loop, still, then the same loop moving from 1.5 s: the server plans the moving
+    phase's first message announce_ahead (0.2 s) before its start and it comes then (to
+    within its timer's lateness on a loaded machine: twice 0.2 s late beside the other test
+    streams), its clock saying it begins to move at the start; renewals follow from then,
+    each dated where its curve is.
     """
     text = (DATA_DIR / 'moving_loop.yaml').read_text()
     moving = '    motion: {velocity: [0.01, 0.0]}\n'
@@ -279,12 +281,14 @@ def test_a_curve_that_begins_to_move_is_announced_ahead_and_dated_to_its_start(r
             (info['source_timestamp'] * 1e-9, messages.curve_from_msg(m),
              messages.curve_clock_from_msg(m)))),
         qos.LATCHED)
-    spin_until(lambda: server.start is not None and any(c[1] == 1 for _, c, _ in got))
-    spin_until(lambda: sum(c[1] == 1 for _, c, _ in got) >= 4)
+    spin_until(lambda: server.start is not None)
     began = server.start + 1.5
+    # the still curve is out and the server's timer wakes for the next: the announcement
+    assert server.schedule.next_due() == pytest.approx(began - 0.2, abs=1e-9)
+    spin_until(lambda: sum(c[1] == 1 for _, c, _ in got) >= 4)
     (first_at, (first, _), first_clock), *renewals = [g for g in got if g[1][1] == 1]
     assert first_clock.motion_began == pytest.approx(began, abs=1e-9)
-    assert began - first_at == pytest.approx(0.2, abs=0.05)
+    assert -0.3 <= began - first_at <= 0.25   # published at its plan, or late by the load
     phase = load_experiment(str(path)).phases[1]
     np.testing.assert_allclose(first.xi, phase.curve.xi, atol=1e-12)
     assert first_clock.run_time == pytest.approx(1.5, abs=1e-9)

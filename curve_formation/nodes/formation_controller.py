@@ -336,8 +336,8 @@ class FormationController(Node):
                     # s: as told, or as estimated online (estimate_motors)
                     KeyValue(key='motor_time_constant', value=f'{c.motor_time_constant:.4f}'),
                     # (left, right) speed per unit of command, estimated online; '-': none yet
-                    KeyValue(key='wheel_gains', value='-' if c.wheel_gains is None
-                             else f'{c.wheel_gains[0]:.4f} {c.wheel_gains[1]:.4f}'),
+                    KeyValue(key='wheel_gains', value='-' if c.robot.wheel_gains is None
+                             else f'{c.robot.wheel_gains[0]:.4f} {c.robot.wheel_gains[1]:.4f}'),
                     KeyValue(key='rejected_inputs', value=str(c.rejected)),
                     KeyValue(key='rejected_messages', value=self.rejections.summary()),
                     KeyValue(key='last_rejection', value=self.rejections.last),

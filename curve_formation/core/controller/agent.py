@@ -18,7 +18,6 @@ a follower learns when the leader is gone (core.controller.neighbourhood).
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-import math
 from typing import Any, Callable
 
 import numpy as np
@@ -42,7 +41,6 @@ from curve_formation.core.controller.inputs import (
     Tick,
 )
 from curve_formation.core.controller.limits import inside_fence
-from curve_formation.core.controller.link_estimate import ONLINE_LAGS, OnlineLink
 from curve_formation.core.controller.motion_observer import MotionObserver
 from curve_formation.core.controller.neighbourhood import Neighbourhood, NO_ERRORS
 from curve_formation.core.controller.others import OtherRobots
@@ -52,9 +50,9 @@ from curve_formation.core.controller.plausibility import (
     plausible_box,
     position_problem,
 )
+from curve_formation.core.controller.robot_model import RobotModel
 from curve_formation.core.controller.safety import STOPPED, with_latency
 from curve_formation.core.controller.step import agent_step, target_error
-from curve_formation.core.controller.wheel_estimate import OnlineGains
 from curve_formation.core.formation.curves import Curve
 
 
@@ -110,24 +108,10 @@ class AgentController:
         # next pose is a new curve's first, where the choice takes the sooner way outright
         self.front = 1.0
         self.first_pose = True
+        self.robot = RobotModel(cfg)   # latency, motors' lag, wheel gains: told or estimated
         # The commands sent (Sent), as far back as a pose may be (pose_timeout) plus the
         # command latency, for predict_pose and the observer.
-        longest = (max(cfg.command_latency, float(ONLINE_LAGS.max()))
-                   if cfg.estimate_latency else cfg.command_latency)
-        self.sent = CommandsSent(int(math.ceil(cfg.rate_hz * (cfg.pose_timeout + longest)))
-                                 + 2)
-        # s from a command leaving to the wheels: as told, or as estimated online
-        self.latency = cfg.command_latency
-        # s: the motors' lag, as told, or as estimated online (estimate_motors, where not told)
-        self.motor_time_constant = cfg.motor_time_constant
-        estimate_motor = cfg.estimate_motors and cfg.motor_time_constant <= 0.0
-        self.link = (OnlineLink(self.latency, cfg.rate_hz, cfg.motor_time_constant,
-                                cfg.estimate_latency, estimate_motor)
-                     if cfg.estimate_latency or estimate_motor else None)
-        # each wheel's speed per unit of command, estimated online (estimate_motors): reported
-        self.wheels = (OnlineGains(cfg.rate_hz, cfg.limits.wheel_base,
-                                   cfg.limits.max_wheel_speed)
-                       if cfg.estimate_motors and cfg.limits.wheel_base > 0.0 else None)
+        self.sent = CommandsSent(self.robot.commands_kept(cfg.rate_hz, cfg.pose_timeout))
         self.step = compiled_step(cfg) if cfg.compiled else agent_step
         # added to the command before the limits (m/s, rad/s): the config's, or as it varies
         self.pc_disturbance: Command = cfg.pc_disturbance
@@ -197,10 +181,7 @@ class AgentController:
         self.pose, self.pose_stamp, self.pose_received = (x, y, theta), stamp, at
         self.observer.pose_seen(stamp, self._taken_at(stamp, at), (x, y, theta))
         self.pose_dated = self.neighbourhood.own_pose(stamp, at)
-        if self.link is not None:
-            self.link.seen(self._taken_at(stamp, at), x, y, theta)
-        if self.wheels is not None:
-            self.wheels.seen(self._taken_at(stamp, at), x, y, theta)
+        self.robot.seen(self._taken_at(stamp, at), x, y, theta)
         if self.config.gains.reverse and self.target is not None:   # the point steered
             self.front = drive_direction(self.front, x, y, theta, *self.target, self.dhat[0],
                                          self.dhat[1], self.config.law, self.config.limits,
@@ -321,22 +302,21 @@ class AgentController:
 
     def tick(self, now: float) -> Tick:
         """One control step at time `now` (s, this controller's clock)."""
-        if self.link is not None:
-            self.latency = self.link.update(now)
-            self.motor_time_constant = self.link.motor_time_constant
+        self.robot.update(now)
         tick = self._tick(now)
         self.sent.append(self.observer.sent(now, tick.v, tick.w, tick.stopped is not None))
-        if self.link is not None:
-            self.link.sent(now, tick.v, tick.w)
-        if self.wheels is not None:
-            self.wheels.update(now, self.latency, self.motor_time_constant)
-            self.wheels.sent(now, tick.v, tick.w)
+        self.robot.sent(now, tick.v, tick.w)
         return tick
 
     @property
-    def wheel_gains(self) -> tuple[float, float] | None:
-        """(left, right) wheel gains as estimated online (estimate_motors), or None."""
-        return None if self.wheels is None else self.wheels.gains
+    def latency(self) -> float:
+        """s from a command leaving to the wheels: as told, or as estimated online."""
+        return self.robot.latency
+
+    @property
+    def motor_time_constant(self) -> float:
+        """s: the motors' lag, as told, or as estimated online (estimate_motors)."""
+        return self.robot.motor_time_constant
 
     def predicted(self, pose: Pose, stamp: float, received: float, now: float) -> Pose:
         """The pose taken at `stamp` (received at `received`) carried forward to when this

@@ -276,7 +276,7 @@ def simulate_pipeline(experiment: Experiment, engine: Literal['kinematic', 'mujo
                      [c.latency for c in pipeline.controllers],
                      [c.motor_time_constant for c in pipeline.controllers]
                      if spec.controller.estimate_motors else None,
-                     [c.wheel_gains for c in pipeline.controllers]
+                     [c.robot.wheel_gains for c in pipeline.controllers]
                      if spec.controller.estimate_motors else None)
 
 

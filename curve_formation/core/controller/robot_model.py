@@ -1,0 +1,63 @@
+"""What a controller knows of its link and its robot: the commands' latency and the motors'
+lag, each as told or as estimated online (controller.estimate_latency, estimate_motors;
+core.controller.link_estimate), and each wheel's gain as estimated online
+(core.controller.wheel_estimate). Times in s on the controller's clock.
+"""
+
+import math
+
+from curve_formation.core.controller.agent_config import AgentConfig
+from curve_formation.core.controller.link_estimate import ONLINE_LAGS, OnlineLink
+from curve_formation.core.controller.wheel_estimate import OnlineGains
+
+
+class RobotModel:
+    """latency (s: a command's delay to the wheels), motor_time_constant (s), wheel_gains
+    ((left, right) speed per unit of command, or None), kept up to date from the commands
+    sent (sent) and the poses taken (seen) where estimated.
+    """
+
+    def __init__(self, cfg: AgentConfig) -> None:
+        self.latency = cfg.command_latency
+        self.motor_time_constant = cfg.motor_time_constant
+        estimate_motor = cfg.estimate_motors and cfg.motor_time_constant <= 0.0   # told wins
+        self.link = (OnlineLink(self.latency, cfg.rate_hz, cfg.motor_time_constant,
+                                cfg.estimate_latency, estimate_motor)
+                     if cfg.estimate_latency or estimate_motor else None)
+        self.wheels = (OnlineGains(cfg.rate_hz, cfg.limits.wheel_base,
+                                   cfg.limits.max_wheel_speed)
+                       if cfg.estimate_motors and cfg.limits.wheel_base > 0.0 else None)
+        # the longest the latency may be (s): how far back the commands sent are kept
+        self.longest = (max(cfg.command_latency, float(ONLINE_LAGS.max()))
+                        if cfg.estimate_latency else cfg.command_latency)
+
+    def commands_kept(self, rate_hz: float, pose_timeout: float) -> int:
+        """How many commands sent a controller keeps: as far back as a pose may be plus the
+        latency.
+        """
+        return int(math.ceil(rate_hz * (pose_timeout + self.longest))) + 2
+
+    def seen(self, taken: float, x: float, y: float, theta: float) -> None:
+        """The robot's pose (m, rad) taken at `taken`."""
+        for record in (self.link, self.wheels):
+            if record is not None:
+                record.seen(taken, x, y, theta)
+
+    def update(self, now: float) -> None:
+        """Before a tick at `now`: the estimates due by then."""
+        if self.link is not None:
+            self.latency = self.link.update(now)
+            self.motor_time_constant = self.link.motor_time_constant
+        if self.wheels is not None:
+            self.wheels.update(now, self.latency, self.motor_time_constant)
+
+    def sent(self, now: float, v: float, w: float) -> None:
+        """The command (v m/s, w rad/s) sent at `now`."""
+        for record in (self.link, self.wheels):
+            if record is not None:
+                record.sent(now, v, w)
+
+    @property
+    def wheel_gains(self) -> tuple[float, float] | None:
+        """(left, right) as estimated online, or None."""
+        return None if self.wheels is None else self.wheels.gains
