@@ -8,7 +8,7 @@ Run: scripts/bench link            (20 random starts of each arena file; ~8 min)
 Each start runs the nodes' tick pipeline (core.sim.pipeline: unsynchronised controllers, 30 Hz
 poses, the paper's unicycles, bodies and avoidance as the file says) over core.sim.pipeline.Link.
 The arena files estimate the latency online (controller.estimate_latency, from
-command_latency 0; core.controller.link_estimate.OnlineLatency); the cases:
+command_latency 0; core.controller.link_estimate.OnlineLink); the cases:
 - none: no latency, the file as shipped (the reference);
 - none, not estimating: no latency, estimate_latency false (what estimating costs);
 - untold: commands 100 ms +- 30 ms (uniform) late and 10 % of them lost, the file as shipped:

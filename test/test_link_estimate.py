@@ -82,7 +82,7 @@ def test_a_robot_whose_commands_do_not_change_tells_no_latency():
 
 
 def online_run(latency, jitter, loss, seed):
-    """OnlineLatency fed as a controller feeds it (each command at its tick, each pose as it
+    """OnlineLink fed as a controller feeds it (each command at its tick, each pose as it
     comes) on driven_robot's 30 s: the latency used at each tick (s), the ticks' times and
     the estimator.
     """

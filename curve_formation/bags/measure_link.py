@@ -35,13 +35,6 @@ def bag_limits(path):
     return limits if isinstance(limits, dict) else {}
 
 
-def told_motor_lag(path):
-    """limits.motor_time_constant (s) of the experiment the bag carries; 0 if it tells none
-    (or carries no experiment).
-    """
-    return float(bag_limits(path).get('motor_time_constant') or 0.0)
-
-
 def measure_bag(path, motor_time_constant=None):
     """{'robots': {i: {'latency', 'spread', 'windows', 'residual', 'motor_time_constant',
     'wheel_gains' ([left, right] or None: core.controller.wheel_estimate, with the

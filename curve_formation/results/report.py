@@ -11,6 +11,8 @@ import html
 import json
 from pathlib import Path
 
+from curve_formation.interface import robot_index
+
 
 REPORT = 'report.html'
 FIGURES = (('paths.png', 'Paths of the offset points over the curves; bodies to scale at '
@@ -177,8 +179,7 @@ def robot_estimates(result):
     controllers' last reports) or a simulation's estimated_* lists; {} if neither.
     """
     if result.get('robot_estimates'):
-        return {int(name.rsplit('_', 1)[-1]): values
-                for name, values in result['robot_estimates'].items()}
+        return {robot_index(name): values for name, values in result['robot_estimates'].items()}
     lists = {'command_latency': result.get('estimated_latency'),
              'motor_time_constant': result.get('estimated_motor_time_constant'),
              'wheel_gains': result.get('estimated_wheel_gains')}

@@ -111,7 +111,7 @@ class AgentController:
         self.robot = RobotModel(cfg)   # latency, motors' lag, wheel gains: told or estimated
         # The commands sent (Sent), as far back as a pose may be (pose_timeout) plus the
         # command latency, for predict_pose and the observer.
-        self.sent = CommandsSent(self.robot.commands_kept(cfg.rate_hz, cfg.pose_timeout))
+        self.sent = CommandsSent(self.robot.commands_kept)
         self.step = compiled_step(cfg) if cfg.compiled else agent_step
         # added to the command before the limits (m/s, rad/s): the config's, or as it varies
         self.pc_disturbance: Command = cfg.pc_disturbance

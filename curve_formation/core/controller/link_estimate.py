@@ -13,7 +13,8 @@ noise). A robot whose commands hardly change tells nothing: then no latency is g
 
 The motors' first-order lag (time constant tau) is fitted the same way, over a grid of
 (L, tau) at once: a lag rounds each change of the commands off where a latency only shifts
-it, so a robot whose commands change every tick tells the two apart (estimate_link).
+it, so a robot whose commands change every tick tells the two apart (estimate_latency with
+motor_time_constant None, OnlineLink with estimate_motor).
 
 Times in s (one clock for commands and poses), speeds in m/s and rad/s.
 """
@@ -162,6 +163,11 @@ def _best_pair(surface: FloatArray, lags: FloatArray, taus: FloatArray
     return lag, max(tau, 0.0)
 
 
+def _driven(cmd: FloatArray) -> FloatArray:
+    """1.0 for each command (k, 2) that drives the motors, 0.0 for a stop."""
+    return ((cmd[:, 0] != 0.0) | (cmd[:, 1] != 0.0)).astype(float)
+
+
 def _cleaned(command_times: ArrayLike, commands: ArrayLike, pose_times: ArrayLike,
              poses: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """Arrays of commands and poses, the poses finite, in time order, one per stamp."""
@@ -183,16 +189,17 @@ class _Fit:
     """
 
     def __init__(self, tc: FloatArray, cmd: FloatArray, tp: FloatArray, pose: FloatArray,
-                 lags: FloatArray, tau: float = 0.0) -> None:
-        self.tc, self.cmd, self.tp, self.lags, self.tau = tc, cmd, tp, lags, tau
-        self.driven = ((cmd[:, 0] != 0.0) | (cmd[:, 1] != 0.0)).astype(float)
+                 lags: FloatArray) -> None:
+        self.tc, self.cmd, self.tp, self.lags = tc, cmd, tp, lags
+        self.driven = _driven(cmd)
         self.v_meas, self.w_meas = _measured_rates(tp, pose)
         self.inside = (tp[:-1] - lags.max() >= tc[0]) & (tp[1:] <= tc[-1] + 1.0)
 
-    def residuals(self, begin: float, end: float,
-                  lags: FloatArray | None = None) -> tuple[FloatArray, int] | None:
-        """The residual curve over the lags of the intervals from begin to end (s) and their
-        count; None if fewer than 5, or if the commands in force then hardly change.
+    def residuals(self, begin: float, end: float, lags: FloatArray | None = None,
+                  tau: float = 0.0) -> tuple[FloatArray, int] | None:
+        """The residual curve over the lags of the intervals from begin to end (s), the
+        commands acting through the motors' lag tau (s), and their count; None if fewer than
+        5, or if the commands in force then hardly change.
         """
         tp = self.tp
         sel = self.inside & (tp[:-1] >= begin) & (tp[1:] < end)
@@ -201,7 +208,7 @@ class _Fit:
         idx = np.flatnonzero(sel)
         return _residuals(self.tc, self.cmd, self.driven, np.append(tp[idx], tp[idx[-1] + 1]),
                           self.v_meas[idx], self.w_meas[idx],
-                          self.lags if lags is None else lags, self.tau), len(idx)
+                          self.lags if lags is None else lags, tau), len(idx)
 
     def surface(self, begin: float, end: float, taus: FloatArray
                 ) -> tuple[FloatArray, int] | None:
@@ -210,8 +217,7 @@ class _Fit:
         """
         rows, count = [], 0
         for tau in taus:
-            self.tau = float(tau)
-            found = self.residuals(begin, end)
+            found = self.residuals(begin, end, tau=float(tau))
             if found is None:
                 return None
             rows.append(found[0])
@@ -257,8 +263,7 @@ def estimate_latency(command_times: ArrayLike, commands: ArrayLike, pose_times: 
     else:   # the windows' median: a window whose disturbance changed (the fit holds it
         # constant) does not pull it, as it would a fit over the whole run
         latency, tau = float(np.median(lats)), float(taus[0])
-    fit.tau = tau
-    whole = fit.residuals(-np.inf, np.inf, np.array([latency]))
+    whole = fit.residuals(-np.inf, np.inf, np.array([latency]), tau)
     residual = None if whole is None else math.sqrt(float(whole[0][0]) / whole[1])
     return LinkEstimate(latency, float(np.std(lats)), len(pairs), residual, tau,
                         float(np.std(motors)) if estimating else None)

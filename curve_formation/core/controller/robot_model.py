@@ -27,15 +27,11 @@ class RobotModel:
         self.wheels = (OnlineGains(cfg.rate_hz, cfg.limits.wheel_base,
                                    cfg.limits.max_wheel_speed)
                        if cfg.estimate_motors and cfg.limits.wheel_base > 0.0 else None)
-        # the longest the latency may be (s): how far back the commands sent are kept
-        self.longest = (max(cfg.command_latency, float(ONLINE_LAGS.max()))
-                        if cfg.estimate_latency else cfg.command_latency)
-
-    def commands_kept(self, rate_hz: float, pose_timeout: float) -> int:
-        """How many commands sent a controller keeps: as far back as a pose may be plus the
-        latency.
-        """
-        return int(math.ceil(rate_hz * (pose_timeout + self.longest))) + 2
+        # how many commands sent a controller keeps: as far back as a pose may be
+        # (pose_timeout) plus the longest the latency may be
+        longest = (max(cfg.command_latency, float(ONLINE_LAGS.max()))
+                   if cfg.estimate_latency else cfg.command_latency)
+        self.commands_kept = int(math.ceil(cfg.rate_hz * (cfg.pose_timeout + longest))) + 2
 
     def seen(self, taken: float, x: float, y: float, theta: float) -> None:
         """The robot's pose (m, rad) taken at `taken`."""

@@ -25,6 +25,7 @@ from numpy.typing import ArrayLike
 from curve_formation.core.base.shapes import FloatArray
 from curve_formation.core.controller.link_estimate import (
     _cleaned,
+    _driven,
     _held_means,
     _lagged_means,
     _measured_rates,
@@ -113,10 +114,10 @@ def estimate_gains(command_times: ArrayLike, commands: ArrayLike, pose_times: Ar
         return NO_GAINS
     tc = tc + latency
     v_meas, w_meas = _measured_rates(tp, pose)
-    half = 0.5 * wheel_base
-    measured = np.stack([v_meas - half * w_meas, v_meas + half * w_meas])   # left, right
+    half = 0.5 * wheel_base   # as dynamics.wheel_speeds, over arrays: left, right
+    measured = np.stack([v_meas - half * w_meas, v_meas + half * w_meas])
     wheels = np.stack([cmd[:, 0] - half * cmd[:, 1], cmd[:, 0] + half * cmd[:, 1]])
-    driven = ((cmd[:, 0] != 0.0) | (cmd[:, 1] != 0.0)).astype(float)
+    driven = _driven(cmd)
     starts, ends = tp[:-1], tp[1:]
     x = np.stack([_lagged_means(tc, wheels[k], starts, ends, motor_time_constant)
                   for k in range(2)])

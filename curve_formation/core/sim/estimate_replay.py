@@ -1,7 +1,7 @@
 """A batch run's online estimates of the latency and the motors' lag
 (controller.estimate_latency, estimate_motors), replayed.
 
-The batch simulator's robots act on each command at once. Each controller's OnlineLatency is
+The batch simulator's robots act on each command at once. Each controller's OnlineLink is
 replayed over the run on the commands it sent at its ticks and its poses there: while none
 takes a value the run is exactly what estimating controllers do (they use command_latency
 until they take one), and their latencies are reported; if one would have taken a value
