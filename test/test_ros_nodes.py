@@ -22,6 +22,7 @@ from curve_formation.core.formation.curve_codec import CurveClock
 from curve_formation.core.formation.curve_sources import expression_samples
 from curve_formation.core.formation.curves import fit_curve, FourierBasis
 from curve_formation.core.formation.motion import CurveMotion
+from curve_formation.interface import QosSpec
 from curve_formation.nodes import messages, qos, topics
 from curve_formation.nodes.curve_server import CurveServer
 from curve_formation.nodes.estop import EstopHolder
@@ -275,12 +276,14 @@ def test_a_curve_that_begins_to_move_is_announced_ahead_and_dated_to_its_start(r
     probe = add(rclpy.create_node('observer', context=context))
     got = []
     # each message with when the server published it (its DDS source time: the system
-    # clock, as the server's ROS clock), not when this test's executor got round to it
+    # clock, as the server's ROS clock), not when this test's executor got round to it; every
+    # message kept (the curve's own depth of 1 lets a renewal replace the announcement in a
+    # reader that took neither yet, as one did under load)
     probe.create_subscription(
         Float64MultiArray, topics.CURVE, WithMessageInfo(lambda m, info: got.append(
             (info['source_timestamp'] * 1e-9, messages.curve_from_msg(m),
              messages.curve_clock_from_msg(m)))),
-        qos.LATCHED)
+        qos.profile(QosSpec(reliable=True, transient_local=True, depth=None)))
     spin_until(lambda: server.start is not None)
     began = server.start + 1.5
     # the still curve is out and the server's timer wakes for the next: the announcement
