@@ -129,7 +129,8 @@ TOPICS = {t.name: t for t in (
               reader_qos_name='ANY_PUBLISHER'),
     TopicSpec(ESTOP_STATE, 'diagnostic_msgs/msg/DiagnosticStatus', 'LATCHED',
               "each node's e-stop state, latched for nodes that start while stopped: name = "
-              'the node, hardware_id = its robot, values engaged, by, robots', EVERY_BAG,
+              'the node, hardware_id = its robot, values engaged, by, since, robots, holders (the '
+              'holders it hears, itself included)', EVERY_BAG,
               # read keeping all: a change reaches every holder at once, and a shallow
               # reader's history, shared by all writers, would drop some of their
               # announcements

@@ -60,14 +60,16 @@ def test_stopped_intervals_join_every_holder_and_stay_open_until_the_last_releas
 
 
 def test_an_e_stop_report_survives_its_text_fields_and_junk_is_refused():
-    fields = estop_fields(True, 'formation_controller', '/cli', 12.5, 9)
+    fields = estop_fields(True, 'formation_controller', '/cli', 12.5, 9, holders=11)
     report = parse_report('/robot_3/formation_controller', 'robot_3', fields)
     assert (report.engaged, report.robot, report.robots, report.since) == (True, 'robot_3', 9,
                                                                            12.5)
+    assert report.holders == 11
     assert parse_report('/x', '', estop_fields(False, 'curve_server', '', -math.inf, 0)).since \
         == -math.inf
     for bad in ({'engaged': 'yes'}, {**fields, 'since': 'nan'}, {**fields, 'robots': '-1'},
-                {**fields, 'robots': '9' * 400}, {**fields, 'since': 'inf'}):
+                {**fields, 'robots': '9' * 400}, {**fields, 'since': 'inf'},
+                {**fields, 'holders': 'many'}):
         with pytest.raises(ValueError, match='not an e-stop state'):
             parse_report('/x', '', bad)
 

@@ -23,7 +23,7 @@ from curve_formation.core.config.agents import leader_relays
 from curve_formation.core.config.loading import load_experiment
 from curve_formation.core.record import metrics
 from curve_formation.core.sim.batch import simulate
-from curve_formation.nodes import qos, topics
+from curve_formation.nodes import messages, qos, topics
 from curve_formation.run.run_options import RunOptions
 from curve_formation.run.runner import Run
 
@@ -522,6 +522,8 @@ def test_estop_cli_stops_all_nine_robots_at_once_holds_them_and_releases(ros_dom
         run.spin_until(lambda: settled_for(run, released, tolerance, metrics.SETTLE_HOLD + 0.5),
                        50.0, 'settling')
         result = run.write_results()
+        last = {holder: (t, engaged) for t, holder, engaged in run.monitor.estop_events}
+        holding = ({h: t for h, (t, engaged) in last.items() if engaged}, out)   # (failures)
     # Every robot's first zero command within 2 periods of the first robot's receipt.
     receipts = [logged(tmp_path, f'robot_{i}.formation_controller', 'e-stop engaged by')[0][0]
                 for i in range(1, 10)]
@@ -535,7 +537,7 @@ def test_estop_cli_stops_all_nine_robots_at_once_holds_them_and_releases(ros_dom
     # (failed in full runs when the spin above stopped after 1 s below the tolerance)
     assert phase['settled'] and phase['interrupted_by_estop'], (
         phase['not_settled_because'], phase['interrupted_by_estop'], phase['final_error_norm'],
-        phase['tolerance'], result.get('estop'), result.get('node_deaths'))
+        phase['tolerance'], result.get('estop'), result.get('node_deaths'), holding)
     (start, stop), = result['estop']['intervals']
     # released while the command ran (it keeps discovering holders for a while after)
     assert 4.5 < start < 9.0 and asked < stop <= released, (asked, released, result['estop'])
@@ -583,6 +585,29 @@ def test_a_release_is_done_only_when_the_nodes_that_move_the_robots_have_it_too(
     assert not tally.done() and tally.others_missing() == ['/robot_1/fake_robot']
 
 
+def test_a_release_waits_for_the_holders_the_others_hear_and_discovery_has_not_shown():
+    """`estop off` said all nine robots were released while the curve server, which discovery
+    had not shown the command within its time, kept the e-stop (a release comes only from a
+    command; the run's record then held the e-stop to its end): each holder tells how many
+    holders it hears, and the command waits until it has heard as many.
+    """
+    from curve_formation.core.controller.estop import EstopReport
+    from curve_formation.run.estop_command import _report, Tally
+
+    tally = Tally(engage=False, expect=2)
+    for robot in ('robot_1', 'robot_2'):
+        tally.add(EstopReport(f'/{robot}/formation_controller', 'formation_controller', robot,
+                              False, '/formation_estop', 1.0, 2, holders=3), 0.05)
+    assert tally.missing() == [] and tally.others_missing() == [] and tally.unheard() == 1
+    assert not tally.done()
+    said = []
+    assert _report(tally, 'off', 4.0, lambda text, ok: said.append((text, ok))) == 1
+    assert '1 holder(s) the others hear' in said[0][0] and said[0][1] is False
+    tally.add(EstopReport('/curve_server', 'curve_server', '', False, '/formation_estop', 1.0,
+                          2, holders=3), 0.9)
+    assert tally.done()
+
+
 def test_the_command_discovers_the_holders_that_are_not_controllers(ros):
     from rclpy.node import Node
 
@@ -595,3 +620,8 @@ def test_the_command_discovers_the_holders_that_are_not_controllers(ros):
     probe = add(Node('formation_estop', context=context))
     spin_until(lambda: len(probe.get_publishers_info_by_topic(topics.ESTOP_STATE)) == 3)
     assert other_holders(probe, topics.ESTOP_STATE) == {'/fake_arena', '/robot_2/fake_robot'}
+    # and each holder, having heard the other two, announces that it hears three
+    heard = {}
+    topics.subscription(probe, topics.ESTOP_STATE, lambda msg: heard.update(
+        {msg.name: messages.estop_state_from_msg(msg).holders}))
+    spin_until(lambda: len(heard) == 3 and set(heard.values()) == {3}, timeout=5.0)

@@ -16,6 +16,7 @@ and
 """
 
 from collections.abc import Callable
+import time
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -31,6 +32,10 @@ from curve_formation.nodes.topics import Use
 
 
 ANNOUNCE_PERIOD = 1.0   # s between two announcements of an unchanged state
+# s after its last announcement that a holder is still counted among those heard (the
+# `holders` it announces, which `curve-formation estop` waits to have heard itself): a
+# node that died is forgotten after a few of its announcements are missed
+HOLDER_FORGOTTEN = 3.5 * ANNOUNCE_PERIOD
 # s a node waits, at its start, to hear another node's e-stop state (or a command) before it
 # takes the formation as not stopped: alone on the domain, nobody can hold a stop. A node that
 # has discovered another holder by then waits on for that holder's state (latched, and
@@ -67,6 +72,7 @@ class EstopHolder:
         self.latch = EstopLatch()
         self.heard = False
         self.name = node.get_fully_qualified_name()
+        self.peers: dict[str, float] = {}   # other holder -> time.monotonic() last heard
         self.state_pub = topics.publisher(node, topics.ESTOP_STATE)
         on_command = Guarded(node, topics.ESTOP, WithMessageInfo(self._on_command))
         node.create_subscription(Bool, topics.ESTOP, on_command, qos.ANY_PUBLISHER)
@@ -111,7 +117,12 @@ class EstopHolder:
             latch.by = self._senders()
         self.state_pub.publish(messages.estop_state_to_msg(
             self.name, self.node.get_name(), self.robot, latch.engaged, latch.by, latch.since,
-            self.robots))
+            self.robots, self.holders()))
+
+    def holders(self) -> int:
+        """The holders this node hears announce now (HOLDER_FORGOTTEN), itself included."""
+        alive = time.monotonic() - HOLDER_FORGOTTEN
+        return 1 + sum(1 for heard in self.peers.values() if heard >= alive)
 
     def _senders(self) -> str:
         """Names of the nodes publishing e-stop commands now (who sent, as far as DDS tells:
@@ -139,6 +150,7 @@ class EstopHolder:
             return
         if report.holder == self.name:
             return
+        self.peers[report.holder] = time.monotonic()
         if self.latch.peer(report.engaged, report.since, report.by, now_seconds(self.node)):
             self._changed(f' (passed on by {report.holder})')
         self._hear()

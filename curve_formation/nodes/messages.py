@@ -277,7 +277,7 @@ def polygon_from_msg(msg: PolygonStamped) -> tuple[np.ndarray, bool]:
 
 
 def estop_state_to_msg(holder: str, role: str, robot: str, engaged: bool, by: str,
-                       since: float, robots: int = 0) -> DiagnosticStatus:
+                       since: float, robots: int = 0, holders: int = 0) -> DiagnosticStatus:
     """DiagnosticStatus of a node's e-stop state (core.controller.estop.EstopReport's fields):
     level
     WARN engaged, OK released.
@@ -287,6 +287,6 @@ def estop_state_to_msg(holder: str, role: str, robot: str, engaged: bool, by: st
         hardware_id=robot,
         message=(f'e-stop engaged by {by}' if engaged else
                  f'e-stop released by {by}' if by else 'e-stop released'),
-        values=[KeyValue(key=key, value=value)
-                for key, value in estop_fields(engaged, role, by, since, robots).items()])
+        values=[KeyValue(key=key, value=value) for key, value
+                in estop_fields(engaged, role, by, since, robots, holders).items()])
 

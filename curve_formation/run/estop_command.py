@@ -5,7 +5,9 @@ The command sends the e-stop on /formation/estop again every RESEND_PERIOD until
 expected robot's controller has confirmed it in its own state on /formation/estop_state
 (nodes/estop.py), and every other holder (robot bridges, fake robots or arena, the curve
 server) discovered on that topic (for DISCOVERY_QUIET s at least) or heard there says the
-same, or `wait` seconds have passed:
+same, and it has heard as many holders as the holders say they hear (a curve server that
+discovery had not shown the command within its DISCOVERY_QUIET kept a released formation's
+e-stop: a release comes only from a command), or `wait` seconds have passed:
 a release that reached every controller, but not the fake arena the command had not heard
 yet, left the arena's robots stopped once the command was gone. The robots expected are
 `expect` (from --expect or --experiment), else as many as the controllers and the curve server
@@ -76,11 +78,20 @@ class Tally:
                  if report.role != CONTROLLER and report.engaged != self.engage}
         return sorted(wrong | (self.discovered - set(self.reports)))
 
-    def done(self, quiet=True):
-        """Every expected robot and every other holder confirmed; quiet: discovery has had
-        its time (DISCOVERY_QUIET) to show the holders not heard yet.
+    def unheard(self):
+        """How many holders the others hear announce that this command has not heard: ones
+        discovery has not shown it yet, which it cannot name.
         """
-        return quiet and self.missing() == [] and not self.others_missing()
+        known = max((r.holders for r in self.reports.values()), default=0)
+        return max(0, known - len(self.reports))
+
+    def done(self, quiet=True):
+        """Every expected robot and every other holder confirmed, every holder the others
+        hear heard; quiet: discovery has had its time (DISCOVERY_QUIET) to show the holders
+        not heard yet.
+        """
+        return (quiet and self.missing() == [] and not self.others_missing()
+                and not self.unheard())
 
 
 def send_estop(engage, expect=None, wait=10.0, hold=False, log=None):
@@ -172,6 +183,9 @@ def _report(tally, word, wait, log):
     confirmed = [r for r in expected if r not in missing]
     slowest = max((tally.confirmed[r] for r in confirmed), default=0.0)
     others = tally.others_missing()
+    unheard = tally.unheard()
+    if unheard:
+        others = others + [f'{unheard} holder(s) the others hear and discovery did not show']
     if not missing and not others:
         log(f'e-stop {word}: {len(confirmed)} of {len(expected)} robots {done} within '
             f'{slowest:.2f} s{held}', True)

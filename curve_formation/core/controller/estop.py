@@ -34,13 +34,15 @@ class EstopReport(NamedTuple):
     by: str          # who sent the command it holds ('' before any)
     since: float     # when that command was sent (s, its sender's clock; -inf before any)
     robots: int      # agents in the formation as the node knows it (0: does not know)
+    holders: int = 0   # e-stop holders it hears announce, itself included (0: not told)
 
 
-def estop_fields(engaged: bool, role: str, by: str, since: float, robots: int
-                 ) -> dict[str, str]:
+def estop_fields(engaged: bool, role: str, by: str, since: float, robots: int,
+                 holders: int = 0) -> dict[str, str]:
     """The key/value text fields an EstopReport travels as (a DiagnosticStatus's values)."""
     return {'engaged': 'true' if engaged else 'false', 'role': role, 'by': by,
-            'since': repr(float(since)), 'robots': str(int(robots))}
+            'since': repr(float(since)), 'robots': str(int(robots)),
+            'holders': str(int(holders))}
 
 
 def parse_report(holder: str, robot: str, values: Mapping[str, str]) -> EstopReport:
@@ -49,17 +51,19 @@ def parse_report(holder: str, robot: str, values: Mapping[str, str]) -> EstopRep
     """
     engaged = values.get('engaged')
     robots = values.get('robots', '0')
+    holders = values.get('holders', '0')
     try:
         since = float(values.get('since', '-inf')[:40])
     except ValueError:
         since = math.nan
     if (engaged not in ('true', 'false') or not holder or not robots.isdigit()
-            or len(robots) > 6 or math.isnan(since) or since == math.inf):
+            or len(robots) > 6 or math.isnan(since) or since == math.inf
+            or not holders.isdigit() or len(holders) > 6):
         raise ValueError(f'not an e-stop state: name {holder[:80]!r}, engaged '
                          f'{str(engaged)[:20]!r}, since {str(values.get("since"))[:40]!r}, '
-                         f'robots {robots[:20]!r}')
+                         f'robots {robots[:20]!r}, holders {holders[:20]!r}')
     return EstopReport(holder, values.get('role', ''), robot, engaged == 'true',
-                       values.get('by', ''), since, int(robots))
+                       values.get('by', ''), since, int(robots), int(holders))
 
 
 @dataclass
