@@ -389,6 +389,25 @@ def test_curve_parameters_from_the_sender_are_used_and_checked():
     assert ctrl.curve_id == 0                  # a refused curve leaves the previous one
 
 
+def test_a_still_curve_sent_again_keeps_its_targets_and_any_change_is_checked_anew():
+    """The curve server renews its curve every second: the same still curve keeps the targets
+    computed (and checked) when it came, re-dated; new coefficients or parameters are
+    computed and checked again.
+    """
+    ctrl = AgentController(config())
+    ctrl.set_curve(circle(), 0, [0.5, 0.0, 0.25], received=1.0)
+    first = ctrl.curve_targets
+    ctrl.set_curve(circle(), 0, [0.5, 0.0, 0.25], received=2.0)
+    assert ctrl.curve_targets.targets is first.targets and ctrl.curve_targets.dated == 2.0
+    bigger = circle()
+    bigger = type(bigger)(bigger.basis, 2.0 * bigger.xi)
+    ctrl.set_curve(bigger, 0, [0.5, 0.0, 0.25], received=3.0)
+    np.testing.assert_allclose(ctrl.curve_targets.targets, 2.0 * first.targets)
+    with pytest.raises(AssignmentError, match='share'):
+        ctrl.set_curve(bigger, 0, [0.5, 0.5, 0.25], received=4.0)
+    assert ctrl.curve_targets.dated == 3.0
+
+
 @pytest.mark.parametrize('valid_at, carried_from', [
     (99.97, 99.97),   # the sender's clock is this one's: from when the curve held
     (42.0, 100.0),    # another clock (no time sync): from its arrival

@@ -151,7 +151,9 @@ class EstopHolder:
         if report.holder == self.name:
             return
         self.peers[report.holder] = time.monotonic()
-        if self.latch.peer(report.engaged, report.since, report.by, now_seconds(self.node)):
+        # (a release is never adopted from a peer: the clock is read only for a stop)
+        if report.engaged and self.latch.peer(True, report.since, report.by,
+                                              now_seconds(self.node)):
             self._changed(f' (passed on by {report.holder})')
         self._hear()
 

@@ -97,8 +97,7 @@ class AgentController:
         self.box = plausible_box(cfg.geofence)   # where a measured pose may lie (m)
         self.other_robots = OtherRobots()   # every robot's pose, for the safety filter
         self.filtered = 0           # ticks whose command the safety filter changed
-        # when the own pose was taken, by its StampClock
-        self.pose_dated: float | None = None
+        self.pose_dated: float | None = None   # when the own pose was taken, by its StampClock
         self.estop = False
         self.estop_reason = 'e-stop engaged'
         self.last_command: Command = (0.0, 0.0)
@@ -131,7 +130,8 @@ class AgentController:
         """
         dated = (valid_at if valid_at is not None
                  and abs(received - valid_at) <= self.config.leader_timeout else received)
-        targets = curve_targets(curve, curve_id, s_all, rate, self.config.agent_count, dated)
+        targets = curve_targets(curve, curve_id, s_all, rate, self.config.agent_count, dated,
+                                self.curve_targets)
         self.first_pose = self.first_pose or int(curve_id) != self.curve_id
         self.curve, self.curve_id, self.curve_rate = curve, int(curve_id), rate
         if self.curve_targets is not None and self.curve_targets.curve_id != targets.curve_id:
