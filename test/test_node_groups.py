@@ -7,6 +7,7 @@ import os
 import signal
 
 import numpy as np
+from test_safety import estop_cli
 import yaml
 
 from curve_formation.run.run_options import RunOptions, SOLO_TEAM
@@ -34,8 +35,9 @@ def test_the_default_groups_any_team_up_to_100_into_at_most_16_participants():
 def test_grouped_controllers_drive_the_team_and_a_group_that_dies_is_named(ros_domain,
                                                                           tmp_path):
     """arena_demo's nine controllers in three processes of three: every robot is driven from
-    them; killing the group of robots 4-6 is reported with its robots; robots 1-3 drive on
-    (robots 7-9, which hear from 5 and 6, stop for a missing neighbour, as they should).
+    them; `estop on` and `off` reach all nine; killing the group of robots 4-6 is reported
+    with its robots; robots 1-3 drive on (robots 7-9, which hear from 5 and 6, stop for a
+    missing neighbour, as they should).
     """
     options = RunOptions(controllers_per_process=3)
     said = []
@@ -43,6 +45,12 @@ def test_grouped_controllers_drive_the_team_and_a_group_that_dies_is_named(ros_d
         keys = sorted(k for k in run.processes if 'controller' in k)
         assert keys == ['controllers_1-3', 'controllers_4-6', 'controllers_7-9'], keys
         run.spin_for(4.0)
+        # the e-stop reaches every grouped controller (one subscription to the holders'
+        # states a group) and its release too
+        for word, done in (('on', 'stopped'), ('off', 'released')):
+            status, out, err = estop_cli(run, word, '--expect', '9')
+            assert status == 0 and f'9 of 9 robots {done}' in out, (out, err)
+        run.spin_for(2.0)
         os.kill(run.processes['controllers_4-6'].pid, signal.SIGKILL)
         run.spin_for(4.0)
         data = run.recording()

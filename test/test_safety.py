@@ -608,6 +608,30 @@ def test_a_release_waits_for_the_holders_the_others_hear_and_discovery_has_not_s
     assert tally.done()
 
 
+def test_the_holders_of_one_process_share_one_subscription_to_the_states_and_hear_alike(ros):
+    """A group's nodes (node_group) read the holders' states through one subscription: a
+    stop announced by a holder elsewhere is passed on to each of them, and each hears every
+    holder.
+    """
+
+    from rclpy.node import Node
+
+    from curve_formation.nodes.estop import EstopHolder, peer_states_shared
+    context, add, spin_until = ros
+    with peer_states_shared():
+        grouped = [EstopHolder(add(Node('formation_controller', namespace=f'/robot_{i}',
+                                        context=context)), f'robot_{i}', 3)
+                   for i in (1, 2)]
+    elsewhere = EstopHolder(add(Node('fake_arena', context=context)), robots=3)
+    probe = add(Node('probe', context=context))
+    spin_until(lambda: probe.count_publishers(topics.ESTOP_STATE) == 3)
+    assert probe.count_subscribers(topics.ESTOP_STATE) == 2   # the group's and the arena's
+    assert elsewhere.latch.command(True, 10.0, '/pedal', 10.0)
+    elsewhere.announce()
+    spin_until(lambda: all(holder.engaged for holder in grouped))
+    spin_until(lambda: [holder.holders() for holder in (*grouped, elsewhere)] == [3, 3, 3])
+
+
 def test_the_command_discovers_the_holders_that_are_not_controllers(ros):
     from rclpy.node import Node
 
