@@ -26,6 +26,14 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from curve_formation.core.base.shapes import FloatArray
+from curve_formation.core.controller.motion_record import (
+    cleaned,
+    driven_commands,
+    held_means,
+    lagged_means,
+    measured_rates,
+    MotionRecord,
+)
 
 
 LAGS = np.arange(-0.1, 0.6001, 0.0025)   # candidate latencies (s; below 0: the robot acts
@@ -56,59 +64,6 @@ class LinkEstimate:
     motor_spread: float | None = None
 
 
-def _measured_rates(tp: FloatArray, poses: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """(forward speed, turn rate) over each interval between consecutive poses."""
-    dt = np.diff(tp)
-    turn = np.diff(np.unwrap(poses[:, 2]))
-    heading = poses[:-1, 2] + 0.5 * turn
-    step = np.diff(poses[:, :2], axis=0)
-    forward = step[:, 0] * np.cos(heading) + step[:, 1] * np.sin(heading)
-    # an arc's chord is shorter than its length by sinc(turn / 2)
-    half = 0.5 * turn
-    chord = np.where(np.abs(half) > 1e-9, np.sin(half) / np.where(half == 0, 1.0, half), 1.0)
-    return forward / chord / dt, turn / dt
-
-
-def _held_means(tc: FloatArray, values: FloatArray, starts: FloatArray, ends: FloatArray
-                ) -> FloatArray:
-    """Mean over [starts, ends] (arrays of one shape) of the piecewise-constant signal
-    values[k] from tc[k] (zero before the first command).
-    """
-    knots = np.concatenate([tc, [tc[-1] + 1e9]])
-    integral = np.concatenate([[0.0], np.cumsum(values * np.diff(knots))])
-    edges = np.concatenate([[tc[0] - 1e9], knots])
-    area = np.concatenate([[0.0], integral])
-    return (np.interp(ends, edges, area) - np.interp(starts, edges, area)) / (ends - starts)
-
-
-def _lagged_means(tc: FloatArray, values: FloatArray, starts: FloatArray, ends: FloatArray,
-                  tau: float) -> FloatArray:
-    """Mean over [starts, ends] of the piecewise-constant signal values[k] from tc[k] (zero
-    before the first) through a first-order lag of time constant tau (s; the motors'; 0:
-    none): tau y' = u - y, so the mean of y is the mean of u less tau (y(end) - y(start)) /
-    (end - start).
-    """
-    held = _held_means(tc, values, starts, ends)
-    if tau <= 0.0:
-        return held
-    knots = np.empty(len(tc))   # y at each command's start, from 0 before the first
-    y = 0.0
-    for k in range(len(tc)):
-        if k:
-            y = values[k - 1] + (y - values[k - 1]) * math.exp(-(tc[k] - tc[k - 1]) / tau)
-        knots[k] = y
-
-    def lagged(t: FloatArray) -> FloatArray:
-        k = np.searchsorted(tc, t, side='right') - 1
-        inside = k >= 0
-        k = np.maximum(k, 0)
-        u = values[k]
-        return np.where(inside, u + (knots[k] - u) * np.exp(-np.maximum(t - tc[k], 0.0) / tau),
-                        0.0)
-
-    return held - tau * (lagged(ends) - lagged(starts)) / (ends - starts)
-
-
 def _residuals(tc: FloatArray, commands: FloatArray, driven: FloatArray, tp: FloatArray,
                v_meas: FloatArray, w_meas: FloatArray, lags: FloatArray, tau: float = 0.0
                ) -> FloatArray:
@@ -119,9 +74,9 @@ def _residuals(tc: FloatArray, commands: FloatArray, driven: FloatArray, tp: Flo
     """
     starts = tp[None, :-1] - lags[:, None]
     ends = tp[None, 1:] - lags[:, None]
-    v = _lagged_means(tc, commands[:, 0], starts, ends, tau)
-    w = _lagged_means(tc, commands[:, 1], starts, ends, tau)
-    on = _held_means(tc, driven, starts, ends)
+    v = lagged_means(tc, commands[:, 0], starts, ends, tau)
+    w = lagged_means(tc, commands[:, 1], starts, ends, tau)
+    on = held_means(tc, driven, starts, ends)
     rv, rw = v_meas - v, (w_meas - w) * TURN_SCALE
     # the disturbance acting while driven, drifting over the fit as a polynomial of degree
     # DRIFT_DEGREE in time (a disturbance that changes is not read as latency): least
@@ -163,26 +118,6 @@ def _best_pair(surface: FloatArray, lags: FloatArray, taus: FloatArray
     return lag, max(tau, 0.0)
 
 
-def _driven(cmd: FloatArray) -> FloatArray:
-    """1.0 for each command (k, 2) that drives the motors, 0.0 for a stop."""
-    return ((cmd[:, 0] != 0.0) | (cmd[:, 1] != 0.0)).astype(float)
-
-
-def _cleaned(command_times: ArrayLike, commands: ArrayLike, pose_times: ArrayLike,
-             poses: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """Arrays of commands and poses, the poses finite, in time order, one per stamp."""
-    tc = np.asarray(command_times, float)
-    cmd = np.asarray(commands, float).reshape(-1, 2)
-    tp = np.asarray(pose_times, float)
-    pose = np.asarray(poses, float).reshape(-1, 3)
-    keep = np.isfinite(tp) & np.isfinite(pose).all(axis=1)
-    tp, pose = tp[keep], pose[keep]
-    order = np.argsort(tp, kind='stable')
-    tp, pose = tp[order], pose[order]
-    fresh = np.concatenate([[True], np.diff(tp) > 1e-6])
-    return tc, cmd, tp[fresh], pose[fresh]
-
-
 class _Fit:
     """The intervals between a robot's poses that its commands cover at every candidate lag,
     ready to be fitted window by window.
@@ -191,8 +126,8 @@ class _Fit:
     def __init__(self, tc: FloatArray, cmd: FloatArray, tp: FloatArray, pose: FloatArray,
                  lags: FloatArray) -> None:
         self.tc, self.cmd, self.tp, self.lags = tc, cmd, tp, lags
-        self.driven = _driven(cmd)
-        self.v_meas, self.w_meas = _measured_rates(tp, pose)
+        self.driven = driven_commands(cmd)
+        self.v_meas, self.w_meas = measured_rates(tp, pose)
         self.inside = (tp[:-1] - lags.max() >= tc[0]) & (tp[1:] <= tc[-1] + 1.0)
 
     def residuals(self, begin: float, end: float, lags: FloatArray | None = None,
@@ -241,7 +176,7 @@ def estimate_latency(command_times: ArrayLike, commands: ArrayLike, pose_times: 
     (told: limits.motor_time_constant), so that the lag is not read as latency; None: it is
     estimated with the latency, over motor_lags (s).
     """
-    tc, cmd, tp, pose = _cleaned(command_times, commands, pose_times, poses)
+    tc, cmd, tp, pose = cleaned(command_times, commands, pose_times, poses)
     lags = np.asarray(lags, float)
     estimating = motor_time_constant is None
     taus = np.asarray(motor_lags if estimating else [motor_time_constant], float)
@@ -310,27 +245,6 @@ MOTOR_AGREEMENT = 0.01   # s: the motor lags of the AGREEING estimates, as AGREE
 MOTOR_EXCITATION = 5e-3
 
 
-class MotionRecord:
-    """A controller's recent commands (at, v, w; the last `commands` of them) and poses
-    (taken, x, y, theta; the last `span` s, in time order), as its online fits read them.
-    """
-
-    def __init__(self, commands: int, span: float) -> None:
-        from collections import deque
-        self.span = span
-        self.commands: deque[tuple[float, float, float]] = deque(maxlen=commands)
-        self.poses: deque[tuple[float, float, float, float]] = deque()
-
-    def sent(self, at: float, v: float, w: float) -> None:
-        self.commands.append((at, v, w))
-
-    def seen(self, taken: float, x: float, y: float, theta: float) -> None:
-        if not self.poses or taken > self.poses[-1][0]:
-            self.poses.append((taken, x, y, theta))
-            while self.poses[0][0] < taken - self.span:
-                self.poses.popleft()
-
-
 class OnlineLink(MotionRecord):
     """A controller's running estimate of its command latency and, with `estimate_motor`,
     of its motors' lag. Every ONLINE_EVERY s (every ONLINE_FIRST_EVERY s until a first value
@@ -381,7 +295,7 @@ class OnlineLink(MotionRecord):
         if not _excited(sent[:, 0], sent[:, 1:], -np.inf, np.inf, least):
             return self.latency   # the fit below would tell nothing either: spare it
         seen = np.array(self.poses)
-        tc, cmd, tp, pose = _cleaned(sent[:, 0], sent[:, 1:], seen[:, 0], seen[:, 1:])
+        tc, cmd, tp, pose = cleaned(sent[:, 0], sent[:, 1:], seen[:, 0], seen[:, 1:])
         found = _Fit(tc, cmd, tp, pose, self.lags).surface(-np.inf, np.inf, self.taus)
         if found is None or not _clear(*found):
             return self.latency

@@ -1,0 +1,109 @@
+"""A controller's record of what it commanded and what its robot did, and the means the
+online fits of its link and motors (core.controller.link_estimate, wheel_estimate) take over
+it: the measured motion between poses, and a command signal held or through the motors' lag
+over an interval.
+
+Times in s on the controller's clock; poses in the arena frame (m, rad); commands in m/s and
+rad/s.
+"""
+
+from collections import deque
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from curve_formation.core.base.shapes import FloatArray
+
+
+def measured_rates(tp: FloatArray, poses: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """(forward speed, turn rate) over each interval between consecutive poses."""
+    dt = np.diff(tp)
+    turn = np.diff(np.unwrap(poses[:, 2]))
+    heading = poses[:-1, 2] + 0.5 * turn
+    step = np.diff(poses[:, :2], axis=0)
+    forward = step[:, 0] * np.cos(heading) + step[:, 1] * np.sin(heading)
+    # an arc's chord is shorter than its length by sinc(turn / 2)
+    half = 0.5 * turn
+    chord = np.where(np.abs(half) > 1e-9, np.sin(half) / np.where(half == 0, 1.0, half), 1.0)
+    return forward / chord / dt, turn / dt
+
+
+def held_means(tc: FloatArray, values: FloatArray, starts: FloatArray, ends: FloatArray
+                ) -> FloatArray:
+    """Mean over [starts, ends] (arrays of one shape) of the piecewise-constant signal
+    values[k] from tc[k] (zero before the first command).
+    """
+    knots = np.concatenate([tc, [tc[-1] + 1e9]])
+    integral = np.concatenate([[0.0], np.cumsum(values * np.diff(knots))])
+    edges = np.concatenate([[tc[0] - 1e9], knots])
+    area = np.concatenate([[0.0], integral])
+    return (np.interp(ends, edges, area) - np.interp(starts, edges, area)) / (ends - starts)
+
+
+def lagged_means(tc: FloatArray, values: FloatArray, starts: FloatArray, ends: FloatArray,
+                  tau: float) -> FloatArray:
+    """Mean over [starts, ends] of the piecewise-constant signal values[k] from tc[k] (zero
+    before the first) through a first-order lag of time constant tau (s; the motors'; 0:
+    none): tau y' = u - y, so the mean of y is the mean of u less tau (y(end) - y(start)) /
+    (end - start).
+    """
+    held = held_means(tc, values, starts, ends)
+    if tau <= 0.0:
+        return held
+    knots = np.empty(len(tc))   # y at each command's start, from 0 before the first
+    y = 0.0
+    for k in range(len(tc)):
+        if k:
+            y = values[k - 1] + (y - values[k - 1]) * math.exp(-(tc[k] - tc[k - 1]) / tau)
+        knots[k] = y
+
+    def lagged(t: FloatArray) -> FloatArray:
+        k = np.searchsorted(tc, t, side='right') - 1
+        inside = k >= 0
+        k = np.maximum(k, 0)
+        u = values[k]
+        return np.where(inside, u + (knots[k] - u) * np.exp(-np.maximum(t - tc[k], 0.0) / tau),
+                        0.0)
+
+    return held - tau * (lagged(ends) - lagged(starts)) / (ends - starts)
+
+
+def driven_commands(cmd: FloatArray) -> FloatArray:
+    """1.0 for each command (k, 2) that drives the motors, 0.0 for a stop."""
+    return ((cmd[:, 0] != 0.0) | (cmd[:, 1] != 0.0)).astype(float)
+
+
+def cleaned(command_times: ArrayLike, commands: ArrayLike, pose_times: ArrayLike,
+             poses: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Arrays of commands and poses, the poses finite, in time order, one per stamp."""
+    tc = np.asarray(command_times, float)
+    cmd = np.asarray(commands, float).reshape(-1, 2)
+    tp = np.asarray(pose_times, float)
+    pose = np.asarray(poses, float).reshape(-1, 3)
+    keep = np.isfinite(tp) & np.isfinite(pose).all(axis=1)
+    tp, pose = tp[keep], pose[keep]
+    order = np.argsort(tp, kind='stable')
+    tp, pose = tp[order], pose[order]
+    fresh = np.concatenate([[True], np.diff(tp) > 1e-6])
+    return tc, cmd, tp[fresh], pose[fresh]
+
+
+class MotionRecord:
+    """A controller's recent commands (at, v, w; the last `commands` of them) and poses
+    (taken, x, y, theta; the last `span` s, in time order), as its online fits read them.
+    """
+
+    def __init__(self, commands: int, span: float) -> None:
+        self.span = span
+        self.commands: deque[tuple[float, float, float]] = deque(maxlen=commands)
+        self.poses: deque[tuple[float, float, float, float]] = deque()
+
+    def sent(self, at: float, v: float, w: float) -> None:
+        self.commands.append((at, v, w))
+
+    def seen(self, taken: float, x: float, y: float, theta: float) -> None:
+        if not self.poses or taken > self.poses[-1][0]:
+            self.poses.append((taken, x, y, theta))
+            while self.poses[0][0] < taken - self.span:
+                self.poses.popleft()
