@@ -10,7 +10,6 @@ is stopped with SIGINT and metrics and figures are written.
 from contextlib import ExitStack
 import dataclasses
 import json
-import math
 import os
 from pathlib import Path
 import random
@@ -19,16 +18,12 @@ import signal
 import threading
 import time
 
-import numpy as np
 from rclpy.serialization import serialize_message
 
-from curve_formation import diagnostics
 from curve_formation.bags.analysis import bag_accounting, RUN_END_KEY
 from curve_formation.bags.bag import BagWriter
 from curve_formation.core.config.experiment import phase_index
 from curve_formation.core.config.loading import control_rate, load_experiment
-from curve_formation.core.record import body_metrics, metrics
-from curve_formation.core.record.tick_timing import run_timing
 from curve_formation.interface import robot_index
 from curve_formation.nodes.runtime import now_seconds
 from curve_formation.nodes.topics import CURVE, DIAGNOSTICS
@@ -55,12 +50,12 @@ from curve_formation.run.preflight import (
     run_preflight,
 )
 from curve_formation.run.run_options import DEFAULTS, ROBOT_FAULTS
+from curve_formation.run.run_record import measured, status_line, STATUS_PERIOD
 from curve_formation.run.start_scripts import write_node_files
 from curve_formation.run.team_file import write_team_file
 
 
 READY_TIMEOUT = 90.0   # s; nine Python processes start in ~10 s on two cores
-STATUS_PERIOD = 5.0    # s between the status lines of a run, and of its waiting
 # s of discovery in which a curve server already on the domain is looked for before real
 # robots' controllers start (seen found after 0 to 2.3 s under LOCALHOST); meanwhile the nodes
 # that cannot move a robot start
@@ -421,41 +416,8 @@ class Run:
             self._refuse_another_formation()
 
     def status(self):
-        """One line on the run now (None before t = 0): t, phase, error norm against the
-        tolerance, the worst robot's error (mm), how many robots drive (a non-zero command) or
-        stand (or that the e-stop holds them all), and how many are at their targets: within
-        tolerance / sqrt(n) (all of them so is the formation within its tolerance).
-        """
-        monitor = self.monitor
-        phases = monitor.followed_phases()
-        if monitor.t0 is None or not phases:
-            return None
-        t = now_seconds(monitor) - monitor.t0
-        k = max(p.index for p in phases if p.start <= t) if phases[0].start <= t else 0
-        followed = dataclasses.replace(self.experiment, phases=phases)
-        errors = metrics.target_errors(monitor.latest.poses[None], np.array([k]), followed,
-                                       t=np.array([t]),
-                                       stamps=(monitor.latest.pose_stamps - monitor.t0)[None])[0]
-        norm = float(metrics.error_norm(errors[None])[0])
-        tolerance = followed.tolerance(k)
-        worst = np.nanmax(np.linalg.norm(errors, axis=1)) if np.isfinite(errors).any() \
-            else math.nan
-        n = self.experiment.n
-        driving = int(np.sum(np.abs(monitor.latest.commands).max(axis=1) > 0))
-        held = self.monitor.estop_intervals(t)
-        moving = ('all held by the e-stop' if held and held[-1][1] is None
-                  else f'{driving} driving, {n - driving} standing')
-        at_target = int(np.sum(np.linalg.norm(errors, axis=1) < tolerance / math.sqrt(n)))
-        settled = 'within' if norm < tolerance else 'above'
-        fleet = '' if self.fleet_status is None else f'  {self.fleet_status.summary()}'
-        timing = run_timing(monitor.command_times_since(time.time() - STATUS_PERIOD),
-                            self.rate_hz)['slowest']
-        if timing is not None:
-            fleet += (f'  slowest controller robot {timing["robot"]} at '
-                      f'{timing["rate_hz"]:.2f} Hz')
-        return (f't {t:6.1f} s  phase {k}  error {norm:.3g} ({settled} tolerance '
-                f'{tolerance:.3g})  worst robot {1e3 * worst:.1f} mm  robots: {moving}, '
-                f'{at_target} at their targets{fleet}')
+        """One line on the run now (run_record.status_line); None before t = 0."""
+        return status_line(self)
 
     def spin_until(self, predicate, timeout, what='a condition'):
         """Spin the monitor (and in-process nodes) until predicate() or timeout (s).
@@ -501,49 +463,11 @@ class Run:
 
     def measure(self):
         """(experiment as followed, record, metrics) of what the monitor recorded, for
-        outputs.write_outputs; the run ends first (end). RuntimeError if nothing was.
+        outputs.write_outputs (run_record.measured); the run ends first (end). RuntimeError
+        if nothing was.
         """
         self.end()
-        data = self.recording()
-        if len(data['t']) < 2:
-            raise RuntimeError('nothing was recorded')
-        experiment, phase = self.followed(data['t'])
-        camera = 'true_poses' in data
-        truth = data['true_poses'] if camera else data['poses']
-        estops = self.monitor.estop_intervals(float(data['t'][-1]))
-        deaths = self.monitor.node_deaths
-        result = metrics.run_metrics(experiment, data['t'], data['poses'], phase,
-                                     data['dhat'], data['commands'], estops=estops,
-                                     deaths=deaths, stamps=data['pose_stamps'])
-        if 'bodies' in result:   # measured on the bodies, i.e. the true poses
-            result['bodies'] = body_metrics.body_metrics(experiment, data['t'], truth,
-                                                    self.monitor.contacts,
-                                                    data['unseen'] if camera else None)
-        if self.monitor.links:   # robot_bridge's link reports, per robot
-            result['links'] = {name.strip('/').split('/')[0]: diagnostics.link_summary(reports)
-                               for name, reports in sorted(self.monitor.links.items())}
-        if self.monitor.estimates:   # each robot as its controller estimated it, at the end
-            result['robot_estimates'] = dict(sorted(self.monitor.estimates.items(),
-                                                    key=lambda kv: robot_index(kv[0]) or 0))
-        # robot -> [[from, to or null (s), nodes]] while its cmd_vel had several publishers
-        result['command_sources'] = self.monitor.command_sources
-        if self.fleet_status is not None:
-            result['fleet'] = self.fleet_status.as_dict()
-        if self.preflight is not None:
-            result['preflight'] = {**self.preflight.as_dict(),
-                                   **({'left_out': self.left_out['robots'],
-                                       'team': self.left_out['team']}
-                                      if self.left_out else {})}
-        if self.monitor.t0 is not None:   # the controllers' ticks over the run
-            result['ticks'] = run_timing(self.monitor.command_times_since(self.monitor.t0),
-                                         self.rate_hz)
-        result['control'] = f'ROS nodes at {self.rate_hz:g} Hz'
-        result['mode'] = ('single process' if self.options.single_process
-                          else 'one process per node')
-        if camera:
-            result['ground_truth'] = metrics.ground_truth_metrics(
-                experiment, data, phase, self.monitor.law_pose_rms(), estops, deaths)
-        return experiment, {'phase': phase, **data}, result
+        return measured(self)
 
     def bag_accounting(self):
         """analysis.bag_accounting of the run's bag, once stopped: what was lost per topic."""
