@@ -96,7 +96,8 @@ def starts_report(rows):
     out = {}
     for name in CASES:
         case_rows = [r for r in rows if r['case'] == name]
-        phases = len(case_rows[0]['kinematic']['settle'])
+        phases = len(next(v['settle'] for v in case_rows[0].values()
+                          if isinstance(v, dict) and 'settle' in v))   # any world run
         print(f"\n{name}: {len(case_rows)} random starts, nodes' tick pipeline")
         print(f'{"phase":>5} {"world":>10} {"settled":>8} {"median s":>9} {"max s":>7} '
               f'{"worst ratio":>12} {"goal":>5} {"contacts":>9} {"worst final mm":>15}')
@@ -107,6 +108,7 @@ def starts_report(rows):
                                    ('learnt', 'mujoco')):
                 if world not in case_rows[0]:
                     continue
+                against = against if against in case_rows[0] else None
                 times = [r[world]['settle'][k] for r in case_rows]
                 done = [t for t in times if t is not None]
                 ratios = [ratio(r[world]['settle'][k], r[against]['settle'][k])
@@ -211,8 +213,9 @@ def main():
         jobs = [(name, seed, worlds) for name in CASES for seed in range(1, args.seeds + 1)]
         with Pool(args.workers) as pool:
             rows = pool.map(one_start, jobs, chunksize=1)
-        results['starts'] = starts_report(rows)
         results['runs'] = rows
+        (out / 'physics.json').write_text(json.dumps(results, indent=2, default=float))
+        results['starts'] = starts_report(rows)
     (out / 'physics.json').write_text(json.dumps(results, indent=2, default=float))
     print(f'\nwrote {out / "physics.json"}')
 

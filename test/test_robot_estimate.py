@@ -170,3 +170,34 @@ def test_the_wheel_gains_told_online_are_within_3_percent():
     metrics = result_metrics(result)
     assert [g is not None for g in metrics['estimated_wheel_gains']] == [
         c.robot.wheel_gains is not None for c in controllers]
+
+
+def test_the_wheels_are_sent_their_commands_divided_by_their_gains_within_the_limits():
+    """Gains estimated (left 1.05, right 0.95): each wheel is asked its speed over its gain,
+    so the motion is the one wanted; where that would pass the wheel or turn limits both
+    wheels are scaled down together; without gains, or standing, the command is as it was.
+    """
+    from curve_formation.core.controller.agent_config import AgentConfig
+    from curve_formation.core.controller.gains import Gains
+    from curve_formation.core.controller.limits import WheelLimits
+    from curve_formation.core.controller.robot_model import RobotModel
+    from curve_formation.core.controller.wheel_estimate import WheelGains
+    from curve_formation.core.formation.dynamics import body_from_wheels, wheel_speeds
+
+    limits = WheelLimits(wheel_base=0.08, max_wheel_speed=0.05, max_angular_rate=1.0)
+    model = RobotModel(AgentConfig(index=1, agent_count=1, neighbours=(),
+                                   gains=Gains(1.0, 0.5, 0.1), limits=limits,
+                                   estimate_motors=True))
+    assert model.compensated(0.02, 0.1) == (0.02, 0.1)   # no gains yet
+    model.wheels.found = WheelGains((1.05, 0.95), (0.001, 0.001), 0.001, 100)
+    v, w = model.compensated(0.02, 0.1)
+    left, right = wheel_speeds(v, w, limits.wheel_base)
+    done = body_from_wheels(1.05 * left, 0.95 * right, limits.wheel_base)
+    np.testing.assert_allclose(done, (0.02, 0.1))
+    v, w = model.compensated(0.05, 0.0)   # the right wheel would be asked 0.0526 m/s
+    left, right = wheel_speeds(v, w, limits.wheel_base)
+    assert max(abs(left), abs(right)) == pytest.approx(0.05)
+    assert right / left == pytest.approx(1.05 / 0.95)   # the same motion's direction
+    _, w = model.compensated(0.0, 1.0)
+    assert abs(w) <= 1.0 + 1e-12
+    assert model.compensated(0.0, 0.0) == (0.0, 0.0)

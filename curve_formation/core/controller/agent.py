@@ -108,9 +108,8 @@ class AgentController:
         self.front = 1.0
         self.first_pose = True
         self.robot = RobotModel(cfg)   # latency, motors' lag, wheel gains: told or estimated
-        # The commands sent (Sent), as far back as a pose may be (pose_timeout) plus the
-        # command latency, for predict_pose and the observer.
-        self.sent = CommandsSent(self.robot.commands_kept)
+        # The motions commanded (Sent), back to pose_timeout plus the latency: predict_pose's
+        self.sent = CommandsSent(self.robot.commands_kept)   # and the observer's
         self.step = compiled_step(cfg) if cfg.compiled else agent_step
         # added to the command before the limits (m/s, rad/s): the config's, or as it varies
         self.pc_disturbance: Command = cfg.pc_disturbance
@@ -303,8 +302,9 @@ class AgentController:
     def tick(self, now: float) -> Tick:
         """One control step at time `now` (s, this controller's clock)."""
         self.robot.update(now)
-        tick = self._tick(now)
+        tick = self._tick(now)   # the motion wanted, as the observer and predictions read it
         self.sent.append(self.observer.sent(now, tick.v, tick.w, tick.stopped is not None))
+        tick.v, tick.w = self.robot.compensated(tick.v, tick.w)   # what the motors are sent
         self.robot.sent(now, tick.v, tick.w)
         return tick
 

@@ -6,9 +6,11 @@ core.controller.link_estimate), and each wheel's gain as estimated online
 
 import math
 
+from curve_formation.core.base.shapes import Command
 from curve_formation.core.controller.agent_config import AgentConfig
 from curve_formation.core.controller.link_estimate import ONLINE_LAGS, OnlineLink
 from curve_formation.core.controller.wheel_estimate import OnlineGains
+from curve_formation.core.formation.dynamics import body_from_wheels, wheel_speeds
 
 
 class RobotModel:
@@ -24,6 +26,7 @@ class RobotModel:
         self.link = (OnlineLink(self.latency, cfg.rate_hz, cfg.motor_time_constant,
                                 cfg.estimate_latency, estimate_motor)
                      if cfg.estimate_latency or estimate_motor else None)
+        self.limits = cfg.limits
         self.wheels = (OnlineGains(cfg.rate_hz, cfg.limits.wheel_base,
                                    cfg.limits.max_wheel_speed)
                        if cfg.estimate_motors and cfg.limits.wheel_base > 0.0 else None)
@@ -52,6 +55,24 @@ class RobotModel:
         for record in (self.link, self.wheels):
             if record is not None:
                 record.sent(now, v, w)
+
+    def compensated(self, v: float, w: float) -> Command:
+        """(v, w) to send (m/s, rad/s) for the motion (v, w): with wheel_gains estimated,
+        each wheel's command divided by its gain (a wheel that turns 3 % fast is asked 3 %
+        less), both wheels scaled down together where that would pass max_wheel_speed or
+        max_angular_rate; (v, w) itself otherwise.
+        """
+        gains = self.wheel_gains
+        if gains is None or (v == 0.0 and w == 0.0):
+            return v, w
+        limits = self.limits
+        left, right = wheel_speeds(v, w, limits.wheel_base)
+        left, right = left / gains[0], right / gains[1]
+        v, w = body_from_wheels(left, right, limits.wheel_base)
+        over = max(max(abs(left), abs(right)) / limits.max_wheel_speed
+                   if limits.max_wheel_speed > 0.0 else 0.0,
+                   abs(w) / limits.max_angular_rate if limits.max_angular_rate > 0.0 else 0.0)
+        return (v / over, w / over) if over > 1.0 else (v, w)
 
     @property
     def wheel_gains(self) -> tuple[float, float] | None:

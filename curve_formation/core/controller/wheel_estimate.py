@@ -23,15 +23,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from curve_formation.core.base.shapes import FloatArray
+from curve_formation.core.controller import motion_record as record
 from curve_formation.core.controller.link_estimate import DRIFT_DEGREE
-from curve_formation.core.controller.motion_record import (
-    cleaned,
-    driven_commands,
-    held_means,
-    lagged_means,
-    measured_rates,
-    MotionRecord,
-)
 
 
 WINDOW = 6.0        # s over which the drift is one quadratic
@@ -108,23 +101,23 @@ def estimate_gains(command_times: ArrayLike, commands: ArrayLike, pose_times: Ar
     wheel_base (m); max_wheel_speed (m/s; infinite: every command is fitted); latency and
     motor_time_constant (s) as told or estimated.
     """
-    tc, cmd, tp, pose = cleaned(command_times, commands, pose_times, poses)
+    tc, cmd, tp, pose = record.cleaned(command_times, commands, pose_times, poses)
     tp, pose = _thinned(tp, pose, INTERVAL)
     if len(tc) < 2 or len(tp) < MIN_INTERVALS or wheel_base <= 0.0:
         return NO_GAINS
     tc = tc + latency
-    v_meas, w_meas = measured_rates(tp, pose)
+    v_meas, w_meas = record.measured_rates(tp, pose)
     half = 0.5 * wheel_base   # as dynamics.wheel_speeds, over arrays: left, right
     measured = np.stack([v_meas - half * w_meas, v_meas + half * w_meas])
     wheels = np.stack([cmd[:, 0] - half * cmd[:, 1], cmd[:, 0] + half * cmd[:, 1]])
-    driven = driven_commands(cmd)
+    driven = record.driven_commands(cmd)
     starts, ends = tp[:-1], tp[1:]
-    x = np.stack([lagged_means(tc, wheels[k], starts, ends, motor_time_constant)
+    x = np.stack([record.lagged_means(tc, wheels[k], starts, ends, motor_time_constant)
                   for k in range(2)])
-    on = held_means(tc, driven, starts, ends)
+    on = record.held_means(tc, driven, starts, ends)
     floor = GAIN_FLOOR * max_wheel_speed if math.isfinite(max_wheel_speed) else 0.0
     # the interval's commands (not their lag) all beyond the floor: none in a dead band
-    lowest = np.minimum(*[np.minimum(np.abs(held_means(tc, wheels[k], starts - 2.0
+    lowest = np.minimum(*[np.minimum(np.abs(record.held_means(tc, wheels[k], starts - 2.0
                                                           * motor_time_constant, ends)),
                                      np.abs(x[k])) for k in range(2)])
     sel = (starts >= tc[0] + 3.0 * motor_time_constant) & (ends <= tc[-1] + 1.0) \
@@ -150,7 +143,7 @@ GAINS_EVERY = 5.0
 GAINS_SPAN = 60.0
 
 
-class OnlineGains(MotionRecord):
+class OnlineGains(record.MotionRecord):
     """A controller's running estimate of its wheels' gains: every GAINS_EVERY s the last
     GAINS_SPAN s of its commands (at its ticks) and poses (when taken) are fitted
     (estimate_gains) through the latency and motors' lag it holds then; the gains are those
