@@ -30,7 +30,7 @@ def measured_rates(tp: FloatArray, poses: FloatArray) -> tuple[FloatArray, Float
 
 
 def held_means(tc: FloatArray, values: FloatArray, starts: FloatArray, ends: FloatArray
-                ) -> FloatArray:
+               ) -> FloatArray:
     """Mean over [starts, ends] (arrays of one shape) of the piecewise-constant signal
     values[k] from tc[k] (zero before the first command).
     """
@@ -42,7 +42,7 @@ def held_means(tc: FloatArray, values: FloatArray, starts: FloatArray, ends: Flo
 
 
 def lagged_means(tc: FloatArray, values: FloatArray, starts: FloatArray, ends: FloatArray,
-                  tau: float) -> FloatArray:
+                 tau: float) -> FloatArray:
     """Mean over [starts, ends] of the piecewise-constant signal values[k] from tc[k] (zero
     before the first) through a first-order lag of time constant tau (s; the motors'; 0:
     none): tau y' = u - y, so the mean of y is the mean of u less tau (y(end) - y(start)) /
@@ -75,7 +75,7 @@ def driven_commands(cmd: FloatArray) -> FloatArray:
 
 
 def cleaned(command_times: ArrayLike, commands: ArrayLike, pose_times: ArrayLike,
-             poses: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+            poses: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """Arrays of commands and poses, the poses finite, in time order, one per stamp."""
     tc = np.asarray(command_times, float)
     cmd = np.asarray(commands, float).reshape(-1, 2)

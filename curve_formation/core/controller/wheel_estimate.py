@@ -25,6 +25,7 @@ from numpy.typing import ArrayLike
 from curve_formation.core.base.shapes import FloatArray
 from curve_formation.core.controller import motion_record as record
 from curve_formation.core.controller.link_estimate import DRIFT_DEGREE
+from curve_formation.core.formation.dynamics import wheel_speeds
 
 
 WINDOW = 6.0        # s over which the drift is one quadratic
@@ -106,10 +107,8 @@ def estimate_gains(command_times: ArrayLike, commands: ArrayLike, pose_times: Ar
     if len(tc) < 2 or len(tp) < MIN_INTERVALS or wheel_base <= 0.0:
         return NO_GAINS
     tc = tc + latency
-    v_meas, w_meas = record.measured_rates(tp, pose)
-    half = 0.5 * wheel_base   # as dynamics.wheel_speeds, over arrays: left, right
-    measured = np.stack([v_meas - half * w_meas, v_meas + half * w_meas])
-    wheels = np.stack([cmd[:, 0] - half * cmd[:, 1], cmd[:, 0] + half * cmd[:, 1]])
+    measured = np.stack(wheel_speeds(*record.measured_rates(tp, pose), wheel_base))
+    wheels = np.stack(wheel_speeds(cmd[:, 0], cmd[:, 1], wheel_base))   # left, right
     driven = record.driven_commands(cmd)
     starts, ends = tp[:-1], tp[1:]
     x = np.stack([record.lagged_means(tc, wheels[k], starts, ends, motor_time_constant)
@@ -118,7 +117,7 @@ def estimate_gains(command_times: ArrayLike, commands: ArrayLike, pose_times: Ar
     floor = GAIN_FLOOR * max_wheel_speed if math.isfinite(max_wheel_speed) else 0.0
     # the interval's commands (not their lag) all beyond the floor: none in a dead band
     lowest = np.minimum(*[np.minimum(np.abs(record.held_means(tc, wheels[k], starts - 2.0
-                                                          * motor_time_constant, ends)),
+                                                              * motor_time_constant, ends)),
                                      np.abs(x[k])) for k in range(2)])
     sel = (starts >= tc[0] + 3.0 * motor_time_constant) & (ends <= tc[-1] + 1.0) \
         & (lowest >= floor) & (on > 0.999)

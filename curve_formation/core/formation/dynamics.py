@@ -7,10 +7,14 @@ robot node calls it as is.
 
 from collections.abc import Sequence
 import math
+from typing import TypeVar
 
 import numpy as np
 
 from curve_formation.core.base.shapes import Command, FloatArray, Point, Pose
+
+
+Speeds = TypeVar('Speeds', float, FloatArray)   # one speed (m/s, rad/s) or an array of them
 
 
 def chord_ratio(half: float) -> float:
@@ -61,9 +65,9 @@ def measured_velocity(x0: float, y0: float, theta0: float, x1: float, y1: float,
     return along / (dt * chord_ratio(0.5 * turn)), turn / dt
 
 
-def wheel_speeds(v: float, w: float, wheel_base: float) -> tuple[float, float]:
+def wheel_speeds(v: Speeds, w: Speeds, wheel_base: float) -> tuple[Speeds, Speeds]:
     """(left, right) rim speeds (m/s) of body velocities (v, w) on a differential drive of
-    wheel_base (m); no limit applied.
+    wheel_base (m); no limit applied. v and w may be arrays of one shape (then so are both).
     """
     return v - 0.5 * wheel_base * w, v + 0.5 * wheel_base * w
 
