@@ -2,19 +2,40 @@
 the pose of the last command's tick, or a later one that answers the current estimate),
 what was commanded over it (the command acting, or what the commands realised through a
 latency and the motors' lag), and the estimate a command uses (carried ahead at its rate,
-second order). The update itself is observer.observer_update, as the batch simulator makes
-it.
+second order). The update itself is observer.observer_update.
+
+The memory is a plain float array (MEMORY fields) beside the command log
+(core.controller.command_log) and the recent poses (POSE_FIELDS rows): the functions here
+are what the nodes' MotionObserver and the batch simulator's kernel both call, plain scalar
+math that numba compiles as it is.
 
 Poses in the arena frame (m, rad); times in s on the controller's clock; commands in m/s and
 rad/s.
 """
 
-from collections import deque
+import math
 
-from curve_formation.core.base.shapes import Command, Pose
+import numpy as np
+
+from curve_formation.core.base.shapes import Command, FloatArray, Pose
 from curve_formation.core.controller.agent_config import AgentConfig
+from curve_formation.core.controller.command_log import (
+    DRIVEN,
+    ESTIMATE,
+    LIMITED,
+    log_acting,
+    log_first_acting_after,
+    log_realised,
+    Realised,
+    REF_V,
+    REF_W,
+    SHIFT_V,
+    SHIFT_W,
+)
 from curve_formation.core.controller.commands_sent import CommandsSent
+from curve_formation.core.controller.gains import Law
 from curve_formation.core.controller.inputs import MAX_PREDICTION, Sent
+from curve_formation.core.controller.limits import WheelLimits
 from curve_formation.core.controller.observer import carried_estimate, observer_update
 from curve_formation.core.formation.dynamics import (
     body_from_wheels,
@@ -27,181 +48,250 @@ from curve_formation.core.formation.dynamics import (
 # motion (s) it measures from a later start than the last tick's pose.
 RECENT_POSES = 32
 MIN_OBSERVED = 0.05
+# A recent pose's row: its stamp, when taken on the controller's clock, the pose.
+STAMP, TAKEN, X, Y, THETA = range(5)
+POSE_FIELDS = 5
+# The memory's fields: the pose (x, y, theta) and stamp of the previous command's tick, that
+# tick's time and 1 while it holds (0: none since the robot last stopped); the last
+# command's reference where the disturbance enters (before a PC-injected disturbance, else as
+# sent), what the safety filter changed, 1 where the wheel limits cut it, 1 where its wheels
+# were all within the dead band (idle motors); observer.ray_growth's state (factor, last
+# right, last left wheel speed m/s); observer_order 2: the estimate's rate (per s) and the
+# updates since the wheel limits last cut a command; the updates so far, when the last one's
+# motion ended (NaN: none since the robot last stopped) and when the estimate's disturbance
+# held (the middle of the motion it was learnt from).
+(ANCHOR_X, ANCHOR_Y, ANCHOR_THETA, ANCHOR_STAMP, TICKED, ANCHORED, MEMORY_REF_V,
+ MEMORY_REF_W, MEMORY_SHIFT_V, MEMORY_SHIFT_W, MEMORY_LIMITED, IDLE, GROWTH, LAST_RIGHT,
+ LAST_LEFT, RATE_V, RATE_W, TRACKING, UPDATES, OBSERVED_UNTIL, ESTIMATED_AT) = range(21)
+MEMORY = 21
+NOT_REALISED: Realised = (False, 0.0, 0.0, 0.0, 0.0, False, False, 0)
+
+
+def fresh_memory() -> FloatArray:
+    """An observer's memory before any command (MEMORY,)."""
+    memory = np.zeros(MEMORY)
+    memory[GROWTH] = 1.0
+    memory[OBSERVED_UNTIL] = math.nan
+    return memory
+
+
+def pose_append(poses: FloatArray, count: int, stamp: float, taken: float, x: float,
+                y: float, theta: float) -> int:
+    """Keep a pose stamped `stamp`, taken at `taken` (the oldest dropped when full); returns
+    the new count.
+    """
+    if count == poses.shape[0]:
+        poses[:count - 1] = poses[1:count]
+        count -= 1
+    poses[count, STAMP], poses[count, TAKEN] = stamp, taken
+    poses[count, X], poses[count, Y], poses[count, THETA] = x, y, theta
+    return count + 1
+
+
+def observer_stopped(memory: FloatArray) -> None:
+    """The robot was stopped: nothing is learnt from the time it stands."""
+    memory[ANCHORED] = 0.0
+    memory[OBSERVED_UNTIL] = math.nan
+    memory[MEMORY_REF_V:MEMORY_LIMITED + 1] = 0.0
+    memory[GROWTH], memory[LAST_RIGHT], memory[LAST_LEFT] = 1.0, 0.0, 0.0
+
+
+def dead_band_reference(v: float, w: float, ref_v: float, ref_w: float,
+                        min_wheel_speed: float, wheel_base: float
+                        ) -> tuple[float, float, bool]:
+    """The observer's reference for the command (v, w) sent, and whether its motors idle:
+    with a dead band (min_wheel_speed, m/s), less what the wheels commanded below it will not
+    do, so that a robot standing still under a command too small to move it is not taken for
+    a disturbance holding it back. Both wheels in the band: the motors are idle (nothing is
+    learnt from that period, as when stopped).
+    """
+    if min_wheel_speed <= 0.0 or wheel_base <= 0.0:
+        return ref_v, ref_w, False
+    left, right = wheel_speeds(v, w, wheel_base)
+    still_right = abs(right) < min_wheel_speed
+    still_left = abs(left) < min_wheel_speed
+    moved_v, moved_w = body_from_wheels(0.0 if still_left else left,
+                                        0.0 if still_right else right, wheel_base)
+    return ref_v + moved_v - v, ref_w + moved_w - w, still_right and still_left
+
+
+def observer_commanded(memory: FloatArray, v: float, w: float, ref_v: float, ref_w: float,
+                       shift_v: float, shift_w: float, limited: bool, x: float, y: float,
+                       theta: float, stamp: float, now: float, min_wheel_speed: float,
+                       wheel_base: float) -> None:
+    """The command (v, w) sent at `now` from the pose (x, y, theta) stamped `stamp`, with
+    agent_command's reference, shift and limited.
+    """
+    memory[ANCHOR_X], memory[ANCHOR_Y], memory[ANCHOR_THETA] = x, y, theta
+    memory[ANCHOR_STAMP], memory[TICKED], memory[ANCHORED] = stamp, now, 1.0
+    ref_v, ref_w, idle = dead_band_reference(v, w, ref_v, ref_w, min_wheel_speed, wheel_base)
+    memory[MEMORY_REF_V], memory[MEMORY_REF_W] = ref_v, ref_w
+    memory[MEMORY_SHIFT_V], memory[MEMORY_SHIFT_W] = shift_v, shift_w
+    memory[MEMORY_LIMITED] = 1.0 if limited else 0.0
+    memory[IDLE] = 1.0 if idle else 0.0
+
+
+def estimate_used(memory: FloatArray, dhat_v: float, dhat_w: float, now: float,
+                  latency: float, period: float, law: Law) -> Command:
+    """The estimate a command sent at `now` compensates: carried from the middle of the
+    motion it was learnt from (a pose's age counts) to the middle of the period the command
+    holds for, once it acts (observer.carried_estimate).
+    """
+    ahead_by = min(max(now + latency + period / 2.0 - memory[ESTIMATED_AT], 0.0),
+                   period + latency + MAX_PREDICTION)
+    return carried_estimate(dhat_v, dhat_w, memory[RATE_V], memory[RATE_W],
+                            int(memory[TRACKING]), ahead_by, law)
+
+
+def _acting_over(log: FloatArray, count: int, latency: float, tau: float, elapsed: float,
+                 ended: float, ticked: float, waits: bool, updates: int) -> Realised:
+    """What was commanded over the motion of `elapsed` s ending at `ended` that the
+    observer measures at the tick after `ticked`.
+    """
+    # A motion that began before the last tick (its first pose older than that tick) was
+    # partly made under the command before: the commands are weighed by how long each
+    # acted in it, and whether the limits cut is the last tick's command's, as when the
+    # motion is wholly its own (the search along its ray is that command's).
+    if tau > 0.0 or waits:
+        return log_realised(log, count, ended, elapsed, latency, tau, updates)
+    last = log_acting(log, count, ticked, latency)
+    if ended - elapsed < ticked - 1e-9:   # mixed
+        found, ref_v, ref_w, shift_v, shift_w, limited, driven, estimate = log_realised(
+            log, count, ended, elapsed, latency, tau, updates)
+        if found and last >= 0:
+            limited = log[last, LIMITED] != 0.0
+        return found, ref_v, ref_w, shift_v, shift_w, limited, driven, estimate
+    if last < 0:
+        return NOT_REALISED
+    return (True, log[last, REF_V], log[last, REF_W], log[last, SHIFT_V], log[last, SHIFT_W],
+            log[last, LIMITED] != 0.0, log[last, DRIVEN] != 0.0, int(log[last, ESTIMATE]))
+
+
+def _answering_start(poses: FloatArray, pose_count: int, log: FloatArray, count: int,
+                     updates: int, latency: float, begins: float, ends: float) -> int:
+    """The row of a later start for a motion from `begins` to `ends` that began before the
+    first command sent after the last update acted: the first pose taken from then on, at
+    least MIN_OBSERVED before the end; -1 if the motion needs none or no such pose is held.
+    """
+    answering = log_first_acting_after(log, count, updates, latency)
+    if math.isnan(answering) or begins >= answering - 1e-9:
+        return -1
+    for k in range(pose_count):
+        if poses[k, TAKEN] >= answering - 1e-9:
+            return k if poses[k, TAKEN] <= ends - MIN_OBSERVED else -1
+    return -1
+
+
+def observe_motion(memory: FloatArray, dhat_v: float, dhat_w: float, poses: FloatArray,
+                   pose_count: int, log: FloatArray, count: int, x: float, y: float,
+                   theta: float, stamp: float, ended: float, latency: float, tau: float,
+                   law: Law, limits: WheelLimits) -> tuple[float, float]:
+    """The estimate moved towards (motion measured since the last tick - command) / k2.
+
+    (x, y, theta): the robot's latest pose, stamped `stamp`, taken at `ended`; poses: the
+    recent ones; log: the commands sent; latency and tau (s): the commands' latency and the
+    motors' lag, as told or estimated. The motion is the constant (v, w) that carries the
+    previous tick's pose to it over the difference of their stamps; the command is the one
+    sent at the previous tick, or with a command latency, a motor time constant or a motion
+    that began before the previous tick (a pose older than the time between poses) what the
+    commands realised over that motion; nothing is learnt while the motors were off. With a
+    command latency, or a pose taken before the previous tick (a camera's frame older than a
+    period), the observer waits for a motion made wholly under commands sent after its last
+    update (their ESTIMATE), and blends over the time since that update: no delay enters
+    the estimate's loop (docs/control-laws.md). Without a newer pose nothing is updated.
+    Returns the estimate (dhat_v, dhat_w); the memory is updated in place.
+    """
+    if memory[ANCHORED] == 0.0:
+        return dhat_v, dhat_w
+    x0, y0, theta0 = memory[ANCHOR_X], memory[ANCHOR_Y], memory[ANCHOR_THETA]
+    elapsed = stamp - memory[ANCHOR_STAMP]
+    if elapsed <= 0.0:
+        return dhat_v, dhat_w
+    ticked, updates = memory[TICKED], int(memory[UPDATES])
+    # A pose taken before the last tick cannot show that tick's command: waiting for one
+    # that can keeps the pose's age out of the estimate's loop as it keeps the latency.
+    waits = latency > 0.0 or ended < ticked
+    acting = _acting_over(log, count, latency, tau, elapsed, ended, ticked, waits, updates)
+    if not acting[0] or not acting[6]:
+        return dhat_v, dhat_w
+    if waits and acting[7] < updates:
+        # the motion does not answer the current estimate yet: its part from the first
+        # pose that can, if one is held
+        later = _answering_start(poses, pose_count, log, count, updates, latency,
+                                 ended - elapsed, ended)
+        if later < 0:
+            return dhat_v, dhat_w
+        x0, y0, theta0 = poses[later, X], poses[later, Y], poses[later, THETA]
+        elapsed = stamp - poses[later, STAMP]
+        acting = _acting_over(log, count, latency, tau, elapsed, ended, ticked, waits,
+                              updates)
+        if not acting[0] or not acting[6] or acting[7] < updates:
+            return dhat_v, dhat_w
+    measured_v, measured_w = measured_velocity(x0, y0, theta0, x, y, theta, elapsed)
+    memory[ESTIMATED_AT] = ended - elapsed / 2.0
+    if waits and not math.isnan(memory[OBSERVED_UNTIL]):   # blended over the time since
+        elapsed = max(elapsed, ended - memory[OBSERVED_UNTIL])   # the last update
+    memory[OBSERVED_UNTIL] = ended
+    (dhat_v, dhat_w, memory[RATE_V], memory[RATE_W], memory[GROWTH], memory[LAST_RIGHT],
+     memory[LAST_LEFT], tracking) = observer_update(
+        dhat_v, dhat_w, memory[RATE_V], memory[RATE_W], memory[GROWTH], memory[LAST_RIGHT],
+        memory[LAST_LEFT], int(memory[TRACKING]), measured_v, measured_w, acting[1],
+        acting[2], acting[3], acting[4], acting[5], law, limits, elapsed)
+    memory[TRACKING] = tracking
+    memory[UPDATES] += 1.0
+    return dhat_v, dhat_w
 
 
 class MotionObserver:
-    """One controller's observer state; `updates` counts its updates so far."""
+    """One controller's observer state (the functions above over its arrays); `updates`
+    counts its updates so far.
+    """
 
     def __init__(self, config: AgentConfig) -> None:
         self.config = config
-        # the last poses (stamp, when taken on the controller's clock, pose), where a motion
-        # that answers the estimate may begin (answering_start)
-        self.recent_poses: deque[tuple[float, float, Pose]] = deque(maxlen=RECENT_POSES)
-        # the pose and stamp of the previous command's tick and that tick's time; the last
-        # command where the disturbance enters (before a PC-injected disturbance, else as
-        # sent), what the safety filter changed, whether the wheel limits cut it
-        self.anchor: tuple[Pose, float, float] | None = None
-        self.reference: Command = (0.0, 0.0)
-        self.shift: Command = (0.0, 0.0)
-        self.limited = False
-        self.idle = False   # the last command's wheels all within the dead band
-        # observer.ray_growth's state: (factor, last right, last left wheel speed m/s)
-        self.ray: tuple[float, float, float] = (1.0, 0.0, 0.0)
-        # observer_order 2: how fast the estimate changes (per s), and the updates since the
-        # wheel limits last cut a command
-        self.rate: tuple[float, float] = (0.0, 0.0)
-        self.tracking = 0
-        # the updates so far, and when the last one's motion ended (None: none since the
-        # robot last stopped)
-        self.updates = 0
-        self.observed_until: float | None = None
-        # when the estimate's disturbance held: the middle of the motion it was learnt from
-        self.estimated_at = 0.0
+        self.memory = fresh_memory()
+        self.poses: FloatArray = np.zeros((RECENT_POSES, POSE_FIELDS))
+        self.pose_count = 0
+
+    @property
+    def updates(self) -> int:
+        return int(self.memory[UPDATES])
 
     def pose_seen(self, stamp: float, taken: float, pose: Pose) -> None:
         """A pose of the robot stamped `stamp`, taken at `taken` (the controller's clock)."""
-        self.recent_poses.append((stamp, taken, pose))
+        self.pose_count = pose_append(self.poses, self.pose_count, stamp, taken, *pose)
 
     def commanded(self, v: float, w: float, reference: Command, shift: Command,
                   limited: bool, measured: Pose, stamp: float, now: float) -> None:
         """The command (v, w) sent at `now` from the pose `measured` stamped `stamp`, with
-        agent_command's reference, shift and limited.
+        agent_command's reference, shift and limited (observer_commanded).
         """
-        self.anchor = (measured, stamp, now)
-        self.reference = self._dead_band_reference(v, w, *reference)
-        self.shift = shift
-        self.limited = limited
+        observer_commanded(self.memory, v, w, *reference, *shift, limited, *measured, stamp,
+                           now, self.config.min_wheel_speed, self.config.limits.wheel_base)
 
     def stopped(self) -> None:
         """The robot was stopped: nothing is learnt from the time it stands."""
-        self.anchor = None
-        self.observed_until = None
-        self.reference = self.shift = (0.0, 0.0)
-        self.limited = False
-        self.ray = (1.0, 0.0, 0.0)
+        observer_stopped(self.memory)
 
     def sent(self, at: float, v: float, w: float, stopped: bool) -> Sent:
         """The record of the command (v, w) sent at `at` (stopped: a stop)."""
-        return Sent(at, v, w, self.reference, self.shift, self.limited,
-                    not stopped and not self.idle, self.updates)
+        memory = self.memory
+        return Sent(at, v, w, (float(memory[MEMORY_REF_V]), float(memory[MEMORY_REF_W])),
+                    (float(memory[MEMORY_SHIFT_V]), float(memory[MEMORY_SHIFT_W])),
+                    bool(memory[MEMORY_LIMITED]), not stopped and not memory[IDLE],
+                    self.updates)
 
     def estimate_used(self, dhat: list[float], now: float, latency: float,
                       period: float) -> Command:
-        """The estimate a command sent at `now` compensates: carried from the middle of the
-        motion it was learnt from (a pose's age counts) to the middle of the period the
-        command holds for, once it acts (observer.carried_estimate).
-        """
-        ahead_by = min(max(now + latency + period / 2.0 - self.estimated_at, 0.0),
-                       period + latency + MAX_PREDICTION)
-        return carried_estimate(dhat[0], dhat[1], *self.rate, self.tracking, ahead_by,
-                                self.config.law)
+        """The estimate a command sent at `now` compensates (estimate_used)."""
+        return estimate_used(self.memory, dhat[0], dhat[1], now, latency, period,
+                             self.config.law)
 
     def update(self, dhat: list[float], pose: Pose, stamp: float, ended: float,
                sent: CommandsSent, latency: float, tau: float) -> None:
-        """Move dhat (in place) towards (motion measured since the last tick - command) / k2.
-
-        pose: the robot's latest, stamped `stamp`, taken at `ended`; latency and tau (s):
-        the commands' latency and the motors' lag, as told or estimated. The motion is the
-        constant (v, w) that carries the previous tick's pose to it over the difference of
-        their stamps; the command is the one sent at the previous tick, or with a command
-        latency, a motor time constant or a motion that began before the previous tick (a
-        pose older than the time between poses) what the commands realised over that motion;
-        nothing is learnt while the motors were off. With a command latency, or a pose taken
-        before the previous tick (a camera's frame older than a period), the observer waits
-        for a motion made wholly under commands sent after its last update (their
-        `estimate`), and blends over the time since that update: no delay enters the
-        estimate's loop (docs/control-laws.md). Without a newer pose nothing is updated.
+        """Move dhat (in place) as observe_motion does, from the pose stamped `stamp` and
+        taken at `ended`.
         """
-        if self.anchor is None:
-            return
-        (x0, y0, th0), stamp0, ticked = self.anchor
-        elapsed = stamp - stamp0
-        if elapsed <= 0.0:
-            return
-        # A pose taken before the last tick cannot show that tick's command: waiting for one
-        # that can keeps the pose's age out of the estimate's loop as it keeps the latency.
-        waits = latency > 0.0 or ended < ticked
-        acting = self._acting_over(sent, latency, tau, elapsed, ended, ticked, waits)
-        if acting is None or not acting.driven:
-            return
-        if waits and acting.estimate < self.updates:
-            # the motion does not answer the current estimate yet: its part from the first
-            # pose that can, if one is held
-            later = self._answering_start(sent, latency, ended - elapsed, ended)
-            if later is None:
-                return
-            (x0, y0, th0), stamp0 = later
-            elapsed = stamp - stamp0
-            acting = self._acting_over(sent, latency, tau, elapsed, ended, ticked, waits)
-            if acting is None or not acting.driven or acting.estimate < self.updates:
-                return
-        measured_v, measured_w = measured_velocity(x0, y0, th0, *pose, elapsed)
-        self.estimated_at = ended - elapsed / 2.0
-        if waits and self.observed_until is not None:   # blended over the time since the last
-            elapsed = max(elapsed, ended - self.observed_until)
-        self.observed_until = ended
-        (dhat_v, dhat_w, rate_v, rate_w, growth, last_right, last_left,
-         self.tracking) = observer_update(dhat[0], dhat[1], *self.rate, *self.ray,
-                                          self.tracking, measured_v, measured_w,
-                                          *acting.reference, *acting.shift, acting.limited,
-                                          self.config.law, self.config.limits, elapsed)
-        dhat[:] = (dhat_v, dhat_w)
-        self.rate = (rate_v, rate_w)
-        self.ray = (growth, last_right, last_left)
-        self.updates += 1
-
-    def _acting_over(self, sent: CommandsSent, latency: float, tau: float, elapsed: float,
-                     ended: float, ticked: float, waits: bool) -> Sent | None:
-        """What was commanded over the motion of `elapsed` s ending at `ended` that the
-        observer measures at the tick after `ticked`.
-        """
-        # A motion that began before the last tick (its first pose older than that tick) was
-        # partly made under the command before: the commands are weighed by how long each
-        # acted in it, and whether the limits cut is the last tick's command's, as when the
-        # motion is wholly its own (the search along its ray is that command's).
-        mixed = ended - elapsed < ticked - 1e-9
-        if tau > 0.0 or waits:
-            return sent.realised(ended, elapsed, latency, tau, self.updates)
-        if mixed:
-            acting = sent.realised(ended, elapsed, latency, tau, self.updates)
-            last = sent.acting(ticked, latency)
-            if acting is not None and last is not None:
-                acting = acting._replace(limited=last.limited)
-            return acting
-        return sent.acting(ticked, latency)
-
-    def _answering_start(self, sent: CommandsSent, latency: float, begins: float,
-                         ends: float) -> tuple[Pose, float] | None:
-        """A later start (pose, stamp) for a motion from `begins` to `ends` that began
-        before the first command sent after the last update acted: the first pose taken from
-        then on, at least MIN_OBSERVED before the end; None if the motion needs none or no
-        such pose is held.
-        """
-        answering = sent.first_acting_after(self.updates, latency)
-        if answering is None or begins >= answering - 1e-9:
-            return None
-        for stamp, taken, pose in self.recent_poses:
-            if taken >= answering - 1e-9:
-                return (pose, stamp) if taken <= ends - MIN_OBSERVED else None
-        return None
-
-    def _dead_band_reference(self, v: float, w: float, ref_v: float, ref_w: float
-                             ) -> Command:
-        """The observer's reference for the command (v, w) sent: with a dead band
-        (min_wheel_speed), less what the wheels commanded below it will not do, so that a
-        robot standing still under a command too small to move it is not taken for a
-        disturbance holding it back. Both wheels in the band: the motors are idle (nothing is
-        learnt from that period, as when stopped).
-        """
-        cfg = self.config
-        self.idle = False
-        if cfg.min_wheel_speed <= 0.0 or cfg.limits.wheel_base <= 0.0:
-            return ref_v, ref_w
-        left, right = wheel_speeds(v, w, cfg.limits.wheel_base)
-        still_right = abs(right) < cfg.min_wheel_speed
-        still_left = abs(left) < cfg.min_wheel_speed
-        self.idle = still_right and still_left
-        moved_v, moved_w = body_from_wheels(0.0 if still_left else left,
-                                            0.0 if still_right else right,
-                                            cfg.limits.wheel_base)
-        return ref_v + moved_v - v, ref_w + moved_w - w
+        dhat[:] = observe_motion(self.memory, dhat[0], dhat[1], self.poses, self.pose_count,
+                                 sent.rows, sent.count, *pose, stamp, ended, latency, tau,
+                                 self.config.law, self.config.limits)
