@@ -61,7 +61,7 @@ def simulate_to_dir(config: str | Path, out_dir: str | Path, rate: Any = 'config
         result = simulate_pipeline(experiment, 'mujoco',
                                    rate_hz=None if rate == 'config' else rate)
         simulator = pipeline
-    else:   # the batch simulator, or the pipeline for settings only it models
+    else:   # the batch simulator, or the pipeline where an online estimate would be taken
         from curve_formation.core.sim.pipeline import simulate_kinematic
         result, why = simulate_kinematic(experiment, rate)
         simulator = 'batch (compiled)' if why is None else f'{pipeline} ({why})'

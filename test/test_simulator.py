@@ -229,24 +229,40 @@ def test_the_batch_simulator_refuses_settings_of_motors_it_does_not_have(key):
         simulate(experiment, duration=1.0)
 
 
-def test_the_batch_simulator_refuses_a_command_latency_its_robots_do_not_have():
-    """Its robots act on each command at once: a told latency would be predicted over for
-    nothing. It names the setting and the pipeline that simulates the late link.
+def test_the_batch_simulator_refuses_a_command_latency_under_continuous_control():
+    """Commands that act late are sent at ticks: under continuous control the batch
+    simulator names the setting and asks for a control rate.
     """
     import yaml
 
     from curve_formation.core.config.errors import ConfigError
     from curve_formation.core.config.loading import build_experiment
     data = yaml.safe_load(open('config/arena_demo.yaml'))
-    data['controller']['command_latency'] = 0.1
+    data['controller'].update(command_latency=0.1, estimate_latency=False)
     experiment = build_experiment(data, 'arena_demo.yaml')
-    with pytest.raises(ConfigError, match='controller.command_latency.*simulate_pipeline'):
-        simulate(experiment, duration=1.0)
+    with pytest.raises(ConfigError, match='controller.command_latency.*control rate'):
+        simulate(experiment, rate_hz=None, duration=1.0)
+
+
+def test_the_batch_simulators_commands_act_the_latency_told_after_they_are_sent():
+    """A robot moves by the command sent `command_latency` before (the world's link), not by
+    the one just sent: over its first 0.3 s nobody moves, then every robot does.
+    """
+    import yaml
+
+    from curve_formation.core.config.loading import build_experiment
+    data = yaml.safe_load(open('config/arena_demo.yaml'))
+    data['controller'].update(command_latency=0.3, estimate_latency=False)
+    result = simulate(build_experiment(data, 'arena_demo.yaml'), duration=1.0)
+    moved = np.abs(result.poses - result.poses[0]).max(axis=2)   # (R, n)
+    assert np.abs(result.commands[result.t < 0.3]).max() > 0.0   # sent from the first tick
+    assert moved[result.t <= 0.3].max() < 1e-12
+    assert (moved[-1] > 1e-4).all(), moved[-1]
 
 
 def test_the_batch_simulator_replays_each_controllers_online_latency_estimate():
     """The arena files estimate their link's latency online (controller.estimate_latency).
-    The batch simulator's robots act on each command at once: it replays each controller's
+    The batch simulator's commands keep the latency told: it replays each controller's
     estimate over the run and reports it (0: none taken, so the run is what estimating
     controllers do), as the nodes' pipeline with its live estimates ends; under continuous
     control, with no commands to time, it refuses the setting by name.

@@ -15,6 +15,7 @@ import numba
 # own file only, not against the functions compiled into it from these).
 SOURCES = ('controller/step.py', 'controller/law.py', 'controller/limits.py',
            'controller/observer.py', 'controller/driving.py', 'controller/safety.py',
+           'controller/command_log.py', 'controller/motion_observer.py', 'controller/others.py',
            'formation/dynamics.py', 'world/bodies.py', 'world/kinematic.py', 'sim/kernel.py')
 CORE = Path(__file__).resolve().parent.parent
 

@@ -49,10 +49,26 @@ class OtherRobots:
         if len(kept) < 2 or kept[-1][0] - kept[0][0] <= 0.0:
             return self.poses
         (start, first), (end, last) = kept[0], kept[-1]
-        velocity = np.nan_to_num((last[:, :2] - first[:, :2]) / (end - start))
-        if 0.0 < max_wheel_speed < math.inf:
-            speed = np.linalg.norm(velocity, axis=1, keepdims=True)
-            velocity *= np.minimum(1.0, max_wheel_speed / np.maximum(speed, 1e-12))
-        ahead = self.poses.copy()
-        ahead[:, :2] += velocity * min(max(at - end, 0.0), MAX_PREDICTION + latency)
-        return ahead
+        return carried_ahead(self.poses, first, last, end - start,
+                             min(max(at - end, 0.0), MAX_PREDICTION + latency),
+                             max_wheel_speed)
+
+
+def carried_ahead(poses: FloatArray, first: FloatArray, last: FloatArray, span: float,
+                  ahead_by: float, max_wheel_speed: float) -> FloatArray:
+    """poses (n, 3) carried `ahead_by` s at each robot's velocity from `first` to `last`
+    (n, 3; `span` s apart, > 0), no faster than max_wheel_speed (m/s; zero for a robot not
+    seen at both ends): what the controllers and the batch simulator's kernel use.
+    """
+    ahead = poses.copy()
+    for i in range(poses.shape[0]):
+        vx = (last[i, 0] - first[i, 0]) / span
+        vy = (last[i, 1] - first[i, 1]) / span
+        if not (math.isfinite(vx) and math.isfinite(vy)):
+            continue
+        speed = math.hypot(vx, vy)
+        if 0.0 < max_wheel_speed < math.inf and speed > max_wheel_speed:
+            vx, vy = vx * max_wheel_speed / speed, vy * max_wheel_speed / speed
+        ahead[i, 0] += vx * ahead_by
+        ahead[i, 1] += vy * ahead_by
+    return ahead

@@ -13,6 +13,13 @@ from curve_formation.core.controller.wheel_estimate import OnlineGains
 from curve_formation.core.formation.dynamics import body_from_wheels, wheel_speeds
 
 
+def commands_kept(rate_hz: float, pose_timeout: float, longest: float) -> int:
+    """How many commands sent a controller keeps at rate_hz (Hz): as far back as a pose may
+    be (pose_timeout, s) plus the longest the latency may be (s).
+    """
+    return int(math.ceil(rate_hz * (pose_timeout + longest))) + 2
+
+
 class RobotModel:
     """latency (s: a command's delay to the wheels), motor_time_constant (s), wheel_gains
     ((left, right) speed per unit of command, or None), kept up to date from the commands
@@ -34,7 +41,7 @@ class RobotModel:
         # (pose_timeout) plus the longest the latency may be
         longest = (max(cfg.command_latency, float(ONLINE_LAGS.max()))
                    if cfg.estimate_latency else cfg.command_latency)
-        self.commands_kept = int(math.ceil(cfg.rate_hz * (cfg.pose_timeout + longest))) + 2
+        self.commands_kept = commands_kept(cfg.rate_hz, cfg.pose_timeout, longest)
 
     def seen(self, taken: float, x: float, y: float, theta: float) -> None:
         """The robot's pose (m, rad) taken at `taken`."""

@@ -66,14 +66,15 @@ class CurveSchedule:
         """The run's t = 0 is `now`: the schedule's times count from here."""
         self.t0 = now
 
-    def lead(self, k: int) -> float:
+    def lead(self, k: int, ahead: float | None = None) -> float:
         """How long (s) before its start phase k is published, as things are now
-        (Experiment.announce_lead).
+        (Experiment.announce_lead), by a schedule that announces `ahead` s (default its own
+        announce_ahead).
         """
         current = None if self.last is None else (self.last.curve, self.last.s)
         return self.experiment.announce_lead(k, current, self.moving_since is not None,
                                              self.reassigned, self.targets,
-                                             self.announce_ahead)
+                                             self.announce_ahead if ahead is None else ahead)
 
     def next_due(self) -> float | None:
         """When (s, the schedule's clock) the next scheduled curve is due; None when none is

@@ -8,28 +8,44 @@ is what the ROS controller nodes do. Laws (core.controller.gains.LAWS): paper, a
 (per-channel estimator gains), observer (first or second order).
 """
 
-from collections.abc import Callable
 import dataclasses
 from dataclasses import dataclass
 import math
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from curve_formation.core.base.shapes import FloatArray, IntArray
 from curve_formation.core.config.errors import ConfigError
-from curve_formation.core.config.experiment import Experiment, phase_index, whole_steps
+from curve_formation.core.config.experiment import (
+    ANNOUNCE_AHEAD,
+    Experiment,
+    phase_index,
+    whole_steps,
+)
 from curve_formation.core.controller import driving
 from curve_formation.core.controller.disturbance import disturbance_at
 from curve_formation.core.controller.gains import Gains, Law
+from curve_formation.core.controller.inputs import MAX_PREDICTION
 from curve_formation.core.controller.limits import timed_by, WheelLimits
-from curve_formation.core.controller.safety import Avoidance
+from curve_formation.core.controller.others import OTHERS_KEPT
+from curve_formation.core.controller.robot_model import commands_kept
+from curve_formation.core.controller.safety import Avoidance, with_latency
 from curve_formation.core.formation import dynamics
+from curve_formation.core.formation.motion import CurveMotion
 from curve_formation.core.record import metrics
 from curve_formation.core.schedule.curve_schedule import CurveSchedule
 from curve_formation.core.sim.estimate_replay import check_replayable, held_estimates
-from curve_formation.core.sim.kernel import Clock, edge_arrays, run, SimState
+from curve_formation.core.sim.kernel import (
+    Clock,
+    Delay,
+    edge_arrays,
+    initial_state,
+    NO_DELAY,
+    run,
+    SimState,
+)
 from curve_formation.core.world import bodies
 
 
@@ -42,7 +58,7 @@ def _choose_directions(state: SimState, targets: FloatArray, law: Law,
     """Each robot's drive direction (state's fronts) as a curve's first pose sets it in the
     node (driving.drive_direction with no hysteresis), towards targets (n, 2; m).
     """
-    poses, dhat, fronts = state[0], state[1], state[5]
+    poses, dhat, fronts = state.poses, state.dhat, state.fronts
     for i in range(len(fronts)):
         fronts[i] = driving.drive_direction(fronts[i], poses[i, 0], poses[i, 1], poses[i, 2],
                                             targets[i, 0], targets[i, 1], dhat[i, 0],
@@ -102,22 +118,20 @@ class SimResult:
                                 self.gains)
 
 
-# The controller settings the batch simulator does not model, where set: (key, is it set,
-# why and where to simulate it instead). sim and analyze --compare-sim run the nodes' tick
-# pipeline (core.sim.pipeline) for them.
-PIPELINE_ONLY: tuple[tuple[str, Callable[[Any], bool], str], ...] = (
-    ('controller.command_latency', lambda c: c.command_latency > 0,
-     "the batch simulator's robots act on each command at once: simulate a link that late "
-     'with core.sim.pipeline.simulate_pipeline (as sim does)'),
-)
-
-
-def pipeline_only(experiment: Experiment) -> list[tuple[str, str]]:
-    """(key, why) of each controller setting of the experiment that the batch simulator
-    does not model and the nodes' tick pipeline does (PIPELINE_ONLY); [] if none is set.
+def _announced(schedule: CurveSchedule, k: int, reach: float, dt: float
+               ) -> tuple[CurveMotion, int] | None:
+    """Phase k's motion and the first step (dt s each) whose commands hold past its start
+    where the curve server announces it ahead (it only sets the current curve moving:
+    Experiment.announce_lead) and a command holds until `reach` s after it is sent (its
+    latency, if the controllers aim where the targets are when it acts, plus a period);
+    else None.
     """
-    controller = experiment.spec.controller
-    return [(key, why) for key, is_set, why in PIPELINE_ONLY if is_set(controller)]
+    phases = schedule.experiment.phases
+    motion = phases[k].motion if 0 < k < len(phases) else None
+    lead = schedule.lead(k, ANNOUNCE_AHEAD) if reach > 0.0 and motion is not None else 0.0
+    if motion is None or lead <= 0.0:
+        return None
+    return motion, int(math.ceil((phases[k].start - min(reach, lead)) / dt - 1e-9))
 
 
 def _split(dist: FloatArray, on_pc: bool) -> tuple[FloatArray, FloatArray]:
@@ -151,10 +165,12 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
         raise ConfigError(experiment.source, f'limits.{told[0]}', "describes real motors the "
                           "batch simulator's unicycles do not have: simulate them in the "
                           'MuJoCo world (sim --physics mujoco)')
-    needs = pipeline_only(experiment)
-    if needs:
-        raise ConfigError(experiment.source, *needs[0])
     rate_hz = spec.controller.rate_hz if rate_hz == 'config' else rate_hz
+    latency = spec.controller.command_latency
+    if rate_hz is None and latency > 0.0:
+        raise ConfigError(experiment.source, 'controller.command_latency',
+                          'commands that act late are sent at ticks: it needs a control rate '
+                          '(controller.rate_hz), not continuous control')
     if rate_hz is None and spec.controller.observer_order != 1:
         raise ConfigError(experiment.source, 'controller.observer_order',
                           'the second-order observer updates at ticks: it needs a control '
@@ -188,9 +204,14 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
     record = (np.zeros((n_rec, experiment.n, 3)), np.zeros((n_rec, experiment.n, 2)),
               np.zeros((n_rec, experiment.n, 2)))
     n = experiment.n
-    state = (poses, np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 5)),
-             np.ones(n), np.column_stack([np.ones(n), np.zeros((n, 2))]), np.zeros((n, 2)),
-             np.zeros((n, 2), dtype=np.int64))
+    delay = NO_DELAY
+    if rate_hz is not None:
+        delay = Delay(latency, spec.controller.predict_pose,
+                      min(spec.safety.pose_timeout, MAX_PREDICTION),
+                      int(math.floor(OTHERS_KEPT * rate_hz)) + 2)
+        avoidance = with_latency(avoidance, 1.0 / rate_hz, latency)
+    state = initial_state(poses, commands_kept(rate_hz or 1.0, spec.safety.pose_timeout,
+                                               latency), delay)
     width, height = spec.arena.size if spec.arena is not None else (0.0, 0.0)
     contacts = bodies.contacts_of(n, radius, width, height)
     law = gains.tick_law(rate_hz, on_pc)
@@ -226,8 +247,11 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
         # without a control rate), with their velocities as the feed-forward.
         moving = phase.motion
         hop = control_every or max(1, int(round(MOVING_STEP / dt)))
-        cuts = sorted(reassign | (set(range((a // hop + 1) * hop, b, hop))
-                                  if moving or varies else set()))
+        # commands that act after the start of a next curve announced ahead aim at it
+        aim = latency if delay.predict else 0.0   # s from a tick to where it aims
+        following = _announced(schedule, k + 1, aim + control_every * dt, dt)
+        first = a if moving or varies else b if following is None else max(a, following[1])
+        cuts = sorted((reassign | set(range(-(-first // hop) * hop, b, hop))) - {a})
         still: FloatArray = np.zeros((n, 2))
         for begin, end in zip([a] + cuts, cuts + [b], strict=True):
             if moving is not None and (begin in reassign or end == b):
@@ -238,19 +262,34 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
                 if publication is not None:
                     targets = phase.curve.points(publication.s)
             now, ahead = targets, still
+            aimed = now
             if moving is not None:
                 tau = begin * dt - phase.start
-                now = moving.points(targets, tau)
+                now = aimed = moving.points(targets, tau)
+                if aim > 0.0:   # where they are when commands act
+                    aimed = moving.points(targets, tau + aim)
                 if feed_forward:
                     ahead = moving.velocities(targets, tau)
+            if (following is not None and begin >= following[1]
+                    and schedule.lead(k + 1, ANNOUNCE_AHEAD) > 0.0):
+                # as the controllers have it once announced: its targets where they are
+                # when the command acts, its velocity over the part of the command's period
+                # after its start (AgentController._tick)
+                tau = begin * dt + aim - experiment.phases[k + 1].start
+                aimed = following[0].points(targets, max(tau, 0.0))
+                if feed_forward:
+                    tick = control_every * dt
+                    ahead = (following[0].velocities(targets, max(tau, 0.0))
+                             * min(max((tau + tick) / tick, 0.0), 1.0))
             if varies:   # held over each control period (MOVING_STEP without a rate)
                 d_pc, d_robot = _split(disturbance_at(dist, experiment.variations, begin * dt),
                                        on_pc)
             if begin == a:   # a curve's first pose: the sooner way outright
                 _choose_directions(state, now, law, limits)
-            run(state, np.ascontiguousarray(now), np.ascontiguousarray(ahead), graph, law,
-                 limits, avoidance, d_pc, d_robot, clock, begin, end - begin, ticks,
-                 contacts, record)
+            run(state, np.ascontiguousarray(now), np.ascontiguousarray(aimed),
+                np.ascontiguousarray(ahead), graph, law,
+                limits, avoidance, d_pc, d_robot, clock, delay, begin, end - begin, ticks,
+                contacts, record)
     followed = schedule.close()
     t = np.arange(n_rec) * record_every * dt
     sample_phase = phase_index(np.array(starts[:-1]) * dt, t)

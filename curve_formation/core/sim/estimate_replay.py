@@ -1,7 +1,8 @@
 """A batch run's online estimates of the latency and the motors' lag
 (controller.estimate_latency, estimate_motors), replayed.
 
-The batch simulator's robots act on each command at once. Each controller's OnlineLink is
+The batch simulator's commands act the latency told (controller.command_latency) after they
+are sent, throughout. Each controller's OnlineLink is
 replayed over the run on the commands it sent at its ticks and its poses there: while none
 takes a value the run is exactly what estimating controllers do (they use command_latency
 until they take one), and their latencies are reported; if one would have taken a value
@@ -88,8 +89,8 @@ def held_estimates(experiment: Experiment, rate_hz: float, clock: tuple[float, i
             when, value = online.taken[0]
             raise EstimateTakenError(
                 experiment.source, KEY, f'robot {i + 1} would have taken an estimate of '
-                f"{1000 * value:.0f} ms at {when:.1f} s, where the batch simulator's robots "
-                'act on each command at once: simulate it with '
+                f"{1000 * value:.0f} ms at {when:.1f} s, where the batch simulator's commands "
+                'keep the latency told: simulate it with '
                 'core.sim.pipeline.simulate_pipeline (as sim does)')
         latencies.append(online.latency)
     return latencies

@@ -38,7 +38,7 @@ from curve_formation.core.config.loading import control_rate
 from curve_formation.core.controller.agent import AgentController
 from curve_formation.core.formation import dynamics
 from curve_formation.core.schedule.curve_schedule import CurveSchedule, Publication
-from curve_formation.core.sim.batch import pipeline_only, SimResult, simulate
+from curve_formation.core.sim.batch import SimResult, simulate
 from curve_formation.core.sim.estimate_replay import EstimateTakenError
 from curve_formation.core.world.worlds import make_world, World
 
@@ -283,19 +283,16 @@ def simulate_pipeline(experiment: Experiment, engine: Literal['kinematic', 'mujo
 def simulate_kinematic(experiment: Experiment,
                        rate_hz: float | None | Literal['config'] = 'config',
                        duration: float | None = None) -> tuple[SimResult, str | None]:
-    """The paper's unicycles: the batch simulator where it models every setting of the
-    experiment, else the nodes' tick pipeline, for settings only it models
-    (simulator.pipeline_only) or an online latency estimate that the batch run shows would
-    have been taken (estimate_replay.EstimateTakenError). rate_hz as simulator.simulate takes it.
-    Returns the result and why the pipeline ran (None: the batch simulator ran).
+    """The paper's unicycles: the batch simulator, or the nodes' tick pipeline where an
+    online estimate (of the latency or the motors) that the batch run shows would have been
+    taken changes the controllers (estimate_replay.EstimateTakenError). rate_hz as
+    simulator.simulate takes it. Returns the result and why the pipeline ran (None: the batch
+    simulator ran).
     """
-    needs = pipeline_only(experiment)
-    why = needs[0][0] if needs else None
-    if why is None:
-        try:
-            return simulate(experiment, rate_hz=rate_hz, duration=duration), None
-        except EstimateTakenError as taken:
-            why = str(taken)
+    try:
+        return simulate(experiment, rate_hz=rate_hz, duration=duration), None
+    except EstimateTakenError as taken:
+        why = str(taken)
     if rate_hz is None:
         raise ValueError(f"--continuous: {why} needs the nodes' tick pipeline, at a control "
                          'rate (--rate, or controller.rate_hz)')
