@@ -726,8 +726,9 @@ def test_the_observer_pairs_a_motion_with_what_the_lagging_motors_realised(elaps
     for k in range(5):   # at rest: commands of 0 (driven) before the step at t = 1 s
         ctrl.sent.append(Sent(0.5 + 0.1 * k, 0.0, 0.0, (0.0, 0.0), (0.0, 0.0), False, True))
     ctrl.sent.append(Sent(1.0, c, 0.0, (c, 0.0), (0.0, 0.0), False, True))
-    ctrl.pose_stamp = ctrl.pose_received = 1.0 + latency + elapsed
-    realised = ctrl._realised(elapsed)
+    ended = 1.0 + latency + elapsed   # when the pose was taken
+    realised = ctrl.sent.realised(ended, elapsed, ctrl.latency, ctrl.motor_time_constant,
+                                  ctrl.updates)
     expected = c * (1 - tau / elapsed * (1 - math.exp(-elapsed / tau)))
     assert realised.reference[0] == pytest.approx(expected, rel=1e-9)
     assert realised.driven and not realised.limited

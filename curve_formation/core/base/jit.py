@@ -16,6 +16,7 @@ import numba
 SOURCES = ('controller/step.py', 'controller/law.py', 'controller/limits.py',
            'controller/observer.py', 'controller/driving.py', 'controller/safety.py',
            'controller/command_log.py', 'controller/motion_observer.py', 'controller/others.py',
+           'controller/inputs.py',
            'formation/dynamics.py', 'world/bodies.py', 'world/kinematic.py', 'sim/kernel.py')
 CORE = Path(__file__).resolve().parent.parent
 

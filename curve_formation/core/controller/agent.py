@@ -32,11 +32,10 @@ from curve_formation.core.controller.gains import OBSERVER
 from curve_formation.core.controller.inputs import (
     all_finite,
     is_stale,
-    MAX_PREDICTION,
     Neighbour,
     NO_OTHERS,
     receipt,
-    Sent,
+    shares_clock,
     State,
     Tick,
 )
@@ -289,10 +288,10 @@ class AgentController:
 
     def _taken_at(self, stamp: float, received: float) -> float:
         """When a pose was taken (s, this controller's clock): its stamp where the pose's
-        source shares this clock (the pose is 0 to min(pose_timeout, MAX_PREDICTION) s old by
+        source shares this clock (the pose is 0 to config.shared_clock s old by
         it), else its receipt.
         """
-        if 0.0 <= received - stamp <= min(self.config.pose_timeout, MAX_PREDICTION):
+        if shares_clock(received - stamp, self.config.shared_clock):
             return stamp
         return received
 
@@ -327,7 +326,7 @@ class AgentController:
         # the robot moves by its command plus the disturbance while driven (motors off at 0)
         drift = (0.0, 0.0) if law.on_pc else (law.k2 * self.dhat[0], law.k2 * self.dhat[1])
         return self.sent.predicted(pose, stamp, received, now, self.latency,
-                                   min(self.config.pose_timeout, MAX_PREDICTION), drift)
+                                   self.config.shared_clock, drift)
 
     def _stale_input(self, now: float) -> str | None:
         """Why this tick must stop the robot before its law runs (e-stop, no curve, own pose
@@ -423,17 +422,6 @@ class AgentController:
         base.pose = pose
         base.filtered = code != 0
         return base
-
-    def _realised(self, elapsed: float) -> Sent | None:
-        """What the wheels did on average over the `elapsed` s up to the current pose
-        (CommandsSent.realised through the motors' lag, motor_time_constant), the interval
-        ending when the pose was taken on this controller's clock: its stamp where the pose
-        source shares the clock (an age within MAX_PREDICTION), else when it was received.
-        """
-        assert self.pose_stamp is not None and self.pose_received is not None
-        return self.sent.realised(self._taken_at(self.pose_stamp, self.pose_received),
-                                  elapsed, self.latency, self.motor_time_constant,
-                                  self.observer.updates)
 
     @property
     def updates(self) -> int:

@@ -10,6 +10,7 @@ from typing import Optional
 
 from curve_formation.core.base.shapes import Command
 from curve_formation.core.controller.gains import Gains, Law
+from curve_formation.core.controller.inputs import shared_clock
 from curve_formation.core.controller.limits import NO_LIMITS, WheelLimits
 from curve_formation.core.controller.safety import Avoidance, AVOIDANCE_OFF
 from curve_formation.core.controller.settings import default, DEFAULT_RATE_HZ
@@ -54,6 +55,13 @@ class AgentConfig:
     # The control step (step.agent_step) compiled by numba as in the batch simulator:
     # the same source, about 15x faster a tick; loading it costs ~0.7 s and ~65 MB.
     compiled: bool = False
+
+    @property
+    def shared_clock(self) -> float:
+        """s: the longest a stamp on this controller's clock lags its receipt
+        (inputs.shared_clock of pose_timeout).
+        """
+        return shared_clock(self.pose_timeout)
 
     @property
     def is_leader(self) -> bool:

@@ -11,6 +11,7 @@ controller's clock; poses in the arena frame (m, rad); commands in m/s and rad/s
 import math
 
 from curve_formation.core.base.shapes import FloatArray, Pose
+from curve_formation.core.controller.inputs import shares_clock
 from curve_formation.core.formation.dynamics import arc_step
 
 
@@ -138,12 +139,12 @@ def log_predicted(log: FloatArray, count: int, x: float, y: float, theta: float,
                   stamp: float, received: float, now: float, latency: float, longest: float,
                   drift_v: float, drift_w: float) -> Pose:
     """The pose taken at `stamp` (received at `received`) carried to `now` + `latency`
-    (log_carried). Its age is now - stamp where that lies in [0, longest], i.e. where the
-    pose's source and the controller share a clock (or are synchronised); otherwise only
+    (log_carried). Its age is now - stamp where the pose's source and the controller share a
+    clock (inputs.shares_clock within `longest`: AgentConfig.shared_clock); otherwise only
     the time the pose was held here (now - received) is made up for.
     """
     age = now - stamp
-    if not 0.0 <= age <= longest:
+    if not shares_clock(age, longest):
         age = min(max(now - received, 0.0), longest)
     return log_carried(log, count, x, y, theta, now - age, now + latency, latency, drift_v,
                        drift_w)

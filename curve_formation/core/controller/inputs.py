@@ -20,6 +20,23 @@ NO_OTHERS = np.zeros((0, 3))
 MAX_PREDICTION = 0.25
 
 
+def shared_clock(pose_timeout: float) -> float:
+    """s: the longest a stamp on a controller's clock lags its receipt (shares_clock): a
+    pose older than pose_timeout (s) stops the robot anyway, and none is carried forward
+    further than MAX_PREDICTION.
+    """
+    return min(pose_timeout, MAX_PREDICTION)
+
+
+def shares_clock(lag: float, within: float) -> bool:
+    """Whether a stamp `lag` s before its receipt (receipt minus stamp, both as read) was
+    made on this controller's clock, or one synchronised with it: the lag lies in
+    [0, within]. A source on another clock (a host without time sync) is off by more. The
+    controller's `within` is AgentConfig.shared_clock; plain math that numba compiles.
+    """
+    return 0.0 <= lag <= within
+
+
 def is_stale(stamp: float | None, now: float, timeout: float) -> bool:
     """True when an input stamped `stamp` (s, None if never received) is older than timeout."""
     return stamp is None or now - stamp > timeout
@@ -50,7 +67,7 @@ class StampClock:
     def date(self, stamp: float, received: float) -> float:
         """When the stamp was (s, this clock), counting this message's lag."""
         self.floor = min(self.floor, received - stamp)
-        return stamp if 0.0 <= self.floor <= self.shared else stamp + self.floor
+        return stamp if shares_clock(self.floor, self.shared) else stamp + self.floor
 
 
 @dataclass

@@ -38,8 +38,8 @@ class Neighbourhood:
         # when the newest news of the leader was made (this controller's clock); the clocks of
         # the stamps it is dated by (own poses, each in-neighbour's states)
         self.leader_heard: float | None = None
-        shared = min(config.pose_timeout, MAX_PREDICTION)
-        self.stamp_clocks = {j: StampClock(shared) for j in (config.index, *self.neighbours)}
+        self.stamp_clocks = {j: StampClock(config.shared_clock)
+                             for j in (config.index, *self.neighbours)}
 
     def own_pose(self, stamp: float, received: float) -> float:
         """The own pose stamped `stamp` came at `received`: when it was taken, by the own

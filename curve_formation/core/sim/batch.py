@@ -27,7 +27,7 @@ from curve_formation.core.config.experiment import (
 from curve_formation.core.controller import driving
 from curve_formation.core.controller.disturbance import disturbance_at
 from curve_formation.core.controller.gains import Gains, Law
-from curve_formation.core.controller.inputs import MAX_PREDICTION
+from curve_formation.core.controller.inputs import shared_clock
 from curve_formation.core.controller.limits import timed_by, WheelLimits
 from curve_formation.core.controller.others import OTHERS_KEPT
 from curve_formation.core.controller.robot_model import commands_kept
@@ -207,7 +207,7 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
     delay = NO_DELAY
     if rate_hz is not None:
         delay = Delay(latency, spec.controller.predict_pose,
-                      min(spec.safety.pose_timeout, MAX_PREDICTION),
+                      shared_clock(spec.safety.pose_timeout),
                       int(math.floor(OTHERS_KEPT * rate_hz)) + 2)
         avoidance = with_latency(avoidance, 1.0 / rate_hz, latency)
     state = initial_state(poses, commands_kept(rate_hz or 1.0, spec.safety.pose_timeout,
