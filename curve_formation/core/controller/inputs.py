@@ -33,6 +33,10 @@ def shares_clock(lag: float, within: float) -> bool:
     made on this controller's clock, or one synchronised with it: the lag lies in
     [0, within]. A source on another clock (a host without time sync) is off by more. The
     controller's `within` is AgentConfig.shared_clock; plain math that numba compiles.
+    Two other judgements of clocks are not this one: a moving curve's valid_at is taken
+    within leader_timeout either side of its receipt (an announced curve holds ahead of it,
+    AgentController.set_curve), and a recording's pose stamps within metrics.MAX_STAMP_GAP of
+    their samples (offline, where a sample is up to a camera frame late).
     """
     return 0.0 <= lag <= within
 
