@@ -170,9 +170,9 @@ def _report(tally, word, wait, log):
     """Print what the e-stop reached; the exit status."""
     done = 'stopped' if tally.engage else 'released'
     expected = tally.expected()
-    others = sum(1 for r in tally.reports.values() if r.role != CONTROLLER
-                 and r.engaged == tally.engage)
-    held = f'; {others} other nodes hold it too' if others else ''
+    holding = sum(1 for r in tally.reports.values() if r.role != CONTROLLER
+                  and r.engaged == tally.engage)
+    held = f'; {holding} other nodes hold it too' if holding else ''
     if expected is None:
         domain = os.environ.get('ROS_DOMAIN_ID', '0 (unset)')
         log(f'error: e-stop {word}: no formation controller answered within {wait:g} s on '
@@ -182,16 +182,15 @@ def _report(tally, word, wait, log):
     missing = tally.missing()
     confirmed = [r for r in expected if r not in missing]
     slowest = max((tally.confirmed[r] for r in confirmed), default=0.0)
-    others = tally.others_missing()
-    unheard = tally.unheard()
-    if unheard:
-        others = others + [f'{unheard} holder(s) the others hear and discovery did not show']
-    if not missing and not others:
+    silent = missing + tally.others_missing()   # the names of those that did not confirm
+    unheard = tally.unheard()   # and how many more the others hear, not named by discovery
+    if not silent and not unheard:
         log(f'e-stop {word}: {len(confirmed)} of {len(expected)} robots {done} within '
             f'{slowest:.2f} s{held}', True)
         return 0
+    unnamed = [f'{unheard} holder(s) the others hear and discovery did not show'] * bool(unheard)
     log(f'error: e-stop {word}: {len(confirmed)} of {len(expected)} robots confirmed '
-        f'{done} within {wait:g} s; no confirmation from {", ".join(missing + others)}{held}',
+        f'{done} within {wait:g} s; no confirmation from {", ".join(silent + unnamed)}{held}',
         False)
     return 1
 
