@@ -150,11 +150,13 @@ class EstopHolder:
         if report is not None:
             self.on_report(report)
 
-    def on_report(self, report: EstopReport) -> None:
-        """A holder's announced state (this one's own included, which changes nothing)."""
+    def on_report(self, report: EstopReport, heard: float | None = None) -> None:
+        """A holder's announced state (this one's own included, which changes nothing),
+        heard at `heard` (time.monotonic(); default now).
+        """
         if report.holder == self.name:
             return
-        self.peers[report.holder] = time.monotonic()
+        self.peers[report.holder] = time.monotonic() if heard is None else heard
         # (a release is never adopted from a peer: the clock is read only for a stop)
         if report.engaged and self.latch.peer(True, report.since, report.by,
                                               now_seconds(self.node)):
@@ -197,8 +199,9 @@ class SharedPeerStates:
     def _on_state(self, msg: DiagnosticStatus) -> None:
         report = _report(self.holders[0].node, msg)
         if report is not None:
+            heard = time.monotonic()   # once for all
             for holder in self.holders:
-                holder.on_report(report)
+                holder.on_report(report, heard)
 
 
 _shared: SharedPeerStates | None = None   # the process's, while its nodes live
