@@ -207,8 +207,16 @@ class Run:
         if self.fleet and options.preflight and options.runs('robots'):
             self._preflight()
         self._start_moving(moving)
+        early = options.runs('curve_server') and options.isolated and options.with_robots
+        if early:
+            # A private domain holds no other formation to look for: the server starts with
+            # the robots and waits for their poses itself, so that its discovery overlaps
+            # theirs (50 robots: the first curve 4 s after the robots were seen, started
+            # after them).
+            self.graph.start(server, overrides={'wait_for_poses': True})
         if options.runs('curve_server'):
-            self._wait_ready()
+            self._wait_ready(look=not early)
+        if options.runs('curve_server') and not early:
             # Every robot's pose has come (the monitor's): the server need not wait for them
             # again (its own subscriptions found the robots 2-3 s later, measured), as it does
             # started by hand from its parameters file.
@@ -381,14 +389,15 @@ class Run:
                      'domain, and is the camera tracker running?')
         return hint + ')'
 
-    def _wait_ready(self):
+    def _wait_ready(self, look=True):
         """Spin until every robot's pose and cmd_vel is seen, saying what is missing every
-        STATUS_PERIOD s; with the curve server here, another formation on the domain is looked
-        for every FORMATION_LOOK_PERIOD s meanwhile and once more at the end.
+        STATUS_PERIOD s; with the curve server here (and `look`: not started yet), another
+        formation on the domain is looked for every FORMATION_LOOK_PERIOD s meanwhile and
+        once more at the end.
         """
         said = [time.monotonic()]
         looked = [time.monotonic()]
-        ours = self.options.runs('curve_server')
+        ours = self.options.runs('curve_server') and look
 
         _, graph = self._started()
 
