@@ -9,67 +9,17 @@ Bad input ends with one line `error: FILE: KEY: ...` and exit status 2, never a 
 """
 
 import argparse
-import json
 import math
 import os
-from pathlib import Path
 import sys
 
+from curve_formation import commands
 from curve_formation.bags.bag import BagError, DEFAULT_STORAGE, STORAGES
 from curve_formation.core.config.errors import ConfigError
-from curve_formation.core.config.loading import load_experiment
 from curve_formation.core.config.marker_ids import MARKER_IDS
 from curve_formation.core.controller.settings import SETTINGS
-from curve_formation.paths import resolve_config, use_dds_profile
+from curve_formation.paths import use_dds_profile
 from curve_formation.results.provenance import command_line
-from curve_formation.workflows import (
-    run_demo,
-    simulate_to_dir,
-    summary_line,
-    warn,
-    write_json,
-)
-
-
-def _cmd_check(args):
-    from curve_formation.core.config.agents import leader_relays
-    from curve_formation.fleet import fleet_robots
-    from curve_formation.vision.camera_files import check_camera_files
-    experiment = load_experiment(resolve_config(args.config))
-    warn(experiment)
-    report = experiment.report()
-    report['camera_files'] = check_camera_files(experiment)
-    report['fleet'] = [{'robot': r.agent, 'marker': r.marker, 'link': r.address.text,
-                        'baud': r.address.baud, 'format': r.format}
-                       for r in fleet_robots(experiment)]
-    if args.json:
-        print(json.dumps(report, indent=2))
-        return
-    print(f'{report["experiment"]}: {report["agents"]} agents, leader {report["leader"]}, '
-          f'{len(report["edges"])} edges; rooted spanning tree: yes')
-    t1 = report['theorem1']
-    print(f'Theorem 1: P, Q positive definite (min eig {t1["min_eig_P"]:.3g}, '
-          f'{t1["min_eig_Q"]:.3g}); slowest mode of L+B: '
-          f'{report["slowest_mode_of_L_plus_B"]:.3g}')
-    for k, c in enumerate(report['curves']):
-        print(f'curve {k} from t = {c["start"]:g} s: {c["basis"]}, fit rms residual '
-              f'{c["fit_rms_residual"]:.2g} over {c["samples"]} samples, rank G_bar '
-              f'{c["rank_G_bar"]}, n <= H: {c["n_le_H"]}')
-        print('    s_i = ' + ', '.join(f'{v:.4f}' for v in c['s']))
-    for line in report['camera_files']:
-        print(line)
-    relays = leader_relays(experiment)
-    deepest = int(relays.argmax())
-    if relays[deepest] > 0.0:
-        timeout = experiment.spec.safety.leader_timeout
-        hops = int(experiment.graph.hops_from_leader()[deepest])
-        print(f"leader's news: robot {deepest + 1} is {hops} hops from the leader, relayed "
-              f'with each pose: it stops after {timeout:g} s + {relays[deepest]:.2f} s without '
-              'news (safety.leader_timeout, plus a pose period and delivery a hop)')
-    for robot in report['fleet']:
-        baud = f' at {robot["baud"]} baud' if robot['link'].startswith('serial:') else ''
-        print(f'robot {robot["robot"]}: {robot["link"]}{baud}, {robot["format"]}, marker '
-              f'{robot["marker"] if robot["marker"] is not None else "(none)"}')
 
 
 def _allow_missing_option(parser, then):
@@ -81,303 +31,6 @@ def _allow_missing_option(parser, then):
 def _animate_option(parser):
     parser.add_argument('--animate', action='store_true',
                         help='also write animation.mp4 of the run (robots, targets, curve)')
-
-
-def _cmd_sim(args):
-    rate: str | float | None = 'config'
-    if args.continuous:
-        rate = None
-    elif args.rate is not None:
-        rate = args.rate
-    _output_folder(args.out, args.force)
-    data = simulate_to_dir(args.config, args.out, rate, args.law, args.heading, args.physics,
-                           args.animate)
-    print(summary_line(data['experiment'], data))
-    print(f"simulated by: {data['simulator']}")   # the batch simulator, or why not
-    print(f'wrote {args.out}/: report.html, metrics.json, figures (PNG and PDF), '
-          f'trajectory.npz{", animation.mp4" if args.animate else ""}')
-
-
-def _cmd_demo(args):
-    out = Path(args.out)
-    _output_folder(out)
-    run_demo(out, args.duration)
-
-
-def _cmd_run(args):
-    from curve_formation.run.run_options import RunOptions
-    from curve_formation.run.runner import run_experiment
-    _bridge_needs_simulated_robots(args)
-    warn(load_experiment(resolve_config(args.config)))
-    only = _parts(args.only)
-    _output_folder(args.out, args.force)
-    options = RunOptions(single_process=args.single_process, with_robots=not args.no_sim,
-                         rate_hz=args.rate, bag_path=args.bag,
-                         camera={} if args.camera else None, bag_images=args.bag_images,
-                         bag_storage=args.bag_storage, bridge=args.bridge,
-                         discovery_server=args.discovery_server, only=only,
-                         agents=_agents(args.agents), isolated=args.isolated,
-                         physics=args.physics, animate=args.animate,
-                         preflight=not args.no_preflight,
-                         controllers_per_process=args.controllers_per_process,
-                         allow_missing=frozenset(_agents(args.allow_missing, '--allow-missing')
-                                                 or ()))
-    result = run_experiment(args.config, args.out, args.duration, options)
-    if not options.runs('observer'):
-        print(f'ran {", ".join(sorted(only or ()))} of {result["experiment"]}; logs/ in '
-              f'{args.out} (the host with `observer` writes the metrics)')
-        return
-    print(summary_line(result['experiment'], result))
-    print(f'wrote {args.out}/: report.html, metrics.json, figures, params/ and logs/')
-    if result['node_deaths']:
-        died = ', '.join(f'{d["node"]} ({d["how"]})' for d in result['node_deaths'])
-        print(f'error: nodes died during the run: {died}; metrics.json says when',
-              file=sys.stderr)
-        return EXIT_NODE_DIED
-
-
-def _bridge_needs_simulated_robots(args):
-    if args.bridge and args.no_sim:
-        raise ValueError('--bridge drives emulated robots and --no-sim has none; real '
-                         "robots' bridges start from the file's robots.fleet "
-                         '(docs/arena-setup.md)')
-
-
-def _cmd_params(args):
-    from curve_formation.run.run_options import RunOptions
-    from curve_formation.run.start_scripts import graph_launches, write_node_files
-    _bridge_needs_simulated_robots(args)
-    path = resolve_config(args.config)
-    out = _output_folder(args.out, args.force)
-    observed = args.observer or args.bag is not None
-    experiment, launches = graph_launches(path, out, not args.no_sim, args.camera, args.bridge,
-                                          args.rate, args.bag, observed, args.physics,
-                                          args.controllers_per_process)
-    run_args = None
-    if observed:
-        run_args = [str(path)] + (['--rate', f'{args.rate:g}'] if args.rate else []) \
-            + (['--no-sim'] if args.no_sim else []) + (['--camera'] if args.camera else []) \
-            + (['--bridge', args.bridge] if args.bridge else []) \
-            + (['--physics', args.physics] if args.physics else []) \
-            + (['--bag', str(Path(args.bag).resolve())] if args.bag else [])
-    size = RunOptions(controllers_per_process=args.controllers_per_process).group_size(
-        experiment.n)
-    params, scripts = write_node_files(launches, out, experiment.name, run_args, size)
-    print(f'wrote {len(params)} parameters files in {out / "params"} and start scripts:')
-    for script in scripts:
-        print(f'  {script}')
-    print('start each part on the host that runs it, every host on the same ROS_DOMAIN_ID '
-          f'(e.g. `ROS_DOMAIN_ID=42 {out / "start_all.sh"}`)')
-
-
-def _agents(text, flag='--agents'):
-    """The frozenset of agents `flag` names ('1-5,9'), or None for every agent."""
-    if text is None:
-        return None
-    agents: set[int] = set()
-    try:
-        for item in text.split(','):
-            low, _, high = item.strip().partition('-')
-            agents.update(range(int(low), int(high or low) + 1))
-    except ValueError:
-        raise ValueError(f'{flag}: expected agent numbers and ranges such as 1-5,9, got '
-                         f'{text!r}') from None
-    if not agents or min(agents) < 1:
-        raise ValueError(f'{flag}: expected agent numbers from 1, got {text!r}')
-    return frozenset(agents)
-
-
-def _parts(text):
-    """The frozenset of graph parts `--only` names, or None for the whole graph."""
-    from curve_formation.run.run_options import PARTS
-    if text is None:
-        return None
-    parts = frozenset(p.strip() for p in text.split(',') if p.strip())
-    unknown = sorted(parts - set(PARTS))
-    if unknown or not parts:
-        raise ValueError(f'--only: unknown part(s) {unknown or [text]}; choose from '
-                         f'{", ".join(PARTS)} (comma-separated)')
-    if not os.environ.get('ROS_DOMAIN_ID'):
-        raise ValueError('--only: set the same ROS_DOMAIN_ID on every host of a split run')
-    return parts
-
-
-def _cmd_analyze(args):
-    from curve_formation.bags.analysis import analyze_bag
-    _output_folder(args.out, args.force)
-    result = analyze_bag(args.bag, args.out, args.experiment, args.compare, args.compare_sim,
-                         progress=lambda line: print(line, file=sys.stderr, flush=True),
-                         animate=args.animate)
-    print(summary_line(result['experiment'], result))
-    if args.compare_sim:
-        print(summary_line('simulated', result['compare_sim']))
-        print(f'{"phase":>5s} {"start (s)":>9s} {"settled (s)":>12s} {"simulated (s)":>14s} '
-              f'{"final ||e||":>12s} {"simulated":>10s}')
-        for row in result['compare_sim_table']:
-            print(f'{row["phase"]:5d} {row["start"]:9.2f} {_seconds(row["settle_time"]):>12s} '
-                  f'{_seconds(row["settle_time_sim"]):>14s} {row["final_error_norm"]:12.3g} '
-                  f'{_number(row["final_error_norm_sim"]):>10s}')
-    print(f'wrote {args.out}/: report.html, metrics.json, figures (PNG and PDF), '
-          f'trajectory.npz{", animation.mp4" if args.animate else ""}')
-
-
-def _cmd_animate(args):
-    from curve_formation.bags.analysis import load_run
-    from curve_formation.figures.animation import animate
-    out = Path(args.out)
-    if out.exists() and not args.force:
-        raise ValueError(f'{out} exists: choose another --out, or --force to replace it')
-    experiment, t, poses, phase = load_run(args.source, args.experiment)
-    view = None
-    if args.camera:
-        from curve_formation.vision.render import camera_view
-        view = camera_view(experiment, (960, 540))
-    frames = animate(out, experiment, t, poses, phase, fps=args.fps,
-                     max_seconds=args.max_seconds, camera_view=view)
-    print(f'wrote {out}: {frames} frames of {experiment.name} ({t[-1] - t[0]:.1f} s of run)')
-
-
-def _cmd_measure_link(args):
-    from curve_formation.bags.measure_link import measure_bag
-    found = measure_bag(args.bag, args.motor_time_constant)
-    estimated = found['motor_estimated']
-    if not estimated and found['motor_time_constant'] > 0:
-        print(f"the commands taken through the motors' {_ms(found['motor_time_constant'])} ms "
-              'lag (limits.motor_time_constant)')
-    print(f'{"robot":>5s} {"latency (ms)":>12s} {"spread (ms)":>11s} {"windows":>7s} '
-          f'{"commands":>8s} {"poses":>6s}' + (f' {"motor lag (ms)":>14s}' if estimated
-                                                 else '') + f' {"wheel gains (l, r)":>18s}')
-    for i, row in found['robots'].items():
-        told = row['latency'] is not None
-        gains = row['wheel_gains']
-        print(f'{i:5d} {_ms(row["latency"]):>12s} {_ms(row["spread"]):>11s} '
-              f'{row["windows"]:7d} {row["commands"]:8d} {row["poses"]:6d}'
-              + (f' {_ms(row["motor_time_constant"]):>14s}' if estimated else '')
-              + f' {"-" if gains is None else f"{gains[0]:.3f}, {gains[1]:.3f}":>18s}'
-              + ('' if told else '  (its commands hardly changed: nothing to time)'))
-    if found['latency'] is None:
-        print('no robot told its latency: record a run in which the robots drive')
-        return 1
-    print('spread: how much the latency of 4 s windows varies (the jitter, and the '
-          "estimate's own noise); wheel gains: each wheel's speed per unit of command, - where "
-          "the commands did not tell it (within 1 %) or the experiment gives no wheel base")
-    print(f'to tell the controllers (the median over the robots, s):\ncontroller: '
-          f'{{command_latency: {found["latency"]:.3f}, estimate_latency: false}}\n'
-          '(with estimate_latency: true they estimate it online, starting from '
-          'command_latency)')
-    if estimated and found['motor_time_constant'] is not None:
-        print("the motors' lag, fitted with the latency (the median over the robots, s):\n"
-              f'limits: {{motor_time_constant: {found["motor_time_constant"]:.3f}}}\n'
-              '(or controller: {estimate_motors: true} to estimate it online)')
-    if args.json:
-        write_json(Path(args.json), found)
-    return 0
-
-
-def _ms(value):
-    return '-' if value is None else f'{1000 * value:.1f}'
-
-
-def _seconds(value):
-    return 'not settled' if value is None else f'{value:.2f}'
-
-
-def _number(value):
-    return '-' if value is None else f'{value:.3g}'
-
-
-def _cmd_bag_info(args):
-    from curve_formation.bags.bag import describe_bag, format_bag_info
-    info = describe_bag(args.bag)
-    print(json.dumps(info, indent=2) if args.json else format_bag_info(info))
-
-
-def _cmd_bag_repair(args):
-    from curve_formation.bags.bag import repair
-    out, count = repair(args.bag, args.out)
-    print(f'wrote {out}: {count} messages')
-
-
-def _cmd_replay(args):
-    import rclpy
-    from rclpy.signals import SignalHandlerOptions
-
-    from curve_formation.bags.replay import replay
-    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
-    node = rclpy.create_node('bag_replay')
-    try:
-        sent = replay(node, args.bag, args.rate, args.topics, args.loop, args.start,
-                      clock=not args.no_clock, wait_for_subscribers=args.wait)
-        print(f'replayed {sent} messages')
-    except KeyboardInterrupt:
-        print('replay interrupted')
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-
-
-def _cmd_discovery_server(args):
-    from curve_formation.paths import discovery_server_command
-    argv, env = discovery_server_command(args.address, args.port)
-    os.execve(argv[0], argv, env)
-
-
-def _cmd_clean_shm(args):
-    """Fast DDS's `fastdds shm clean` (segments and ports whose lock nobody holds), then
-    the port files it leaves (dds_shm): what processes killed hard left in /dev/shm. Files a
-    live process holds are kept.
-    """
-    from curve_formation.dds_shm import clean
-    try:
-        status, removed = clean()
-    except FileNotFoundError as exc:
-        return _error(str(exc), 2)
-    print(f'{len(removed)} port files without a lock or a user removed')
-    return status
-
-
-def _cmd_estop(args):
-    from curve_formation.run.estop_command import send_estop
-    expect = args.expect
-    if args.experiment is not None:
-        expect = load_experiment(resolve_config(args.experiment)).n
-    return send_estop(args.state == 'on', expect, args.wait, args.hold)
-
-
-def _cmd_preflight(args):
-    from curve_formation.fleet import fleet_robots
-    from curve_formation.run.preflight import preflight_command
-    experiment = load_experiment(resolve_config(args.config))
-    result = preflight_command(experiment, fleet_robots(experiment),
-                               frozenset(_agents(args.allow_missing, '--allow-missing') or ()))
-    if args.json:
-        write_json(Path(args.json), result.as_dict())
-
-
-def _cmd_calibrate_camera(args):
-    from curve_formation.vision.intrinsics import (
-        BoardSpec,
-        calibrate,
-        read_images,
-        write_intrinsics,
-    )
-    spec = BoardSpec(tuple(args.squares), args.square_size, args.marker_size, args.dictionary)
-    if spec.marker_size >= spec.square_size:
-        raise ValueError(f'--marker-size ({spec.marker_size:g} m) must be smaller than '
-                         f'--square-size ({spec.square_size:g} m)')
-    result = calibrate(read_images(args.source, args.every, args.limit), spec, args.max_rms,
-                       args.min_views)
-    write_intrinsics(args.out, result)
-    k = result.camera_matrix
-    print(f'{result.views} views, reprojection RMS {result.rms:.3f} px; focal {k[0, 0]:.1f} x '
-          f'{k[1, 1]:.1f} px, centre ({k[0, 2]:.1f}, {k[1, 2]:.1f}) px, distortion '
-          f'{" ".join(f"{v:.4g}" for v in result.distortion)}')
-    print(f'wrote {args.out} (camera.intrinsics_file of an experiment)')
-
-
-def _cmd_nodes_doc(args):
-    from curve_formation.nodes.docs import nodes_markdown, settings_markdown
-    print(settings_markdown() if args.settings else nodes_markdown())
 
 
 class _Parser(argparse.ArgumentParser):
@@ -444,7 +97,7 @@ def build_parser():
     check = sub.add_parser('check', help='validate an experiment and report what was checked')
     check.add_argument('config', help='experiment YAML path or shipped name')
     check.add_argument('--json', action='store_true', help='print the report as JSON')
-    check.set_defaults(func=_cmd_check)
+    check.set_defaults(func=commands.cmd_check)
     sim = sub.add_parser('sim', help='batch-simulate an experiment')
     sim.add_argument('config', help='experiment YAML path or shipped name (e.g. closed_curve)')
     sim.add_argument('--out', required=True, help='output folder')
@@ -459,7 +112,7 @@ def build_parser():
                     'tick pipeline with the robots as MuJoCo bodies')
     _animate_option(sim)
     _force_option(sim)
-    sim.set_defaults(func=_cmd_sim)
+    sim.set_defaults(func=commands.cmd_sim)
     run = sub.add_parser('run', help='run the experiment as a ROS 2 node graph')
     run.add_argument('config', help='experiment YAML path or shipped name')
     run.add_argument('--out', default='out/run', help='output folder')
@@ -511,7 +164,7 @@ def build_parser():
                      '--bridge): marker seen, link answering, stop confirmed')
     _physics_option(run, "the fake robots' world (fake_arena)")
     _force_option(run)
-    run.set_defaults(func=_cmd_run)
+    run.set_defaults(func=commands.cmd_run)
     params = sub.add_parser('params', help="write each node's ROS 2 parameters file and "
                             'the `ros2 run` start scripts of the graph, starting nothing')
     params.add_argument('config', help='experiment YAML path or shipped name')
@@ -530,7 +183,7 @@ def build_parser():
     params.add_argument('--bag', help='with the observer, record a bag at this new path')
     _physics_option(params, "the fake robots' world (fake_arena)")
     _force_option(params)
-    params.set_defaults(func=_cmd_params)
+    params.set_defaults(func=commands.cmd_params)
     analyze = sub.add_parser('analyze', help='metrics and figures from a recorded bag')
     analyze.add_argument('bag', help='bag folder')
     analyze.add_argument('--out', required=True, help='output folder')
@@ -542,7 +195,7 @@ def build_parser():
                          help="overlay the batch simulator run from the bag's own start and "
                          'curves: paths, error norms, settling per phase')
     _force_option(analyze)
-    analyze.set_defaults(func=_cmd_analyze)
+    analyze.set_defaults(func=commands.cmd_analyze)
     animate = sub.add_parser('animate', help='an animation (MP4 or GIF) of a run folder or bag')
     animate.add_argument('source', help='a run folder (sim, run, analyze --out) or a bag')
     animate.add_argument('--out', required=True, help='the film: FILE.mp4 or FILE.gif')
@@ -554,7 +207,7 @@ def build_parser():
                          help="beside the plan, the overhead camera's view (rendered; needs "
                               "the experiment's camera and arena)")
     _force_option(animate)
-    animate.set_defaults(func=_cmd_animate)
+    animate.set_defaults(func=commands.cmd_animate)
     link = sub.add_parser('measure-link', help="each robot's command latency and motors' lag "
                           'from a recorded bag (its cmd_vel against its poses), and the '
                           'experiment settings')
@@ -564,19 +217,19 @@ def build_parser():
                       help="the motors' first-order lag (s) the commands act through, not "
                            "to be read as latency (default: the bag's experiment's "
                            'limits.motor_time_constant, else estimated with the latency)')
-    link.set_defaults(func=_cmd_measure_link)
+    link.set_defaults(func=commands.cmd_measure_link)
     bag = sub.add_parser('bag', help='inspect or repair a bag (no ROS CLI needed)')
     bag_sub = bag.add_subparsers(dest='bag_command', required=True, parser_class=_Parser)
     info = bag_sub.add_parser('info', help='what `ros2 bag info` prints: storage, duration, '
                               'topics with types, counts and QoS')
     info.add_argument('bag', help='bag folder')
     info.add_argument('--json', action='store_true', help='print it as JSON')
-    info.set_defaults(func=_cmd_bag_info)
+    info.set_defaults(func=commands.cmd_bag_info)
     fix = bag_sub.add_parser('repair', help='rewrite the bag of a run killed hard (no '
                              'metadata.yaml, MCAP without summary) as a complete bag')
     fix.add_argument('bag', help='bag folder')
     fix.add_argument('--out', help='folder of the repaired bag (default BAG-repaired)')
-    fix.set_defaults(func=_cmd_bag_repair)
+    fix.set_defaults(func=commands.cmd_bag_repair)
     rep = sub.add_parser('replay', help='publish a bag with its original timing and types')
     rep.add_argument('bag', help='bag folder')
     rep.add_argument('--rate', type=positive, default=1.0, help='speed factor (2 = twice as fast)')
@@ -586,7 +239,7 @@ def build_parser():
     rep.add_argument('--no-clock', action='store_true', help='do not publish /clock')
     rep.add_argument('--wait', type=not_negative, default=5.0,
                      help='seconds to wait for subscribers before starting')
-    rep.set_defaults(func=_cmd_replay)
+    rep.set_defaults(func=commands.cmd_replay)
     estop = sub.add_parser('estop', help='engage (on) or release (off) the e-stop of every '
                            'robot on this ROS_DOMAIN_ID; exits 0 once every robot confirmed '
                            'it, 1 naming those that did not')
@@ -603,24 +256,24 @@ def build_parser():
     estop.add_argument('--hold', action='store_true',
                        help='once confirmed, keep sending it every second until Ctrl-C (each '
                        'node holds it anyway)')
-    estop.set_defaults(func=_cmd_estop)
+    estop.set_defaults(func=commands.cmd_estop)
     pre = sub.add_parser('preflight', help="check every robot of the file's robots.fleet "
                          'before a run: marker seen, link answering, stop confirmed; exit 2 '
                          'naming each robot that fails (run it before the robot bridges start)')
     pre.add_argument('config', help='experiment YAML path or shipped name')
     _allow_missing_option(pre, ' and the pre-flight still passes')
     pre.add_argument('--json', metavar='FILE', help='also write the result as JSON')
-    pre.set_defaults(func=_cmd_preflight)
+    pre.set_defaults(func=commands.cmd_preflight)
     server = sub.add_parser('discovery-server', help='run a Fast DDS discovery server (for '
                             'networks where multicast fails; runs use it with '
                             '--discovery-server HOST:PORT)')
     server.add_argument('--address', default='127.0.0.1',
                         help="this PC's address the robots' PCs reach it at")
     server.add_argument('--port', type=int, default=11811)
-    server.set_defaults(func=_cmd_discovery_server)
+    server.set_defaults(func=commands.cmd_discovery_server)
     shm = sub.add_parser('clean-shm', help="remove Fast DDS's shared-memory files that "
                          'processes killed hard left in /dev/shm (files in use are kept)')
-    shm.set_defaults(func=_cmd_clean_shm)
+    shm.set_defaults(func=commands.cmd_clean_shm)
     calib = sub.add_parser('calibrate-camera', help="the camera's lens (intrinsics) from "
                            'views of a ChArUco board, written for camera.intrinsics_file')
     calib.add_argument('source', help='a folder of images, a video file or a device number')
@@ -641,22 +294,20 @@ def build_parser():
                        help='from a video or device: use every N-th frame')
     calib.add_argument('--limit', type=int, help='from a video or device: at most this many '
                        'frames')
-    calib.set_defaults(func=_cmd_calibrate_camera)
+    calib.set_defaults(func=commands.cmd_calibrate_camera)
     nodes_doc = sub.add_parser('nodes-doc', help='print the node reference of docs/nodes.md '
                                '(parameters, topics, QoS) from the code')
     nodes_doc.add_argument('--settings', action='store_true', help="print instead the "
                            "controller settings' table of docs/experiments.md")
-    nodes_doc.set_defaults(func=_cmd_nodes_doc)
+    nodes_doc.set_defaults(func=commands.cmd_nodes_doc)
     demo = sub.add_parser('demo', help='the headless demo: paper cases simulated, then a ROS '
                           'run with fake robots recorded to a bag')
     demo.add_argument('--out', default='out/demo')
     demo.add_argument('--duration', type=positive, default=90.0, help='ROS run length (s)')
-    demo.set_defaults(func=_cmd_demo)
+    demo.set_defaults(func=commands.cmd_demo)
     return parser
 
 
-# `run`'s exit status when a node of the run died (the run went on and wrote its results).
-EXIT_NODE_DIED = 3
 # An error line is cut to this many characters: a bad input can be long, the line is not.
 MAX_ERROR_LINE = 480
 
@@ -695,22 +346,6 @@ def _error(message, status):
     print(f'error: {text}', file=sys.stderr)
     return status
 
-
-def _output_folder(path, force=False):
-    """Create the output folder now (not after a long run); OSError or FileExistsError, also
-    for a folder that holds something already, unless force (its files are written over).
-    """
-    path = Path(path)
-    if path.exists() and not path.is_dir():
-        raise FileExistsError(f'{path}: exists and is not a folder; give a folder for --out')
-    if not force and path.is_dir() and any(path.iterdir()):
-        raise FileExistsError(f'{path}: output folder is not empty; give a new one, or '
-                              '--force to write over what it holds')
-    path.mkdir(parents=True, exist_ok=True)
-    probe = path / '.curve_formation_write_test'
-    probe.write_text('')
-    probe.unlink()
-    return path
 
 
 if __name__ == '__main__':

@@ -98,7 +98,7 @@ def test_a_split_run_names_its_parts_and_needs_a_shared_domain(capsys, monkeypat
 
 
 def test_agents_of_a_split_run_are_numbers_and_ranges(capsys, monkeypatch, tmp_path):
-    from curve_formation.cli import _agents
+    from curve_formation.commands import _agents
     assert _agents('1-3,5') == {1, 2, 3, 5} and _agents(None) is None
     monkeypatch.setenv('ROS_DOMAIN_ID', '7')
     assert main(['run', 'arena_demo', '--only', 'controllers', '--agents', '1-x',
