@@ -136,6 +136,10 @@ def test_fifty_robots_in_a_chain_hold_10_hz_and_settle(ros_domain, tmp_path, cap
         assert len(run.processes) + 1 <= 16, sorted(run.processes)
         run.spin_for(60.0)
         _, _, result = run.measure()
+        if not result['all_settled']:   # what a failure is examined from
+            data = run.recording()
+            np.savez(tmp_path / 'recording.npz', t=data['t'], poses=data['poses'],
+                     commands=data['commands'])
     rates = {robot: t['rate_hz'] for robot, t in result['ticks']['robots'].items()}
     assert len(rates) == 50 and min(rates.values()) >= 9.9, rates
     lost = [line for line in capfd.readouterr().err.splitlines()

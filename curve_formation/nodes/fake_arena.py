@@ -60,6 +60,8 @@ from curve_formation.nodes.topics import Use
 FIRMWARE_POLL = 0.005
 # (v m/s, w rad/s) of a runaway robot (fault_runaway)
 RUNAWAY = (0.01, 0.0)
+# Longer than this (s) between two publications of the poses is logged: the arena stalled.
+LATE_POSES = 0.5
 
 
 NODE_NAME = 'fake_arena'   # also its console script's name
@@ -145,6 +147,7 @@ class FakeArena(Node):
             for i in range(1, self.n + 1):
                 topics.subscription(self, topics.CMD_VEL, lambda msg, i=i: self._on_cmd(i, msg),
                                     robot=i)
+        self.last_poses: float | None = None   # when poses were last published (s)
         self.create_timer(1.0 / p.rate_hz, self._on_timer)
         self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(f'{self.n} robots, bodies of radius {self.radius:g} m, arena '
@@ -231,6 +234,11 @@ class FakeArena(Node):
 
     def _on_timer(self) -> None:
         now = now_seconds(self)
+        if self.last_poses is not None and now - self.last_poses > LATE_POSES:
+            self.get_logger().warning(f'poses published {now - self.last_poses:.2f} s after '
+                                      'the last: this process was held up',
+                                      throttle_duration_sec=1.0)
+        self.last_poses = now
         self.advance(now)
         run_time = self.run_time.at(now)
         if self.varies and run_time is not None:   # until the next pose, as it is now
