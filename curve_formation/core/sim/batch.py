@@ -134,6 +134,28 @@ def _announced(schedule: CurveSchedule, k: int, reach: float, dt: float
     return motion, int(math.ceil((phases[k].start - min(reach, lead)) / dt - 1e-9))
 
 
+def _refuse_unmodelled(experiment: Experiment, rate_hz: float | None) -> None:
+    """ConfigError naming a setting of the experiment that the batch simulator cannot run:
+    told motors (its unicycles have none), or, under continuous control (rate_hz None), a
+    command latency or the second-order observer (both act at ticks).
+    """
+    spec = experiment.spec
+    told = [key for key in ('min_wheel_speed', 'motor_time_constant')
+            if spec.limits is not None and getattr(spec.limits, key)]
+    if told:
+        raise ConfigError(experiment.source, f'limits.{told[0]}', "describes real motors the "
+                          "batch simulator's unicycles do not have: simulate them in the "
+                          'MuJoCo world (sim --physics mujoco)')
+    if rate_hz is None and spec.controller.command_latency > 0.0:
+        raise ConfigError(experiment.source, 'controller.command_latency',
+                          'commands that act late are sent at ticks: it needs a control rate '
+                          '(controller.rate_hz), not continuous control')
+    if rate_hz is None and spec.controller.observer_order != 1:
+        raise ConfigError(experiment.source, 'controller.observer_order',
+                          'the second-order observer updates at ticks: it needs a control '
+                          'rate (controller.rate_hz), not continuous control')
+
+
 def _split(dist: FloatArray, on_pc: bool) -> tuple[FloatArray, FloatArray]:
     """(d_pc, d_robot) (n, 2): the disturbance where it is injected, zeros elsewhere."""
     dist = np.ascontiguousarray(dist, dtype=float)
@@ -159,22 +181,9 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
     Returns a SimResult.
     """
     spec = experiment.spec
-    told = [key for key in ('min_wheel_speed', 'motor_time_constant')
-            if spec.limits is not None and getattr(spec.limits, key)]
-    if told:
-        raise ConfigError(experiment.source, f'limits.{told[0]}', "describes real motors the "
-                          "batch simulator's unicycles do not have: simulate them in the "
-                          'MuJoCo world (sim --physics mujoco)')
     rate_hz = spec.controller.rate_hz if rate_hz == 'config' else rate_hz
+    _refuse_unmodelled(experiment, rate_hz)
     latency = spec.controller.command_latency
-    if rate_hz is None and latency > 0.0:
-        raise ConfigError(experiment.source, 'controller.command_latency',
-                          'commands that act late are sent at ticks: it needs a control rate '
-                          '(controller.rate_hz), not continuous control')
-    if rate_hz is None and spec.controller.observer_order != 1:
-        raise ConfigError(experiment.source, 'controller.observer_order',
-                          'the second-order observer updates at ticks: it needs a control '
-                          'rate (controller.rate_hz), not continuous control')
     duration = spec.simulation.duration if duration is None else duration
     dt = spec.simulation.dt if dt is None else dt
     record_dt = spec.simulation.record_dt if record_dt is None else record_dt
