@@ -302,7 +302,7 @@ class AgentController:
         """One control step at time `now` (s, this controller's clock)."""
         self.robot.update(now)
         tick = self._tick(now)   # the motion wanted, as the observer and predictions read it
-        self.sent.append(self.observer.sent(now, tick.v, tick.w, tick.stopped is not None))
+        self.observer.log_sent(self.sent, now, tick.v, tick.w, tick.stopped is not None)
         tick.v, tick.w = self.robot.compensated(tick.v, tick.w)   # what the motors are sent
         self.robot.sent(now, tick.v, tick.w)
         return tick

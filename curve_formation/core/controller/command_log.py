@@ -26,13 +26,21 @@ FIELDS = 10
 Realised = tuple[bool, float, float, float, float, bool, bool, int]
 
 
+def make_room(rows: FloatArray, count: int) -> int:
+    """Room for one more row after the first `count` of `rows` (oldest first): the oldest
+    dropped when full. Returns the count before the new row.
+    """
+    if count < rows.shape[0]:
+        return count
+    rows[:count - 1] = rows[1:count]
+    return count - 1
+
+
 def log_append(log: FloatArray, count: int, at: float, v: float, w: float, ref_v: float,
                ref_w: float, shift_v: float, shift_w: float, limited: bool, driven: bool,
                estimate: int) -> int:
     """Append a command's row (the oldest dropped when full); returns the new count."""
-    if count == log.shape[0]:
-        log[:count - 1] = log[1:count]
-        count -= 1
+    count = make_room(log, count)
     row = log[count]
     row[AT], row[V], row[W] = at, v, w
     row[REF_V], row[REF_W], row[SHIFT_V], row[SHIFT_W] = ref_v, ref_w, shift_v, shift_w

@@ -24,8 +24,10 @@ from curve_formation.core.controller.command_log import (
     ESTIMATE,
     LIMITED,
     log_acting,
+    log_append,
     log_first_acting_after,
     log_realised,
+    make_room,
     Realised,
     REF_V,
     REF_W,
@@ -34,7 +36,7 @@ from curve_formation.core.controller.command_log import (
 )
 from curve_formation.core.controller.commands_sent import CommandsSent
 from curve_formation.core.controller.gains import Law
-from curve_formation.core.controller.inputs import MAX_PREDICTION, Sent
+from curve_formation.core.controller.inputs import MAX_PREDICTION
 from curve_formation.core.controller.limits import WheelLimits
 from curve_formation.core.controller.observer import carried_estimate, observer_update
 from curve_formation.core.formation.dynamics import (
@@ -80,9 +82,7 @@ def pose_append(poses: FloatArray, count: int, stamp: float, taken: float, x: fl
     """Keep a pose stamped `stamp`, taken at `taken` (the oldest dropped when full); returns
     the new count.
     """
-    if count == poses.shape[0]:
-        poses[:count - 1] = poses[1:count]
-        count -= 1
+    count = make_room(poses, count)
     poses[count, STAMP], poses[count, TAKEN] = stamp, taken
     poses[count, X], poses[count, Y], poses[count, THETA] = x, y, theta
     return count + 1
@@ -129,6 +129,19 @@ def observer_commanded(memory: FloatArray, v: float, w: float, ref_v: float, ref
     memory[MEMORY_SHIFT_V], memory[MEMORY_SHIFT_W] = shift_v, shift_w
     memory[MEMORY_LIMITED] = 1.0 if limited else 0.0
     memory[IDLE] = 1.0 if idle else 0.0
+
+
+def log_sent(memory: FloatArray, log: FloatArray, count: int, at: float, v: float, w: float,
+             stopped: bool) -> int:
+    """Log the command (v, w) sent at `at` (stopped: a stop, motors off) with what the
+    memory holds of it: its reference and shift, whether the limits cut it, driven unless
+    stopped or idle in the dead band, and the updates made before it. Returns the log's new
+    count (command_log.log_append).
+    """
+    return log_append(log, count, at, v, w, memory[MEMORY_REF_V], memory[MEMORY_REF_W],
+                      memory[MEMORY_SHIFT_V], memory[MEMORY_SHIFT_W],
+                      memory[MEMORY_LIMITED] != 0.0, not stopped and memory[IDLE] == 0.0,
+                      int(memory[UPDATES]))
 
 
 def estimate_used(memory: FloatArray, dhat_v: float, dhat_w: float, now: float,
@@ -273,13 +286,10 @@ class MotionObserver:
         """The robot was stopped: nothing is learnt from the time it stands."""
         observer_stopped(self.memory)
 
-    def sent(self, at: float, v: float, w: float, stopped: bool) -> Sent:
-        """The record of the command (v, w) sent at `at` (stopped: a stop)."""
-        memory = self.memory
-        return Sent(at, v, w, (float(memory[MEMORY_REF_V]), float(memory[MEMORY_REF_W])),
-                    (float(memory[MEMORY_SHIFT_V]), float(memory[MEMORY_SHIFT_W])),
-                    bool(memory[MEMORY_LIMITED]), not stopped and not memory[IDLE],
-                    self.updates)
+    def log_sent(self, sent: CommandsSent, at: float, v: float, w: float,
+                 stopped: bool) -> None:
+        """Log the command (v, w) sent at `at` in `sent` (stopped: a stop; log_sent)."""
+        sent.count = log_sent(self.memory, sent.rows, sent.count, at, v, w, stopped)
 
     def estimate_used(self, dhat: list[float], now: float, latency: float,
                       period: float) -> Command:

@@ -35,15 +35,6 @@ from curve_formation.core.controller.driving import REVERSE_HYSTERESIS
 from curve_formation.core.controller.gains import Law, OBSERVER
 from curve_formation.core.controller.inputs import MAX_PREDICTION
 from curve_formation.core.controller.limits import WheelLimits
-from curve_formation.core.controller.motion_observer import (
-    IDLE,
-    MEMORY_LIMITED,
-    MEMORY_REF_V,
-    MEMORY_REF_W,
-    MEMORY_SHIFT_V,
-    MEMORY_SHIFT_W,
-    UPDATES,
-)
 from curve_formation.core.controller.others import OTHERS_KEPT
 from curve_formation.core.controller.safety import Avoidance, STOPPED
 from curve_formation.core.formation import dynamics
@@ -57,7 +48,8 @@ _observer_commanded = compiled(motion_observer.observer_commanded)
 _observer_stopped = compiled(motion_observer.observer_stopped)
 _estimate_used = compiled(motion_observer.estimate_used)
 _pose_append = compiled(motion_observer.pose_append)
-_log_append = compiled(command_log.log_append)
+_log_sent = compiled(motion_observer.log_sent)
+_make_room = compiled(command_log.make_room)
 _log_acting = compiled(command_log.log_acting)
 _log_predicted = compiled(command_log.log_predicted)
 _carried_ahead = compiled(others.carried_ahead)
@@ -256,11 +248,7 @@ def _tick(i: int, now: float, state: SimState, err: FloatArray, aimed: FloatArra
         _observer_commanded(memory, v, w, ref_v, ref_w, shift_v, shift_w, limited, x, y,
                             theta, now, now, 0.0, limits.wheel_base)
     cmd[i, 0], cmd[i, 1] = v, w
-    state.log_count[i] = _log_append(log, count, now, v, w, memory[MEMORY_REF_V],
-                                     memory[MEMORY_REF_W], memory[MEMORY_SHIFT_V],
-                                     memory[MEMORY_SHIFT_W], memory[MEMORY_LIMITED] != 0.0,
-                                     code != STOPPED and memory[IDLE] == 0.0,
-                                     int(memory[UPDATES]))
+    state.log_count[i] = _log_sent(memory, log, count, now, v, w, code == STOPPED)
 
 
 @numba.njit(cache=True)
@@ -285,21 +273,16 @@ def _remember_poses(state: SimState, taken: float) -> None:
     OTHERS_KEPT s before it, as others.OtherRobots keeps them.
     """
     history, times, held = state.history, state.history_times, state.history_count[0]
-    if held == history.shape[0]:
-        held = _drop_oldest(history, times, held)
+    _make_room(times, held)
+    held = _make_room(history, held)
     history[held] = state.poses
     times[held] = taken
     held += 1
-    while taken - times[0] > OTHERS_KEPT:
-        held = _drop_oldest(history, times, held)
+    while taken - times[0] > OTHERS_KEPT:   # the oldest out
+        history[:held - 1] = history[1:held]
+        times[:held - 1] = times[1:held]
+        held -= 1
     state.history_count[0] = held
-
-
-@numba.njit(cache=True)
-def _drop_oldest(history: FloatArray, times: FloatArray, held: int) -> int:
-    history[:held - 1] = history[1:held]
-    times[:held - 1] = times[1:held]
-    return held - 1
 
 
 @numba.njit(cache=True)
