@@ -26,7 +26,12 @@ from numpy.typing import ArrayLike
 from curve_formation.core.base.shapes import Command, FloatArray, Point, Pose
 from curve_formation.core.controller.agent_config import AgentConfig
 from curve_formation.core.controller.commands_sent import CommandsSent
-from curve_formation.core.controller.curve_targets import curve_targets, CurveTargets, error_on
+from curve_formation.core.controller.curve_targets import (
+    curve_targets,
+    CurveTargets,
+    error_on,
+    moving_share,
+)
 from curve_formation.core.controller.driving import drive_direction, REVERSE_HYSTERESIS
 from curve_formation.core.controller.gains import OBSERVER
 from curve_formation.core.controller.inputs import (
@@ -399,9 +404,7 @@ class AgentController:
         period = 1.0 / cfg.rate_hz
         ahead = (0.0, 0.0)
         if cfg.feed_forward:
-            # the part of this command's period (from when it acts) in which the target moves:
-            # all of it, except for a curve announced before it begins to move
-            moving = min(max((aim + period - self.curve_received) / period, 0.0), 1.0)
+            moving = moving_share(aim, period, self.curve_received)
             ahead = (self.ahead[0] * moving, self.ahead[1] * moving)
         used = self.observer.estimate_used(self.dhat, now, self.latency, period)
         (v, w, ref_v, ref_w, shift_v, shift_w, dhat_v, dhat_w, _, _, code, limited, _, _, fx,

@@ -35,6 +35,14 @@ class CurveTargets:
         return float(tx), float(ty)
 
 
+def moving_share(aim: float, period: float, moves_from: float) -> float:
+    """The part (0 to 1) of a command's period that a target moving from `moves_from` (s)
+    moves in, the command acting from `aim` (s) for `period` s: all of it, except for a
+    curve announced before it begins to move. What the feed-forward is scaled by.
+    """
+    return min(max((aim + period - moves_from) / period, 0.0), 1.0)
+
+
 def curve_targets(curve: Curve, curve_id: int, s_all: Sequence[float] | FloatArray | None,
                   rate: Curve | None, agent_count: int, dated: float,
                   kept: CurveTargets | None = None) -> CurveTargets:

@@ -25,6 +25,7 @@ from curve_formation.core.config.experiment import (
     whole_steps,
 )
 from curve_formation.core.controller import driving
+from curve_formation.core.controller.curve_targets import moving_share
 from curve_formation.core.controller.disturbance import disturbance_at
 from curve_formation.core.controller.gains import Gains, Law
 from curve_formation.core.controller.inputs import shared_clock
@@ -284,12 +285,13 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
                 # as the controllers have it once announced: its targets where they are
                 # when the command acts, its velocity over the part of the command's period
                 # after its start (AgentController._tick)
-                tau = begin * dt + aim - experiment.phases[k + 1].start
-                aimed = following[0].points(targets, max(tau, 0.0))
+                starts_moving = experiment.phases[k + 1].start
+                tau = max(begin * dt + aim - starts_moving, 0.0)
+                aimed = following[0].points(targets, tau)
                 if feed_forward:
-                    tick = control_every * dt
-                    ahead = (following[0].velocities(targets, max(tau, 0.0))
-                             * min(max((tau + tick) / tick, 0.0), 1.0))
+                    ahead = (following[0].velocities(targets, tau)
+                             * moving_share(begin * dt + aim, control_every * dt,
+                                            starts_moving))
             if varies:   # held over each control period (MOVING_STEP without a rate)
                 d_pc, d_robot = _split(disturbance_at(dist, experiment.variations, begin * dt),
                                        on_pc)
