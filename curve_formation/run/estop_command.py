@@ -188,7 +188,8 @@ def _report(tally, word, wait, log):
         log(f'e-stop {word}: {len(confirmed)} of {len(expected)} robots {done} within '
             f'{slowest:.2f} s{held}', True)
         return 0
-    unnamed = [f'{unheard} holder(s) the others hear and discovery did not show'] * bool(unheard)
+    unnamed = ([f'{unheard} holder(s) the others hear and discovery did not show']
+               if unheard else [])
     log(f'error: e-stop {word}: {len(confirmed)} of {len(expected)} robots confirmed '
         f'{done} within {wait:g} s; no confirmation from {", ".join(silent + unnamed)}{held}',
         False)

@@ -216,11 +216,11 @@ class Run:
             self.graph.start(server, overrides={'wait_for_poses': True})
         if options.runs('curve_server'):
             self._wait_ready(look=not early)
-        if options.runs('curve_server') and not early:
-            # Every robot's pose has come (the monitor's): the server need not wait for them
-            # again (its own subscriptions found the robots 2-3 s later, measured), as it does
-            # started by hand from its parameters file.
-            self.graph.start(server, overrides={'wait_for_poses': False})
+            if not early:
+                # Every robot's pose has come (the monitor's): the server need not wait for
+                # them again (its own subscriptions found the robots 2-3 s later, measured),
+                # as it does started by hand from its parameters file.
+                self.graph.start(server, overrides={'wait_for_poses': False})
         self.spin_until(lambda: self.monitor.t0 is not None, READY_TIMEOUT, 'the first curve')
         self.log('curve server started: t = 0' if options.runs('curve_server')
                  else 'first curve received: t = 0')
