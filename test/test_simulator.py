@@ -1,6 +1,7 @@
 """What the paper proves, checked along simulated trajectories; and what it does not show."""
 
 import dataclasses
+import os
 from pathlib import Path
 import re
 
@@ -195,6 +196,35 @@ def test_compiled_cache_is_dropped_when_a_law_source_changes(tmp_path):
     assert jit.drop_stale_cache(tmp_path)
     assert not list(cache.glob('*.nbi'))
     shutil.rmtree(cache)
+
+
+_COMPILE_ONE = """
+from curve_formation.core.config.agents import agent_configs
+from curve_formation.core.config.loading import load_experiment
+from curve_formation.core.controller.agent import compiled_step
+step = compiled_step(agent_configs(load_experiment('config/mona_arena.yaml'), 10.0)[1])
+print(sum(step.stats.cache_misses.values()), sum(step.stats.cache_hits.values()))
+"""
+
+
+def test_controller_processes_starting_together_on_a_cold_cache_compile_once(tmp_path):
+    """A grouped team's processes all compile the controllers' law at start: on a fresh
+    install each used to compile it at once (a hundred robots' twelve processes took minutes
+    on two cores and the run timed out). One compiles; the others load its cache.
+    """
+    import subprocess
+    import sys
+
+    env = {**os.environ, 'NUMBA_CACHE_DIR': str(tmp_path)}
+    processes = [subprocess.Popen([sys.executable, '-c', _COMPILE_ONE], env=env, text=True,
+                                  stdout=subprocess.PIPE, cwd=Path(__file__).parent.parent)
+                 for _ in range(3)]
+    counts = sorted(tuple(map(int, p.communicate(timeout=300)[0].split()))
+                    for p in processes)
+    assert [p.returncode for p in processes] == [0, 0, 0]
+    compiled = [misses for misses, _ in counts]
+    assert compiled == [0, 0, 1], counts   # one compiled, two loaded what it cached
+    assert all(hits == 1 for misses, hits in counts if misses == 0), counts
 
 
 def test_the_simulator_keeps_the_acceleration_limits_as_the_node_does():

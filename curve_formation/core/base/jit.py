@@ -2,7 +2,9 @@
 compiled law (AgentConfig.compiled), and the guard that keeps numba's cache current.
 """
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+import fcntl
 import hashlib
 from pathlib import Path
 import types
@@ -79,3 +81,25 @@ def compiled(function: Callable[..., Any]) -> Callable[..., Any]:
     copy = types.FunctionType(source.__code__, scope, source.__name__, source.__defaults__)
     _COMPILED[source] = numba.njit(cache=True)(copy)
     return _COMPILED[source]
+
+
+@contextmanager
+def one_compiler_at_a_time() -> Iterator[None]:
+    """Hold numba's cache for this block against other processes doing the same: several
+    controller processes starting on a cold cache (a fresh install) would each compile the
+    same functions at once, minutes on two cores; this way the first compiles and writes the
+    cache and the others load it (under a second each). Without a writable cache, no lock.
+    """
+    try:
+        folder = cache_folder(CORE)
+        folder.mkdir(parents=True, exist_ok=True)
+        handle = open(folder / 'compile.lock', 'a')
+    except OSError:
+        yield
+        return
+    with handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)

@@ -64,12 +64,13 @@ def compiled_step(config: AgentConfig) -> Callable[..., Any]:
     """step.agent_step compiled (core.base.jit.compiled) and called once with the argument
     types of config's ticks, so that no tick waits for numba.
     """
-    from curve_formation.core.base.jit import compiled
-    step = compiled(agent_step)
+    from curve_formation.core.base.jit import compiled, one_compiler_at_a_time
     k = len(config.neighbours)
-    step(0.0, 0.0, 0.0, 1.0, 0.0, 0.0, np.zeros((k, 2)), np.arange(k),
-         np.ones(k), 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, *config.pc_disturbance,
-         config.law, config.limits, NO_OTHERS, config.index - 1, config.avoidance)
+    with one_compiler_at_a_time():   # a team's processes share one compilation
+        step = compiled(agent_step)
+        step(0.0, 0.0, 0.0, 1.0, 0.0, 0.0, np.zeros((k, 2)), np.arange(k),
+             np.ones(k), 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, *config.pc_disturbance,
+             config.law, config.limits, NO_OTHERS, config.index - 1, config.avoidance)
     return step
 
 
