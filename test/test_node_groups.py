@@ -11,6 +11,7 @@ import pytest
 from test_safety import estop_cli
 import yaml
 
+from curve_formation.nodes import topics
 from curve_formation.run.run_options import RunOptions, SOLO_TEAM
 from curve_formation.run.runner import held_robots, Run
 
@@ -46,6 +47,9 @@ def test_grouped_controllers_drive_the_team_and_a_group_that_dies_is_named(ros_d
         keys = sorted(k for k in run.processes if 'controller' in k)
         assert keys == ['controllers_1-3', 'controllers_4-6', 'controllers_7-9'], keys
         run.spin_for(4.0)
+        # every robot's pose is read once a group (shared_readers), by the monitor and by
+        # the curve server (waiting for the poses)
+        assert run.monitor.count_subscribers(topics.ROBOT_POSES) == 3 + 2
         # the e-stop reaches every grouped controller (one subscription to the holders'
         # states a group) and its release too
         for word, done in (('on', 'stopped'), ('off', 'released')):

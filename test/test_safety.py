@@ -616,9 +616,10 @@ def test_the_holders_of_one_process_share_one_subscription_to_the_states_and_hea
 
     from rclpy.node import Node
 
-    from curve_formation.nodes.estop import EstopHolder, peer_states_shared
+    from curve_formation.nodes.estop import EstopHolder
+    from curve_formation.nodes.shared_readers import readers_shared
     context, add, spin_until = ros
-    with peer_states_shared():
+    with readers_shared():
         grouped = [EstopHolder(add(Node('formation_controller', namespace=f'/robot_{i}',
                                         context=context)), f'robot_{i}', 3)
                    for i in (1, 2)]

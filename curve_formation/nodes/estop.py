@@ -15,8 +15,7 @@ and
   all) or that was engaged before they started.
 """
 
-from collections.abc import Callable, Iterator
-import contextlib
+from collections.abc import Callable
 import time
 from typing import Any
 
@@ -25,7 +24,7 @@ from rclpy.node import Node
 from std_msgs.msg import Bool
 
 from curve_formation.core.controller.estop import EstopLatch, EstopReport
-from curve_formation.nodes import messages, qos, topics
+from curve_formation.nodes import messages, qos, shared_readers, topics
 from curve_formation.nodes.command_source import command_publishers
 from curve_formation.nodes.guard import Guarded
 from curve_formation.nodes.runtime import now_seconds, WithMessageInfo
@@ -81,10 +80,8 @@ class EstopHolder:
         # not match, is read by the one above.
         node.create_subscription(Bool, topics.ESTOP, on_command, qos.ESTOP_RELIABLE,
                                  event_callbacks=qos.observer_events())
-        if _shared is not None:
-            _shared.join(self)
-        else:
-            topics.subscription(node, topics.ESTOP_STATE, self._on_peer)
+        # one subscription for a group's holders (shared_readers), each state converted once
+        shared_readers.subscribe(node, topics.ESTOP_STATE, self._on_heard, heard_report)
         node.create_timer(ANNOUNCE_PERIOD, self.announce)
         self._hear_timer = node.create_timer(HEAR_WAIT, self._silence)
         self.announce()
@@ -145,10 +142,8 @@ class EstopHolder:
                                            throttle_duration_sec=1.0)
         self._hear()
 
-    def _on_peer(self, msg: DiagnosticStatus) -> None:
-        report = _report(self.node, msg)
-        if report is not None:
-            self.on_report(report)
+    def _on_heard(self, heard: tuple[EstopReport, float]) -> None:
+        self.on_report(*heard)
 
     def on_report(self, report: EstopReport, heard: float | None = None) -> None:
         """A holder's announced state (this one's own included, which changes nothing),
@@ -172,49 +167,12 @@ class EstopHolder:
         self.announce()
 
 
-def _report(node: Node, msg: DiagnosticStatus) -> EstopReport | None:
-    """The e-stop state a message tells, or None (logged on `node`) if it tells none."""
+def heard_report(node: Node, msg: DiagnosticStatus) -> tuple[EstopReport, float] | None:
+    """(the e-stop state a message tells, time.monotonic() now), or None (logged on `node`)
+    if it tells none.
+    """
     try:
-        return messages.estop_state_from_msg(msg)
+        return messages.estop_state_from_msg(msg), time.monotonic()
     except messages.MessageError as exc:
         node.get_logger().warning(f'{topics.ESTOP_STATE}: {exc}', throttle_duration_sec=5.0)
         return None
-
-
-class SharedPeerStates:
-    """One subscription to the holders' states for every EstopHolder of a process, each
-    message converted once: every holder announces every second to every other, so with one
-    subscription per holder 50 robots' nodes took 2700 deliveries a second, as many as all
-    their poses. Lives as long as the nodes of the process (runtime.run_nodes).
-    """
-
-    def __init__(self) -> None:
-        self.holders: list[EstopHolder] = []
-
-    def join(self, holder: EstopHolder) -> None:
-        if not self.holders:   # the first holder's node reads for all
-            topics.subscription(holder.node, topics.ESTOP_STATE, self._on_state)
-        self.holders.append(holder)
-
-    def _on_state(self, msg: DiagnosticStatus) -> None:
-        report = _report(self.holders[0].node, msg)
-        if report is not None:
-            heard = time.monotonic()   # once for all
-            for holder in self.holders:
-                holder.on_report(report, heard)
-
-
-_shared: SharedPeerStates | None = None   # the process's, while its nodes live
-
-
-@contextlib.contextmanager
-def peer_states_shared() -> Iterator[None]:
-    """The EstopHolders made inside share one subscription to the holders' states
-    (SharedPeerStates); their nodes must not outlive the block.
-    """
-    global _shared
-    _shared = SharedPeerStates()
-    try:
-        yield
-    finally:
-        _shared = None

@@ -30,7 +30,7 @@ from curve_formation.core.controller.safety import Avoidance, AVOIDANCE_OFF
 from curve_formation.core.controller.settings import broken_rules, DEFAULT_RATE_HZ, SETTINGS
 from curve_formation.core.formation.assignment import AssignmentError
 from curve_formation.interface import robot_name
-from curve_formation.nodes import messages, topics
+from curve_formation.nodes import messages, shared_readers, topics
 from curve_formation.nodes.command_source import CommandSourceWatch
 from curve_formation.nodes.estop import estop_uses, EstopHolder
 from curve_formation.nodes.guard import rejections
@@ -213,8 +213,8 @@ class FormationController(Node):
         self.others_msg: tuple[bytes, float] | None = None
         if self.config.avoidance.on:
             # Kept as the bytes received; decoded at the tick (10 Hz), not for every message
-            # (30 Hz), the latest only.
-            topics.subscription(self, topics.ROBOT_POSES, self._on_others, raw=True)
+            # (30 Hz), the latest only; one subscription for a group's controllers.
+            shared_readers.subscribe(self, topics.ROBOT_POSES, self._on_others, raw=True)
         self.create_timer(1.0 / self.config.rate_hz, self._on_timer)
         self.create_timer(1.0, self._publish_diagnostics)
         role = 'leader' if self.config.is_leader else (

@@ -20,9 +20,9 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 import yaml
 
-from curve_formation.nodes.estop import peer_states_shared
 from curve_formation.nodes.params import ParameterError
 from curve_formation.nodes.runtime import run_nodes
+from curve_formation.nodes.shared_readers import readers_shared
 
 
 NODE_NAME = 'node_group'   # also its console script's name
@@ -74,7 +74,7 @@ def main(args: list[str] | None = None) -> int:
     folder = Path(argv[1]).resolve().parent
     entries = [{**entry, 'params_file': str(folder / entry['params_file'])}
                for entry in entries]
-    with peer_states_shared():   # one subscription to the e-stop states for all its nodes
+    with readers_shared():   # one subscription per broadcast topic for all its nodes
         return run_nodes([partial(make_node, entry) for entry in entries], argv[2:] or None)
 
 

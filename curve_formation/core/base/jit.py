@@ -84,14 +84,19 @@ def compiled(function: Callable[..., Any]) -> Callable[..., Any]:
 
 
 @contextmanager
-def one_compiler_at_a_time() -> Iterator[None]:
-    """Hold numba's cache for this block against other processes doing the same: several
-    controller processes starting on a cold cache (a fresh install) would each compile the
-    same functions at once, minutes on two cores; this way the first compiles and writes the
-    cache and the others load it (under a second each). Without a writable cache, no lock.
+def one_compiler_at_a_time(function: Callable[..., Any]) -> Iterator[None]:
+    """Compile `function` (a core function, see `compiled`) in this block one process at a
+    time: several controller processes starting on a cold cache (a fresh install) would each
+    compile the same functions at once, minutes on two cores; this way the first compiles and
+    writes the cache and the others load it. Once the cache holds the function, processes
+    load it side by side without the lock. Without a writable cache, no lock.
     """
+    code = cast(types.FunctionType, function).__code__
+    folder = cache_folder(Path(code.co_filename).parent)
+    if any(folder.glob(f'*.{code.co_name}-*.nbi')):
+        yield
+        return
     try:
-        folder = cache_folder(CORE)
         folder.mkdir(parents=True, exist_ok=True)
         handle = open(folder / 'compile.lock', 'a')
     except OSError:

@@ -66,7 +66,7 @@ def compiled_step(config: AgentConfig) -> Callable[..., Any]:
     """
     from curve_formation.core.base.jit import compiled, one_compiler_at_a_time
     k = len(config.neighbours)
-    with one_compiler_at_a_time():   # a team's processes share one compilation
+    with one_compiler_at_a_time(agent_step):   # a team's processes share one compilation
         step = compiled(agent_step)
         step(0.0, 0.0, 0.0, 1.0, 0.0, 0.0, np.zeros((k, 2)), np.arange(k),
              np.ones(k), 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, *config.pc_disturbance,
