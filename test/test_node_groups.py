@@ -50,6 +50,9 @@ def test_grouped_controllers_drive_the_team_and_a_group_that_dies_is_named(ros_d
         # every robot's pose is read once a group (shared_readers), by the monitor and by
         # the curve server (waiting for the poses)
         assert run.monitor.count_subscribers(topics.ROBOT_POSES) == 3 + 2
+        # and a grouped controller takes its own pose from it (pose_from_all), as the
+        # monitor does: nobody reads robot 5's own pose topic
+        assert run.monitor.count_subscribers('/robot_5/pose') == 0
         # the e-stop reaches every grouped controller (one subscription to the holders'
         # states a group) and its release too
         for word, done in (('on', 'stopped'), ('off', 'released')):

@@ -88,7 +88,7 @@ PARAMETERS = (
     Param('fault_runaway', 'int[]', [], 'fault injection: these robots (1-based) answer every '
           'line but drive on at RUNAWAY speed whatever they are told (a stuck motor driver)'),
     Param('fault_hidden', 'int[]', [], "fault injection: these robots' poses are never "
-          'published (a marker face-down)'),
+          'published (a marker face-down; NaN on /formation/robot_poses, as a dropped pose)'),
 ) + ROBOT_PARAMETERS + WIRE_PARAMETERS
 
 TOPICS = (
@@ -249,12 +249,15 @@ class FakeArena(Node):
         if noise[0] > 0 or noise[1] > 0:
             poses = poses + self.rng.normal(0.0, [noise[0], noise[0], noise[1]], poses.shape)
         hidden = self.params.fault_hidden
+        unseen = np.zeros(len(poses), bool)   # as a camera misses them: in every message
         for i, (pub, msg, (x, y, th)) in enumerate(zip(self.pose_pubs, self.pose_msgs, poses,
                                                        strict=True), 1):
-            if self.rng.random() >= self.params.fault_pose_drop and i not in hidden:
+            unseen[i - 1] = self.rng.random() < self.params.fault_pose_drop or i in hidden
+            if not unseen[i - 1]:
                 pub.publish(messages.pose_to_msg(x, y, th, now, self.params.frame_id, msg))
         if self.all_pub is not None:
-            self.all_pub.publish(messages.robot_poses_to_msg(poses, now, self.params.frame_id))
+            every = np.where(unseen[:, None], np.nan, poses)
+            self.all_pub.publish(messages.robot_poses_to_msg(every, now, self.params.frame_id))
 
     def contact_summary(self) -> dict[str, Any]:
         """The world's contact tally so far: {'count', 'time' (s), 'smallest_gap' (m, None

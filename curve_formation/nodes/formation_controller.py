@@ -13,9 +13,9 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, Twist
+import numpy as np
 from rclpy.duration import Duration
 from rclpy.node import Node
-from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
@@ -73,6 +73,11 @@ PARAMETERS = (
     Param('leader_relay', 'double', 0.0, "s the leader's news may take to reach this robot "
           'beyond leader_timeout: its hops from the leader times a pose period and delivery '
           '(config.agents.leader_relays)', low=0.0),
+    Param('pose_from_all', 'bool', False, "take this robot's pose from its row of "
+          '/formation/robot_poses (a NaN row: not seen) instead of pose: the controllers of '
+          'a process then share one message for all their poses; the runner sets it for '
+          'grouped controllers when the poses come on /formation/robot_poses (a fake arena, '
+          'a camera tracker)'),
     Param('compiled_law', 'bool', False, 'run the control step compiled by numba, as the '
           'batch simulator does (the same source): ~15x faster a tick, ~0.7 s and ~65 MB '
           'more to start; the runner sets it when every node shares one process'),
@@ -152,11 +157,11 @@ def _avoidance(p: SimpleNamespace) -> Avoidance:
 
 
 TOPICS = (
-    Use('sub', topics.POSE, 'own pose, arena frame'),
+    Use('sub', topics.POSE, 'own pose, arena frame (unless pose_from_all)'),
     Use('sub', topics.STATE, "each in-neighbour's state: e_x, e_y, curve_id, leader_age", '<j>'),
     Use('sub', topics.CURVE, 'the active curve'),
     Use('sub', topics.ROBOT_POSES, "every robot's pose (x, y, theta per robot), for the "
-        'safety filter (with avoidance)'),
+        'safety filter (with avoidance) and with pose_from_all its own'),
     Use('pub', topics.CMD_VEL, 'velocity command at rate_hz'),
     Use('pub', topics.STATE, 'own state on every pose, for out-neighbours (names e_x, e_y, '
         'curve_id, leader_age)'),
@@ -169,6 +174,17 @@ TOPICS = (
     REPORTED,
 ) + estop_uses('true: a zero command at once and at every tick until released (latched here, '
                'whoever sent it)')
+
+
+def all_poses(node: Node, msg: JointState) -> tuple[np.ndarray, float] | None:
+    """(every robot's pose (n, 3), stamp s) of a /formation/robot_poses message, or None
+    (logged on `node`) if it holds none.
+    """
+    try:
+        return messages.robot_poses_from_msg(msg)
+    except messages.MessageError as exc:
+        node.get_logger().warning(f'robot poses refused: {exc}', throttle_duration_sec=1.0)
+        return None
 
 
 def reason_kind(reason: str | None) -> str | None:
@@ -200,7 +216,8 @@ class FormationController(Node):
         self.tick_pub = topics.publisher(self, topics.TICK)
         self.state_msg = None   # the state message, filled anew for every pose
         self.diag_pub = topics.publisher(self, topics.DIAGNOSTICS)
-        topics.subscription(self, topics.POSE, self._on_pose)
+        if not self.params.pose_from_all:
+            topics.subscription(self, topics.POSE, self._on_pose)
         subscribe_to_curve(self, self._on_curve)
         # Stopped until the e-stop state is heard: one that starts while the formation is
         # stopped must not move first.
@@ -210,11 +227,13 @@ class FormationController(Node):
         for j, _ in self.config.neighbours:
             topics.subscription(self, topics.STATE, lambda msg, j=j: self._on_neighbour(j, msg),
                                 robot=j)
-        self.others_msg: tuple[bytes, float] | None = None
-        if self.config.avoidance.on:
-            # Kept as the bytes received; decoded at the tick (10 Hz), not for every message
-            # (30 Hz), the latest only; one subscription for a group's controllers.
-            shared_readers.subscribe(self, topics.ROBOT_POSES, self._on_others, raw=True)
+        # every robot's latest poses (n, 3), their stamp and when received, for the safety
+        # filter at the next tick
+        self.others_msg: tuple[np.ndarray, float, float] | None = None
+        if self.config.avoidance.on or self.params.pose_from_all:
+            # decoded once for a group's controllers, through one subscription
+            shared_readers.subscribe(self, topics.ROBOT_POSES, self._on_all_poses,
+                                     all_poses)
         self.create_timer(1.0 / self.config.rate_hz, self._on_timer)
         self.create_timer(1.0, self._publish_diagnostics)
         role = 'leader' if self.config.is_leader else (
@@ -239,7 +258,9 @@ class FormationController(Node):
                                    f's_i = {self.controller.s:.4f}')
 
     def _on_pose(self, msg: PoseStamped) -> None:
-        x, y, theta, stamp = messages.pose_from_msg(msg)
+        self._own_pose(*messages.pose_from_msg(msg))
+
+    def _own_pose(self, x: float, y: float, theta: float, stamp: float) -> None:
         if not self.controller.on_pose(x, y, theta, stamp, now_seconds(self)):
             self.rejections.reject(self.pose_topic, self.controller.rejection)
             return
@@ -263,20 +284,18 @@ class FormationController(Node):
             self.rejections.reject(topics.robot_topic(j, topics.STATE),
                                    self.controller.rejection)
 
-    def _on_others(self, msg: bytes) -> None:
-        self.others_msg = (msg, now_seconds(self))
+    def _on_all_poses(self, given: tuple[np.ndarray, float]) -> None:
+        poses, stamp = given
+        if self.params.pose_from_all and self.config.index <= len(poses):
+            own = poses[self.config.index - 1]
+            if np.isfinite(own).all():   # a NaN row: not seen in this frame
+                self._own_pose(float(own[0]), float(own[1]), float(own[2]), stamp)
+        if self.config.avoidance.on:   # the latest only, taken at the tick (10 Hz)
+            self.others_msg = (poses, stamp, now_seconds(self))
 
     def _take_others(self) -> None:
         latest, self.others_msg = self.others_msg, None
-        if latest is None:
-            return
-        raw, received = latest
-        try:
-            poses, stamp = messages.robot_poses_from_msg(deserialize_message(raw, JointState))
-            accepted = self.controller.on_others(poses, stamp, received)
-        except messages.MessageError:
-            accepted = False
-        if not accepted:
+        if latest is not None and not self.controller.on_others(*latest):
             self.get_logger().warning(f'robot poses refused: expected {self.config.agent_count}'
                                       ' robots', throttle_duration_sec=1.0)
 

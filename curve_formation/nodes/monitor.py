@@ -62,7 +62,8 @@ class Monitor(Node):
 
     def __init__(self, n: int, record_hz: float = 20.0, ground_truth: bool = False,
                  watch: bool = True, adoption: bool = True,
-                 experiment: Experiment | None = None, **kwargs: Any) -> None:
+                 experiment: Experiment | None = None, poses_from_all: bool = False,
+                 **kwargs: Any) -> None:
         """ground_truth: also record the fake robots' true poses (when a camera tracks them).
         experiment: the run's (core.config.experiment.Experiment): the phases followed are told
         from
@@ -71,6 +72,8 @@ class Monitor(Node):
         nor starts the curve server. adoption: also read every controller's state, to time
         when each robot takes up a new curve (`adopted`); states come at the pose rate (1500
         messages a second with 50 robots), so a run without a curve switch leaves it out.
+        poses_from_all: the poses also come all together on /formation/robot_poses (a camera
+        tracker, one fake arena): read there, one message a frame instead of n.
         """
         super().__init__('formation_monitor', start_parameter_services=False, **kwargs)
         self.n = n
@@ -117,8 +120,10 @@ class Monitor(Node):
         # (robot, curve id) -> DDS source timestamp of its first state on that curve (s)
         self.adopted: dict[tuple[int, int], float] = {}
         self.recording = SampleLog(recording_fields(n, ground_truth))
+        self.poses_from_all = poses_from_all
         for i in range(1, n + 1 if watch else 1):
-            self._subscribe(topics.POSE, lambda m, i=i: self._on_pose(i, m), i)
+            if not poses_from_all:
+                self._subscribe(topics.POSE, lambda m, i=i: self._on_pose(i, m), i)
             self._subscribe(topics.CMD_VEL,
                             WithMessageInfo(lambda m, info, i=i: self._on_cmd(i, m, info)), i)
             self._subscribe(topics.ESTIMATE, lambda m, i=i: self._on_estimate(i, m), i)
@@ -294,11 +299,19 @@ class Monitor(Node):
 
     def _on_robot_poses(self, msg: JointState) -> None:
         try:
-            poses, _ = messages.robot_poses_from_msg(msg)
+            poses, stamp = messages.robot_poses_from_msg(msg)
         except messages.MessageError:
             return
-        if len(poses) == self.n:
-            self.unseen = ~np.isfinite(poses).all(axis=1)
+        if len(poses) != self.n:
+            return
+        self.unseen = ~np.isfinite(poses).all(axis=1)
+        if self.poses_from_all:   # each seen robot's pose, as its own message would give it
+            self._pose_arrival = time.monotonic()
+            received = now_seconds(self)
+            for i in np.flatnonzero(~self.unseen):
+                self.pose_received[i] = received
+                x, y, theta = map(float, poses[i])
+                self.latest.pose(int(i) + 1, x, y, theta, stamp)
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:

@@ -61,7 +61,7 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None,
     run, and the curve server waits for it too; False for a graph started by hand. fleet:
     the robots behind bridges (fleet.FleetRobot; None: bridged_fleet's).
     """
-    with_robots, camera, bridge = options.with_robots, options.camera, options.bridge
+    with_robots, camera = options.with_robots, options.camera
     pose_noise, command_latency = options.pose_noise, options.command_latency
     faults = options.faults or {}
     spec = experiment.spec
@@ -73,10 +73,8 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None,
     on_pc = spec.disturbance.injected == 'on_pc'
     varies = variations_text(experiment)   # the disturbance's changes, as JSON
     engine = options.physics or spec.physics.engine
-    # one world for the team when its robots meet, sit behind links, or are many (a process
-    # each would cost a DDS participant and a Python interpreter per robot)
-    one_world = (uses_fake_arena(experiment, engine) or bridge is not None
-                 or experiment.n > SOLO_TEAM)
+    one_world = in_one_world(experiment, options)
+    all_poses = poses_in_one_message(experiment, options)
     if fleet is None:
         fleet = bridged_fleet(experiment, options, links_dir)
     # The curve server waits until the n controllers, the runner's monitor, its bag recorder
@@ -92,11 +90,13 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None,
     for i, config in enumerate(agent_configs(experiment, rate), 1):
         ns = robot_namespace(i)
         d = [float(v) for v in experiment.disturbance[i - 1]]
+        grouped = options.group_size(experiment.n) > 1
         controller = {**node_parameters(config),
                       'disturbance_varies': varies if on_pc else '',
                       # compiled once a process for the controllers that share one
-                      'compiled_law': options.group_size(experiment.n) > 1
-                      or options.single_process}
+                      'compiled_law': grouped or options.single_process,
+                      # a group's poses in one message (a fake arena's, a camera tracker's)
+                      'pose_from_all': grouped and all_poses}
         module = 'curve_formation.nodes.formation_controller'
         launches.append(NodeLaunch(module, ns, 'formation_controller', controller,
                                    (options.node_variants or {}).get(module, '')))
@@ -177,6 +177,24 @@ def bridged_fleet(experiment, options, links_dir):
             return []
         return emulated_fleet(experiment, robot_links(experiment.n, options.bridge, links_dir))
     return fleet_robots(experiment)
+
+
+def in_one_world(experiment, options):
+    """Whether a run's simulated robots share one fake_arena: when they meet, sit behind
+    links, or are many (a process each would cost a DDS participant and a Python interpreter
+    per robot).
+    """
+    engine = options.physics or experiment.spec.physics.engine
+    return (uses_fake_arena(experiment, engine) or options.bridge is not None
+            or experiment.n > SOLO_TEAM)
+
+
+def poses_in_one_message(experiment, options):
+    """Whether a run's poses also come all together on /formation/robot_poses, from a
+    camera tracker or from the one fake_arena, each frame's the same as the robots' own.
+    """
+    return options.camera is not None or (options.with_robots
+                                          and in_one_world(experiment, options))
 
 
 def uses_fake_arena(experiment, engine='kinematic'):

@@ -15,11 +15,13 @@ class Observers:
 
     experiment_text, parameters_text and provenance_text go into the bag's metadata, so that
     it describes itself (analysis.py). watch False: the monitor takes only the curve (a host
-    of a split run that neither measures nor starts the curve server).
+    of a split run that neither measures nor starts the curve server). poses_from_all: the
+    monitor reads the robots' poses from /formation/robot_poses (Monitor's).
     """
 
     def __init__(self, experiment, record_hz, ground_truth, bag_writer=None, images=False,
-                 experiment_text='', parameters_text='', watch=True, provenance_text='{}'):
+                 experiment_text='', parameters_text='', watch=True, provenance_text='{}',
+                 poses_from_all=False):
         self.experiment = experiment
         self.record_hz = record_hz
         self.ground_truth = ground_truth
@@ -28,6 +30,7 @@ class Observers:
         self.metadata = {EXPERIMENT_KEY: experiment_text, PARAMETERS_KEY: parameters_text,
                          PROVENANCE_KEY: provenance_text}
         self.watch = watch   # False: the monitor only takes the curve (Monitor's watch)
+        self.poses_from_all = poses_from_all
         self.context = self.executor = self.monitor = self.recorder = None
         self.best_effort_topics = set()
         self.hosted = []   # a single-process run's nodes, destroyed after the executor stops
@@ -69,7 +72,7 @@ class Observers:
         self.monitor = Monitor(self.experiment.n, self.record_hz, context=self.context,
                                ground_truth=self.ground_truth, watch=self.watch,
                                adoption=len(self.experiment.phases) > 1,
-                               experiment=self.experiment)
+                               experiment=self.experiment, poses_from_all=self.poses_from_all)
         self._stack.callback(self.monitor.destroy_node)
         if recorded:
             self.recorder = Recorder(self.bag_writer, recorded, context=self.context)

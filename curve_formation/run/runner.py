@@ -39,6 +39,7 @@ from curve_formation.run.launches import (
     GroupLaunch,
     node_launches,
     part_of,
+    poses_in_one_message,
 )
 from curve_formation.run.node_graph import NodeGraph
 from curve_formation.run.observers import Observers
@@ -175,7 +176,8 @@ class Run:
             experiment_text=self.experiment_path.read_text(),
             provenance_text=provenance_text(self.experiment_path),
             parameters_text='\n'.join(path.read_text() for path in params_files.values()),
-            watch=options.runs('observer') or options.runs('curve_server')))
+            watch=options.runs('observer') or options.runs('curve_server'),
+            poses_from_all=poses_in_one_message(self.experiment, options)))
         if options.runs('observer'):
             self.fleet_status = FleetStatus(self.observers.monitor)
         self.graph = self._stack.enter_context(NodeGraph(
