@@ -95,7 +95,7 @@ TOPICS = (
     Use('sub', topics.CMD_VEL, "each robot's velocity command; with more than one publishing "
         'node, that robot stands still until one is left', '<i>'),
     Use('pub', topics.POSE, f'each pose at rate_hz (on {topics.TRUE_POSE} instead with '
-        'pose_topic)', '<i>'),
+        'pose_topic), while it has a reader', '<i>'),
     Use('pub', topics.ROBOT_POSES, 'every pose in one message (x, y, theta per robot), with '
         'publish_robot_poses'),
     Use('sub', topics.CURVE, "with the experiment's disturbance.varies: the run's time, from "
@@ -253,7 +253,9 @@ class FakeArena(Node):
         for i, (pub, msg, (x, y, th)) in enumerate(zip(self.pose_pubs, self.pose_msgs, poses,
                                                        strict=True), 1):
             unseen[i - 1] = self.rng.random() < self.params.fault_pose_drop or i in hidden
-            if not unseen[i - 1]:
+            # built only when read: a team whose poses are read from robot_poses (grouped
+            # controllers, the runner's monitor) leaves the n topics without readers
+            if not unseen[i - 1] and pub.get_subscription_count():
                 pub.publish(messages.pose_to_msg(x, y, th, now, self.params.frame_id, msg))
         if self.all_pub is not None:
             every = np.where(unseen[:, None], np.nan, poses)
