@@ -39,9 +39,17 @@ class CommandSourceWatch:
         self.names: list[str] = []
         self.extra = False
         self.episodes = 0     # times a second publisher appeared
+        self.count = -1       # publishers DDS counted at the last look
         node.create_timer(WATCH_PERIOD, self.look)
 
     def look(self) -> None:
+        # Named again only when the count changes, is more than one or was not all named
+        # yet: the names are a walk of the graph in Python, the count a number (a hundred
+        # robots' watches looked 400 times a second)
+        count = self.node.count_publishers(self.topic)
+        if count == self.count and count <= 1 and len(self.names) == count:
+            return
+        self.count = count
         names = command_publishers(self.node, self.topic)
         extra = len(names) > 1
         self.names = names

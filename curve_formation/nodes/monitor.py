@@ -229,9 +229,13 @@ class Monitor(Node):
             return
         t = now_seconds(self) - self.t0
         for i in range(1, self.n + 1):
-            names = command_publishers(self, topics.robot_topic(i, topics.CMD_VEL))
+            topic = topics.robot_topic(i, topics.CMD_VEL)
             episodes = self.command_sources.get(robot_name(i), [])
             open_ = bool(episodes) and episodes[-1][1] is None
+            # named only past one publisher (a walk of the graph; the count is a number)
+            if self.count_publishers(topic) <= 1 and not open_:
+                continue
+            names = command_publishers(self, topic)
             if len(names) > 1 and not open_:
                 self.command_sources.setdefault(robot_name(i), []).append([t, None, names])
             elif len(names) <= 1 and open_:
