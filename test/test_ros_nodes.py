@@ -692,6 +692,29 @@ def test_only_a_monitor_that_times_curve_switches_reads_every_controllers_state(
     assert (state_readers(timing), state_readers(other)) == (2, 0)
 
 
+def test_a_monitor_that_reads_every_pose_in_one_message_takes_each_seen_row(ros):
+    """With poses_from_all (a run whose poses all come on /formation/robot_poses) the monitor
+    reads no robot's own pose topic; a seen row is that robot's pose, a NaN row one not seen,
+    named as such while the run waits.
+    """
+    from curve_formation.nodes.monitor import Monitor
+    context, add, spin_until = ros
+    monitor = add(Monitor(3, context=context, poses_from_all=True))
+    probe = add(rclpy.create_node('probe', context=context))
+    poses_pub = topics.publisher(probe, topics.ROBOT_POSES)
+    every = np.array([[0.1, 0.2, 0.3], [np.nan] * 3, [0.4, 0.5, 0.6]])
+
+    def seen():
+        poses_pub.publish(messages.robot_poses_to_msg(every, 12.5))
+        return not np.isnan(monitor.latest.pose_stamps[[0, 2]]).any()
+    spin_until(seen)
+    assert monitor.count_subscribers('/robot_1/pose') == 0
+    assert np.allclose(monitor.latest.poses[[0, 2]], every[[0, 2]])
+    assert list(monitor.latest.pose_stamps[[0, 2]]) == [12.5, 12.5]
+    assert list(monitor.unseen) == [False, True, False]
+    assert monitor.missing()[0] == f'robot 2 on {topics.ROBOT_POSES}'
+
+
 POSE_PUBLISHER = """
 import time, rclpy
 from curve_formation.nodes import messages, topics

@@ -351,8 +351,12 @@ class Monitor(Node):
         return not self.missing()
 
     def missing(self) -> list[str]:
-        return ([topics.robot_topic(int(i) + 1, topics.POSE)
-                 for i in np.flatnonzero(np.isnan(self.latest.pose_stamps))]
+        """The inputs not heard yet: each robot's pose (its topic, or its row of
+        /formation/robot_poses where the poses are read) and cmd_vel.
+        """
+        unposed = np.flatnonzero(np.isnan(self.latest.pose_stamps)) + 1
+        return ([f'robot {i} on {topics.ROBOT_POSES}' if self.poses_from_all
+                 else topics.robot_topic(int(i), topics.POSE) for i in unposed]
                 + [topics.robot_topic(int(i) + 1, topics.CMD_VEL)
                    for i in np.flatnonzero(np.isnan(self.command_times))])
 
