@@ -156,9 +156,14 @@ class Monitor(Node):
                                    event_callbacks=qos.observer_events())
 
     def _on_pose(self, i: int, msg: PoseStamped) -> None:
+        self._took_pose(i, *messages.pose_from_msg(msg), now_seconds(self))
+
+    def _took_pose(self, i: int, x: float, y: float, theta: float, stamp: float,
+                   received: float) -> None:
+        """Robot i's (1-based) pose taken at `stamp`, received at `received` (s)."""
         self._pose_arrival = time.monotonic()
-        self.pose_received[i - 1] = now_seconds(self)
-        self.latest.pose(i, *messages.pose_from_msg(msg))
+        self.pose_received[i - 1] = received
+        self.latest.pose(i, x, y, theta, stamp)
 
     def _on_true_pose(self, i: int, msg: PoseStamped) -> None:
         x, y, theta, stamp = messages.pose_from_msg(msg)
@@ -310,12 +315,10 @@ class Monitor(Node):
             return
         self.unseen = ~np.isfinite(poses).all(axis=1)
         if self.poses_from_all:   # each seen robot's pose, as its own message would give it
-            self._pose_arrival = time.monotonic()
             received = now_seconds(self)
             for i in np.flatnonzero(~self.unseen):
-                self.pose_received[i] = received
                 x, y, theta = map(float, poses[i])
-                self.latest.pose(int(i) + 1, x, y, theta, stamp)
+                self._took_pose(int(i) + 1, x, y, theta, stamp, received)
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:

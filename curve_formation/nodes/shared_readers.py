@@ -20,27 +20,21 @@ from curve_formation.nodes import topics
 Convert = Callable[[Node, Any], Any]   # (the first reader's node, message) -> what readers get
 
 
-def as_received(node: Node, msg: Any) -> Any:
-    """The message itself, for readers that convert it themselves."""
-    return msg
-
-
 class SharedReader:
     """One topic's subscription, made on the first reader's node, for every reader of the
     process; a converted value of None is handed to nobody.
     """
 
-    def __init__(self, name: str, convert: Convert, raw: bool) -> None:
+    def __init__(self, name: str, convert: Convert) -> None:
         self.name = name
         self.convert = convert
-        self.raw = raw
         self.node: Node | None = None
         self.readers: list[Callable[[Any], None]] = []
 
     def join(self, node: Node, callback: Callable[[Any], None]) -> None:
         if self.node is None:   # the first reader's node reads for all
             self.node = node
-            topics.subscription(node, self.name, self._on_message, raw=self.raw)
+            topics.subscription(node, self.name, self._on_message)
         self.readers.append(callback)
 
     def _on_message(self, msg: Any) -> None:
@@ -67,20 +61,17 @@ def readers_shared() -> Iterator[None]:
         _shared = None
 
 
-def subscribe(node: Node, name: str, callback: Callable[[Any], None],
-              convert: Convert = as_received, raw: bool = False) -> None:
+def subscribe(node: Node, name: str, callback: Callable[[Any], None], convert: Convert
+              ) -> None:
     """callback(convert(node, message)) for every message of topic `name` (a global one, the
-    same for every node; raw: the serialized bytes), through the process's shared
-    subscription inside `readers_shared()`. Every reader of a topic passes the same convert.
+    same for every node), through the process's shared subscription inside
+    `readers_shared()`, else through the node's own. Every reader of a topic passes the same
+    convert.
     """
     if _shared is None:
-        def one(msg: Any) -> None:
-            value = convert(node, msg)
-            if value is not None:
-                callback(value)
-        topics.subscription(node, name, one, raw=raw)
+        SharedReader(name, convert).join(node, callback)
         return
-    reader = _shared.setdefault(name, SharedReader(name, convert, raw))
-    if (reader.convert, reader.raw) != (convert, raw):
+    reader = _shared.setdefault(name, SharedReader(name, convert))
+    if reader.convert is not convert:
         raise ValueError(f'{name}: every reader of a shared topic must convert it alike')
     reader.join(node, callback)

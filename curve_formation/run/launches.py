@@ -74,6 +74,7 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None,
     varies = variations_text(experiment)   # the disturbance's changes, as JSON
     engine = options.physics or spec.physics.engine
     one_world = in_one_world(experiment, options)
+    grouped = options.group_size(experiment.n) > 1
     all_poses = poses_in_one_message(experiment, options)
     if fleet is None:
         fleet = bridged_fleet(experiment, options, links_dir)
@@ -90,7 +91,6 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None,
     for i, config in enumerate(agent_configs(experiment, rate), 1):
         ns = robot_namespace(i)
         d = [float(v) for v in experiment.disturbance[i - 1]]
-        grouped = options.group_size(experiment.n) > 1
         controller = {**node_parameters(config),
                       'disturbance_varies': varies if on_pc else '',
                       # compiled once a process for the controllers that share one
