@@ -692,6 +692,30 @@ def test_only_a_monitor_that_times_curve_switches_reads_every_controllers_state(
     assert (state_readers(timing), state_readers(other)) == (2, 0)
 
 
+def test_a_controller_with_pose_from_all_takes_its_row_of_a_message_of_its_team(ros):
+    """pose_from_all: robot 2 of 3 reads its pose from its row of /formation/robot_poses (no
+    subscription to its own pose topic); a NaN row, or a message of another team's size,
+    gives it no pose.
+    """
+    context, add, spin_until = ros
+    ctrl = add(FormationController(context=context, namespace='/robot_2', parameter_overrides=(
+        overrides(index=2, agent_count=3, in_neighbours=[1], pose_from_all=True))))
+    probe = add(rclpy.create_node('probe', context=context))
+    poses_pub = topics.publisher(probe, topics.ROBOT_POSES)
+    spin_until(lambda: poses_pub.get_subscription_count() == 1)
+    assert probe.count_subscribers('/robot_2/pose') == 0
+    for every in ([[0.1, 0.2, 0.3], [np.nan] * 3, [0.4, 0.5, 0.6]],
+                  [[0.1, 0.2, 0.3], [0.7, 0.8, 0.9]]):   # not seen; another team's
+        poses_pub.publish(messages.robot_poses_to_msg(np.array(every), 5.0))
+        deadline = time.monotonic() + 0.5
+        spin_until(lambda deadline=deadline: time.monotonic() > deadline)
+        assert ctrl.controller.pose is None
+    poses_pub.publish(messages.robot_poses_to_msg(
+        np.array([[0.1, 0.2, 0.3], [0.7, 0.8, 0.9], [0.4, 0.5, 0.6]]), 5.0))
+    spin_until(lambda: ctrl.controller.pose is not None)
+    assert ctrl.controller.pose == (0.7, 0.8, 0.9) and ctrl.controller.pose_stamp == 5.0
+
+
 def test_a_monitor_that_reads_every_pose_in_one_message_takes_each_seen_row(ros):
     """With poses_from_all (a run whose poses all come on /formation/robot_poses) the monitor
     reads no robot's own pose topic; a seen row is that robot's pose, a NaN row one not seen,

@@ -286,7 +286,8 @@ class FormationController(Node):
 
     def _on_all_poses(self, given: tuple[np.ndarray, float]) -> None:
         poses, stamp = given
-        if self.params.pose_from_all and self.config.index <= len(poses):
+        # (a message of another team's size says nothing of this robot: its pose goes stale)
+        if self.params.pose_from_all and len(poses) == self.config.agent_count:
             own = poses[self.config.index - 1]
             if np.isfinite(own).all():   # a NaN row: not seen in this frame
                 self._own_pose(float(own[0]), float(own[1]), float(own[2]), stamp)
