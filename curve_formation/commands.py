@@ -228,7 +228,8 @@ def cmd_measure_link(args):
               'lag (limits.motor_time_constant)')
     print(f'{"robot":>5s} {"latency (ms)":>12s} {"spread (ms)":>11s} {"windows":>7s} '
           f'{"commands":>8s} {"poses":>6s}' + (f' {"motor lag (ms)":>14s}' if estimated
-                                                 else '') + f' {"wheel gains (l, r)":>18s}')
+                                                 else '') + f' {"wheel gains (l, r)":>18s}'
+          + f' {"dead band (mm/s)":>16s}')
     for i, row in found['robots'].items():
         told = row['latency'] is not None
         gains = row['wheel_gains']
@@ -236,6 +237,7 @@ def cmd_measure_link(args):
               f'{row["windows"]:7d} {row["commands"]:8d} {row["poses"]:6d}'
               + (f' {_ms(row["motor_time_constant"]):>14s}' if estimated else '')
               + f' {"-" if gains is None else f"{gains[0]:.3f}, {gains[1]:.3f}":>18s}'
+              + f' {_mm(row["dead_band"]):>16s}'
               + ('' if told else '  (its commands hardly changed: nothing to time)'))
     if found['latency'] is None:
         print('no robot told its latency: record a run in which the robots drive')
@@ -251,6 +253,10 @@ def cmd_measure_link(args):
         print("the motors' lag, fitted with the latency (the median over the robots, s):\n"
               f'limits: {{motor_time_constant: {found["motor_time_constant"]:.3f}}}\n'
               '(or controller: {estimate_motors: true} to estimate it online)')
+    if found['dead_band'] is not None:
+        print("the motors' dead band, the smallest wheel command that turns a wheel (the median "
+              f'over the robots, m/s):\nlimits: {{min_wheel_speed: {found["dead_band"]:.5f}}}\n'
+              '(or controller: {estimate_motors: true} to estimate it online)')
     if args.json:
         write_json(Path(args.json), found)
     return 0
@@ -258,6 +264,10 @@ def cmd_measure_link(args):
 
 def _ms(value):
     return '-' if value is None else f'{1000 * value:.1f}'
+
+
+def _mm(value):
+    return '-' if value is None else f'{1000 * value:.2f}'
 
 
 def _seconds(value):

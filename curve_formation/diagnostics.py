@@ -18,14 +18,16 @@ CAMERA_STATUS = 'camera_tracker: camera'
 LINK_REPORTER = '/robot_bridge'
 LINK_COUNTS = ('sent', 'failed', 'stops', 'replies', 'malformed', 'dropped_lines')
 # The node name under which each formation_controller reports on /diagnostics, and the
-# values of its report that are its robot as it has estimated it (s, s, 'left right' or '-')
+# values of its report that are its robot as it has estimated it (s, s, 'left right' or '-',
+# m/s of wheel speed or '-')
 CONTROLLER_REPORTER = '/formation_controller'
-ESTIMATES = ('command_latency', 'motor_time_constant', 'wheel_gains')
+ESTIMATES = ('command_latency', 'motor_time_constant', 'wheel_gains', 'dead_band')
 
 
 def robot_estimates(values):
     """A controller's report's values {key: text} -> {'command_latency' s,
-    'motor_time_constant' s, 'wheel_gains': [left, right] or None} (those it has).
+    'motor_time_constant' s, 'wheel_gains': [left, right] or None, 'dead_band': m/s or None}
+    (those it has).
     """
     out: dict[str, object] = {}
     for key in ESTIMATES:

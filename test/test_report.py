@@ -96,15 +96,15 @@ def test_the_report_of_a_run_holds_its_metrics_with_units(simulated):
 def test_the_report_lists_each_robot_as_its_controller_found_it(tmp_path):
     """A ROS run's robot_estimates (its controllers' last /diagnostics) and a simulation's
     estimated_* lists both become one row per robot: latency and motors' lag in ms, wheel
-    gains, '-' where none was told.
+    gains, dead band in mm/s, '-' where none was told.
     """
     from curve_formation.results.report import write_report
     ros = {'robot_estimates': {'robot_2': {'command_latency': 0.104, 'motor_time_constant':
-                                           0.038, 'wheel_gains': None},
+                                           0.038, 'wheel_gains': None, 'dead_band': 0.00112},
                                'robot_1': {'command_latency': 0.1, 'motor_time_constant': 0.0,
-                                           'wheel_gains': [0.95, 1.05]}}}
+                                           'wheel_gains': [0.95, 1.05], 'dead_band': None}}}
     sim = {'estimated_latency': [0.1, 0.104], 'estimated_motor_time_constant': [0.0, 0.038],
-           'estimated_wheel_gains': [[0.95, 1.05], None]}
+           'estimated_wheel_gains': [[0.95, 1.05], None], 'estimated_dead_band': [None, 0.00112]}
     pages = []
     for k, result in enumerate((ros, sim)):
         folder = tmp_path / str(k)
@@ -112,7 +112,7 @@ def test_the_report_lists_each_robot_as_its_controller_found_it(tmp_path):
         (folder / 'metrics.json').write_text(json.dumps({'phases': [], **result}))
         pages.append(write_report(folder).read_text())
     for page in pages:
-        assert ('<tr><td>robot 1</td><td>100</td><td>0</td><td>0.950 / 1.050</td></tr>'
-                '<tr><td>robot 2</td><td>104</td><td>38</td><td>-</td></tr>') in page
+        assert ('<tr><td>robot 1</td><td>100</td><td>0</td><td>0.950 / 1.050</td><td>-</td></tr>'
+                '<tr><td>robot 2</td><td>104</td><td>38</td><td>-</td><td>1.12</td></tr>') in page
     (tmp_path / '0' / 'metrics.json').write_text(json.dumps({'phases': []}))
     assert 'as their controllers found them' not in write_report(tmp_path / '0').read_text()

@@ -201,3 +201,59 @@ def test_the_wheels_are_sent_their_commands_divided_by_their_gains_within_the_li
     _, w = model.compensated(0.0, 1.0)
     assert abs(w) <= 1.0 + 1e-12
     assert model.compensated(0.0, 0.0) == (0.0, 0.0)
+
+
+@pytest.mark.parametrize('swinging', [False, True], ids=['constant', 'swinging'])
+def test_the_motors_dead_band_is_found_online_within_20_percent(swinging):
+    """arena_demo's imperfect robots (a dead band of 5 % of the fastest wheel speed among
+    the rest), a link 100 ms late, nothing told, 70 s: with the file's drift constant, most
+    controllers take a dead band (two fits in a row agreeing) and each within 20 % of the
+    drawn one; under a drift swinging +-50 % while the robots stand (which the fit cannot
+    follow) none that is off by more; the metrics carry each.
+    """
+    from curve_formation.core.record.metrics import result_metrics
+    experiment = imperfect_case('arena_demo', 1, swinging)
+    band = experiment.spec.physics.imperfections.dead_band * experiment.limits.max_wheel_speed
+    controllers, result = learnt(experiment, 0.1, seconds=70.0)
+    taken = {c.config.index: c.robot.band.taken for c in controllers if c.robot.band.taken}
+    if not swinging:
+        assert len(taken) >= 5, taken
+    for i, found in taken.items():
+        for when, value in found:
+            assert abs(value - band) <= 0.2 * band, (i, when, value, band)
+    metrics = result_metrics(result)
+    assert metrics['estimated_dead_band'] == [c.robot.band.band for c in controllers]
+
+
+def test_the_estimate_of_a_robot_commanded_within_its_dead_band_does_not_wind_up():
+    """A robot that never moves (its pose the same each tick) while the law asks for motion:
+    the paper's law integrates its error into the estimate without bound, unless the
+    commands leave its motors idle in a dead band (told, or estimated: limits.min_wheel_speed
+    or controller.estimate_motors), where the estimate holds; the observer law learns
+    nothing inside a band, and outside one its estimate stops where the wheel limits cut
+    the command.
+    """
+    from test_agent import circle, config, THIRDS
+
+    from curve_formation.core.controller.agent import AgentController
+    from curve_formation.core.controller.gains import Gains
+    from curve_formation.core.controller.limits import WheelLimits
+
+    def estimate_after(law, band, seconds):
+        cfg = config(index=1, agent_count=3, neighbours=(), limits=WheelLimits(0.08, 0.0225),
+                     min_wheel_speed=band, gains=Gains(1.0, 0.5, 0.1, law=law))
+        ctrl = AgentController(cfg)
+        ctrl.set_curve(circle(), 0, THIRDS)
+        for k in range(int(seconds * 30)):
+            t = 10.0 + k / 30
+            ctrl.on_pose(0.9, 0.1, 0.3, t)   # 0.2 m from its target, never moving
+            if k % 3 == 0:
+                assert ctrl.tick(t + 0.001).stopped is None
+        return np.hypot(*ctrl.dhat)
+
+    # above the fastest wheel speed: every command leaves the motors idle
+    assert estimate_after('paper', 0.03, 60.0) == 0.0
+    assert estimate_after('paper', 0.0, 60.0) > 2.0 * estimate_after('paper', 0.0, 30.0) - 1e-3
+    assert estimate_after('observer', 0.03, 60.0) == 0.0
+    held = estimate_after('observer', 0.0, 30.0)
+    assert held > 0.0 and estimate_after('observer', 0.0, 60.0) == pytest.approx(held)

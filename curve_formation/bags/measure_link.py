@@ -10,6 +10,7 @@ import math
 import numpy as np
 
 from curve_formation.bags.bag import bag_summary, BagError, read_messages
+from curve_formation.core.controller.dead_band_estimate import estimate_dead_band, NO_BAND
 from curve_formation.core.controller.link_estimate import estimate_latency
 from curve_formation.core.controller.wheel_estimate import estimate_gains, NO_GAINS
 from curve_formation.core.formation.curve_codec import CodecError
@@ -38,7 +39,8 @@ def bag_limits(path):
 def measure_bag(path, motor_time_constant=None):
     """{'robots': {i: {'latency', 'spread', 'windows', 'residual', 'motor_time_constant',
     'wheel_gains' ([left, right] or None: core.controller.wheel_estimate, with the
-    experiment's wheel base and speed), 'wheel_gain_errors', 'commands', 'poses'}},
+    experiment's wheel base and speed), 'wheel_gain_errors', 'dead_band' (m/s of wheel
+    speed or None: core.controller.dead_band_estimate), 'commands', 'poses'}},
     'latency': the median over the robots that told one (s, or None), 'motor_time_constant':
     the motors' lag (s) the fit took the commands through (the median of the robots' where
     estimated, None if none told one), 'motor_estimated': whether it was} of a bag;
@@ -76,20 +78,26 @@ def measure_bag(path, motor_time_constant=None):
         seen = np.array(poses[i])
         found = estimate_latency(sent[:, 0], sent[:, 1:], seen[:, 0], seen[:, 1:],
                                  motor_time_constant=motor_time_constant)
-        gains = NO_GAINS
+        gains, band = NO_GAINS, NO_BAND
         if found.latency is not None and found.motor_time_constant is not None:
             gains = estimate_gains(sent[:, 0], sent[:, 1:], seen[:, 0], seen[:, 1:],
                                    wheel_base, max_wheel_speed, found.latency,
                                    found.motor_time_constant)
+            band = estimate_dead_band(sent[:, 0], sent[:, 1:], seen[:, 0], seen[:, 1:],
+                                      wheel_base, max_wheel_speed, found.latency,
+                                      found.motor_time_constant)
         out[i] = {'latency': found.latency, 'spread': found.spread, 'windows': found.windows,
                   'residual': found.residual, 'motor_time_constant': found.motor_time_constant,
                   'wheel_gains': None if gains.gains is None else list(gains.gains),
                   'wheel_gain_errors': None if gains.errors is None else list(gains.errors),
+                  'dead_band': band.band,
                   'commands': len(sent), 'poses': len(seen)}
     told = [r['latency'] for r in out.values() if r['latency'] is not None]
     if estimated:
         lags = [r['motor_time_constant'] for r in out.values()
                 if r['motor_time_constant'] is not None]
         motor_time_constant = float(np.median(lags)) if lags else None
+    bands = [r['dead_band'] for r in out.values() if r['dead_band'] is not None]
     return {'robots': out, 'latency': float(np.median(told)) if told else None,
-            'motor_time_constant': motor_time_constant, 'motor_estimated': estimated}
+            'motor_time_constant': motor_time_constant, 'motor_estimated': estimated,
+            'dead_band': float(np.median(bands)) if bands else None}

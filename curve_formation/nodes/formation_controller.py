@@ -358,6 +358,9 @@ class FormationController(Node):
                     # (left, right) speed per unit of command, estimated online; '-': none yet
                     KeyValue(key='wheel_gains', value='-' if c.robot.wheel_gains is None
                              else f'{c.robot.wheel_gains[0]:.4f} {c.robot.wheel_gains[1]:.4f}'),
+                    # m/s of wheel speed: the motors' dead band as told or estimated; '-': none
+                    KeyValue(key='dead_band', value=f'{c.robot.min_wheel_speed:.5f}'
+                             if c.robot.min_wheel_speed > 0.0 else '-'),
                     KeyValue(key='rejected_inputs', value=str(c.rejected)),
                     KeyValue(key='rejected_messages', value=self.rejections.summary()),
                     KeyValue(key='last_rejection', value=self.rejections.last),

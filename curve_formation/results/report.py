@@ -175,22 +175,24 @@ def _fleet_table(result):
 
 def robot_estimates(result):
     """{robot (1-based): {'command_latency' s, 'motor_time_constant' s, 'wheel_gains'
-    [left, right] or None}} from a run's metrics: a ROS run's `robot_estimates` (its
-    controllers' last reports) or a simulation's estimated_* lists; {} if neither.
+    [left, right] or None, 'dead_band' m/s or None}} from a run's metrics: a ROS run's
+    `robot_estimates` (its controllers' last reports) or a simulation's estimated_* lists; {}
+    if neither.
     """
     if result.get('robot_estimates'):
         return {robot_index(name): values for name, values in result['robot_estimates'].items()}
     lists = {'command_latency': result.get('estimated_latency'),
              'motor_time_constant': result.get('estimated_motor_time_constant'),
-             'wheel_gains': result.get('estimated_wheel_gains')}
+             'wheel_gains': result.get('estimated_wheel_gains'),
+             'dead_band': result.get('estimated_dead_band')}
     count = max((len(v) for v in lists.values() if v), default=0)
     return {i + 1: {key: values[i] for key, values in lists.items() if values}
             for i in range(count)}
 
 
 def _estimates_table(result):
-    """Each robot's latency, motors' lag and wheel gains as its controller held them at the
-    end (told or estimated online); '' if the run has none.
+    """Each robot's latency, motors' lag, wheel gains and dead band as its controller held
+    them at the end (told or estimated online); '' if the run has none.
     """
     found = robot_estimates(result)
     if not found:
@@ -199,18 +201,21 @@ def _estimates_table(result):
     def ms(value):
         return '-' if value is None else f'{1000 * value:.0f}'
 
+    def mm(value):
+        return '-' if not value else f'{1000 * value:.2f}'
+
     def gains(value):
         return '-' if not value else ' / '.join(f'{g:.3f}' for g in value)
 
     rows = ''.join(
         f"<tr><td>robot {i}</td><td>{ms(v.get('command_latency'))}</td>"
         f"<td>{ms(v.get('motor_time_constant'))}</td><td>{gains(v.get('wheel_gains'))}</td>"
-        '</tr>' for i, v in sorted(found.items()))
+        f"<td>{mm(v.get('dead_band'))}</td></tr>" for i, v in sorted(found.items()))
     return ("<table><tr><th>robot</th><th>command latency (ms)</th><th>motors' lag (ms)</th>"
-            f'<th>wheel gains (left / right)</th></tr>{rows}</table>'
+            f'<th>wheel gains (left / right)</th><th>dead band (mm/s)</th></tr>{rows}</table>'
             '<p>As told, or as each controller estimated it online (controller.estimate_latency, '
-            'estimate_motors); a wheel gain is its speed per unit of command, - where none was '
-            'told.</p>')
+            'estimate_motors); a wheel gain is its speed per unit of command, the dead band the '
+            'smallest wheel command that turns a wheel; - where none was told.</p>')
 
 
 def _metrics_table(result, units):

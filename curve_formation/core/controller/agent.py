@@ -70,7 +70,7 @@ def compiled_step(config: AgentConfig) -> Callable[..., Any]:
         step = compiled(agent_step)
         step(0.0, 0.0, 0.0, 1.0, 0.0, 0.0, np.zeros((k, 2)), np.arange(k),
              np.ones(k), 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, *config.pc_disturbance,
-             config.law, config.limits, NO_OTHERS, config.index - 1, config.avoidance)
+             config.law, config.limits, NO_OTHERS, config.index - 1, config.avoidance, 0.0)
     return step
 
 
@@ -414,13 +414,14 @@ class AgentController:
             *ahead, self.dhat[0], self.dhat[1], *used,
             *self.last_command, *self.pc_disturbance, law, cfg.limits,
             self.others_ahead(aim) if cfg.predict_pose and self.latency > 0.0 else self.others,
-            cfg.index - 1, with_latency(cfg.avoidance, period, self.latency))
+            cfg.index - 1, with_latency(cfg.avoidance, period, self.latency),
+            self.robot.min_wheel_speed)
         self.dhat[:] = (dhat_v, dhat_w)
         if code == STOPPED:
             return self._stop('safety filter: no motion keeps the robots apart', base)
         self.filtered += code != 0
         self.observer.commanded(v, w, (ref_v, ref_w), (shift_v, shift_w), limited, measured,
-                                stamp, now)
+                                stamp, now, self.robot.min_wheel_speed)
         self.last_command = (v, w)
         base.v, base.w, base.dhat, base.feedback = v, w, (self.dhat[0], self.dhat[1]), (fx, fy)
         base.pose = pose

@@ -275,12 +275,14 @@ class MotionObserver:
         self.pose_count = pose_append(self.poses, self.pose_count, stamp, taken, *pose)
 
     def commanded(self, v: float, w: float, reference: Command, shift: Command,
-                  limited: bool, measured: Pose, stamp: float, now: float) -> None:
+                  limited: bool, measured: Pose, stamp: float, now: float,
+                  min_wheel_speed: float) -> None:
         """The command (v, w) sent at `now` from the pose `measured` stamped `stamp`, with
-        agent_command's reference, shift and limited (observer_commanded).
+        agent_command's reference, shift and limited (observer_commanded); min_wheel_speed
+        (m/s): the motors' dead band, as told or estimated (0: none).
         """
         observer_commanded(self.memory, v, w, *reference, *shift, limited, *measured, stamp,
-                           now, self.config.min_wheel_speed, self.config.limits.wheel_base)
+                           now, min_wheel_speed, self.config.limits.wheel_base)
 
     def stopped(self) -> None:
         """The robot was stopped: nothing is learnt from the time it stands."""

@@ -1,13 +1,15 @@
 """What a controller knows of its link and its robot: the commands' latency and the motors'
 lag, each as told or as estimated online (controller.estimate_latency, estimate_motors;
-core.controller.link_estimate), and each wheel's gain as estimated online
-(core.controller.wheel_estimate). Times in s on the controller's clock.
+core.controller.link_estimate), each wheel's gain as estimated online
+(core.controller.wheel_estimate) and the motors' dead band, as told or estimated online
+(core.controller.dead_band_estimate). Times in s on the controller's clock.
 """
 
 import math
 
 from curve_formation.core.base.shapes import Command
 from curve_formation.core.controller.agent_config import AgentConfig
+from curve_formation.core.controller.dead_band_estimate import OnlineDeadBand
 from curve_formation.core.controller.link_estimate import ONLINE_LAGS, OnlineLink
 from curve_formation.core.controller.wheel_estimate import OnlineGains
 from curve_formation.core.formation.dynamics import body_from_wheels, wheel_speeds
@@ -22,8 +24,9 @@ def commands_kept(rate_hz: float, pose_timeout: float, longest: float) -> int:
 
 class RobotModel:
     """latency (s: a command's delay to the wheels), motor_time_constant (s), wheel_gains
-    ((left, right) speed per unit of command, or None), kept up to date from the commands
-    sent (sent) and the poses taken (seen) where estimated.
+    ((left, right) speed per unit of command, or None), min_wheel_speed (m/s: the motors'
+    dead band, 0: none known), kept up to date from the commands sent (sent) and the poses
+    taken (seen) where estimated.
     """
 
     def __init__(self, cfg: AgentConfig) -> None:
@@ -37,6 +40,12 @@ class RobotModel:
         self.wheels = (OnlineGains(cfg.rate_hz, cfg.limits.wheel_base,
                                    cfg.limits.max_wheel_speed)
                        if cfg.estimate_motors and cfg.limits.wheel_base > 0.0 else None)
+        self.min_wheel_speed = cfg.min_wheel_speed
+        self.band = (OnlineDeadBand(cfg.rate_hz, cfg.limits.wheel_base,
+                                    cfg.limits.max_wheel_speed)
+                     if self.wheels is not None and cfg.min_wheel_speed <= 0.0   # told wins
+                     and math.isfinite(cfg.limits.max_wheel_speed) else None)
+        self.records = [r for r in (self.link, self.wheels, self.band) if r is not None]
         # how many commands sent a controller keeps: as far back as a pose may be
         # (pose_timeout) plus the longest the latency may be
         longest = (max(cfg.command_latency, float(ONLINE_LAGS.max()))
@@ -45,9 +54,8 @@ class RobotModel:
 
     def seen(self, taken: float, x: float, y: float, theta: float) -> None:
         """The robot's pose (m, rad) taken at `taken`."""
-        for record in (self.link, self.wheels):
-            if record is not None:
-                record.seen(taken, x, y, theta)
+        for record in self.records:
+            record.seen(taken, x, y, theta)
 
     def update(self, now: float) -> None:
         """Before a tick at `now`: the estimates due by then."""
@@ -56,12 +64,15 @@ class RobotModel:
             self.motor_time_constant = self.link.motor_time_constant
         if self.wheels is not None:
             self.wheels.update(now, self.latency, self.motor_time_constant)
+        if self.band is not None:
+            self.band.update(now, self.latency, self.motor_time_constant)
+            if self.band.band is not None:
+                self.min_wheel_speed = self.band.band
 
     def sent(self, now: float, v: float, w: float) -> None:
         """The command (v m/s, w rad/s) sent at `now`."""
-        for record in (self.link, self.wheels):
-            if record is not None:
-                record.sent(now, v, w)
+        for record in self.records:
+            record.sent(now, v, w)
 
     def compensated(self, v: float, w: float) -> Command:
         """(v, w) to send (m/s, rad/s) for the motion (v, w): with wheel_gains estimated,

@@ -126,7 +126,10 @@ SETTINGS = _settings(
     Setting('controller.estimate_motors', 'estimate_motors', 'bool', False, '',
             "estimate the motors' lag (limits.motor_time_constant) online where it is not "
             'told, fitted with the latency (as estimate_latency fits it; 0 to 140 ms); a new '
-            'value is taken when 3 estimates in a row agree within 10 ms; a told lag wins'),
+            "value is taken when 3 estimates in a row agree within 10 ms; and each wheel's "
+            "gain (every 5 s, commands compensated once told) and the motors' dead band "
+            '(limits.min_wheel_speed, every 5 s, taken when 2 fits in a row agree within 20 %: '
+            'core.controller.dead_band_estimate); told values win'),
     Setting('controller.predict_pose', 'predict_pose', 'bool', False, '',
             "carry the robot's pose forward from its stamp (capture time) to the tick, through "
             'the commands sent since, so a pose that is 80 ms old does not make an 80 ms old '
@@ -165,7 +168,9 @@ SETTINGS = _settings(
     Setting('limits.min_wheel_speed', 'min_wheel_speed', 'double', 0.0, 'm/s',
             "the slowest wheel speed the robots' motors turn at: a smaller command leaves the "
             'wheel still (a dead band); the observer then expects no motion from it instead of '
-            'learning a disturbance. Measure it on your robots; 0 = none', low=0.0),
+            "learning a disturbance, and the paper's estimator does not integrate. Measure "
+            'it on your robots (measure-link) or estimate it online (estimate_motors); 0 = '
+            'none', low=0.0),
     Setting('limits.motor_time_constant', 'motor_time_constant', 'double', 0.0, 's',
             "the first-order lag with which the robots' wheels follow their commands: the "
             'observer compares each measured motion with what the commands realised through '

@@ -38,7 +38,7 @@ MIN_INTERVALS = 20
 INTERVAL = 0.15
 
 
-def _thinned(tp: FloatArray, poses: FloatArray, interval: float
+def thinned(tp: FloatArray, poses: FloatArray, interval: float
              ) -> tuple[FloatArray, FloatArray]:
     """The poses at least `interval` s apart (each the first at or after the last kept's
     time plus interval).
@@ -103,7 +103,7 @@ def estimate_gains(command_times: ArrayLike, commands: ArrayLike, pose_times: Ar
     motor_time_constant (s) as told or estimated.
     """
     tc, cmd, tp, pose = record.cleaned(command_times, commands, pose_times, poses)
-    tp, pose = _thinned(tp, pose, INTERVAL)
+    tp, pose = thinned(tp, pose, INTERVAL)
     if len(tc) < 2 or len(tp) < MIN_INTERVALS or wheel_base <= 0.0:
         return NO_GAINS
     tc = tc + latency

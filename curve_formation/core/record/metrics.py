@@ -356,6 +356,9 @@ def result_metrics(result: Any, tolerance: float | None = None) -> dict[str, Any
     if result.wheel_gains is not None:
         out['estimated_wheel_gains'] = [None if g is None else [float(g[0]), float(g[1])]
                                         for g in result.wheel_gains]
+    if result.dead_bands is not None:
+        out['estimated_dead_band'] = [None if b is None else float(b)
+                                      for b in result.dead_bands]
     return out
 
 

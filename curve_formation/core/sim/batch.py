@@ -100,6 +100,9 @@ class SimResult:
     # each controller's (left, right) wheel gains as estimated online (estimate_motors; None
     # for one that told none), where estimated
     wheel_gains: list[tuple[float, float] | None] | None = None
+    # each controller's motors' dead band (m/s of wheel speed) as told or estimated online
+    # (estimate_motors; None for one that took none), where estimated
+    dead_bands: list[float | None] | None = None
 
     @property
     def errors(self) -> FloatArray:

@@ -170,7 +170,7 @@ def _controls(poses: FloatArray, dhat: FloatArray, targets: FloatArray, ahead: F
                              targets[i, 1], err, sources[a:b], weights[a:b], pins[i],
                              ahead[i, 0], ahead[i, 1], dhat[i, 0], dhat[i, 1], dhat[i, 0],
                              dhat[i, 1], cmd[i, 0], cmd[i, 1], d_pc[i, 0], d_pc[i, 1], law,
-                             limits, poses, i, avoidance)
+                             limits, poses, i, avoidance, 0.0)   # no band told (batch)
         motion[i, 0] = v + d_robot[i, 0]
         motion[i, 1] = w + d_robot[i, 1]
         cmd[i, 0] = v
@@ -239,7 +239,7 @@ def _tick(i: int, now: float, state: SimState, err: FloatArray, aimed: FloatArra
      _) = _agent_step(own_x, own_y, own_theta, state.fronts[i], aimed[i, 0], aimed[i, 1],
                       err, sources[a:b], weights[a:b], pins[i], ahead[i, 0], ahead[i, 1],
                       dhat_v, dhat_w, used_v, used_w, cmd[i, 0], cmd[i, 1], d_pc[i, 0],
-                      d_pc[i, 1], law, limits, robots, i, avoidance)
+                      d_pc[i, 1], law, limits, robots, i, avoidance, 0.0)   # no band told
     dhat[i, 0], dhat[i, 1] = dhat_v, dhat_w
     if code == STOPPED:
         _observer_stopped(memory)

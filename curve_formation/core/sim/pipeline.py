@@ -277,6 +277,8 @@ def simulate_pipeline(experiment: Experiment, engine: Literal['kinematic', 'mujo
                      [c.motor_time_constant for c in pipeline.controllers]
                      if spec.controller.estimate_motors else None,
                      [c.robot.wheel_gains for c in pipeline.controllers]
+                     if spec.controller.estimate_motors else None,
+                     [c.robot.min_wheel_speed or None for c in pipeline.controllers]
                      if spec.controller.estimate_motors else None)
 
 

@@ -1,0 +1,249 @@
+"""The motors' dead band (the smallest wheel command that turns a wheel: below it the wheel
+stands) measured from what was sent and how the robot moved.
+
+Each command (v, w) is split into its wheels' speeds (left, right = v -+ b w / 2, b the
+wheel base). The motors see that command plus a drift (a disturbance added on the robot, as
+firmware adds it): the drift, as a command, is a piecewise-linear function of time (a knot
+every KNOT s, its steps penalised so that it stays flat where nothing tells it, as while the
+robot stands) fitted with each wheel's gain on the intervals whose commands are well clear
+of any band (at least GAIN_FLOOR of the fastest wheel speed). Then each candidate band b
+(0 to BAND_MAX of the fastest wheel speed) predicts each interval's wheel speed: its gain
+times the mean of the command plus drift (delayed by the motors' lag), zero wherever that lies
+within b; the band is the candidate whose predictions fit best (least squares over both
+wheels, a coarse grid refined). The drift is then fitted again on every interval the band
+leaves moving, and the band found again: a band is told only where the two agree within
+AGREE (a drift that changes while the robot stands, which the fit cannot see, moves it), it
+lies inside the grid, its residual is at most RESIDUAL_SHARE of it (a drift the fit does
+not follow, as a disturbance swinging while the robot stands, leaves a large one), and both
+sides of it are seen (SIDE intervals commanded within it, and as many beyond it up to three
+times it).
+
+Times in s (one clock for commands and poses), speeds in m/s.
+"""
+
+from dataclasses import dataclass
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from curve_formation.core.base.shapes import BoolArray, FloatArray
+from curve_formation.core.controller import motion_record as record
+from curve_formation.core.controller.wheel_estimate import GAIN_FLOOR, INTERVAL, thinned
+from curve_formation.core.formation.dynamics import wheel_speeds
+
+
+KNOT = 2.0          # s between the drift's knots
+SMOOTH = 1.0        # weight (m/s per m/s of step) of the penalty on the drift's steps
+BAND_MAX = 0.25     # largest band sought, a share of the fastest wheel speed
+COARSE = 26         # candidates of the first grid (0 to BAND_MAX)
+FINE = 9            # candidates of the refined grid, across one coarse step either side
+AGREE = 0.2         # largest share by which the band found twice may differ
+RESIDUAL_SHARE = 0.15   # largest residual (rms) told, a share of the band
+SIDE = 10           # fewest intervals either side of the band that tell it
+MIN_INTERVALS = 40
+
+
+@dataclass(frozen=True)
+class DeadBand:
+    """band (m/s of wheel speed; None if not told), bound (m/s: the larger of the grid's
+    step and the two fits' difference), the fit's residual (rms m/s), the intervals fitted.
+    """
+
+    band: float | None
+    bound: float | None
+    residual: float | None
+    intervals: int
+
+
+NO_BAND = DeadBand(None, None, None, 0)
+
+
+def _hats(t: FloatArray, knots: FloatArray) -> FloatArray:
+    """(len(t), len(knots)): linear interpolation between the knots, flat beyond them."""
+    t = np.clip(t, knots[0], knots[-1])
+    j = np.clip(np.searchsorted(knots, t, side='right') - 1, 0, len(knots) - 2)
+    f = (t - knots[j]) / (knots[j + 1] - knots[j])
+    out = np.zeros((len(t), len(knots)))
+    rows = np.arange(len(t))
+    out[rows, j], out[rows, j + 1] = 1.0 - f, f
+    return out
+
+
+@dataclass
+class _Record:
+    """One robot's intervals: the wheels' commands (2, k) at tc (latency added), driven (k,)
+    and the measured wheel speeds (2, m) over [starts, ends]; usable (m,): fully driven,
+    past the first commands' lag; x (2, m): the commands' means through the lag.
+    """
+
+    tc: FloatArray
+    wheels: FloatArray
+    driven: FloatArray
+    starts: FloatArray
+    ends: FloatArray
+    measured: FloatArray
+    usable: BoolArray
+    x: FloatArray
+    tau: float
+
+
+def _drift(rec: _Record, k: int, fitted: BoolArray, knots: FloatArray
+           ) -> tuple[float, FloatArray]:
+    """Wheel k's gain and its drift as a command at each command time (zero when stopped),
+    fitted on the intervals `fitted`.
+    """
+    at_commands = _hats(rec.tc, knots)
+    # the drift is smooth beside the motors' lag: its mean over an interval as held
+    columns = np.column_stack([record.held_means(rec.tc, at_commands[:, j] * rec.driven,
+                                                 rec.starts[fitted], rec.ends[fitted])
+                               for j in range(len(knots))])
+    steps = np.diff(np.eye(len(knots)), axis=0)
+    basis = np.vstack([np.column_stack([rec.x[k, fitted], columns]),
+                       np.column_stack([np.zeros(len(steps)), SMOOTH * steps])])
+    target = np.concatenate([rec.measured[k, fitted], np.zeros(len(steps))])
+    coef, *_ = np.linalg.lstsq(basis, target, rcond=None)
+    gain = float(coef[0])
+    if abs(gain) < 1e-6:
+        return gain, np.zeros(len(rec.tc))
+    return gain, at_commands @ (coef[1:] / gain) * rec.driven
+
+
+def _squares(rec: _Record, gains: list[float], motors: list[FloatArray], band: float
+             ) -> float:
+    """The residual sum of squares (m/s)^2 of the band's predictions."""
+    total = 0.0
+    for k in range(2):
+        moved = np.where(np.abs(motors[k]) < band, 0.0, motors[k])
+        # the lag as a delay of tau: a band's commands are small and slow
+        predicted = gains[k] * record.held_means(rec.tc, moved, rec.starts - rec.tau,
+                                                 rec.ends - rec.tau)
+        residual = (rec.measured[k] - predicted)[rec.usable]
+        total += float(residual @ residual)
+    return total
+
+
+def _best_band(rec: _Record, gains: list[float], motors: list[FloatArray], top: float
+               ) -> tuple[float, float, float]:
+    """(band, the grid's step there, its sum of squares): a coarse grid then a fine one."""
+    coarse = np.linspace(0.0, top, COARSE)
+    squares = [_squares(rec, gains, motors, b) for b in coarse]
+    best = int(np.argmin(squares))
+    step = coarse[1] - coarse[0]
+    fine = np.linspace(max(coarse[best] - step, 0.0), min(coarse[best] + step, top), FINE)
+    fine_squares = [_squares(rec, gains, motors, b) for b in fine]
+    k = int(np.argmin(fine_squares))
+    return float(fine[k]), float(fine[1] - fine[0]), float(fine_squares[k])
+
+
+def _clear(rec: _Record, motor: FloatArray, floor: float) -> BoolArray:
+    """The usable intervals over which a wheel's command (motor: with drift, at command
+    times) stays at least `floor` from zero, its lag included.
+    """
+    beyond = (np.abs(motor) >= floor).astype(float)
+    return rec.usable & (record.held_means(rec.tc, beyond, rec.starts - 3.0 * rec.tau,
+                                           rec.ends) > 0.999)
+
+
+def estimate_dead_band(command_times: ArrayLike, commands: ArrayLike, pose_times: ArrayLike,
+                       poses: ArrayLike, wheel_base: float, max_wheel_speed: float,
+                       latency: float, motor_time_constant: float) -> DeadBand:
+    """The motors' dead band of one robot (see the module): command_times (k,) and commands
+    (k, 2; v m/s, w rad/s) as sent; pose_times (m,) and poses (m, 3) as measured; wheel_base
+    (m); max_wheel_speed (m/s; the band is sought up to BAND_MAX of it, none where it is
+    infinite); latency and motor_time_constant (s) as told or estimated.
+    """
+    if wheel_base <= 0.0 or not math.isfinite(max_wheel_speed) or max_wheel_speed <= 0.0:
+        return NO_BAND
+    tc, cmd, tp, pose = record.cleaned(command_times, commands, pose_times, poses)
+    tp, pose = thinned(tp, pose, INTERVAL)
+    if len(tc) < 2 or len(tp) < MIN_INTERVALS:
+        return NO_BAND
+    tc = tc + latency
+    tau = motor_time_constant
+    wheels = np.stack(wheel_speeds(cmd[:, 0], cmd[:, 1], wheel_base))
+    driven = record.driven_commands(cmd)
+    starts, ends = tp[:-1], tp[1:]
+    usable = ((starts >= tc[0] + 3.0 * tau) & (ends <= tc[-1] + 1.0)
+              & (record.held_means(tc, driven, starts, ends) > 0.999))
+    if usable.sum() < MIN_INTERVALS:
+        return NO_BAND
+    rec = _Record(tc, wheels, driven, starts, ends,
+                  np.stack(wheel_speeds(*record.measured_rates(tp, pose), wheel_base)), usable,
+                  np.stack([record.lagged_means(tc, wheels[k], starts, ends, tau)
+                            for k in range(2)]), tau)
+    mid = 0.5 * (starts + ends)
+    knots = np.arange(mid[0], mid[-1] + KNOT, KNOT)
+    if len(knots) < 2:
+        return NO_BAND
+    top = BAND_MAX * max_wheel_speed
+    floor = GAIN_FLOOR * max_wheel_speed
+    fitted = [_clear(rec, wheels[k], floor) for k in range(2)]
+    found = []
+    for _ in range(2):
+        if min(int(f.sum()) for f in fitted) < MIN_INTERVALS:
+            return NO_BAND
+        gains, motors = [], []
+        for k in range(2):
+            gain, drift = _drift(rec, k, fitted[k], knots)
+            gains.append(gain)
+            motors.append(wheels[k] + drift)
+        band, step, squares = _best_band(rec, gains, motors, top)
+        found.append(band)
+        fitted = [_clear(rec, motors[k], band) for k in range(2)] if band > 0.0 else fitted
+    intervals = int(usable.sum())
+    residual = math.sqrt(squares / max(2 * intervals - 1, 1))
+    first, band = found
+    bound = max(step, abs(band - first))
+    within = beyond = 0
+    for motor in motors:
+        size = np.abs(record.held_means(tc, motor, starts - tau, ends - tau))[usable]
+        within += int((size < band).sum())
+        beyond += int(((size >= band) & (size < 3.0 * band)).sum())
+    told = (0.0 < band < top - step and abs(band - first) <= AGREE * band
+            and residual <= RESIDUAL_SHARE * band and within >= SIDE and beyond >= SIDE)
+    return DeadBand(band if told else None, bound, residual, intervals)
+
+
+# Online: how often (s) a controller fits its motors' dead band, over how much of the past
+BAND_EVERY = 5.0
+BAND_SPAN = 60.0
+
+
+class OnlineDeadBand(record.MotionRecord):
+    """A controller's running estimate of its motors' dead band: every BAND_EVERY s the
+    last BAND_SPAN s of its commands (at its ticks) and poses (when taken) are fitted
+    (estimate_dead_band) through the latency and motors' lag it holds then; a band is taken
+    when two fits in a row tell bands within AGREE of each other (the later; None before).
+    Times in s on the controller's clock.
+    """
+
+    def __init__(self, rate_hz: float, wheel_base: float, max_wheel_speed: float) -> None:
+        super().__init__(int(rate_hz * BAND_SPAN) + 2, BAND_SPAN)
+        self.wheel_base, self.max_wheel_speed = wheel_base, max_wheel_speed
+        self.next_at: float | None = None
+        self.last: DeadBand = NO_BAND    # the last fit
+        self.found: DeadBand = NO_BAND   # the fit taken
+        self.taken: list[tuple[float, float]] = []   # (when, band) each band taken
+
+    def update(self, now: float, latency: float, motor_time_constant: float) -> None:
+        """Fit again if BAND_EVERY s have passed since the last fit."""
+        if self.next_at is None:
+            self.next_at = now + BAND_EVERY
+        if now < self.next_at or len(self.commands) < 2 or len(self.poses) < MIN_INTERVALS:
+            return
+        self.next_at = now + BAND_EVERY
+        sent, seen = np.array(self.commands), np.array(self.poses)
+        found = estimate_dead_band(sent[:, 0], sent[:, 1:], seen[:, 0], seen[:, 1:],
+                                   self.wheel_base, self.max_wheel_speed, latency,
+                                   motor_time_constant)
+        before, self.last = self.last.band, found
+        if (found.band is not None and before is not None
+                and abs(found.band - before) <= AGREE * found.band):
+            self.found = found
+            self.taken.append((now, found.band))
+
+    @property
+    def band(self) -> float | None:
+        """m/s of wheel speed, as last taken, or None."""
+        return self.found.band
