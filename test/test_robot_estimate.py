@@ -3,6 +3,7 @@ latency (core.controller.link_estimate, controller.estimate_motors), on MuJoCo r
 drawn imperfections, 100 ms of link latency nobody told and a disturbance present.
 """
 
+import functools
 from pathlib import Path
 
 import numpy as np
@@ -203,6 +204,33 @@ def test_the_wheels_are_sent_their_commands_divided_by_their_gains_within_the_li
     assert model.compensated(0.0, 0.0) == (0.0, 0.0)
 
 
+@functools.cache
+def banded_run(swinging):
+    """(experiment, controllers, result, logs) of 70 s of arena_demo seed 1 on imperfect
+    MuJoCo robots, a link 100 ms late, nothing told (shared by the dead band's tests); logs:
+    {robot model: ([(t, v, w) sent], [(t, x, y, theta) seen])} over the whole run.
+    """
+    from curve_formation.core.controller.robot_model import RobotModel
+    logs = {}
+    sent, seen = RobotModel.sent, RobotModel.seen
+
+    def log_sent(model, now, v, w):
+        logs.setdefault(model, ([], []))[0].append((now, v, w))
+        sent(model, now, v, w)
+
+    def log_seen(model, taken, x, y, theta):
+        logs.setdefault(model, ([], []))[1].append((taken, x, y, theta))
+        seen(model, taken, x, y, theta)
+
+    RobotModel.sent, RobotModel.seen = log_sent, log_seen
+    try:
+        experiment = imperfect_case('arena_demo', 1, swinging)
+        controllers, result = learnt(experiment, 0.1, seconds=70.0)
+    finally:
+        RobotModel.sent, RobotModel.seen = sent, seen
+    return experiment, controllers, result, logs
+
+
 @pytest.mark.parametrize('swinging', [False, True], ids=['constant', 'swinging'])
 def test_the_motors_dead_band_is_found_online_within_20_percent(swinging):
     """arena_demo's imperfect robots (a dead band of 5 % of the fastest wheel speed among
@@ -212,9 +240,8 @@ def test_the_motors_dead_band_is_found_online_within_20_percent(swinging):
     follow) none that is off by more; the metrics carry each.
     """
     from curve_formation.core.record.metrics import result_metrics
-    experiment = imperfect_case('arena_demo', 1, swinging)
+    experiment, controllers, result, _ = banded_run(swinging)
     band = experiment.spec.physics.imperfections.dead_band * experiment.limits.max_wheel_speed
-    controllers, result = learnt(experiment, 0.1, seconds=70.0)
     taken = {c.config.index: c.robot.band.taken for c in controllers if c.robot.band.taken}
     if not swinging:
         assert len(taken) >= 5, taken
@@ -257,3 +284,44 @@ def test_the_estimate_of_a_robot_commanded_within_its_dead_band_does_not_wind_up
     assert estimate_after('observer', 0.03, 60.0) == 0.0
     held = estimate_after('observer', 0.0, 30.0)
     assert held > 0.0 and estimate_after('observer', 0.0, 60.0) == pytest.approx(held)
+
+
+def test_measure_link_finds_the_dead_band_in_a_bag_and_prints_the_line(tmp_path, capsys):
+    """The commands and poses of the dead band test's robots (constant drift, 70 s) written
+    to a bag with arena_demo's experiment: measure-link finds a band for most robots, each
+    within 20 % of the drawn one, and prints the limits line to tell it.
+    """
+    import json
+
+    from geometry_msgs.msg import Twist
+    from rclpy.serialization import serialize_message
+
+    from curve_formation.bags.analysis import EXPERIMENT_KEY
+    from curve_formation.bags.bag import BagWriter, qos
+    from curve_formation.cli import main
+    from curve_formation.nodes.messages import pose_to_msg
+    experiment, controllers, _, logs = banded_run(False)
+    band = experiment.spec.physics.imperfections.dead_band * experiment.limits.max_wheel_speed
+    start = 1_000_000_000.0
+    with BagWriter(tmp_path / 'bag') as writer:
+        for c in controllers:
+            i = c.config.index
+            writer.add_topic(f'/robot_{i}/cmd_vel', 'geometry_msgs/msg/Twist', qos())
+            writer.add_topic(f'/robot_{i}/pose', 'geometry_msgs/msg/PoseStamped', qos())
+            commands, poses = logs[c.robot]
+            for t, v, w in commands:
+                msg = Twist()
+                msg.linear.x, msg.angular.z = float(v), float(w)
+                writer.write(f'/robot_{i}/cmd_vel', (start + t) * 1e9, serialize_message(msg))
+            for t, x, y, theta in poses:
+                writer.write(f'/robot_{i}/pose', (start + t + 0.01) * 1e9,
+                             serialize_message(pose_to_msg(x, y, theta, start + t)))
+        writer.set_custom(EXPERIMENT_KEY, Path(experiment.source).read_text())
+    assert main(['measure-link', str(tmp_path / 'bag'), '--json',
+                 str(tmp_path / 'link.json')]) == 0
+    found = json.loads((tmp_path / 'link.json').read_text())
+    bands = {i: r['dead_band'] for i, r in found['robots'].items() if r['dead_band']}
+    assert len(bands) >= 4, found['robots']
+    for i, value in bands.items():
+        assert abs(value - band) <= 0.2 * band, (i, value, band)
+    assert 'limits: {min_wheel_speed: 0.001' in capsys.readouterr().out
