@@ -242,7 +242,8 @@ def test_a_bridged_run_passes_its_preflight_and_the_fleet_status_shows_a_link_cu
     estimates = result['robot_estimates']
     assert sorted(estimates) == [f'robot_{i}' for i in range(1, 10)], estimates
     assert all(0.0 <= e['command_latency'] <= 0.5 and e['motor_time_constant'] == 0.0
-               and e['wheel_gains'] is None for e in estimates.values()), estimates
+               and e['wheel_gains'] is None and e['dead_band'] is None
+               for e in estimates.values()), estimates
     with AnyReader([bag]) as reader:
         fleet = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages(
             [c for c in reader.connections if c.topic == '/formation/fleet'])]
