@@ -84,7 +84,11 @@ def one_start(job):
                       'final_mm': [1000 * p['final_max_agent_error'] for p in data['phases']],
                       'contacts': result.contacts, 'wall_s': time.perf_counter() - begin,
                       'motor_lags': data.get('estimated_motor_time_constant'),
-                      'latencies': data.get('estimated_latency')}
+                      'latencies': data.get('estimated_latency'),
+                      'dead_band_share': None if not data.get('estimated_dead_band') else [
+                          None if v is None else v / (IMPERFECTIONS['dead_band']
+                                                      * result.limits.max_wheel_speed)
+                          for v in data['estimated_dead_band']]}
     return row
 
 
@@ -136,6 +140,18 @@ def starts_report(rows):
                                               'max': max(lags)}
             print(f"learnt motor lags (ms, the motors' 50): min {min(lags):.1f}, median "
                   f'{np.median(lags):.1f}, max {max(lags):.1f} over {len(lags)} robots')
+        shares = [v for r in case_rows if r.get('learnt', {}).get('dead_band_share')
+                  for v in r['learnt']['dead_band_share']]
+        taken = [v for v in shares if v is not None]
+        if shares:
+            summary['learnt_dead_band_share'] = {
+                'robots': len(shares), 'taken': len(taken),
+                'within_20_percent': sum(abs(v - 1.0) <= 0.2 for v in taken),
+                'min': min(taken, default=None), 'max': max(taken, default=None)}
+            print(f'learnt dead bands: taken by {len(taken)} of {len(shares)} robots, '
+                  f'{summary["learnt_dead_band_share"]["within_20_percent"]} within 20 % of '
+                  'the drawn band' + (f' ({min(taken):.2f}x to {max(taken):.2f}x)' if taken
+                                      else ''))
         out[name] = summary
     return out
 

@@ -8,15 +8,20 @@ every KNOT s, its steps penalised so that it stays flat where nothing tells it, 
 robot stands) fitted with each wheel's gain on the intervals whose commands are well clear
 of any band (at least GAIN_FLOOR of the fastest wheel speed). Then each candidate band b
 (0 to BAND_MAX of the fastest wheel speed) predicts each interval's wheel speed: its gain
-times the mean of the command plus drift (delayed by the motors' lag), zero wherever that lies
-within b; the band is the candidate whose predictions fit best (least squares over both
+times the mean of the command plus drift (delayed by the motors' lag), zero wherever that
+lies within b; the band is the candidate whose predictions fit best (least squares over both
 wheels, a coarse grid refined). The drift is then fitted again on every interval the band
-leaves moving, and the band found again: a band is told only where the two agree within
-AGREE (a drift that changes while the robot stands, which the fit cannot see, moves it), it
-lies inside the grid, its residual is at most RESIDUAL_SHARE of it (a drift the fit does
-not follow, as a disturbance swinging while the robot stands, leaves a large one), and both
-sides of it are seen (SIDE intervals commanded within it, and as many beyond it up to three
-times it).
+leaves moving, and the band found again. A band is told only where
+- the two agree within AGREE (a drift that changes while the robot stands, which the fit
+  cannot see, moves it);
+- each wheel's gain has a standard error of at most GAIN_ERROR (commands that hardly varied
+  while clear of the band cannot tell a gain from a drift, and a drift wrongly fitted moves
+  the band);
+- it lies inside the coarse grid, below its last step;
+- its residual is at most RESIDUAL_SHARE of it (a drift the fit does not follow, as a
+  disturbance swinging while the robot stands, leaves a large one);
+- both sides of it are seen: SIDE intervals commanded between half of it and it, and MOVED
+  between it and twice it (a robot passes quickly through the commands just beyond it).
 
 Times in s (one clock for commands and poses), speeds in m/s.
 """
@@ -29,7 +34,12 @@ from numpy.typing import ArrayLike
 
 from curve_formation.core.base.shapes import BoolArray, FloatArray
 from curve_formation.core.controller import motion_record as record
-from curve_formation.core.controller.wheel_estimate import GAIN_FLOOR, INTERVAL, thinned
+from curve_formation.core.controller.wheel_estimate import (
+    GAIN_ERROR,
+    GAIN_FLOOR,
+    INTERVAL,
+    thinned,
+)
 from curve_formation.core.formation.dynamics import wheel_speeds
 
 
@@ -40,7 +50,8 @@ COARSE = 26         # candidates of the first grid (0 to BAND_MAX)
 FINE = 9            # candidates of the refined grid, across one coarse step either side
 AGREE = 0.2         # largest share by which the band found twice may differ
 RESIDUAL_SHARE = 0.15   # largest residual (rms) told, a share of the band
-SIDE = 10           # fewest intervals either side of the band that tell it
+SIDE = 10           # fewest intervals commanded within the band (its upper half) that tell it
+MOVED = 4           # fewest commanded beyond it (up to twice it), which a robot passes quickly
 MIN_INTERVALS = 40
 
 
@@ -89,9 +100,10 @@ class _Record:
 
 
 def _drift(rec: _Record, k: int, fitted: BoolArray, knots: FloatArray
-           ) -> tuple[float, FloatArray]:
-    """Wheel k's gain and its drift as a command at each command time (zero when stopped),
-    fitted on the intervals `fitted`.
+           ) -> tuple[float, FloatArray, float]:
+    """Wheel k's gain, its drift as a command at each command time (zero when stopped),
+    fitted on the intervals `fitted`, and the gain's relative standard error (commands
+    that hardly vary cannot tell a gain from a drift).
     """
     at_commands = _hats(rec.tc, knots)
     # the drift is smooth beside the motors' lag: its mean over an interval as held
@@ -104,9 +116,18 @@ def _drift(rec: _Record, k: int, fitted: BoolArray, knots: FloatArray
     target = np.concatenate([rec.measured[k, fitted], np.zeros(len(steps))])
     coef, *_ = np.linalg.lstsq(basis, target, rcond=None)
     gain = float(coef[0])
+    residuals = target - basis @ coef
+    dof = max(int(fitted.sum()) - len(knots) - 1, 1)
+    # the gain's variance: the residual variance over what of the command the drift does
+    # not also explain
+    own = basis[:, 0] - basis[:, 1:] @ np.linalg.lstsq(basis[:, 1:], basis[:, 0],
+                                                       rcond=None)[0]
+    spread = float(own @ own)
+    error = (math.sqrt(float(residuals @ residuals) / dof / spread) / max(abs(gain), 1e-6)
+             if spread > 1e-18 else math.inf)
     if abs(gain) < 1e-6:
-        return gain, np.zeros(len(rec.tc))
-    return gain, at_commands @ (coef[1:] / gain) * rec.driven
+        return gain, np.zeros(len(rec.tc)), math.inf
+    return gain, at_commands @ (coef[1:] / gain) * rec.driven, error
 
 
 def _squares(rec: _Record, gains: list[float], motors: list[FloatArray], band: float
@@ -125,7 +146,7 @@ def _squares(rec: _Record, gains: list[float], motors: list[FloatArray], band: f
 
 def _best_band(rec: _Record, gains: list[float], motors: list[FloatArray], top: float
                ) -> tuple[float, float, float]:
-    """(band, the grid's step there, its sum of squares): a coarse grid then a fine one."""
+    """(band, the fine grid's step, its sum of squares): a coarse grid then a fine one."""
     coarse = np.linspace(0.0, top, COARSE)
     squares = [_squares(rec, gains, motors, b) for b in coarse]
     best = int(np.argmin(squares))
@@ -183,11 +204,12 @@ def estimate_dead_band(command_times: ArrayLike, commands: ArrayLike, pose_times
     for _ in range(2):
         if min(int(f.sum()) for f in fitted) < MIN_INTERVALS:
             return NO_BAND
-        gains, motors = [], []
+        gains, motors, errors = [], [], []
         for k in range(2):
-            gain, drift = _drift(rec, k, fitted[k], knots)
+            gain, drift, error = _drift(rec, k, fitted[k], knots)
             gains.append(gain)
             motors.append(wheels[k] + drift)
+            errors.append(error)
         band, step, squares = _best_band(rec, gains, motors, top)
         found.append(band)
         fitted = [_clear(rec, motors[k], band) for k in range(2)] if band > 0.0 else fitted
@@ -198,10 +220,12 @@ def estimate_dead_band(command_times: ArrayLike, commands: ArrayLike, pose_times
     within = beyond = 0
     for motor in motors:
         size = np.abs(record.held_means(tc, motor, starts - tau, ends - tau))[usable]
-        within += int((size < band).sum())
-        beyond += int(((size >= band) & (size < 3.0 * band)).sum())
-    told = (0.0 < band < top - step and abs(band - first) <= AGREE * band
-            and residual <= RESIDUAL_SHARE * band and within >= SIDE and beyond >= SIDE)
+        within += int(((size >= 0.5 * band) & (size < band)).sum())
+        beyond += int(((size >= band) & (size < 2.0 * band)).sum())
+    coarse_step = top / (COARSE - 1)
+    told = (0.0 < band < top - coarse_step and abs(band - first) <= AGREE * band
+            and max(errors) <= GAIN_ERROR
+            and residual <= RESIDUAL_SHARE * band and within >= SIDE and beyond >= MOVED)
     return DeadBand(band if told else None, bound, residual, intervals)
 
 
