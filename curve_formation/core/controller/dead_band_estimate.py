@@ -130,18 +130,34 @@ def _drift(rec: _Record, k: int, fitted: BoolArray, knots: FloatArray
     return gain, at_commands @ (coef[1:] / gain) * rec.driven, error
 
 
+def _delayed_means(rec: _Record, values: FloatArray) -> FloatArray:
+    """Each interval's mean of a signal held from each command time, the motors' lag taken
+    as a delay of tau (a band's commands are small and slow).
+    """
+    return record.held_means(rec.tc, values, rec.starts - rec.tau, rec.ends - rec.tau)
+
+
 def _squares(rec: _Record, gains: list[float], motors: list[FloatArray], band: float
              ) -> float:
     """The residual sum of squares (m/s)^2 of the band's predictions."""
     total = 0.0
     for k in range(2):
         moved = np.where(np.abs(motors[k]) < band, 0.0, motors[k])
-        # the lag as a delay of tau: a band's commands are small and slow
-        predicted = gains[k] * record.held_means(rec.tc, moved, rec.starts - rec.tau,
-                                                 rec.ends - rec.tau)
-        residual = (rec.measured[k] - predicted)[rec.usable]
+        residual = (rec.measured[k] - gains[k] * _delayed_means(rec, moved))[rec.usable]
         total += float(residual @ residual)
     return total
+
+
+def _sides(rec: _Record, motors: list[FloatArray], band: float) -> tuple[int, int]:
+    """How many usable intervals (both wheels) were commanded between half the band and
+    it, and between it and twice it.
+    """
+    within = beyond = 0
+    for motor in motors:
+        size = np.abs(_delayed_means(rec, motor))[rec.usable]
+        within += int(((size >= 0.5 * band) & (size < band)).sum())
+        beyond += int(((size >= band) & (size < 2.0 * band)).sum())
+    return within, beyond
 
 
 def _best_band(rec: _Record, gains: list[float], motors: list[FloatArray], top: float
@@ -166,6 +182,30 @@ def _clear(rec: _Record, motor: FloatArray, floor: float) -> BoolArray:
                                            rec.ends) > 0.999)
 
 
+def _intervals(command_times: ArrayLike, commands: ArrayLike, pose_times: ArrayLike,
+               poses: ArrayLike, wheel_base: float, latency: float, tau: float
+               ) -> _Record | None:
+    """One robot's record of intervals (estimate_dead_band's arguments); None where too
+    few are usable.
+    """
+    tc, cmd, tp, pose = record.cleaned(command_times, commands, pose_times, poses)
+    tp, pose = thinned(tp, pose, INTERVAL)
+    if len(tc) < 2 or len(tp) < MIN_INTERVALS:
+        return None
+    tc = tc + latency
+    wheels = np.stack(wheel_speeds(cmd[:, 0], cmd[:, 1], wheel_base))
+    driven = record.driven_commands(cmd)
+    starts, ends = tp[:-1], tp[1:]
+    usable = ((starts >= tc[0] + 3.0 * tau) & (ends <= tc[-1] + 1.0)
+              & (record.held_means(tc, driven, starts, ends) > 0.999))
+    if usable.sum() < MIN_INTERVALS:
+        return None
+    return _Record(tc, wheels, driven, starts, ends,
+                   np.stack(wheel_speeds(*record.measured_rates(tp, pose), wheel_base)),
+                   usable, np.stack([record.lagged_means(tc, wheels[k], starts, ends, tau)
+                                     for k in range(2)]), tau)
+
+
 def estimate_dead_band(command_times: ArrayLike, commands: ArrayLike, pose_times: ArrayLike,
                        poses: ArrayLike, wheel_base: float, max_wheel_speed: float,
                        latency: float, motor_time_constant: float) -> DeadBand:
@@ -176,57 +216,39 @@ def estimate_dead_band(command_times: ArrayLike, commands: ArrayLike, pose_times
     """
     if wheel_base <= 0.0 or not math.isfinite(max_wheel_speed) or max_wheel_speed <= 0.0:
         return NO_BAND
-    tc, cmd, tp, pose = record.cleaned(command_times, commands, pose_times, poses)
-    tp, pose = thinned(tp, pose, INTERVAL)
-    if len(tc) < 2 or len(tp) < MIN_INTERVALS:
+    rec = _intervals(command_times, commands, pose_times, poses, wheel_base, latency,
+                     motor_time_constant)
+    if rec is None:
         return NO_BAND
-    tc = tc + latency
-    tau = motor_time_constant
-    wheels = np.stack(wheel_speeds(cmd[:, 0], cmd[:, 1], wheel_base))
-    driven = record.driven_commands(cmd)
-    starts, ends = tp[:-1], tp[1:]
-    usable = ((starts >= tc[0] + 3.0 * tau) & (ends <= tc[-1] + 1.0)
-              & (record.held_means(tc, driven, starts, ends) > 0.999))
-    if usable.sum() < MIN_INTERVALS:
-        return NO_BAND
-    rec = _Record(tc, wheels, driven, starts, ends,
-                  np.stack(wheel_speeds(*record.measured_rates(tp, pose), wheel_base)), usable,
-                  np.stack([record.lagged_means(tc, wheels[k], starts, ends, tau)
-                            for k in range(2)]), tau)
-    mid = 0.5 * (starts + ends)
+    mid = 0.5 * (rec.starts + rec.ends)
     knots = np.arange(mid[0], mid[-1] + KNOT, KNOT)
     if len(knots) < 2:
         return NO_BAND
     top = BAND_MAX * max_wheel_speed
-    floor = GAIN_FLOOR * max_wheel_speed
-    fitted = [_clear(rec, wheels[k], floor) for k in range(2)]
+    fitted = [_clear(rec, rec.wheels[k], GAIN_FLOOR * max_wheel_speed) for k in range(2)]
     found = []
-    for _ in range(2):
+    for _ in range(2):   # the band, then again with the drift fitted where it leaves moving
         if min(int(f.sum()) for f in fitted) < MIN_INTERVALS:
             return NO_BAND
         gains, motors, errors = [], [], []
         for k in range(2):
             gain, drift, error = _drift(rec, k, fitted[k], knots)
             gains.append(gain)
-            motors.append(wheels[k] + drift)
+            motors.append(rec.wheels[k] + drift)
             errors.append(error)
         band, step, squares = _best_band(rec, gains, motors, top)
         found.append(band)
-        fitted = [_clear(rec, motors[k], band) for k in range(2)] if band > 0.0 else fitted
-    intervals = int(usable.sum())
+        if band > 0.0:
+            fitted = [_clear(rec, motors[k], band) for k in range(2)]
+    intervals = int(rec.usable.sum())
     residual = math.sqrt(squares / max(2 * intervals - 1, 1))
     first, band = found
-    bound = max(step, abs(band - first))
-    within = beyond = 0
-    for motor in motors:
-        size = np.abs(record.held_means(tc, motor, starts - tau, ends - tau))[usable]
-        within += int(((size >= 0.5 * band) & (size < band)).sum())
-        beyond += int(((size >= band) & (size < 2.0 * band)).sum())
-    coarse_step = top / (COARSE - 1)
-    told = (0.0 < band < top - coarse_step and abs(band - first) <= AGREE * band
-            and max(errors) <= GAIN_ERROR
-            and residual <= RESIDUAL_SHARE * band and within >= SIDE and beyond >= MOVED)
-    return DeadBand(band if told else None, bound, residual, intervals)
+    within, beyond = _sides(rec, motors, band)
+    told = (0.0 < band < top - top / (COARSE - 1) and abs(band - first) <= AGREE * band
+            and max(errors) <= GAIN_ERROR and residual <= RESIDUAL_SHARE * band
+            and within >= SIDE and beyond >= MOVED)
+    return DeadBand(band if told else None, max(step, abs(band - first)), residual,
+                    intervals)
 
 
 # Online: how often (s) a controller fits its motors' dead band, over how much of the past
