@@ -256,7 +256,7 @@ BAND_EVERY = 5.0
 BAND_SPAN = 60.0
 
 
-class OnlineDeadBand(record.MotionRecord):
+class OnlineDeadBand(record.PeriodicFit):
     """A controller's running estimate of its motors' dead band: every BAND_EVERY s the
     last BAND_SPAN s of its commands (at its ticks) and poses (when taken) are fitted
     (estimate_dead_band) through the latency and motors' lag it holds then; a band is taken
@@ -265,24 +265,19 @@ class OnlineDeadBand(record.MotionRecord):
     """
 
     def __init__(self, rate_hz: float, wheel_base: float, max_wheel_speed: float) -> None:
-        super().__init__(int(rate_hz * BAND_SPAN) + 2, BAND_SPAN)
+        super().__init__(int(rate_hz * BAND_SPAN) + 2, BAND_SPAN, BAND_EVERY, MIN_INTERVALS)
         self.wheel_base, self.max_wheel_speed = wheel_base, max_wheel_speed
-        self.next_at: float | None = None
         self.last: DeadBand = NO_BAND    # the last fit
         self.found: DeadBand = NO_BAND   # the fit taken
         self.taken: list[tuple[float, float]] = []   # (when, band) each band taken
 
-    def update(self, now: float, latency: float, motor_time_constant: float) -> None:
-        """Fit again if BAND_EVERY s have passed since the last fit."""
-        if self.next_at is None:
-            self.next_at = now + BAND_EVERY
-        if now < self.next_at or len(self.commands) < 2 or len(self.poses) < MIN_INTERVALS:
-            return
-        self.next_at = now + BAND_EVERY
-        sent, seen = np.array(self.commands), np.array(self.poses)
-        found = estimate_dead_band(sent[:, 0], sent[:, 1:], seen[:, 0], seen[:, 1:],
-                                   self.wheel_base, self.max_wheel_speed, latency,
-                                   motor_time_constant)
+    def fit(self, command_times: FloatArray, commands: FloatArray, pose_times: FloatArray,
+            poses: FloatArray, latency: float, motor_time_constant: float) -> DeadBand:
+        return estimate_dead_band(command_times, commands, pose_times, poses,
+                                  self.wheel_base, self.max_wheel_speed, latency,
+                                  motor_time_constant)
+
+    def took(self, now: float, found: DeadBand) -> None:
         before, self.last = self.last.band, found
         if (found.band is not None and before is not None
                 and abs(found.band - before) <= AGREE * found.band):

@@ -9,6 +9,7 @@ rad/s.
 
 from collections import deque
 import math
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -107,3 +108,34 @@ class MotionRecord:
             self.poses.append((taken, x, y, theta))
             while self.poses[0][0] < taken - self.span:
                 self.poses.popleft()
+
+
+class PeriodicFit(MotionRecord):
+    """A MotionRecord fitted every `every` s (its first fit `every` s after its first
+    update) once it holds `least` poses: update() calls fit(), which a subclass gives (the
+    commands' times (k,) and (v, w) (k, 2), the poses' times (m,) and poses (m, 3), the
+    latency and motors' lag it holds, s), and hands its result to took().
+    """
+
+    def __init__(self, commands: int, span: float, every: float, least: int) -> None:
+        super().__init__(commands, span)
+        self.every, self.least = every, least
+        self.next_at: float | None = None
+
+    def update(self, now: float, latency: float, motor_time_constant: float) -> None:
+        """Fit again if `every` s have passed since the last fit."""
+        if self.next_at is None:
+            self.next_at = now + self.every
+        if now < self.next_at or len(self.commands) < 2 or len(self.poses) < self.least:
+            return
+        self.next_at = now + self.every
+        sent, seen = np.array(self.commands), np.array(self.poses)
+        self.took(now, self.fit(sent[:, 0], sent[:, 1:], seen[:, 0], seen[:, 1:], latency,
+                                motor_time_constant))
+
+    def fit(self, command_times: FloatArray, commands: FloatArray, pose_times: FloatArray,
+            poses: FloatArray, latency: float, motor_time_constant: float) -> Any:
+        raise NotImplementedError
+
+    def took(self, now: float, found: Any) -> None:
+        raise NotImplementedError

@@ -142,7 +142,7 @@ GAINS_EVERY = 5.0
 GAINS_SPAN = 60.0
 
 
-class OnlineGains(record.MotionRecord):
+class OnlineGains(record.PeriodicFit):
     """A controller's running estimate of its wheels' gains: every GAINS_EVERY s the last
     GAINS_SPAN s of its commands (at its ticks) and poses (when taken) are fitted
     (estimate_gains) through the latency and motors' lag it holds then; the gains are those
@@ -151,23 +151,18 @@ class OnlineGains(record.MotionRecord):
     """
 
     def __init__(self, rate_hz: float, wheel_base: float, max_wheel_speed: float) -> None:
-        super().__init__(int(rate_hz * GAINS_SPAN) + 2, GAINS_SPAN)
+        super().__init__(int(rate_hz * GAINS_SPAN) + 2, GAINS_SPAN, GAINS_EVERY,
+                         MIN_INTERVALS)
         self.wheel_base, self.max_wheel_speed = wheel_base, max_wheel_speed
-        self.next_at: float | None = None
         self.found: WheelGains = NO_GAINS   # the last fit that told gains
         self.taken: list[tuple[float, tuple[float, float]]] = []   # (when, gains) each fit
 
-    def update(self, now: float, latency: float, motor_time_constant: float) -> None:
-        """Fit again if GAINS_EVERY s have passed since the last fit."""
-        if self.next_at is None:
-            self.next_at = now + GAINS_EVERY
-        if now < self.next_at or len(self.commands) < 2 or len(self.poses) < MIN_INTERVALS:
-            return
-        self.next_at = now + GAINS_EVERY
-        sent, seen = np.array(self.commands), np.array(self.poses)
-        found = estimate_gains(sent[:, 0], sent[:, 1:], seen[:, 0], seen[:, 1:],
-                               self.wheel_base, self.max_wheel_speed, latency,
-                               motor_time_constant)
+    def fit(self, command_times: FloatArray, commands: FloatArray, pose_times: FloatArray,
+            poses: FloatArray, latency: float, motor_time_constant: float) -> WheelGains:
+        return estimate_gains(command_times, commands, pose_times, poses, self.wheel_base,
+                              self.max_wheel_speed, latency, motor_time_constant)
+
+    def took(self, now: float, found: WheelGains) -> None:
         if found.gains is not None:
             self.found = found
             self.taken.append((now, found.gains))
