@@ -29,7 +29,7 @@ ARGUMENTS = (
     ('bridge', '', "'', udp or pty: each cmd_vel through a robot_bridge"),
     ('observer', 'false', 'true: curve-formation run --only observer measures the run'),
     ('controllers_per_process', '', "K controllers share each process ('': 1 up to 12 "
-     'robots, beyond that as many as keep 12 groups)'),
+     'robots, beyond that one group per core, at most 25 controllers and 13 groups)'),
 )
 
 

@@ -13,7 +13,7 @@ import yaml
 
 from curve_formation.core.config.loading import load_experiment
 from curve_formation.nodes import topics
-from curve_formation.run.run_options import RunOptions, SOLO_TEAM
+from curve_formation.run.run_options import GROUP_MOST, MOST_GROUPS, RunOptions, SOLO_TEAM
 from curve_formation.run.runner import held_robots, Run
 
 
@@ -22,13 +22,20 @@ def quiet(_):
 
 
 def test_the_default_groups_any_team_up_to_100_into_at_most_16_participants():
+    """One process per controller up to SOLO_TEAM robots; past it one group per core, at
+    most GROUP_MOST controllers each and 16 participants in all, on any PC.
+    """
     options = RunOptions()
     assert [options.group_size(n) for n in (1, 9, SOLO_TEAM)] == [1, 1, 1]
-    for n in range(SOLO_TEAM + 1, 101):
-        size = options.group_size(n)
-        groups = -(-n // size)
-        # with the curve server, the robots (a fake arena or the bridges' PC) and the runner
-        assert groups + 3 <= 16, (n, size)
+    for cores in (1, 2, 4, 16, 64):
+        for n in range(SOLO_TEAM + 1, 101):
+            size = options.group_size(n, cores)
+            groups = -(-n // size)
+            # with the curve server, the robots (a fake arena or the bridges' PC), the runner
+            assert groups + 3 <= 16 and size <= max(GROUP_MOST, -(-n // MOST_GROUPS)), (
+                n, cores, size)
+            assert groups >= min(cores, -(-n // GROUP_MOST)), (n, cores, size)
+    assert options.group_size(50, 2) == 25 and options.group_size(100, 2) == 25
     assert RunOptions(controllers_per_process=4).group_size(9) == 4
     assert RunOptions(single_process=True, controllers_per_process=4).group_size(9) == 1
     assert held_robots('controllers_5-8') == [5, 6, 7, 8]

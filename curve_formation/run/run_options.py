@@ -2,6 +2,7 @@
 
 from dataclasses import dataclass
 import math
+import os
 from pathlib import Path
 
 from curve_formation.bags.bag import DEFAULT_STORAGE
@@ -78,17 +79,21 @@ class RunOptions:
         """Whether this host runs `part` (one of PARTS)."""
         return self.only is None or part in self.only
 
-    def group_size(self, n: int) -> int:
+    def group_size(self, n: int, cores: int | None = None) -> int:
         """Controllers per process for a team of n: as asked, else one each up to
-        SOLO_TEAM robots and beyond that as few as keep the groups to SOLO_TEAM (a team of
-        100 in 12 processes: with the curve server, the robots and the runner, 15 DDS
-        participants). 1 in a single-process run (every node shares it anyway).
+        SOLO_TEAM robots; beyond that one group per core of this PC (`cores`; None: those
+        this process may use), at most GROUP_MOST controllers each and at most MOST_GROUPS
+        groups (with the curve server, the robots and the runner, 16 DDS participants). 1 in
+        a single-process run (every node shares it anyway).
         """
         if self.single_process:
             return 1
         if self.controllers_per_process is not None:
             return self.controllers_per_process
-        return 1 if n <= SOLO_TEAM else math.ceil(n / SOLO_TEAM)
+        if n <= SOLO_TEAM:
+            return 1
+        cores = cores or len(os.sched_getaffinity(0))
+        return max(math.ceil(n / MOST_GROUPS), min(GROUP_MOST, math.ceil(n / cores)))
 
     def runs_agent(self, agent: int | None) -> bool:
         """Whether this host runs the nodes of `agent` (None: a node of the whole team)."""
@@ -106,6 +111,14 @@ ROBOT_FAULTS = ('silent', 'runaway', 'hidden')
 # grouped: RunOptions.group_size); measured: one process per node holds 10 Hz up to 16 robots
 # on 2 cores, 25 miss ticks (docs/performance.md).
 SOLO_TEAM = 12
+# Past it, one group per core, each at most GROUP_MOST controllers (a crash takes down no
+# more than these), at most MOST_GROUPS groups. Measured on 2 cores (docs/performance.md):
+# 50 robots in 2 processes of 25 hold 10 Hz with p99 jitter 13-14 ms and take 2.2 % of a
+# core each, first curve at 5.2 s; in 10 processes of 5, 22-24 ms, 2.9 % and 9-11 s; 100 in
+# 4 processes of 25 hold 9.7 Hz, in 12 of 9 they fell to 2.8 Hz. Every process pays its own
+# start (rclpy, numba: ~1 s of a core) and its own copy of every message it reads.
+GROUP_MOST = 25
+MOST_GROUPS = 13
 PARTS = ('curve_server', 'controllers', 'robots', 'camera', 'observer')
 
 DEFAULTS = RunOptions()
