@@ -92,7 +92,8 @@ class RunOptions:
             return self.controllers_per_process
         if n <= SOLO_TEAM:
             return 1
-        cores = cores or len(os.sched_getaffinity(0))
+        cores = cores or (len(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity')
+                          else os.cpu_count() or 1)
         return max(math.ceil(n / MOST_GROUPS), min(GROUP_MOST, math.ceil(n / cores)))
 
     def runs_agent(self, agent: int | None) -> bool:
