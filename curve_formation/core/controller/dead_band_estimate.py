@@ -99,25 +99,41 @@ class _Record:
     tau: float
 
 
-def _drift(rec: _Record, k: int, fitted: BoolArray, knots: FloatArray
+@dataclass(frozen=True)
+class _DriftBasis:
+    """The drift's piecewise-linear basis: at_commands (commands, knots) its value at each
+    command time; means (intervals, knots) its mean over each interval while driven (the
+    drift is smooth beside the motors' lag: held, not lagged); steps (knots - 1, knots)
+    the differences of neighbouring knots, penalised.
+    """
+
+    at_commands: FloatArray
+    means: FloatArray
+    steps: FloatArray
+
+
+def _drift_basis(rec: _Record, knots: FloatArray) -> _DriftBasis:
+    at_commands = _hats(rec.tc, knots)
+    means = np.column_stack([record.held_means(rec.tc, at_commands[:, j] * rec.driven,
+                                               rec.starts, rec.ends)
+                             for j in range(len(knots))])
+    return _DriftBasis(at_commands, means, np.diff(np.eye(len(knots)), axis=0))
+
+
+def _drift(rec: _Record, k: int, fitted: BoolArray, drift: _DriftBasis
            ) -> tuple[float, FloatArray, float]:
     """Wheel k's gain, its drift as a command at each command time (zero when stopped),
     fitted on the intervals `fitted`, and the gain's relative standard error (commands
     that hardly vary cannot tell a gain from a drift).
     """
-    at_commands = _hats(rec.tc, knots)
-    # the drift is smooth beside the motors' lag: its mean over an interval as held
-    columns = np.column_stack([record.held_means(rec.tc, at_commands[:, j] * rec.driven,
-                                                 rec.starts[fitted], rec.ends[fitted])
-                               for j in range(len(knots))])
-    steps = np.diff(np.eye(len(knots)), axis=0)
-    basis = np.vstack([np.column_stack([rec.x[k, fitted], columns]),
+    steps = drift.steps
+    basis = np.vstack([np.column_stack([rec.x[k, fitted], drift.means[fitted]]),
                        np.column_stack([np.zeros(len(steps)), SMOOTH * steps])])
     target = np.concatenate([rec.measured[k, fitted], np.zeros(len(steps))])
     coef, *_ = np.linalg.lstsq(basis, target, rcond=None)
     gain = float(coef[0])
     residuals = target - basis @ coef
-    dof = max(int(fitted.sum()) - len(knots) - 1, 1)
+    dof = max(int(fitted.sum()) - drift.means.shape[1] - 1, 1)
     # the gain's variance: the residual variance over what of the command the drift does
     # not also explain
     own = basis[:, 0] - basis[:, 1:] @ np.linalg.lstsq(basis[:, 1:], basis[:, 0],
@@ -127,7 +143,7 @@ def _drift(rec: _Record, k: int, fitted: BoolArray, knots: FloatArray
              if spread > 1e-18 else math.inf)
     if abs(gain) < 1e-6:
         return gain, np.zeros(len(rec.tc)), math.inf
-    return gain, at_commands @ (coef[1:] / gain) * rec.driven, error
+    return gain, drift.at_commands @ (coef[1:] / gain) * rec.driven, error
 
 
 def _delayed_means(rec: _Record, values: FloatArray) -> FloatArray:
@@ -225,6 +241,7 @@ def estimate_dead_band(command_times: ArrayLike, commands: ArrayLike, pose_times
     if len(knots) < 2:
         return NO_BAND
     top = BAND_MAX * max_wheel_speed
+    basis = _drift_basis(rec, knots)
     fitted = [_clear(rec, rec.wheels[k], GAIN_FLOOR * max_wheel_speed) for k in range(2)]
     found = []
     for _ in range(2):   # the band, then again with the drift fitted where it leaves moving
@@ -232,7 +249,7 @@ def estimate_dead_band(command_times: ArrayLike, commands: ArrayLike, pose_times
             return NO_BAND
         gains, motors, errors = [], [], []
         for k in range(2):
-            gain, drift, error = _drift(rec, k, fitted[k], knots)
+            gain, drift, error = _drift(rec, k, fitted[k], basis)
             gains.append(gain)
             motors.append(rec.wheels[k] + drift)
             errors.append(error)
