@@ -268,21 +268,22 @@ def estimate_dead_band(command_times: ArrayLike, commands: ArrayLike, pose_times
                     intervals)
 
 
-# Online: how often (s) a controller fits its motors' dead band, over how much of the past
+# Online: how often (s) a controller fits its motors' dead band
 BAND_EVERY = 5.0
-BAND_SPAN = 60.0
 
 
 class OnlineDeadBand(record.PeriodicFit):
     """A controller's running estimate of its motors' dead band: every BAND_EVERY s the
-    last BAND_SPAN s of its commands (at its ticks) and poses (when taken) are fitted
-    (estimate_dead_band) through the latency and motors' lag it holds then; a band is taken
-    when two fits in a row tell bands within AGREE of each other (the later; None before).
-    Times in s on the controller's clock.
+    record it shares with its wheel gains' fit (wheel_estimate.wheel_record: the last 60 s
+    of its commands at its ticks and its poses when taken) is fitted (estimate_dead_band)
+    through the latency and motors' lag it holds then; a band is taken when two fits in a
+    row tell bands within AGREE of each other (the later; None before). Times in s on the
+    controller's clock.
     """
 
-    def __init__(self, rate_hz: float, wheel_base: float, max_wheel_speed: float) -> None:
-        super().__init__(int(rate_hz * BAND_SPAN) + 2, BAND_SPAN, BAND_EVERY, MIN_INTERVALS)
+    def __init__(self, motion: record.MotionRecord, wheel_base: float,
+                 max_wheel_speed: float) -> None:
+        super().__init__(motion, BAND_EVERY, MIN_INTERVALS)
         self.wheel_base, self.max_wheel_speed = wheel_base, max_wheel_speed
         self.last: DeadBand = NO_BAND    # the last fit
         self.found: DeadBand = NO_BAND   # the fit taken

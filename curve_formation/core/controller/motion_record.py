@@ -110,15 +110,16 @@ class MotionRecord:
                 self.poses.popleft()
 
 
-class PeriodicFit(MotionRecord):
-    """A MotionRecord fitted every `every` s (its first fit `every` s after its first
-    update) once it holds `least` poses: update() calls fit(), which a subclass gives (the
-    commands' times (k,) and (v, w) (k, 2), the poses' times (m,) and poses (m, 3), the
-    latency and motors' lag it holds, s), and hands its result to took().
+class PeriodicFit:
+    """A fit of a MotionRecord (`record`, which several fits may share) every `every` s
+    (the first `every` s after its first update) once it holds `least` poses: update()
+    calls fit(), which a subclass gives (the commands' times (k,) and (v, w) (k, 2), the
+    poses' times (m,) and poses (m, 3), the latency and motors' lag it holds, s), and hands
+    its result to took().
     """
 
-    def __init__(self, commands: int, span: float, every: float, least: int) -> None:
-        super().__init__(commands, span)
+    def __init__(self, record: MotionRecord, every: float, least: int) -> None:
+        self.record = record
         self.every, self.least = every, least
         self.next_at: float | None = None
 
@@ -126,10 +127,11 @@ class PeriodicFit(MotionRecord):
         """Fit again if `every` s have passed since the last fit."""
         if self.next_at is None:
             self.next_at = now + self.every
-        if now < self.next_at or len(self.commands) < 2 or len(self.poses) < self.least:
+        commands, poses = self.record.commands, self.record.poses
+        if now < self.next_at or len(commands) < 2 or len(poses) < self.least:
             return
         self.next_at = now + self.every
-        sent, seen = np.array(self.commands), np.array(self.poses)
+        sent, seen = np.array(commands), np.array(poses)
         self.took(now, self.fit(sent[:, 0], sent[:, 1:], seen[:, 0], seen[:, 1:], latency,
                                 motor_time_constant))
 

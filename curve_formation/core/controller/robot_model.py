@@ -11,7 +11,7 @@ from curve_formation.core.base.shapes import Command
 from curve_formation.core.controller.agent_config import AgentConfig
 from curve_formation.core.controller.dead_band_estimate import OnlineDeadBand
 from curve_formation.core.controller.link_estimate import ONLINE_LAGS, OnlineLink
-from curve_formation.core.controller.wheel_estimate import OnlineGains
+from curve_formation.core.controller.wheel_estimate import OnlineGains, wheel_record
 from curve_formation.core.formation.dynamics import body_from_wheels, wheel_speeds
 
 
@@ -37,15 +37,17 @@ class RobotModel:
                                 cfg.estimate_latency, estimate_motor)
                      if cfg.estimate_latency or estimate_motor else None)
         self.limits = cfg.limits
-        self.wheels = (OnlineGains(cfg.rate_hz, cfg.limits.wheel_base,
-                                   cfg.limits.max_wheel_speed)
-                       if cfg.estimate_motors and cfg.limits.wheel_base > 0.0 else None)
+        # the commands and poses the wheels' fits share (gains, dead band)
+        motion = (wheel_record(cfg.rate_hz)
+                  if cfg.estimate_motors and cfg.limits.wheel_base > 0.0 else None)
+        limits = self.limits
+        self.wheels = (None if motion is None
+                       else OnlineGains(motion, limits.wheel_base, limits.max_wheel_speed))
         self.min_wheel_speed = cfg.min_wheel_speed
-        self.band = (OnlineDeadBand(cfg.rate_hz, cfg.limits.wheel_base,
-                                    cfg.limits.max_wheel_speed)
-                     if self.wheels is not None and cfg.min_wheel_speed <= 0.0   # told wins
-                     and math.isfinite(cfg.limits.max_wheel_speed) else None)
-        self.records = [r for r in (self.link, self.wheels, self.band) if r is not None]
+        self.band = (OnlineDeadBand(motion, limits.wheel_base, limits.max_wheel_speed)
+                     if motion is not None and cfg.min_wheel_speed <= 0.0   # told wins
+                     and math.isfinite(limits.max_wheel_speed) else None)
+        self.records = [r for r in (self.link, motion) if r is not None]
         # how many commands sent a controller keeps: as far back as a pose may be
         # (pose_timeout) plus the longest the latency may be
         longest = (max(cfg.command_latency, float(ONLINE_LAGS.max()))

@@ -142,17 +142,24 @@ GAINS_EVERY = 5.0
 GAINS_SPAN = 60.0
 
 
+def wheel_record(rate_hz: float) -> record.MotionRecord:
+    """The last GAINS_SPAN s of a controller's commands (at rate_hz) and poses, which the
+    online fits of its wheels read (OnlineGains, dead_band_estimate.OnlineDeadBand).
+    """
+    return record.MotionRecord(int(rate_hz * GAINS_SPAN) + 2, GAINS_SPAN)
+
+
 class OnlineGains(record.PeriodicFit):
-    """A controller's running estimate of its wheels' gains: every GAINS_EVERY s the last
-    GAINS_SPAN s of its commands (at its ticks) and poses (when taken) are fitted
+    """A controller's running estimate of its wheels' gains: every GAINS_EVERY s its
+    wheel_record (its commands at its ticks, its poses when taken) is fitted
     (estimate_gains) through the latency and motors' lag it holds then; the gains are those
     of the last fit that told them (None before), with their errors. Times in s on the
     controller's clock.
     """
 
-    def __init__(self, rate_hz: float, wheel_base: float, max_wheel_speed: float) -> None:
-        super().__init__(int(rate_hz * GAINS_SPAN) + 2, GAINS_SPAN, GAINS_EVERY,
-                         MIN_INTERVALS)
+    def __init__(self, motion: record.MotionRecord, wheel_base: float,
+                 max_wheel_speed: float) -> None:
+        super().__init__(motion, GAINS_EVERY, MIN_INTERVALS)
         self.wheel_base, self.max_wheel_speed = wheel_base, max_wheel_speed
         self.found: WheelGains = NO_GAINS   # the last fit that told gains
         self.taken: list[tuple[float, tuple[float, float]]] = []   # (when, gains) each fit
