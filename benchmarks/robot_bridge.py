@@ -16,8 +16,8 @@ import os
 from pathlib import Path
 import tempfile
 
+from curve_formation.run.run_experiment import run_experiment
 from curve_formation.run.run_options import RunOptions
-from curve_formation.run.runner import run_experiment
 
 
 def quiet(*_):

@@ -7,8 +7,8 @@ new process, one process per node, a private domain) and reads /proc every `ever
 (MB) of the runner and of each node process it started. Printed: one row per reading, then
 per process its RSS after the first `--warm-up` s and at the end and the difference. Goal
 (issue #38): the runner flat within 20 MB over 30 minutes; the nodes flat too. With --bag the
-run records its bag (about 440 MB an hour), as `scripts/demo` does. test/test_soak.py runs it
-behind -m slow.
+run records its bag (about 440 MB an hour), as `scripts/demo` does.
+test/processes/test_soak.py runs it behind -m slow.
 """
 
 import argparse

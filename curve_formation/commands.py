@@ -87,8 +87,8 @@ def cmd_demo(args):
 
 
 def cmd_run(args):
+    from curve_formation.run.run_experiment import run_experiment
     from curve_formation.run.run_options import RunOptions
-    from curve_formation.run.runner import run_experiment
     _bridge_needs_simulated_robots(args)
     warn(load_experiment(resolve_config(args.config)))
     only = _parts(args.only)

@@ -71,3 +71,16 @@ def clean(quiet=False):
     status = subprocess.run(fastdds_tool_command('shm', 'clean'), check=False,
                             capture_output=quiet, timeout=60).returncode
     return status, remove_orphan_ports()
+
+
+def remove_dead_shared_memory():
+    """Remove the Fast DDS shared-memory files that no live process holds (clean):
+    what node processes that died or were killed left in /dev/shm. Under
+    ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST rmw_fastrtps gives every participant a
+    shared-memory transport, whatever the profile says (docs/arena-setup.md).
+    """
+    try:
+        clean(quiet=True)
+    except (OSError, subprocess.SubprocessError):
+        pass   # no fastdds tool here: `curve-formation clean-shm` says so when asked
+

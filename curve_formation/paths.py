@@ -3,6 +3,7 @@
 from contextlib import contextmanager
 import os
 from pathlib import Path
+import random
 import sys
 
 
@@ -52,6 +53,18 @@ def use_discovery(env, isolated=True):
                              'discover nothing in that range; unset it or set SUBNET')
     elif isolated:
         env[RANGE_ENV] = 'LOCALHOST'
+
+
+def run_domain_id(isolated):
+    """The ROS_DOMAIN_ID of a run: isolated, a random one in 1..101 of its own; otherwise the
+    caller's, ROS's default 0 when unset (ValueError for one that is not a domain id).
+    """
+    if isolated:
+        return random.SystemRandom().randint(1, 101)
+    given = os.environ.get('ROS_DOMAIN_ID', '').strip() or '0'
+    if not given.isdigit() or not 0 <= int(given) <= 232:
+        raise ValueError(f'ROS_DOMAIN_ID={given!r}: expected a domain id 0..232 (or unset: 0)')
+    return int(given)
 
 
 @contextmanager

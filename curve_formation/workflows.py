@@ -103,8 +103,8 @@ def run_demo(out: Path, duration: float) -> None:
 
     from curve_formation.results.outputs import write_law_comparison
     from curve_formation.results.report import write_report
+    from curve_formation.run.run_experiment import run_experiment
     from curve_formation.run.run_options import RunOptions
-    from curve_formation.run.runner import run_experiment
     summary: dict[str, Any] = {'paper_cases_batch_simulation': {}}
     print("1/3 batch simulation of the paper's cases, with the paper's law and with ours")
     for name in PAPER_CASES:

@@ -9,6 +9,7 @@ import pytest
 import yaml
 
 
+ROOT = Path(__file__).resolve().parent.parent   # the project
 sys.path.insert(0, str(Path(__file__).parent))
 # test support: code the tests run in the package's place (e.g. a lossy controller)
 SUPPORT = Path(__file__).resolve().parent / 'support'
@@ -23,23 +24,35 @@ use_dds_profile()   # as the CLI and every node do, before any ROS context in th
 os.environ['ROS_DOMAIN_ID'] = str(random.SystemRandom().randint(102, 200))
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
-CONFIG_DIR = Path(__file__).resolve().parent.parent / 'config'
+CONFIG_DIR = ROOT / 'config'
+
+
+TIERS = ('pure', 'in_process', 'processes')
 
 
 def pytest_collection_modifyitems(items):
-    """A test on a ROS context or domain of its own is a `ros` test, whether or not its module
-    says so: the default run (scripts/test) spreads the tests marked `not ros` over the cores
-    and runs the `ros` ones one at a time, their nodes having the machine to themselves.
-    Within them, the tiers: `in_process` (rclpy nodes on a context of the test's own, the
-    `ros` fixture) and `processes` (the others: node processes on a private domain).
+    """A test's folder is its tier, and its markers: pure/ (no DDS; the default run,
+    scripts/test, spreads them over the cores), in_process/ (rclpy nodes on a context of the
+    test's own, the `ros` fixture) and processes/ (node processes on a private domain); the
+    last two are also `ros`, run one at a time, their nodes having the machine to themselves.
+    A test whose fixtures say another tier than its folder is refused at collection.
     """
+    misplaced = []
     for item in items:
+        tier = item.path.parent.name
         fixtures = set(getattr(item, 'fixturenames', ()))
-        if {'ros', 'ros_domain'} & fixtures:
+        says = ('in_process' if 'ros' in fixtures
+                else 'processes' if 'ros_domain' in fixtures else None)
+        if tier not in TIERS or (says is not None and says != tier) or (
+                tier == 'in_process' and says is None):
+            misplaced.append(f'{item.nodeid}: in {tier}/, its fixtures say '
+                             f'{says or "no ros context"}')
+        item.add_marker(tier)
+        if tier != 'pure':
             item.add_marker(pytest.mark.ros)
-        if item.get_closest_marker('ros') is not None:
-            item.add_marker(pytest.mark.in_process if 'ros' in fixtures
-                            else pytest.mark.processes)
+    if misplaced:
+        raise pytest.UsageError('tests in the wrong tier folder (test/pure, test/in_process, '
+                                'test/processes):\n  ' + '\n  '.join(misplaced))
 
 
 @pytest.fixture
@@ -123,13 +136,67 @@ def ros(ros_domain):
     rclpy.try_shutdown(context=context)
 
 
+@pytest.fixture
+def ros_env(ros_domain):
+    """The environment for a process of this test's, on its private domain."""
+    return dict(os.environ)
+
+
+@pytest.fixture(scope='session')
+def colcon_install(tmp_path_factory):
+    """colcon build of a copy of the tracked sources; returns the install prefix."""
+    import shutil
+    import subprocess
+
+    if shutil.which('colcon') is None:
+        pytest.fail('colcon is not installed: run the tests through scripts/test')
+    ws = tmp_path_factory.mktemp('ws')
+    files = subprocess.run(['git', 'ls-files', '--cached', '--others', '--exclude-standard'],
+                           cwd=ROOT, capture_output=True, text=True, check=True).stdout.split()
+    for name in files:
+        if (ROOT / name).is_file():
+            (ws / 'src' / 'curve_formation' / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(ROOT / name, ws / 'src' / 'curve_formation' / name)
+    proc = subprocess.run(['colcon', 'build', '--base-paths', 'src'], cwd=ws,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    return ws / 'install' / 'curve_formation'
+
+
+@pytest.fixture(scope='session')
+def params_dir(tmp_path_factory):
+    """What `curve-formation params arena_demo --out DIR` writes: DIR."""
+    import subprocess
+
+    out = tmp_path_factory.mktemp('params')
+    proc = subprocess.run([sys.executable, '-m', 'curve_formation.cli', 'params', 'arena_demo',
+                           '--out', str(out)], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    return out
+
+
+@pytest.fixture(scope='session')
+def recorded(tmp_path_factory):
+    """A 6 s run of the fast closed-curve experiment, recorded to a sqlite3 bag (the MCAP
+    default is recorded by test_analysis): (its folder, its results as the run wrote them).
+    """
+    from curve_formation.run.run_options import RunOptions
+    from curve_formation.run.runner import Run
+
+    folder = tmp_path_factory.mktemp('recorded')
+    saved = os.environ['ROS_DOMAIN_ID']   # conftest's, for this test session
+    os.environ['ROS_DOMAIN_ID'] = str(private_domain())
+    options = RunOptions(bag_path=folder / 'bag', bag_storage='sqlite3')
+    with Run(DATA_DIR / 'fast_closed.yaml', folder / 'run', options, log=lambda *_: None) as run:
+        run.spin_for(6.0)
+        live = run.write_results()
+    os.environ['ROS_DOMAIN_ID'] = saved
+    return folder, live
+
+
 def pytest_sessionfinish(session, exitstatus):
     """Remove the Fast DDS shared-memory files that the runs' hard kills left in /dev/shm
     (what `curve-formation clean-shm` does), so that test runs do not fill it.
     """
-    import contextlib
-    import subprocess
-
-    from curve_formation.dds_shm import clean
-    with contextlib.suppress(OSError, subprocess.SubprocessError):
-        clean(quiet=True)
+    from curve_formation.dds_shm import remove_dead_shared_memory
+    remove_dead_shared_memory()

@@ -316,3 +316,15 @@ def node_class(module):
     """
     loaded = importlib.import_module(module)
     return getattr(loaded, NODES[module][0]) if module in NODES else loaded.NODE_CLASS
+
+
+def held_robots(key):
+    """The robots whose nodes a node process held, by its key: [3] for robot_3.<node>,
+    [5, 6, 7, 8] for a group of controllers controllers_5-8, [] for the team's nodes.
+    """
+    if key.startswith(CONTROLLER_GROUP):
+        first, _, last = key[len(CONTROLLER_GROUP):].partition('-')
+        return list(range(int(first), int(last) + 1))
+    robot = robot_index(key)
+    return [] if robot is None else [robot]
+

@@ -4,17 +4,15 @@ Writes one parameters file per node into OUT/params/ (launches.py), starts every
 own process or all in one executor (node_graph.py), waits until every robot's pose and every
 controller's cmd_vel is seen, then starts the curve server (t = 0). The runner's own monitor
 (and recorder, with a bag) sample the run (observers.py); at the end, or on Ctrl-C, every node
-is stopped with SIGINT and metrics and figures are written.
+is stopped with SIGINT and metrics and figures are written (run_experiment.py: the command's
+run to its end, signals and results).
 """
 
 from contextlib import ExitStack
 import dataclasses
 import json
-import os
 from pathlib import Path
-import random
 import shutil
-import signal
 import threading
 import time
 
@@ -24,19 +22,19 @@ from curve_formation.bags.analysis import bag_accounting, RUN_END_KEY
 from curve_formation.bags.bag import BagWriter
 from curve_formation.core.config.experiment import phase_index
 from curve_formation.core.config.loading import control_rate, load_experiment
-from curve_formation.interface import robot_index
+from curve_formation.dds_shm import remove_dead_shared_memory
 from curve_formation.nodes.runtime import now_seconds
 from curve_formation.nodes.topics import CURVE, DIAGNOSTICS
-from curve_formation.paths import discovery_text, resolve_config, ros_environment
+from curve_formation.paths import discovery_text, resolve_config, ros_environment, run_domain_id
 from curve_formation.results.outputs import write_outputs
 from curve_formation.results.provenance import provenance_text
 from curve_formation.run.fleet_status import FleetStatus
 from curve_formation.run.launches import (
     BRIDGE,
     bridged_fleet,
-    CONTROLLER_GROUP,
     grouped,
     GroupLaunch,
+    held_robots,
     node_launches,
     part_of,
     poses_in_one_message,
@@ -50,10 +48,10 @@ from curve_formation.run.preflight import (
     PreflightResult,
     run_preflight,
 )
-from curve_formation.run.run_options import DEFAULTS, ROBOT_FAULTS
+from curve_formation.run.run_options import DEFAULTS
 from curve_formation.run.run_record import measured, status_line, STATUS_PERIOD
 from curve_formation.run.start_scripts import write_node_files
-from curve_formation.run.team_file import write_team_file
+from curve_formation.run.team_file import faults_of_team, write_team_file
 
 
 READY_TIMEOUT = 90.0   # s; nine Python processes start in ~10 s on two cores
@@ -64,39 +62,10 @@ FORMATION_CHECK = 3.0
 # s between those looks while the run waits for its robots (a graph query: not after every
 # message)
 FORMATION_LOOK_PERIOD = 0.2
-# s a host without the observer keeps its nodes up after the run's duration (split runs)
-SPLIT_GRACE = 10.0
-
-
-def run_domain_id(isolated):
-    """The ROS_DOMAIN_ID of a run: isolated, a random one in 1..101 of its own; otherwise the
-    caller's, ROS's default 0 when unset (ValueError for one that is not a domain id).
-    """
-    if isolated:
-        return random.SystemRandom().randint(1, 101)
-    given = os.environ.get('ROS_DOMAIN_ID', '').strip() or '0'
-    if not given.isdigit() or not 0 <= int(given) <= 232:
-        raise ValueError(f'ROS_DOMAIN_ID={given!r}: expected a domain id 0..232 (or unset: 0)')
-    return int(given)
 
 
 class FormationRunningError(ValueError):
     """A curve server already serves a formation on the run's domain."""
-
-
-def remove_dead_shared_memory():
-    """Remove the Fast DDS shared-memory files that no live process holds (dds_shm.clean):
-    what node processes that died or were killed left in /dev/shm. Under
-    ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST rmw_fastrtps gives every participant a
-    shared-memory transport, whatever the profile says (docs/arena-setup.md).
-    """
-    import subprocess
-
-    from curve_formation.dds_shm import clean
-    try:
-        clean(quiet=True)
-    except (OSError, subprocess.SubprocessError):
-        pass   # no fastdds tool here: `curve-formation clean-shm` says so when asked
 
 
 class Run:
@@ -292,7 +261,7 @@ class Run:
                     'team': {str(new): old for new, old in enumerate(kept, 1)}}
         number = {old: new for new, old in enumerate(kept, 1)}
         options = dataclasses.replace(self.options, allow_missing=frozenset(),
-                                      faults=_faults_of_team(self.options.faults, number))
+                                      faults=faults_of_team(self.options.faults, number))
         self._setup(path, options)
         self.left_out = left_out
         self._start()
@@ -495,102 +464,3 @@ class Run:
                 phase_index([p.start for p in phases], t))
 
 
-
-def _faults_of_team(faults, number):
-    """The simulated robots' faults (RunOptions.faults) of a team renumbered by `number`
-    ({robot of the file: robot of the team}): a left-out robot's dropped.
-    """
-    if not faults:
-        return faults
-    out = dict(faults)
-    for key in ROBOT_FAULTS:
-        if key in out:
-            out[key] = [number[i] for i in out[key] if i in number]
-    if 'link_down' in out:
-        robot, *when = out['link_down']
-        if robot != 0 and int(robot) not in number:
-            del out['link_down']
-        elif robot != 0:
-            out['link_down'] = [number[int(robot)], *when]
-    return out
-
-
-def held_robots(key):
-    """The robots whose nodes a node process held, by its key: [3] for robot_3.<node>,
-    [5, 6, 7, 8] for a group of controllers controllers_5-8, [] for the team's nodes.
-    """
-    if key.startswith(CONTROLLER_GROUP):
-        first, _, last = key[len(CONTROLLER_GROUP):].partition('-')
-        return list(range(int(first), int(last) + 1))
-    robot = robot_index(key)
-    return [] if robot is None else [robot]
-
-
-def run_experiment(config, out_dir, duration=None, options=DEFAULTS, log=print):
-    """Run an experiment's node graph for `duration` s (default: the file's) and measure it.
-
-    Ctrl-C (SIGINT) and SIGTERM stop every node and close the bag; both only set
-    Run.stop_requested, acted on between callbacks (see Run.spin_until). A node that dies
-    does not end the run (Run._on_death; result['node_deaths']). An unexpected error of the
-    runner itself still stops the nodes, closes the bag and writes what was measured (with
-    result['runner_error']) before it is raised again.
-    """
-    run = Run(config, out_dir, options, log)
-    duration = run.experiment.spec.simulation.duration if duration is None else duration
-    if not options.runs('observer'):   # outlast the host that measures, which stops us
-        duration += SPLIT_GRACE
-    previous = {sig: signal.signal(sig, lambda *_: run.stop_requested.set())
-                for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        return _run_and_measure(run, duration, options, log)
-    finally:
-        run.stop()   # after the results are written: letting go of DDS can hang
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-
-
-def _run_and_measure(run, duration, options, log):
-    """run_experiment's run, then its results written (the nodes stopped and the bag closed
-    in between, Run.wind_down).
-    """
-    interrupted = False
-    failure = None
-    started = False
-    try:
-        run.start()
-        started = True
-        run.spin_for(duration, STATUS_PERIOD)
-    except KeyboardInterrupt:
-        interrupted = True
-        log('interrupted: stopping every node')
-    except Exception as exc:  # noqa: BLE001 - written down below, then raised again
-        if not started:
-            raise
-        failure = exc
-        log(f'error in the runner: {type(exc).__name__}: {exc}; stopping every node and '
-            'writing what was measured')
-    finally:
-        run.wind_down()
-    if not options.runs('observer'):
-        return {'experiment': run.experiment.name, 'interrupted': interrupted,
-                'parts': sorted(options.only or ())}
-    try:
-        experiment, record, result = run.measure()
-    except RuntimeError:
-        if failure is None:
-            raise
-        raise failure from None   # nothing recorded: the runner's error is what matters
-    result['interrupted'] = interrupted
-    result['node_deaths'] = [{'node': key, 't': t, 'how': how, 'robots': held_robots(key)}
-                             for t, key, how in run.monitor.node_deaths]
-    if failure is not None:
-        result['runner_error'] = f'{type(failure).__name__}: {failure}'
-    if options.bag_path is not None:
-        assert run.bag_writer is not None   # a run with a bag_path writes one
-        result['bag'] = {'path': str(options.bag_path), 'messages': run.bag_writer.count,
-                         **run.bag_accounting()}
-    write_outputs(run.out, experiment, record, result, run.experiment_path, label='ROS run',
-                  animate=options.animate)
-    if failure is not None:
-        raise failure
-    return result

@@ -9,6 +9,7 @@ import yaml
 from curve_formation.core.config.errors import ConfigError
 from curve_formation.core.config.loading import load_experiment, parse_experiment_text
 from curve_formation.core.config.team import without_robots
+from curve_formation.run.run_options import ROBOT_FAULTS
 
 
 def write_team_file(experiment_path, missing, path):
@@ -38,3 +39,23 @@ def write_team_file(experiment_path, missing, path):
                           f"(the team's agents 1..{len(kept)} are the file's robots "
                           f'{", ".join(map(str, kept))})') from None
     return path
+
+
+def faults_of_team(faults, number):
+    """The simulated robots' faults (RunOptions.faults) of a team renumbered by `number`
+    ({robot of the file: robot of the team}): a left-out robot's dropped.
+    """
+    if not faults:
+        return faults
+    out = dict(faults)
+    for key in ROBOT_FAULTS:
+        if key in out:
+            out[key] = [number[i] for i in out[key] if i in number]
+    if 'link_down' in out:
+        robot, *when = out['link_down']
+        if robot != 0 and int(robot) not in number:
+            del out['link_down']
+        elif robot != 0:
+            out['link_down'] = [number[int(robot)], *when]
+    return out
+

@@ -1,0 +1,61 @@
+"""Controllers grouped into few processes (run --controllers-per-process, nodes.node_group):
+the default group size for a team, the same groups in params and the launch file, and a
+group file without nodes refused.
+"""
+
+
+import yaml
+
+from curve_formation.run.launches import held_robots
+from curve_formation.run.run_options import GROUP_MOST, MOST_GROUPS, RunOptions, SOLO_TEAM
+
+
+def test_the_default_groups_any_team_up_to_100_into_at_most_16_participants():
+    """One process per controller up to SOLO_TEAM robots; past it one group per core, at
+    most GROUP_MOST controllers each and 16 participants in all, on any PC.
+    """
+    options = RunOptions()
+    assert [options.group_size(n) for n in (1, 9, SOLO_TEAM)] == [1, 1, 1]
+    for cores in (1, 2, 4, 16, 64):
+        for n in range(SOLO_TEAM + 1, 101):
+            size = options.group_size(n, cores)
+            groups = -(-n // size)
+            # with the curve server, the robots (a fake arena or the bridges' PC), the runner
+            assert groups + 3 <= 16 and size <= max(GROUP_MOST, -(-n // MOST_GROUPS)), (
+                n, cores, size)
+            assert groups >= min(cores, -(-n // GROUP_MOST)), (n, cores, size)
+    assert options.group_size(50, 2) == 25 and options.group_size(100, 2) == 25
+    assert RunOptions(controllers_per_process=4).group_size(9) == 4
+    assert RunOptions(single_process=True, controllers_per_process=4).group_size(9) == 1
+    assert held_robots('controllers_5-8') == [5, 6, 7, 8]
+    assert held_robots('robot_3.formation_controller') == [3] and held_robots('curve_server') == []
+
+
+def test_params_and_the_launch_file_group_the_controllers_as_run_does(tmp_path):
+    from curve_formation.cli import main
+    from curve_formation.run.start_scripts import graph_starts
+    assert main(['params', 'arena_demo', '--out', str(tmp_path), '--controllers-per-process',
+                 '4']) == 0
+    lines = (tmp_path / 'start_controllers.sh').read_text().splitlines()
+    groups = [line for line in lines if line.startswith('ros2 run')]
+    assert groups == [f'ros2 run curve_formation node_group "$HERE/params/controllers_{k}'
+                      '.group.yaml" &' for k in ('1-4', '5-8', '9-9')]
+    group = yaml.safe_load((tmp_path / 'params' / 'controllers_5-8.group.yaml').read_text())
+    assert [entry['params_file'] for entry in group] == [
+        f'robot_{i}.formation_controller.yaml' for i in (5, 6, 7, 8)]
+    assert all((tmp_path / 'params' / entry['params_file']).exists() for entry in group)
+    starts = graph_starts('arena_demo', tmp_path / 'launch', controllers_per_process=4)
+    grouped = [start for start in starts if start.arguments]
+    assert [start.name for start in grouped] == ['controllers_1-4', 'controllers_5-8',
+                                                 'controllers_9-9']
+    assert all(start.executable == 'node_group' for start in grouped)
+    assert not any(start.executable == 'formation_controller' for start in starts)
+
+
+def test_a_group_file_that_lists_no_nodes_is_refused_naming_it(tmp_path, capsys):
+    from curve_formation.nodes.node_group import main
+    path = tmp_path / 'group.yaml'
+    path.write_text('- {module: x}\n')
+    assert main(['node_group', str(path)]) == 2
+    assert f'{path}: expected a list of {{class, module, namespace, params_file}}' in \
+        capsys.readouterr().err
