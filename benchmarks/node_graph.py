@@ -1,5 +1,5 @@
 """ROS node graph timing: N fake robots + N controllers, one process each, controllers
-grouped into few processes (run's default past 12 robots) or all in one.
+grouped into few processes (run's default: one group per core) or all in one.
 
 Run: scripts/bench node_graph [--sizes 9 16 25 50] [--seconds 15]
                               [--modes multi grouped single] [--avoidance]

@@ -1,6 +1,6 @@
 """How a run scales with the team: N simulated robots (one kinematic fake arena, bodies and
-the safety filter on, a generated closed curve) in the default mode (controllers grouped past
-12 robots) and in one process.
+the safety filter on, a generated closed curve) in the default mode (controllers in one group
+per core) and in one process.
 
 Run: scripts/bench scale [--sizes 9 25 50 100] [--seconds 30] [--modes grouped single]
 

@@ -123,8 +123,9 @@ def build_parser():
     run.add_argument('--controllers-per-process', type=_at_least_one, metavar='K',
                      help='K controllers share each process (one context and executor, as a '
                      'component container): a team of N needs about N/K DDS participants; '
-                     'default 1 up to 12 robots, beyond that one group per core of this PC, '
-                     'at most 25 controllers and 13 groups')
+                     'default one group per core of this PC (1 where the team has no more '
+                     'robots than cores), at most 25 controllers and 13 groups; 1: a process '
+                     'each, a crash stops one robot')
     run.add_argument('--bag', help='record a ROS 2 bag at this new path')
     _animate_option(run)
     run.add_argument('--bag-storage', choices=tuple(STORAGES), default=DEFAULT_STORAGE,

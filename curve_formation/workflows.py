@@ -113,8 +113,8 @@ def run_demo(out: Path, duration: float) -> None:
                                    heading=heading)
             summary['paper_cases_batch_simulation'].setdefault(name, {})[law] = data
             print('    ' + summary_line(f'{name} ({law})', data))
-    print(f'2/3 ROS 2 run of {DEMO_RUN}: 9 robots in one fake arena, 9 controllers, curve server, '
-          f'one process each ({duration:g} s)')
+    print(f'2/3 ROS 2 run of {DEMO_RUN}: 9 robots in one fake arena, 9 controllers '
+          f'(one group per core), curve server ({duration:g} s)')
     run_dir = out / DEMO_RUN
     result = run_experiment(DEMO_RUN, run_dir, duration,
                             RunOptions(bag_path=run_dir / 'bag', isolated=True, animate=True),

@@ -28,8 +28,8 @@ ARGUMENTS = (
     ('camera', 'false', 'true: poses from camera_tracker (the experiment needs `camera`)'),
     ('bridge', '', "'', udp or pty: each cmd_vel through a robot_bridge"),
     ('observer', 'false', 'true: curve-formation run --only observer measures the run'),
-    ('controllers_per_process', '', "K controllers share each process ('': 1 up to 12 "
-     'robots, beyond that one group per core, at most 25 controllers and 13 groups)'),
+    ('controllers_per_process', '', "K controllers share each process ('': one group per "
+     'core, at most 25 controllers and 13 groups; 1: a process each)'),
 )
 
 

@@ -165,12 +165,15 @@ def colcon_install(tmp_path_factory):
 
 @pytest.fixture(scope='session')
 def params_dir(tmp_path_factory):
-    """What `curve-formation params arena_demo --out DIR` writes: DIR."""
+    """What `curve-formation params arena_demo --out DIR --controllers-per-process 1` writes
+    (a parameters file and a start line per node, on any PC): DIR.
+    """
     import subprocess
 
     out = tmp_path_factory.mktemp('params')
     proc = subprocess.run([sys.executable, '-m', 'curve_formation.cli', 'params', 'arena_demo',
-                           '--out', str(out)], capture_output=True, text=True, timeout=60)
+                           '--out', str(out), '--controllers-per-process', '1'],
+                          capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stderr
     return out
 

@@ -80,18 +80,16 @@ class RunOptions:
         return self.only is None or part in self.only
 
     def group_size(self, n: int, cores: int | None = None) -> int:
-        """Controllers per process for a team of n: as asked, else one each up to
-        SOLO_TEAM robots; beyond that one group per core of this PC (`cores`; None: those
-        this process may use), at most GROUP_MOST controllers each and at most MOST_GROUPS
-        groups (with the curve server, the robots and the runner, 16 DDS participants). 1 in
-        a single-process run (every node shares it anyway).
+        """Controllers per process for a team of n: as asked, else one group per core of
+        this PC (`cores`; None: those this process may use; one controller each where the
+        team has no more robots than cores), at most GROUP_MOST controllers each and at most
+        MOST_GROUPS groups (with the curve server, the robots and the runner, 16 DDS
+        participants). 1 in a single-process run (every node shares it anyway).
         """
         if self.single_process:
             return 1
         if self.controllers_per_process is not None:
             return self.controllers_per_process
-        if n <= SOLO_TEAM:
-            return 1
         cores = cores or (len(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity')
                           else os.cpu_count() or 1)
         return max(math.ceil(n / MOST_GROUPS), min(GROUP_MOST, math.ceil(n / cores)))
@@ -108,16 +106,19 @@ class RunOptions:
 # The faults of RunOptions.faults that name robots (fake_arena's fault_<name>): silent,
 # runaway and hidden.
 ROBOT_FAULTS = ('silent', 'runaway', 'hidden')
-# The largest team whose controllers each run in a process of their own by default (past it,
-# grouped: RunOptions.group_size); measured: one process per node holds 10 Hz up to 16 robots
-# on 2 cores, 25 miss ticks (docs/performance.md).
+# The largest team whose simulated robots each run a fake_robot process of their own (past
+# it, they share one fake_arena: a process per robot costs a DDS participant and a Python
+# interpreter each).
 SOLO_TEAM = 12
-# Past it, one group per core, each at most GROUP_MOST controllers (a crash takes down no
-# more than these), at most MOST_GROUPS groups. Measured on 2 cores (docs/performance.md):
+# The controllers: one group per core, each at most GROUP_MOST controllers (a crash takes
+# down no more than these), at most MOST_GROUPS groups. Every process pays its own start
+# (rclpy, numba: ~1 s of a core) and its own copy of every message it reads, and a message
+# between processes costs ~0.1 ms of a core per reader where one within a process costs a
+# few us. Measured on 2 cores (docs/performance.md): 9 robots' controllers and fake robots
+# take 2.1-3.0 % of a core per robot in 1 or 2 groups, 5.9-6.0 % one process each;
 # 50 robots in 2 processes of 25 hold 10 Hz with p99 jitter 13-14 ms and take 2.2 % of a
 # core each, first curve at 5.2 s; in 10 processes of 5, 22-24 ms, 2.9 % and 9-11 s; 100 in
-# 4 processes of 25 hold 9.7 Hz, in 12 of 9 they fell to 2.8 Hz. Every process pays its own
-# start (rclpy, numba: ~1 s of a core) and its own copy of every message it reads.
+# 4 processes of 25 hold 9.7 Hz, in 12 of 9 they fell to 2.8 Hz.
 GROUP_MOST = 25
 MOST_GROUPS = 13
 PARTS = ('curve_server', 'controllers', 'robots', 'camera', 'observer')

@@ -119,8 +119,8 @@ def test_bad_messages_of_every_family_kill_no_node_and_the_formation_goes_on(ros
     is complete. The monitor refuses the poses the controllers refuse (1e300 m), so the run's
     metrics are not made of them (they overflowed the error norm before).
     """
-    with Run(DATA_DIR / 'fast_closed.yaml', tmp_path, RunOptions(bag_path=tmp_path / 'bag'),
-             log=lambda *_: None) as run:
+    with Run(DATA_DIR / 'fast_closed.yaml', tmp_path, RunOptions(
+            bag_path=tmp_path / 'bag', controllers_per_process=1), log=lambda *_: None) as run:
         run.spin_for(1.0)
         fuzzer = Fuzzer(run.observers.context)
         run.observers.add_node(fuzzer)

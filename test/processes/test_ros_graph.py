@@ -192,8 +192,8 @@ def test_a_start_that_times_out_stops_the_nodes_it_started(tmp_path, ros_domain,
     monkeypatch.setattr(node_graph.subprocess, 'Popen', recording_popen)
     lines = []
     with pytest.raises(TimeoutError, match='pose') as failed:
-        with Run(DATA_DIR / 'fast_closed.yaml', tmp_path, RunOptions(with_robots=False),
-                 log=lines.append):
+        with Run(DATA_DIR / 'fast_closed.yaml', tmp_path, RunOptions(
+                with_robots=False, controllers_per_process=1), log=lines.append):
             pass
     assert len(started) == 6   # the controllers; the curve server was never reached
     assert all(proc.poll() is not None for proc in started)

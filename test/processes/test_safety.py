@@ -127,7 +127,9 @@ def test_estop_a_killed_follower_and_the_killed_leader_each_stop_whom_they_shoul
     driver's watchdog) and, restarted, rejoins; the killed leader stops every follower within
     its leader timeout (leader_timeout, plus the relay its hops from the leader may take).
     """
-    with Run(DATA_DIR / 'fast_closed.yaml', tmp_path, log=quiet) as run:
+    # a process per controller, so that one can be killed alone
+    with Run(DATA_DIR / 'fast_closed.yaml', tmp_path, RunOptions(controllers_per_process=1),
+             log=quiet) as run:
         commands = CommandLog(run.observers.context, 6)
         run.observers.add_node(commands.node)
         run.spin_for(2.0)
@@ -335,8 +337,8 @@ def test_estop_cli_stops_all_nine_robots_at_once_holds_them_and_releases(ros_dom
     test_estop_a_killed_follower_and_the_killed_leader_each_stop_whom_they_should.)
     """
     import time as clock
-    with Run(CONFIG_DIR / 'arena_demo.yaml', tmp_path, RunOptions(bag_path=tmp_path / 'bag'),
-             log=quiet) as run:
+    with Run(CONFIG_DIR / 'arena_demo.yaml', tmp_path, RunOptions(
+            bag_path=tmp_path / 'bag', controllers_per_process=1), log=quiet) as run:
         log = CommandLog(run.observers.context, 9)
         run.observers.add_node(log.node)
         run.spin_until(lambda: (run.monitor.recording.last('t') or 0.0) >= 5.0,

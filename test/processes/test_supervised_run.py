@@ -45,7 +45,8 @@ def test_a_controller_killed_hard_leaves_metrics_a_bag_and_an_exit_status_naming
     before = set(os.listdir('/dev/shm'))
     proc = subprocess.Popen([sys.executable, '-m', 'curve_formation.cli', 'run',
                              str(DATA_DIR / 'fast_closed.yaml'), '--out', str(out),
-                             '--duration', '8', '--bag', str(bag)],
+                             '--duration', '8', '--bag', str(bag),
+                             '--controllers-per-process', '1'],   # robot_3's own process
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env=dict(os.environ, PYTHONUNBUFFERED='1'))
     try:

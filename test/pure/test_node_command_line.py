@@ -177,7 +177,8 @@ def launched(launch_file, **arguments):
 
 
 def test_the_launch_file_starts_the_graph_params_writes(launch_file, params_dir, tmp_path):
-    actions = launched(launch_file, experiment='arena_demo', out=str(tmp_path))
+    actions = launched(launch_file, experiment='arena_demo', out=str(tmp_path),
+                       controllers_per_process='1')
     nodes = [(a.kwargs['executable'], a.kwargs['namespace']) for a in actions]
     script = (params_dir / 'start_all.sh').read_text()
     lines = [line for line in script.splitlines() if line.startswith('ros2 run')]

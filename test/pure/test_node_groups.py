@@ -7,17 +7,18 @@ group file without nodes refused.
 import yaml
 
 from curve_formation.run.launches import held_robots
-from curve_formation.run.run_options import GROUP_MOST, MOST_GROUPS, RunOptions, SOLO_TEAM
+from curve_formation.run.run_options import GROUP_MOST, MOST_GROUPS, RunOptions
 
 
 def test_the_default_groups_any_team_up_to_100_into_at_most_16_participants():
-    """One process per controller up to SOLO_TEAM robots; past it one group per core, at
-    most GROUP_MOST controllers each and 16 participants in all, on any PC.
+    """One group per core (one controller each where the team has no more robots than
+    cores), at most GROUP_MOST controllers each and 16 participants in all, on any PC.
     """
     options = RunOptions()
-    assert [options.group_size(n) for n in (1, 9, SOLO_TEAM)] == [1, 1, 1]
+    assert [options.group_size(n, 2) for n in (1, 2, 3, 9)] == [1, 1, 2, 5]
+    assert [options.group_size(n, 16) for n in (9, 13, 14)] == [1, 1, 2]   # <= 13 groups
     for cores in (1, 2, 4, 16, 64):
-        for n in range(SOLO_TEAM + 1, 101):
+        for n in range(1, 101):
             size = options.group_size(n, cores)
             groups = -(-n // size)
             # with the curve server, the robots (a fake arena or the bridges' PC), the runner
