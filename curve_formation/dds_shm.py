@@ -83,4 +83,3 @@ def remove_dead_shared_memory():
         clean(quiet=True)
     except (OSError, subprocess.SubprocessError):
         pass   # no fastdds tool here: `curve-formation clean-shm` says so when asked
-

@@ -327,4 +327,3 @@ def held_robots(key):
         return list(range(int(first), int(last) + 1))
     robot = robot_index(key)
     return [] if robot is None else [robot]
-

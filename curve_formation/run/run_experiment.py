@@ -16,7 +16,6 @@ from curve_formation.run.runner import Run
 SPLIT_GRACE = 10.0
 
 
-
 def run_experiment(config, out_dir, duration=None, options=DEFAULTS, log=print):
     """Run an experiment's node graph for `duration` s (default: the file's) and measure it.
 
@@ -38,7 +37,6 @@ def run_experiment(config, out_dir, duration=None, options=DEFAULTS, log=print):
         run.stop()   # after the results are written: letting go of DDS can hang
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-
 
 
 def _run_and_measure(run, duration, options, log):
@@ -86,4 +84,3 @@ def _run_and_measure(run, duration, options, log):
     if failure is not None:
         raise failure
     return result
-

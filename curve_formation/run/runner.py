@@ -462,5 +462,3 @@ class Run:
         phases = self.monitor.followed_phases()
         return (dataclasses.replace(self.experiment, phases=phases),
                 phase_index([p.start for p in phases], t))
-
-

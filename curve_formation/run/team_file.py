@@ -58,4 +58,3 @@ def faults_of_team(faults, number):
         elif robot != 0:
             out['link_down'] = [number[int(robot)], *when]
     return out
-

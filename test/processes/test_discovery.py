@@ -84,8 +84,6 @@ def test_a_discovery_server_with_a_local_range_is_refused():
     assert 'ROS_AUTOMATIC_DISCOVERY_RANGE' not in env
 
 
-
-
 def test_a_runs_environment_is_given_back_after_it(monkeypatch):
     monkeypatch.setenv('ROS_DOMAIN_ID', '7')
     monkeypatch.delenv('ROS_AUTOMATIC_DISCOVERY_RANGE', raising=False)
@@ -114,4 +112,3 @@ def test_a_run_takes_the_callers_domain_and_an_isolated_one_a_private_domain(mon
     monkeypatch.setenv('ROS_DOMAIN_ID', 'lab')
     with pytest.raises(ValueError, match="ROS_DOMAIN_ID='lab': expected a domain id"):
         run_domain_id(False)
-

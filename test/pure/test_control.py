@@ -263,4 +263,3 @@ def test_the_tail_ends_a_lone_robots_approach_sooner_than_the_linear_law():
                 + math.log(radius / gain ** 2 / 1e-4) / (k1 * gain))
     assert tailed == pytest.approx(expected, rel=1e-2)
     assert tailed < 0.5 * linear
-

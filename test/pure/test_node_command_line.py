@@ -133,7 +133,6 @@ def test_params_with_an_observer_waits_for_it_and_measures(tmp_path):
     assert 'the observer ends the run' in (tmp_path / 'start_all.sh').read_text()
 
 
-
 class Recorded:
     """Stands in for a launch action or substitution: keeps what it was built with."""
 
