@@ -78,8 +78,10 @@ def test_the_graph_started_by_its_ros2_run_lines_settles_as_run_does(colcon_inst
     env = installed_env(colcon_install)
     env['PATH'] = f'{bin_dir}{os.pathsep}{Path(sys.executable).parent}{os.pathsep}{env["PATH"]}'
     command = str(find_executable(colcon_install, 'curve-formation'))
+    # a `ros2 run` line per node (a process each, on any PC), and `run` alike
     proc = subprocess.run([command, 'params', 'arena_demo', '--out', str(tmp_path / 'byhand'),
-                           '--observer'], env=env, capture_output=True, text=True, timeout=60)
+                           '--observer', '--controllers-per-process', '1'], env=env,
+                          capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stderr
     started = subprocess.run(['bash', str(tmp_path / 'byhand' / 'start_all.sh')], env=env,
                              capture_output=True, text=True, timeout=400)
@@ -87,7 +89,8 @@ def test_the_graph_started_by_its_ros2_run_lines_settles_as_run_does(colcon_inst
     assert 'ros2 run curve_formation formation_controller' in (
         tmp_path / 'byhand' / 'start_all.sh').read_text()
     by_hand = json.loads((tmp_path / 'byhand' / 'run' / 'metrics.json').read_text())
-    proc = subprocess.run([command, 'run', 'arena_demo', '--out', str(tmp_path / 'run')],
+    proc = subprocess.run([command, 'run', 'arena_demo', '--out', str(tmp_path / 'run'),
+                           '--controllers-per-process', '1'],
                           env=env, capture_output=True, text=True, timeout=400)
     assert proc.returncode == 0, proc.stderr[-3000:]
     reference = json.loads((tmp_path / 'run' / 'metrics.json').read_text())
