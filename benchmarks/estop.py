@@ -2,7 +2,8 @@
 
 Run: scripts/bench estop [--tries 20] [--modes processes single]
 
-For each mode (one process per node, or every node in one process), one run of the arena
+For each mode (run's default: a process per node, the controllers grouped by core; or every
+node in one process), one run of the arena
 demo (9 robots, fake arena); `tries` times: `estop on` is started as a user starts it (a new
 Python process), then `estop off` once it has exited. Printed per mode, median and max over
 the tries, in seconds:

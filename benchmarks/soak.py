@@ -75,7 +75,8 @@ def measure(minutes, experiment='arena_demo', every=60.0, warm_up=60.0, bag=Fals
     """
     out = Path(tempfile.mkdtemp(prefix='soak-'))
     command = [sys.executable, '-m', 'curve_formation.cli', 'run', experiment, '--isolated',
-               '--duration', f'{minutes * 60:g}', '--out', str(out / 'run')]
+               '--duration', f'{minutes * 60:g}', '--out', str(out / 'run'),
+               '--controllers-per-process', '1']   # every node's memory on its own
     if bag:
         command += ['--bag', str(out / 'bag')]
     log(f'{" ".join(command[2:])}  (outputs in {out})')
