@@ -9,10 +9,12 @@ import pytest
 import yaml
 
 
-ROOT = Path(__file__).resolve().parent.parent   # the project
-sys.path.insert(0, str(Path(__file__).parent))
-# test support: code the tests run in the package's place (e.g. a lossy controller)
-SUPPORT = Path(__file__).resolve().parent / 'support'
+TESTS = Path(__file__).resolve().parent
+ROOT = TESTS.parent   # the project
+sys.path.insert(0, str(TESTS))
+# test support: what tests of several tiers share, and code the tests run in the package's
+# place (e.g. a lossy controller)
+SUPPORT = TESTS / 'support'
 sys.path.insert(0, str(SUPPORT))
 
 from curve_formation.paths import use_dds_profile  # noqa: E402
@@ -55,6 +57,10 @@ def pytest_collection_modifyitems(items):
                                 'test/processes):\n  ' + '\n  '.join(misplaced))
 
 
+def quiet(*_):
+    """A log (a run's, a pre-flight's) that says nothing."""
+
+
 @pytest.fixture
 def closed_curve_dict():
     """The shipped closed-curve experiment as a plain dict (a fresh copy per test)."""
@@ -74,7 +80,7 @@ def paper_arena():
     data = yaml.safe_load((CONFIG_DIR / 'mona_arena.yaml').read_text())
     return build_experiment(as_in_the_paper(data), 'mona_arena (paper agents and graph)')
 
-DATA_DIR = Path(__file__).resolve().parent / 'data'
+DATA_DIR = TESTS / 'data'
 
 
 def no_history_qos():

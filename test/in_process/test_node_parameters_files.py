@@ -7,9 +7,6 @@ import math
 from curve_formation.paths import resolve_config
 
 
-ARENA_DEMO = resolve_config('arena_demo')
-
-
 def test_a_generated_file_applies_under_the_namespace_the_user_chooses(params_dir, ros):
     from curve_formation.nodes.formation_controller import FormationController
     context, add, _ = ros
@@ -21,5 +18,5 @@ def test_a_generated_file_applies_under_the_namespace_the_user_chooses(params_di
     # file -> parameters file (as rcl reads it, no limit as .inf) -> node: the same controller
     from curve_formation.core.config.agents import agent_configs
     from curve_formation.core.config.loading import load_experiment
-    assert node.config == agent_configs(load_experiment(ARENA_DEMO), 10.0)[2]
+    assert node.config == agent_configs(load_experiment(resolve_config('arena_demo')), 10.0)[2]
     assert node.config.limits.max_angular_rate == math.inf

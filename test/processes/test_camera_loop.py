@@ -7,7 +7,7 @@ import re
 import numpy as np
 import pytest
 
-from conftest import DATA_DIR
+from conftest import DATA_DIR, quiet
 from curve_formation.core.record import metrics
 from curve_formation.core.sim.batch import simulate
 from curve_formation.run.run_options import RunOptions
@@ -15,10 +15,6 @@ from curve_formation.run.runner import Run
 
 
 EXPERIMENT = DATA_DIR / 'camera_loop.yaml'
-
-
-def quiet(*_):
-    pass
 
 
 def error_norms(run, data, key):

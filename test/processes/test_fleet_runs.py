@@ -14,14 +14,12 @@ import pytest
 import yaml
 
 from cases import lab_dict
+from conftest import quiet
 from curve_formation.run.preflight import PreflightError
 from curve_formation.run.run_options import RunOptions
 
 
 # -- against fake_arena's emulated robots, through real links and DDS ------------------------
-
-def quiet(_):
-    pass
 
 
 def longest_stand(t, xy, tolerance):

@@ -11,14 +11,11 @@ import pytest
 from test_safety import estop_cli
 import yaml
 
+from conftest import quiet
 from curve_formation.core.config.loading import load_experiment
 from curve_formation.nodes import topics
 from curve_formation.run.run_options import RunOptions
 from curve_formation.run.runner import Run
-
-
-def quiet(_):
-    pass
 
 
 def test_grouped_controllers_drive_the_team_and_a_group_that_dies_is_named(ros_domain,

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from conftest import DATA_DIR
+from conftest import DATA_DIR, quiet
 from curve_formation.core.record import metrics
 from curve_formation.core.sim.batch import simulate
 from curve_formation.run.run_experiment import run_experiment
@@ -18,10 +18,6 @@ def ros_error_norm(run, data):
     followed, phase = run.followed(data['t'])
     return metrics.error_norm(metrics.target_errors(data['poses'], phase, followed,
                                                     t=data['t']))
-
-
-def quiet(*_):
-    pass
 
 
 # The batch simulator ticks every controller at the same instant; the nodes tick at the same

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from std_msgs.msg import Bool
 
-from conftest import CONFIG_DIR, DATA_DIR, no_history_qos, SUPPORT
+from conftest import CONFIG_DIR, DATA_DIR, no_history_qos, quiet, SUPPORT
 from curve_formation.core.config.agents import leader_relays
 from curve_formation.core.config.loading import load_experiment
 from curve_formation.core.record import metrics
@@ -27,10 +27,6 @@ import node_faults
 
 
 PERIOD = 0.1
-
-
-def quiet(*_):
-    pass
 
 
 def wait_for(run, predicate, what, timeout=5.0):

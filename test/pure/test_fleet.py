@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from cases import lab_dict
-from conftest import CONFIG_DIR
+from conftest import CONFIG_DIR, quiet
 from curve_formation.core.config.errors import ConfigError
 from curve_formation.core.config.loading import build_experiment
 from curve_formation.core.config.team import without_robots
@@ -185,9 +185,6 @@ def test_start_scripts_run_the_preflight_before_any_bridge(tmp_path):
 
 
 # -- against fake_arena's emulated robots, through real links and DDS ------------------------
-
-def quiet(_):
-    pass
 
 
 def test_run_preflight_over_real_links_refuses_a_camera_without_its_calibration():
