@@ -3,6 +3,7 @@ the safety filter on, a generated closed curve) in the default mode (controllers
 per core) and in one process.
 
 Run: scripts/bench scale [--sizes 9 25 50 100] [--seconds 30] [--modes grouped single]
+     [--realtime-priority P]
 
 For each N and mode it prints: achieved control rate (Hz) of the slowest controller and the
 1st percentile over the robots, period jitter p99 (ms, worst robot), CPU per robot (% of one
@@ -28,13 +29,15 @@ from curve_formation.run.runner import Run
 MODES = {'grouped': {}, 'single': {'single_process': True}}
 
 
-def measure(n, mode, seconds, folder):
-    """One run of n robots in `mode`: the row this benchmark prints."""
+def measure(n, mode, seconds, folder, priority=0):
+    """One run of n robots in `mode` (its controllers at SCHED_FIFO `priority`, 0: normal
+    scheduling): the row this benchmark prints.
+    """
     path = experiment_file(n, folder, avoidance=True)
     began = time.monotonic()
     with quiet_stderr(Path(folder) / f'nodes_{n}_{mode}.log'), \
-            Run(path, Path(folder) / f'run_{n}_{mode}', RunOptions(isolated=True,
-                                                                  **MODES[mode]),
+            Run(path, Path(folder) / f'run_{n}_{mode}', RunOptions(
+                isolated=True, realtime_priority=priority, **MODES[mode]),
                 log=lambda *_: None) as run:
         to_first_curve = time.monotonic() - began
         pids = [p.pid for p in run.processes.values()] + [os.getpid()]
@@ -56,6 +59,8 @@ def main():
     parser.add_argument('--sizes', type=int, nargs='+', default=[9, 25, 50, 100])
     parser.add_argument('--seconds', type=float, default=30.0)
     parser.add_argument('--modes', nargs='+', default=list(MODES), choices=list(MODES))
+    parser.add_argument('--realtime-priority', type=int, default=0,
+                        help="the controllers' SCHED_FIFO priority (run --realtime-priority)")
     args = parser.parse_args()
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     print(f'{"N":>4s} {"mode":>8s} {"Hz min":>7s} {"Hz p1":>6s} {"jitter p99 ms":>13s} '
@@ -64,7 +69,7 @@ def main():
         for n in args.sizes:
             for mode in args.modes:
                 try:
-                    r = measure(n, mode, args.seconds, folder)
+                    r = measure(n, mode, args.seconds, folder, args.realtime_priority)
                 except (TimeoutError, RuntimeError) as exc:
                     print(f'{n:4d} {mode:>8s} failed: {str(exc).splitlines()[0]}', flush=True)
                     continue

@@ -66,6 +66,22 @@ def not_negative(text):
     return value
 
 
+def _realtime_option(parser):
+    parser.add_argument('--realtime-priority', type=_priority, default=0, metavar='P',
+                        help="the controllers' processes take SCHED_FIFO priority P (1-99) so "
+                        'that a busy PC cannot delay their ticks (needs root, CAP_SYS_NICE or '
+                        'an rtprio limit; else a note in their logs and normal scheduling); '
+                        'for a PC with spare cores: an overloaded one starves the rest of the '
+                        'run (docs/performance.md); default 0, normal scheduling')
+
+
+def _priority(text):
+    value = int(text)
+    if not 0 <= value <= 99:
+        raise argparse.ArgumentTypeError(f'expected 0 to 99, got {value}')
+    return value
+
+
 def _at_least_one(text):
     """argparse type: an integer >= 1."""
     try:
@@ -126,6 +142,7 @@ def build_parser():
                      'default one group per core of this PC (1 where the team has no more '
                      'robots than cores), at most 25 controllers and 13 groups; 1: a process '
                      'each, a crash stops one robot')
+    _realtime_option(run)
     run.add_argument('--bag', help='record a ROS 2 bag at this new path')
     _animate_option(run)
     run.add_argument('--bag-storage', choices=tuple(STORAGES), default=DEFAULT_STORAGE,
@@ -177,6 +194,7 @@ def build_parser():
     params.add_argument('--camera', action='store_true', help='poses from camera_tracker')
     params.add_argument('--controllers-per-process', type=_at_least_one, metavar='K',
                         help='K controllers share each process (see run)')
+    _realtime_option(params)
     params.add_argument('--bridge', choices=('udp', 'pty'),
                         help='each cmd_vel through a robot_bridge (see run --bridge)')
     params.add_argument('--observer', action='store_true',

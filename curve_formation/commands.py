@@ -102,6 +102,7 @@ def cmd_run(args):
                          physics=args.physics, animate=args.animate,
                          preflight=not args.no_preflight,
                          controllers_per_process=args.controllers_per_process,
+                         realtime_priority=args.realtime_priority,
                          allow_missing=frozenset(_agents(args.allow_missing, '--allow-missing')
                                                  or ()))
     result = run_experiment(args.config, args.out, args.duration, options)
@@ -134,7 +135,8 @@ def cmd_params(args):
     observed = args.observer or args.bag is not None
     experiment, launches = graph_launches(path, out, not args.no_sim, args.camera, args.bridge,
                                           args.rate, args.bag, observed, args.physics,
-                                          args.controllers_per_process)
+                                          args.controllers_per_process,
+                                          args.realtime_priority)
     run_args = None
     if observed:
         run_args = [str(path)] + (['--rate', f'{args.rate:g}'] if args.rate else []) \

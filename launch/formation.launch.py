@@ -5,7 +5,8 @@ Arguments: experiment (a YAML path or shipped name), out (where the nodes' param
 go; default /tmp/curve_formation/<experiment>), sim (true: fake robots; false: real robots
 publish /robot_<i>/pose), camera (true: poses from camera_tracker), bridge ('', udp or pty),
 observer (true: `curve-formation run --only observer` measures the run into OUT/run and the
-curve server waits for it), controllers_per_process (K controllers to a process, node_group).
+curve server waits for it), controllers_per_process (K controllers to a process, node_group),
+realtime_priority (the controllers' processes' SCHED_FIFO priority, 0: normal scheduling).
 The nodes and their parameters come from the same generator as
 `curve-formation params` and `run` (curve_formation.run.start_scripts.graph_starts).
 """
@@ -30,6 +31,8 @@ ARGUMENTS = (
     ('observer', 'false', 'true: curve-formation run --only observer measures the run'),
     ('controllers_per_process', '', "K controllers share each process ('': one group per "
      'core, at most 25 controllers and 13 groups; 1: a process each)'),
+    ('realtime_priority', '0', "SCHED_FIFO priority (1-99) of the controllers' processes; "
+     '0: normal scheduling (see curve-formation run --help)'),
 )
 
 
@@ -43,7 +46,8 @@ def _nodes(context):
                           camera=arg('camera') == 'true', bridge=arg('bridge') or None,
                           observed=observed,
                           controllers_per_process=int(arg('controllers_per_process') or 0)
-                          or None)
+                          or None,
+                          realtime_priority=int(arg('realtime_priority') or 0))
     actions = [Node(package='curve_formation', executable=start.executable,
                     arguments=list(start.arguments), output='screen') if start.arguments
                else Node(package='curve_formation', executable=start.executable,

@@ -31,6 +31,7 @@ class NodeCommandLine:
     namespace: str          # '/' unless `-r __ns:=...`
     name: str               # the node's name, or what `-r __node:=...` renames it to
     params_files: tuple     # paths given with --params-file
+    overrides: tuple = ()   # (name, value as YAML text) of each `-p NAME:=VALUE`
 
     @property
     def fully_qualified_name(self) -> str:
@@ -42,7 +43,7 @@ def parse(argv: Sequence[str], default_name: str) -> 'NodeCommandLine':
     args = list(argv[1:])
     ros = args.index('--ros-args') if '--ros-args' in args else len(args)
     before, after = args[:ros], args[ros + 1:]
-    namespace, name, files = '/', default_name, []
+    namespace, name, files, overrides = '/', default_name, [], []
     k = 0
     while k < len(after):
         word = after[k]
@@ -58,25 +59,54 @@ def parse(argv: Sequence[str], default_name: str) -> 'NodeCommandLine':
         elif word == '--params-file' and k + 1 < len(after):
             k += 1
             files.append(after[k])
+        elif word in ('-p', '--param') and k + 1 < len(after):
+            k += 1
+            overrides.append(tuple(after[k].split(':=', 1)))
         k += 1
     return NodeCommandLine(help=any(w in ('-h', '--help') for w in before),
-                           namespace=namespace, name=name, params_files=tuple(files))
+                           namespace=namespace, name=name, params_files=tuple(files),
+                           overrides=tuple(o for o in overrides if len(o) == 2))
 
 
-def node_keys(document: dict[str, Any]) -> list[str]:
-    """The node keys of a parameters file's mapping: each path of mapping keys down to a
-    `ros__parameters` entry, joined by '/' (rcl allows nesting namespaces as mappings).
+def parameter_value(command_line: 'NodeCommandLine', name: str, default: Any) -> Any:
+    """The value a node will be given for parameter `name` before ROS starts (e.g. to set up
+    its process): the last `-p name:=VALUE`, else the last of its parameters files that sets
+    it under a key matching the node, else `default`. Files are read as check_params_files
+    left them (it runs first).
     """
-    keys = []
+    for key, text in reversed(command_line.overrides):
+        if key == name:
+            return yaml.safe_load(text)
+    value = default
+    for path in command_line.params_files:
+        document = yaml.safe_load(Path(path).read_text())
+        for key, parameters in node_entries(document):
+            if key_pattern(key).match(command_line.fully_qualified_name) and isinstance(
+                    parameters, dict):
+                value = parameters.get(name, value)
+    return value
+
+
+def node_entries(document: dict[str, Any]) -> list[tuple[str, Any]]:
+    """(node key, its `ros__parameters` mapping) of each entry of a parameters file's mapping:
+    the key is the path of mapping keys down to it, joined by '/' (rcl allows nesting
+    namespaces as mappings).
+    """
+    entries = []
 
     def walk(mapping: dict[str, Any], path: list[str]) -> None:
         for key, value in mapping.items():
             if key == 'ros__parameters':
-                keys.append('/'.join(path))
+                entries.append(('/'.join(path), value))
             elif isinstance(value, dict):
                 walk(value, path + [str(key).strip('/')])
     walk(document, [])
-    return keys
+    return entries
+
+
+def node_keys(document: dict[str, Any]) -> list[str]:
+    """The node keys of a parameters file's mapping (node_entries)."""
+    return [key for key, _ in node_entries(document)]
 
 
 def key_pattern(key: str) -> 're.Pattern[str]':

@@ -21,12 +21,13 @@ from rclpy.parameter import Parameter
 import yaml
 
 from curve_formation.nodes.params import ParameterError
-from curve_formation.nodes.runtime import run_nodes
+from curve_formation.nodes.runtime import checked_priority, run_nodes
 from curve_formation.nodes.shared_readers import readers_shared
 
 
 NODE_NAME = 'node_group'   # also its console script's name
 FIELDS = {'module', 'class', 'namespace', 'params_file'}   # of each node a group lists
+PRIORITY = 'realtime_priority'   # a node's parameter: its process's SCHED_FIFO priority
 
 
 def group_entries(path: str | Path) -> list[dict[str, str]]:
@@ -74,8 +75,15 @@ def main(args: list[str] | None = None) -> int:
     folder = Path(argv[1]).resolve().parent
     entries = [{**entry, 'params_file': str(folder / entry['params_file'])}
                for entry in entries]
+    try:   # the process's priority: the highest its nodes ask (run_nodes)
+        priority = max(checked_priority(PRIORITY, node_parameters(e['params_file']).get(
+            PRIORITY, 0)) for e in entries)
+    except ParameterError as exc:
+        print(f'error: {exc}', file=sys.stderr)
+        return 2
     with readers_shared():   # one subscription per broadcast topic for all its nodes
-        return run_nodes([partial(make_node, entry) for entry in entries], argv[2:] or None)
+        return run_nodes([partial(make_node, entry) for entry in entries], argv[2:] or None,
+                         priority=priority)
 
 
 if __name__ == '__main__':

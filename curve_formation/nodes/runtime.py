@@ -22,7 +22,12 @@ from rclpy.publisher import Publisher
 from rclpy.signals import SignalHandlerOptions
 
 from curve_formation.bags.streams import stream_key
-from curve_formation.nodes.command_line import check_params_files, help_text, parse
+from curve_formation.nodes.command_line import (
+    check_params_files,
+    help_text,
+    parameter_value,
+    parse,
+)
 from curve_formation.nodes.params import ParameterError
 from curve_formation.paths import use_dds_profile
 
@@ -91,7 +96,7 @@ def now_seconds(node: Node) -> float:
 
 
 def run_node(node_factory: Callable[..., Node], args: list[str] | None = None,
-             large_data: bool = False) -> int:
+             large_data: bool = False, priority_parameter: str | None = None) -> int:
     """Create the node, spin it until Ctrl-C, SIGTERM or shutdown, then shut it down cleanly.
 
     `--help` prints the node's parameters (nodes.command_line) and returns 0. A parameters
@@ -102,8 +107,11 @@ def run_node(node_factory: Callable[..., Node], args: list[str] | None = None,
     down first) is replaced. Once the node runs, SIGINT and SIGTERM only set a flag that ends
     the spin loop: an exception raised inside an rclpy call (e.g. while a message is being
     converted) would come out as a RuntimeError, not as an interrupt.
+    priority_parameter: the node's parameter (in its module's PARAMETERS) that gives its
+    process's SCHED_FIFO priority, read from the command line before ROS starts (run_nodes).
     """
     module = inspect.getmodule(node_factory)
+    priority = 0
     name = getattr(module, 'NODE_NAME', None)   # a node module's (its console script's)
     if name is not None:
         command_line = parse(sys.argv if args is None else args, name)
@@ -112,18 +120,32 @@ def run_node(node_factory: Callable[..., Node], args: list[str] | None = None,
             return 0
         try:
             check_params_files(command_line)
+            if priority_parameter is not None:
+                (declared,) = [p for p in getattr(module, 'PARAMETERS', ())
+                               if p.name == priority_parameter]
+                priority = checked_priority(priority_parameter, parameter_value(
+                    command_line, priority_parameter, declared.default))
         except ParameterError as exc:
             print(f'error: {exc}', file=sys.stderr)
             return 2
-    return run_nodes([node_factory], args, large_data)
+    return run_nodes([node_factory], args, large_data, priority)
 
 
 def run_nodes(node_factories: Sequence[Callable[..., Node]], args: list[str] | None = None,
-              large_data: bool = False) -> int:
+              large_data: bool = False, priority: int = 0) -> int:
     """run_node's life (signals, shutdown hooks, a bounded exit) for several nodes in one
     process: one context and one executor, as a ROS component container holds them.
+
+    priority: SCHED_FIFO priority (1-99) the process takes before ROS starts, so that every
+    thread it starts (DDS, the executor's timers) has it too; 0 = normal scheduling. Refused
+    (no permission): a note on stderr, and the process runs at normal priority.
     """
     use_dds_profile(large_data=large_data)   # before the first ROS context; see paths
+    why_not = realtime_process(priority)
+    if why_not:
+        print(f'note: realtime priority {priority} not taken ({why_not}; it needs root, '
+              'CAP_SYS_NICE or an rtprio limit): running at normal priority, where a busy '
+              'PC delays the ticks (docs/performance.md)', file=sys.stderr)
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop = threading.Event()
     # Installed explicitly: a process started from a background job inherits SIGINT ignored.
@@ -173,6 +195,16 @@ def run_nodes(node_factories: Sequence[Callable[..., Node]], args: list[str] | N
     return status
 
 
+def checked_priority(name: str, value: Any) -> int:
+    """`value` of parameter `name` as a SCHED_FIFO priority 0-99 (0: normal scheduling);
+    ParameterError naming the parameter otherwise.
+    """
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 99:
+        raise ParameterError(f'parameter {name!r}: expected an integer from 0 (normal '
+                             f'scheduling) to 99, got {value!r}')
+    return value
+
+
 def realtime_priority(priority: int) -> str | None:
     """Schedule the calling thread SCHED_FIFO at `priority` (1-99), so that processes woken
     around it (a busy PC's other nodes, the kernel's tty work) cannot delay what it does
@@ -186,6 +218,21 @@ def realtime_priority(priority: int) -> str | None:
     except OSError as exc:
         return exc.strerror or str(exc)
     return None
+
+
+def realtime_process(priority: int) -> str | None:
+    """realtime_priority for every thread this process has (e.g. the BLAS threads numpy's
+    import starts) and so for every thread started from them later; None, or why not.
+    """
+    why_not = realtime_priority(priority)
+    if why_not is None and priority > 0:
+        for thread in os.listdir('/proc/self/task'):
+            try:
+                os.sched_setscheduler(int(thread), os.SCHED_FIFO, os.sched_param(priority))
+            except OSError as exc:   # ended meanwhile, or refused
+                if Path(f'/proc/self/task/{thread}').exists():
+                    return exc.strerror or str(exc)
+    return why_not
 
 
 def _exit_hard_after(seconds: float) -> None:

@@ -96,7 +96,8 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None,
                       # compiled once a process for the controllers that share one
                       'compiled_law': grouped or options.single_process,
                       # a group's poses in one message (a fake arena's, a camera tracker's)
-                      'pose_from_all': grouped and all_poses}
+                      'pose_from_all': grouped and all_poses,
+                      'realtime_priority': options.realtime_priority}
         module = 'curve_formation.nodes.formation_controller'
         launches.append(NodeLaunch(module, ns, 'formation_controller', controller,
                                    (options.node_variants or {}).get(module, '')))

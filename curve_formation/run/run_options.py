@@ -46,6 +46,9 @@ class RunOptions:
     animate: also write animation.mp4 of the run beside its figures (figures.animation).
     controllers_per_process: controllers sharing one process (one context and executor, as a
         component container; nodes.node_group); None: group_size's choice from the team.
+    realtime_priority: SCHED_FIFO priority (1-99) of the controllers' processes (their
+        `realtime_priority` parameter), so that a busy PC cannot delay their ticks; 0 = normal
+        scheduling. Not for a single-process run (the runner's own process).
     preflight: check every robot behind a link before the formation starts (run.preflight;
         runs with robot bridges only). allow_missing: robots (1-based) that may fail it: the
         run then goes on without them (the team renumbered, core.config.team).
@@ -72,6 +75,7 @@ class RunOptions:
     physics: str | None = None
     animate: bool = False
     controllers_per_process: int | None = None
+    realtime_priority: int = 0
     preflight: bool = True
     allow_missing: frozenset[int] = frozenset()
 

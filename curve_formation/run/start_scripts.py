@@ -193,7 +193,7 @@ class NodeStart:
 
 def graph_launches(experiment_path, folder, with_robots=True, camera=False, bridge=None,
                    rate_hz=None, bag_path=None, observed=False, physics=None,
-                   controllers_per_process=None):
+                   controllers_per_process=None, realtime_priority=0):
     """(Experiment, [NodeLaunch]) of an experiment file's graph for `params` and the launch
     file, as `run` builds it (launches.node_launches; a bridge's links in folder/links).
     observed: a `curve-formation run --only observer` (with bag_path, its recorder too) will
@@ -207,7 +207,8 @@ def graph_launches(experiment_path, folder, with_robots=True, camera=False, brid
     experiment = load_experiment(experiment_path)
     options = RunOptions(with_robots=with_robots, camera={} if camera else None,
                          bridge=bridge, rate_hz=rate_hz, bag_path=bag_path, physics=physics,
-                         controllers_per_process=controllers_per_process)
+                         controllers_per_process=controllers_per_process,
+                         realtime_priority=realtime_priority)
     return experiment, node_launches(experiment, experiment_path, options,
                                       Path(folder) / 'links', observed=observed)
 

@@ -20,16 +20,20 @@ from curve_formation.run.runner import Run
 
 def test_grouped_controllers_drive_the_team_and_a_group_that_dies_is_named(ros_domain,
                                                                           tmp_path):
-    """arena_demo's nine controllers in three processes of three: every robot is driven from
-    them; `estop on` and `off` reach all nine; killing the group of robots 4-6 is reported
-    with its robots; robots 1-3 drive on (robots 7-9, which hear from 5 and 6, stop for a
-    missing neighbour, as they should).
+    """arena_demo's nine controllers in three processes of three, at realtime priority 10
+    (every thread of each group's process is SCHED_FIFO, from its start): every robot is
+    driven from them; `estop on` and `off` reach all nine; killing the group of robots 4-6
+    is reported with its robots; robots 1-3 drive on (robots 7-9, which hear from 5 and 6,
+    stop for a missing neighbour, as they should).
     """
-    options = RunOptions(controllers_per_process=3)
+    options = RunOptions(controllers_per_process=3, realtime_priority=10)
     said = []
     with Run('arena_demo', tmp_path, options, log=said.append) as run:
         keys = sorted(k for k in run.processes if 'controller' in k)
         assert keys == ['controllers_1-3', 'controllers_4-6', 'controllers_7-9'], keys
+        for key in keys:
+            assert_realtime(run.processes[key].pid, 10, tmp_path / 'logs' / f'{key}.log')
+        assert os.sched_getscheduler(run.processes['curve_server'].pid) == os.SCHED_OTHER
         run.spin_for(4.0)
         # every robot's pose is read once a group (shared_readers), by the monitor and by
         # the curve server (waiting for the poses)
@@ -62,6 +66,20 @@ def test_grouped_controllers_drive_the_team_and_a_group_that_dies_is_named(ros_d
     assert (commands[late][:, :3] > 0).any(axis=0).all()   # their group drives on
 
 
+def assert_realtime(pid, priority, log):
+    """Every thread of process `pid` is SCHED_FIFO at `priority`; or, where this PC refuses
+    realtime scheduling (no root, no CAP_SYS_NICE), the process says so in its log.
+    """
+    threads = [int(t) for t in os.listdir(f'/proc/{pid}/task')]
+    assert len(threads) > 3   # DDS's and the executor's threads, not just the main one
+    if os.sched_getscheduler(pid) != os.SCHED_FIFO:
+        assert f'realtime priority {priority} not taken' in log.read_text()
+        return
+    for thread in threads:
+        assert os.sched_getscheduler(thread) == os.SCHED_FIFO, thread
+        assert os.sched_getparam(thread).sched_priority == priority, thread
+
+
 def chain_team(n, folder):
     """n robots in a chain (1 -> 2 -> ... -> n, nothing else: the leader's news crosses
     n - 1 hops; each follower also steers by its own target, pinning 1 as in arena_demo)
@@ -88,17 +106,20 @@ def chain_team(n, folder):
     return path
 
 
-@pytest.mark.slow   # about 80 s: run with -m slow
-def test_fifty_robots_in_a_chain_hold_10_hz_and_settle(ros_domain, tmp_path, capfd):
+@pytest.mark.slow   # about 80 s each: run with -m slow
+@pytest.mark.parametrize('priority', [0, 10], ids=['normal', 'realtime'])
+def test_fifty_robots_in_a_chain_hold_10_hz_and_settle(ros_domain, tmp_path, capfd, priority):
     """50 robots in a chain, their controllers grouped as run groups them by default (at
-    most 16 DDS participants with the runner): every controller ticks at 9.9 Hz or more over
+    most 16 DDS participants with the runner), at normal scheduling and at realtime priority
+    10 (`run --realtime-priority 10`): every controller ticks at 9.9 Hz or more over
     60 s, no follower stops for want of news of the leader once it has had some (the news is
     relayed on receipt, the timeout allows for the chain's depth), and the formation
     settles. The period jitter is measured, not asserted: docs/performance.md.
     """
     path = chain_team(50, tmp_path)
     assert load_experiment(path).warnings == (), load_experiment(path).warnings
-    with Run(path, tmp_path / 'run', RunOptions(), log=quiet) as run:
+    with Run(path, tmp_path / 'run', RunOptions(realtime_priority=priority),
+             log=quiet) as run:
         assert len(run.processes) + 1 <= 16, sorted(run.processes)
         run.spin_for(60.0)
         _, _, result = run.measure()

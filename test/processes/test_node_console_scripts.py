@@ -2,8 +2,10 @@
 the fix.
 """
 
+import signal
 import subprocess
 import sys
+import time
 
 
 def test_a_missing_required_parameter_is_one_line_naming_the_fix(ros_domain):
@@ -13,3 +15,28 @@ def test_a_missing_required_parameter_is_one_line_naming_the_fix(ros_domain):
     assert proc.stderr.strip().count('\n') == 0, proc.stderr
     assert "parameter 'index' is required" in proc.stderr
     assert '`-p index:=VALUE`' in proc.stderr and 'curve-formation params' in proc.stderr
+
+
+def test_a_controller_started_alone_takes_its_realtime_priority_before_ros(ros_domain,
+                                                                         tmp_path):
+    """`ros2 run curve_formation formation_controller ... -p realtime_priority:=12`: the
+    process and every thread it has (DDS's, the executor's) run SCHED_FIFO at 12 (or, where
+    this PC refuses it, the log says so) once it runs (stopped: no curve yet).
+    """
+    from test_grouped_controllers import assert_realtime
+    log = tmp_path / 'controller.log'
+    with open(log, 'w') as out:
+        proc = subprocess.Popen(
+            [sys.executable, '-m', 'curve_formation.nodes.formation_controller', '--ros-args',
+             '-r', '__ns:=/robot_1', '-p', 'index:=1', '-p', 'agent_count:=1',
+             '-p', 'role:=leader', '-p', 'realtime_priority:=12'],
+            stdout=out, stderr=subprocess.STDOUT)
+    try:
+        deadline = time.monotonic() + 30.0
+        while 'no curve received yet' not in log.read_text() and time.monotonic() < deadline:
+            assert proc.poll() is None, log.read_text()
+            time.sleep(0.2)
+        assert_realtime(proc.pid, 12, log)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=20)

@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from conftest import ROOT
-from curve_formation.nodes.command_line import key_pattern, node_keys, parse
+from curve_formation.nodes.command_line import key_pattern, node_keys, parameter_value, parse
 from curve_formation.nodes.docs import NODES
 from curve_formation.paths import resolve_config
 
@@ -197,3 +197,32 @@ def test_the_launch_file_with_an_observer_measures_the_run(launch_file, tmp_path
                            str(tmp_path / 'run'), '--force', '--no-sim']
     assert command[0].args == ('curve-formation', 'curve_formation')
     assert not any(a.kwargs.get('executable') == 'fake_arena' for a in actions[1:])
+
+
+def test_a_parameter_is_read_before_ros_starts_as_rcl_will_give_it(tmp_path):
+    """What a process sets up before ROS starts (its realtime priority) is read as the node
+    will get it: the last `-p` wins over the files, a later file over an earlier one, a key
+    for another node is not this one's, and nothing given leaves the default.
+    """
+    first, second = tmp_path / 'a.yaml', tmp_path / 'b.yaml'
+    first.write_text(yaml.safe_dump({'/**/formation_controller': {
+        'ros__parameters': {'realtime_priority': 5, 'index': 3}}}))
+    second.write_text(yaml.safe_dump({
+        'robot_3': {'formation_controller': {'ros__parameters': {'realtime_priority': 7}}},
+        '/robot_4/formation_controller': {'ros__parameters': {'realtime_priority': 9}}}))
+    argv = ['formation_controller', '--ros-args', '-r', '__ns:=/robot_3', '--params-file',
+            str(first), '--params-file', str(second)]
+    assert parameter_value(parse(argv, 'formation_controller'), 'realtime_priority', 0) == 7
+    line = parse(argv + ['-p', 'realtime_priority:=12', '-p', 'realtime_priority:=11'],
+                 'formation_controller')
+    assert parameter_value(line, 'realtime_priority', 0) == 11
+    assert parameter_value(parse(argv[:5], 'formation_controller'), 'realtime_priority', 0) == 0
+    assert parameter_value(parse(argv[:7], 'formation_controller'), 'realtime_priority', 0) == 5
+
+
+def test_a_realtime_priority_out_of_range_stops_the_controller_naming_it(capsys):
+    from curve_formation.nodes.formation_controller import main
+    status = main(['formation_controller', '--ros-args', '-p', 'realtime_priority:=120'])
+    assert status == 2
+    assert "parameter 'realtime_priority': expected an integer from 0 (normal scheduling) " \
+        'to 99, got 120' in capsys.readouterr().err

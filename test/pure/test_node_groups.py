@@ -36,7 +36,7 @@ def test_params_and_the_launch_file_group_the_controllers_as_run_does(tmp_path):
     from curve_formation.cli import main
     from curve_formation.run.start_scripts import graph_starts
     assert main(['params', 'arena_demo', '--out', str(tmp_path), '--controllers-per-process',
-                 '4']) == 0
+                 '4', '--realtime-priority', '15']) == 0
     lines = (tmp_path / 'start_controllers.sh').read_text().splitlines()
     groups = [line for line in lines if line.startswith('ros2 run')]
     assert groups == [f'ros2 run curve_formation node_group "$HERE/params/controllers_{k}'
@@ -45,6 +45,9 @@ def test_params_and_the_launch_file_group_the_controllers_as_run_does(tmp_path):
     assert [entry['params_file'] for entry in group] == [
         f'robot_{i}.formation_controller.yaml' for i in (5, 6, 7, 8)]
     assert all((tmp_path / 'params' / entry['params_file']).exists() for entry in group)
+    controller = yaml.safe_load((tmp_path / 'params' / 'robot_5.formation_controller.yaml')
+                                .read_text())['/**/formation_controller']['ros__parameters']
+    assert controller['realtime_priority'] == 15   # the group takes it (node_group)
     starts = graph_starts('arena_demo', tmp_path / 'launch', controllers_per_process=4)
     grouped = [start for start in starts if start.arguments]
     assert [start.name for start in grouped] == ['controllers_1-4', 'controllers_5-8',
