@@ -11,6 +11,7 @@ run to its end, signals and results).
 from contextlib import ExitStack
 import dataclasses
 import json
+import os
 from pathlib import Path
 import shutil
 import threading
@@ -195,6 +196,23 @@ class Run:
         self.spin_until(lambda: self.monitor.t0 is not None, READY_TIMEOUT, 'the first curve')
         self.log('curve server started: t = 0' if options.runs('curve_server')
                  else 'first curve received: t = 0')
+        if options.realtime_priority and not options.single_process:
+            self._say_priority(options.realtime_priority)
+
+    def _say_priority(self, priority):
+        """Say whether the controllers' processes took the realtime priority asked (a
+        process that could not says why in its log).
+        """
+        normal = []
+        for key, proc in self.processes.items():
+            try:
+                if 'controller' in key and os.sched_getscheduler(proc.pid) != os.SCHED_FIFO:
+                    normal.append(key)
+            except OSError:   # ended meanwhile: its death is reported
+                pass
+        self.log(f'realtime priority {priority} not taken by {", ".join(sorted(normal))} '
+                 '(their logs say why): they run at normal priority' if normal else
+                 f'controllers at realtime priority {priority}')
 
     def _start_moving(self, moving):
         """Start the bridges, then the controllers: a process each, or grouped

@@ -13,6 +13,7 @@ import yaml
 
 from conftest import DATA_DIR, private_domain
 from curve_formation.bags.analysis import analyze_bag, load_bag_run
+from curve_formation.core.config.experiment import DEFAULT_POSE_RATE
 from curve_formation.run.run_options import RunOptions
 from curve_formation.run.runner import Run
 
@@ -51,12 +52,15 @@ def test_analysis_of_the_bag_reproduces_the_runs_own_metrics(switched, tmp_path)
     # Each rounds the moment the error settles up to its own sampling grid: the analysis's
     # regular grid from t = 0, the monitor's timer, whose samples skipped while its process
     # was held up (nodes/monitor.py _sample) widen a gap to several periods. So they differ
-    # by less than the analysis's period before, or the monitor's gap there after.
+    # by less than the analysis's period before, or the monitor's gap there after, and a
+    # pose period more: a monitor's sample holds the poses last received, up to one pose
+    # period (and their delivery) older than the sample (seen: 53 ms after, the gap 51 ms).
     sampled = np.load(folder / 'run' / 'trajectory.npz')['t']
     for ours, theirs in zip(result['phases'], live['phases'], strict=True):
         settled = np.searchsorted(sampled, theirs['start'] + theirs['settle_time'] - 1e-9)
         gap = sampled[settled] - sampled[max(settled - 1, 0)]
-        assert -RECORD_PERIOD - 1e-6 < theirs['settle_time'] - ours['settle_time'] < gap + 1e-6
+        assert -RECORD_PERIOD - 1e-6 < theirs['settle_time'] - ours['settle_time'] < (
+            gap + 1 / DEFAULT_POSE_RATE)
         assert abs(ours['final_error_norm'] - theirs['final_error_norm']) < (
             0.01 * theirs['tolerance'])
         for key in ('cv', 'min_over_max'):

@@ -34,6 +34,10 @@ def test_grouped_controllers_drive_the_team_and_a_group_that_dies_is_named(ros_d
         for key in keys:
             assert_realtime(run.processes[key].pid, 10, tmp_path / 'logs' / f'{key}.log')
         assert os.sched_getscheduler(run.processes['curve_server'].pid) == os.SCHED_OTHER
+        assert any(line in ('controllers at realtime priority 10',
+                            'realtime priority 10 not taken by controllers_1-3, '
+                            'controllers_4-6, controllers_7-9 (their logs say why): they run '
+                            'at normal priority') for line in said), said
         run.spin_for(4.0)
         # every robot's pose is read once a group (shared_readers), by the monitor and by
         # the curve server (waiting for the poses)
