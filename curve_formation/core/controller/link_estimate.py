@@ -25,12 +25,13 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike
 
-from curve_formation.core.base.shapes import FloatArray
+from curve_formation.core.base.shapes import FloatArray, IntArray
 from curve_formation.core.controller.motion_record import (
     cleaned,
     driven_commands,
     held_means,
-    lagged_means,
+    lag_knots,
+    LagMeans,
     measured_rates,
     MotionRecord,
 )
@@ -65,18 +66,19 @@ class LinkEstimate:
 
 
 def _residuals(tc: FloatArray, commands: FloatArray, driven: FloatArray, tp: FloatArray,
-               v_meas: FloatArray, w_meas: FloatArray, lags: FloatArray, tau: float = 0.0
-               ) -> FloatArray:
+               v_meas: FloatArray, w_meas: FloatArray, lags: FloatArray, tau: float = 0.0,
+               knots: tuple[FloatArray, FloatArray] | None = None,
+               means: tuple[LagMeans, LagMeans, FloatArray] | None = None) -> FloatArray:
     """(len(lags),) sum of squared residuals of the fit at each lag, its largest TRIMMED
     share of intervals left out (a lost command leaves the intervals it should have driven
     fitting no lag). Every lag at once: rows are lags, columns the intervals. tau: the
-    motors' time constant (s), through which the commands act.
+    motors' time constant (s), through which the commands act; knots: the lag's output at
+    each command (motion_record.lag_knots) of v and w; means: _interval_means of these
+    intervals and lags; both where the caller has them already (one window, many taus).
     """
-    starts = tp[None, :-1] - lags[:, None]
-    ends = tp[None, 1:] - lags[:, None]
-    v = lagged_means(tc, commands[:, 0], starts, ends, tau)
-    w = lagged_means(tc, commands[:, 1], starts, ends, tau)
-    on = held_means(tc, driven, starts, ends)
+    mv, mw, on = _interval_means(tc, commands, driven, tp, lags) if means is None else means
+    kv, kw = (None, None) if knots is None else knots
+    v, w = mv.through(tau, kv), mw.through(tau, kw)
     rv, rw = v_meas - v, (w_meas - w) * TURN_SCALE
     # the disturbance acting while driven, drifting over the fit as a polynomial of degree
     # DRIFT_DEGREE in time (a disturbance that changes is not read as latency): least
@@ -94,6 +96,17 @@ def _residuals(tc: FloatArray, commands: FloatArray, driven: FloatArray, tp: Flo
     squared = fitted[0] ** 2 + fitted[1] ** 2
     kept = squared.shape[1] - int(TRIMMED * squared.shape[1])
     return np.partition(squared, kept - 1, axis=1)[:, :kept].sum(axis=1)
+
+
+def _interval_means(tc: FloatArray, commands: FloatArray, driven: FloatArray, tp: FloatArray,
+                    lags: FloatArray) -> tuple[LagMeans, LagMeans, FloatArray]:
+    """What _residuals needs of the commands over the intervals between the poses tp, every
+    lag at once, whatever the motors' lag: v's and w's LagMeans and the driven share.
+    """
+    starts = tp[None, :-1] - lags[:, None]
+    ends = tp[None, 1:] - lags[:, None]
+    return (LagMeans(tc, commands[:, 0], starts, ends), LagMeans(tc, commands[:, 1], starts, ends),
+            held_means(tc, driven, starts, ends))
 
 
 def _best_lag(residuals: FloatArray, lags: FloatArray) -> float:
@@ -129,35 +142,58 @@ class _Fit:
         self.driven = driven_commands(cmd)
         self.v_meas, self.w_meas = measured_rates(tp, pose)
         self.inside = (tp[:-1] - lags.max() >= tc[0]) & (tp[1:] <= tc[-1] + 1.0)
+        self._knots: dict[float, tuple[FloatArray, FloatArray]] = {}   # by motor lag tau
 
-    def residuals(self, begin: float, end: float, lags: FloatArray | None = None,
-                  tau: float = 0.0) -> tuple[FloatArray, int] | None:
-        """The residual curve over the lags of the intervals from begin to end (s), the
-        commands acting through the motors' lag tau (s), and their count; None if fewer than
-        5, or if the commands in force then hardly change.
+    def knots(self, tau: float) -> tuple[FloatArray, FloatArray] | None:
+        """The motors' lag output at each command, of v and w (lag_knots; None for tau 0),
+        computed once a tau for every window.
+        """
+        if tau <= 0.0:
+            return None
+        if tau not in self._knots:
+            self._knots[tau] = (lag_knots(self.tc, self.cmd[:, 0], tau),
+                                lag_knots(self.tc, self.cmd[:, 1], tau))
+        return self._knots[tau]
+
+    def _window(self, begin: float, end: float) -> IntArray | None:
+        """The indices of the intervals from begin to end (s); None if fewer than 5, or if
+        the commands in force then hardly change.
         """
         tp = self.tp
         sel = self.inside & (tp[:-1] >= begin) & (tp[1:] < end)
         if sel.sum() < 5 or not _excited(self.tc, self.cmd, begin - self.lags.max(), end):
             return None
-        idx = np.flatnonzero(sel)
-        return _residuals(self.tc, self.cmd, self.driven, np.append(tp[idx], tp[idx[-1] + 1]),
+        return np.flatnonzero(sel)
+
+    def residuals(self, begin: float, end: float, lags: FloatArray | None = None,
+                  tau: float = 0.0) -> tuple[FloatArray, int] | None:
+        """The residual curve over the lags of the intervals from begin to end (s), the
+        commands acting through the motors' lag tau (s), and their count; None as _window.
+        """
+        idx = self._window(begin, end)
+        if idx is None:
+            return None
+        return _residuals(self.tc, self.cmd, self.driven, self._poses(idx),
                           self.v_meas[idx], self.w_meas[idx],
-                          self.lags if lags is None else lags, tau), len(idx)
+                          self.lags if lags is None else lags, tau, self.knots(tau)), len(idx)
+
+    def _poses(self, idx: IntArray) -> FloatArray:
+        return np.append(self.tp[idx], self.tp[idx[-1] + 1])
 
     def surface(self, begin: float, end: float, taus: FloatArray
                 ) -> tuple[FloatArray, int] | None:
         """The residuals (len(taus), len(lags)) over the lags for each motor time constant
-        in taus (s), of the intervals from begin to end, and their count; None as residuals.
+        in taus (s), of the intervals from begin to end, and their count; None as _window.
         """
-        rows, count = [], 0
-        for tau in taus:
-            found = self.residuals(begin, end, tau=float(tau))
-            if found is None:
-                return None
-            rows.append(found[0])
-            count = found[1]
-        return np.array(rows), count
+        idx = self._window(begin, end)
+        if idx is None:
+            return None
+        tp = self._poses(idx)
+        means = _interval_means(self.tc, self.cmd, self.driven, tp, self.lags)
+        return np.array([_residuals(self.tc, self.cmd, self.driven, tp, self.v_meas[idx],
+                                    self.w_meas[idx], self.lags, float(tau),
+                                    self.knots(float(tau)), means)
+                         for tau in taus]), len(idx)
 
 
 # Candidate motor time constants (s) where the motors' lag is estimated with the latency:

@@ -8,8 +8,7 @@ rad/s.
 """
 
 from collections import deque
-import math
-from typing import Any
+from typing import Any, TypeAlias
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -42,32 +41,66 @@ def held_means(tc: FloatArray, values: FloatArray, starts: FloatArray, ends: Flo
     return (np.interp(ends, edges, area) - np.interp(starts, edges, area)) / (ends - starts)
 
 
+def lag_knots(tc: FloatArray, values: FloatArray, tau: float) -> FloatArray:
+    """The output y of a first-order lag of time constant tau (s, > 0), tau y' = u - y, at
+    each command's start tc[k], driven by the piecewise-constant values[k] from tc[k] and
+    from 0 before the first.
+    """
+    decay = np.exp(-np.diff(tc) / tau).tolist()
+    u = values.tolist()
+    knots = [0.0] * len(u)
+    y = 0.0
+    for k in range(1, len(u)):
+        y = u[k - 1] + (y - u[k - 1]) * decay[k - 1]
+        knots[k] = y
+    return np.array(knots)
+
+
 def lagged_means(tc: FloatArray, values: FloatArray, starts: FloatArray, ends: FloatArray,
-                 tau: float) -> FloatArray:
+                 tau: float, knots: FloatArray | None = None) -> FloatArray:
     """Mean over [starts, ends] of the piecewise-constant signal values[k] from tc[k] (zero
     before the first) through a first-order lag of time constant tau (s; the motors'; 0:
     none): tau y' = u - y, so the mean of y is the mean of u less tau (y(end) - y(start)) /
-    (end - start).
+    (end - start). knots: lag_knots(tc, values, tau), where the caller has it already.
     """
-    held = held_means(tc, values, starts, ends)
-    if tau <= 0.0:
-        return held
-    knots = np.empty(len(tc))   # y at each command's start, from 0 before the first
-    y = 0.0
-    for k in range(len(tc)):
-        if k:
-            y = values[k - 1] + (y - values[k - 1]) * math.exp(-(tc[k] - tc[k - 1]) / tau)
-        knots[k] = y
+    return LagMeans(tc, values, starts, ends).through(tau, knots)
 
-    def lagged(t: FloatArray) -> FloatArray:
-        k = np.searchsorted(tc, t, side='right') - 1
+
+CommandAt: TypeAlias = tuple[Any, Any, FloatArray, FloatArray]   # LagMeans._command_at
+
+
+class LagMeans:
+    """lagged_means of one signal over fixed intervals for any number of motor lags: what
+    does not depend on the lag (the held means, the command in force at each end) is
+    computed once.
+    """
+
+    def __init__(self, tc: FloatArray, values: FloatArray, starts: FloatArray,
+                 ends: FloatArray) -> None:
+        self.tc, self.values, self.span = tc, values, ends - starts
+        self.held = held_means(tc, values, starts, ends)
+        self.at = [self._command_at(t) for t in (starts, ends)]
+
+    def _command_at(self, t: FloatArray) -> 'CommandAt':
+        """(index, whether a command is in force, its value, s since it began) at t."""
+        k = np.searchsorted(self.tc, t, side='right') - 1
         inside = k >= 0
         k = np.maximum(k, 0)
-        u = values[k]
-        return np.where(inside, u + (knots[k] - u) * np.exp(-np.maximum(t - tc[k], 0.0) / tau),
-                        0.0)
+        return k, inside, self.values[k], np.maximum(t - self.tc[k], 0.0)
 
-    return held - tau * (lagged(ends) - lagged(starts)) / (ends - starts)
+    def through(self, tau: float, knots: FloatArray | None = None) -> FloatArray:
+        """The means through a lag of time constant tau (s; 0: the held means); knots as
+        lagged_means takes them.
+        """
+        if tau <= 0.0:
+            return self.held
+        y0 = lag_knots(self.tc, self.values, tau) if knots is None else knots
+
+        def lagged(at: 'CommandAt') -> FloatArray:
+            k, inside, u, since = at
+            return np.where(inside, u + (y0[k] - u) * np.exp(-since / tau), 0.0)
+
+        return self.held - tau * (lagged(self.at[1]) - lagged(self.at[0])) / self.span
 
 
 def driven_commands(cmd: FloatArray) -> FloatArray:
