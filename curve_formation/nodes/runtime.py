@@ -205,16 +205,17 @@ def checked_priority(name: str, value: Any) -> int:
     return value
 
 
-def realtime_priority(priority: int) -> str | None:
-    """Schedule the calling thread SCHED_FIFO at `priority` (1-99), so that processes woken
-    around it (a busy PC's other nodes, the kernel's tty work) cannot delay what it does
-    next; threads it starts later inherit it. Returns None, or why not (it needs root,
-    CAP_SYS_NICE or an rtprio limit); priority 0 leaves the thread as it is.
+def realtime_priority(priority: int, thread: int = 0) -> str | None:
+    """Schedule a thread of this process (its id; 0: the calling one) SCHED_FIFO at
+    `priority` (1-99), so that processes woken around it (a busy PC's other nodes, the
+    kernel's tty work) cannot delay what it does next; threads it starts later inherit it.
+    Returns None, or why not (it needs root, CAP_SYS_NICE or an rtprio limit); priority 0
+    leaves the thread as it is.
     """
     if priority <= 0:
         return None
     try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        os.sched_setscheduler(thread, os.SCHED_FIFO, os.sched_param(priority))
     except OSError as exc:
         return exc.strerror or str(exc)
     return None
@@ -224,15 +225,11 @@ def realtime_process(priority: int) -> str | None:
     """realtime_priority for every thread this process has (e.g. the BLAS threads numpy's
     import starts) and so for every thread started from them later; None, or why not.
     """
-    why_not = realtime_priority(priority)
-    if why_not is None and priority > 0:
-        for thread in os.listdir('/proc/self/task'):
-            try:
-                os.sched_setscheduler(int(thread), os.SCHED_FIFO, os.sched_param(priority))
-            except OSError as exc:   # ended meanwhile, or refused
-                if Path(f'/proc/self/task/{thread}').exists():
-                    return exc.strerror or str(exc)
-    return why_not
+    for thread in os.listdir('/proc/self/task'):
+        why_not = realtime_priority(priority, int(thread))
+        if why_not and Path(f'/proc/self/task/{thread}').exists():   # not one that ended
+            return why_not
+    return None
 
 
 def _exit_hard_after(seconds: float) -> None:

@@ -65,18 +65,17 @@ class LinkEstimate:
     motor_spread: float | None = None
 
 
-def _residuals(tc: FloatArray, commands: FloatArray, driven: FloatArray, tp: FloatArray,
-               v_meas: FloatArray, w_meas: FloatArray, lags: FloatArray, tau: float = 0.0,
-               knots: tuple[FloatArray, FloatArray] | None = None,
-               means: tuple[LagMeans, LagMeans, FloatArray] | None = None) -> FloatArray:
+def _residuals(tp: FloatArray, v_meas: FloatArray, w_meas: FloatArray,
+               means: tuple[LagMeans, LagMeans, FloatArray], tau: float = 0.0,
+               knots: tuple[FloatArray, FloatArray] | None = None) -> FloatArray:
     """(len(lags),) sum of squared residuals of the fit at each lag, its largest TRIMMED
     share of intervals left out (a lost command leaves the intervals it should have driven
-    fitting no lag). Every lag at once: rows are lags, columns the intervals. tau: the
-    motors' time constant (s), through which the commands act; knots: the lag's output at
-    each command (motion_record.lag_knots) of v and w; means: _interval_means of these
-    intervals and lags; both where the caller has them already (one window, many taus).
+    fitting no lag). Every lag at once: rows are lags, columns the intervals between the
+    poses tp. means: _interval_means of these intervals and lags; tau: the motors' time
+    constant (s), through which the commands act; knots: the lag's output at each command
+    (motion_record.lag_knots) of v and w, where the caller has them.
     """
-    mv, mw, on = _interval_means(tc, commands, driven, tp, lags) if means is None else means
+    mv, mw, on = means
     kv, kw = (None, None) if knots is None else knots
     v, w = mv.through(tau, kv), mw.through(tau, kw)
     rv, rw = v_meas - v, (w_meas - w) * TURN_SCALE
@@ -173,9 +172,11 @@ class _Fit:
         idx = self._window(begin, end)
         if idx is None:
             return None
-        return _residuals(self.tc, self.cmd, self.driven, self._poses(idx),
-                          self.v_meas[idx], self.w_meas[idx],
-                          self.lags if lags is None else lags, tau, self.knots(tau)), len(idx)
+        tp = self._poses(idx)
+        means = _interval_means(self.tc, self.cmd, self.driven, tp,
+                                self.lags if lags is None else lags)
+        return _residuals(tp, self.v_meas[idx], self.w_meas[idx], means, tau,
+                          self.knots(tau)), len(idx)
 
     def _poses(self, idx: IntArray) -> FloatArray:
         return np.append(self.tp[idx], self.tp[idx[-1] + 1])
@@ -190,9 +191,8 @@ class _Fit:
             return None
         tp = self._poses(idx)
         means = _interval_means(self.tc, self.cmd, self.driven, tp, self.lags)
-        return np.array([_residuals(self.tc, self.cmd, self.driven, tp, self.v_meas[idx],
-                                    self.w_meas[idx], self.lags, float(tau),
-                                    self.knots(float(tau)), means)
+        return np.array([_residuals(tp, self.v_meas[idx], self.w_meas[idx], means, float(tau),
+                                    self.knots(float(tau)))
                          for tau in taus]), len(idx)
 
 
