@@ -14,17 +14,36 @@ from curve_formation.core.base.shapes import BoolArray, FloatArray
 from curve_formation.core.formation.dynamics import marker_centres
 
 
+def nearest_pairs(poses: FloatArray, batch: int = 1 << 18) -> FloatArray:
+    """(R,) the smallest distance (m) between two robots' axle centres at each sample; robots
+    not seen yet (NaN) count as infinitely far (inf with fewer than two robots). Worked out a
+    few samples at a time (about `batch` pairs): never the whole R x n x n array.
+    """
+    xy = np.asarray(poses, float)[:, :, :2]
+    n = xy.shape[1]
+    out = np.full(len(xy), np.inf)
+    if n < 2:
+        return out
+    first, second = np.triu_indices(n, 1)
+    rows = max(1, batch // len(first))
+    for a in range(0, len(xy), rows):
+        chunk = xy[a:a + rows]
+        dx = chunk[:, first, 0] - chunk[:, second, 0]
+        dy = chunk[:, first, 1] - chunk[:, second, 1]
+        squares = dx * dx + dy * dy
+        out[a:a + rows] = np.fmin.reduce(squares, axis=1, initial=np.inf)   # NaN skipped
+    return np.sqrt(out)
+
+
 def closest_approach(poses: FloatArray) -> tuple[float, int]:
     """Smallest distance (m) between two robots' axle centres over a run, with when (index).
 
     The law has no collision avoidance: compare with the robots' size.
     """
-    from scipy.spatial.distance import pdist  # scipy.spatial: 0.4 s to import
     if poses.shape[1] < 2:
         return float('inf'), 0
-    # One sample at a time: n (n - 1) / 2 distances each, never the whole R x n x n array.
-    per_row = np.array([np.nan_to_num(pdist(row[:, :2]), nan=np.inf).min() for row in poses])
-    k = int(np.argmin(per_row))   # robots not seen yet (NaN) count as infinitely far
+    per_row = nearest_pairs(poses)
+    k = int(np.argmin(per_row))
     return float(per_row[k]), k
 
 
@@ -51,12 +70,10 @@ def longest_standstill(t: FloatArray, poses: FloatArray, errors: FloatArray, awa
 
 
 def surface_gaps(poses: FloatArray, radius: float) -> FloatArray:
-    """(R,) smallest distance (m) between two bodies' surfaces at each sample (NaN: unknown)."""
-    from scipy.spatial.distance import pdist  # scipy.spatial: 0.4 s to import
-    if poses.shape[1] < 2:
-        return np.full(len(poses), np.inf)
-    return np.array([np.nan_to_num(pdist(row[:, :2]), nan=np.inf).min() for row in poses]) \
-        - 2 * radius
+    """(R,) smallest distance (m) between two bodies' surfaces at each sample (inf: fewer than
+    two robots seen).
+    """
+    return nearest_pairs(poses) - 2 * radius
 
 
 def markers_covered(poses: FloatArray, radius: float, marker_offset: Sequence[float],
