@@ -131,7 +131,8 @@ def mona_arena_start(seed, **controller):
     return with_start(case, seeded_start(case, seed))
 
 
-@pytest.mark.parametrize('seed', [1, 13, 20])
+# seed 1 (12 s) with -m slow: the default run keeps the two later regressions
+@pytest.mark.parametrize('seed', [pytest.param(1, marks=pytest.mark.slow), 13, 20])
 def test_mona_arena_settles_with_commands_300_ms_late_told(seed):
     """mona_arena (d 22x the wheel limit, added on the PC), random starts the files never
     used, the nodes' pipeline with every command acting 300 ms after it leaves, the
@@ -160,8 +161,10 @@ def test_mona_arena_settles_with_commands_300_ms_late_told(seed):
     assert contacts == 0
 
 
-@pytest.mark.parametrize('order, pose_latency, seed', [(1, 0.15, 1), (2, 0.15, 1),
-                                                       (1, 0.05, 3), (2, 0.05, 2)])
+# One case of each regression in the default run, the others with -m slow (15 s each).
+@pytest.mark.parametrize('order, pose_latency, seed', [
+    pytest.param(1, 0.15, 1, marks=pytest.mark.slow), (2, 0.15, 1), (1, 0.05, 3),
+    pytest.param(2, 0.05, 2, marks=pytest.mark.slow)])
 def test_mona_arena_holds_old_poses(order, pose_latency, seed):
     """mona_arena, the nodes' pipeline, every pose reaching the controllers `pose_latency` s
     after it was taken (with its stamp, as a camera's frame): every phase settles, within

@@ -16,6 +16,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike
 
+from curve_formation.core.base.jit import one_compiler_at_a_time
 from curve_formation.core.base.shapes import FloatArray, IntArray
 from curve_formation.core.config.errors import ConfigError
 from curve_formation.core.config.experiment import (
@@ -300,10 +301,12 @@ def simulate(experiment: Experiment, rate_hz: float | None | Literal['config'] =
                                        on_pc)
             if begin == a:   # a curve's first pose: the sooner way outright
                 _choose_directions(state, now, law, limits)
-            run(state, np.ascontiguousarray(now), np.ascontiguousarray(aimed),
-                np.ascontiguousarray(ahead), graph, law,
-                limits, avoidance, d_pc, d_robot, clock, delay, begin, end - begin, ticks,
-                contacts, record)
+            # simulations started side by side on a cold cache share one compilation
+            with one_compiler_at_a_time(run.py_func):
+                run(state, np.ascontiguousarray(now), np.ascontiguousarray(aimed),
+                    np.ascontiguousarray(ahead), graph, law,
+                    limits, avoidance, d_pc, d_robot, clock, delay, begin, end - begin, ticks,
+                    contacts, record)
     followed = schedule.close()
     t = np.arange(n_rec) * record_every * dt
     sample_phase = phase_index(np.array(starts[:-1]) * dt, t)
