@@ -38,22 +38,26 @@ def files_in_use(folder=SHM_DIR):
     return used
 
 
-def remove_orphan_ports(folder=SHM_DIR):
-    """Remove Fast DDS port segments and port semaphores in `folder` that have no lock file
-    and that no process has mapped or open; returns the names removed.
+def orphan_ports(folder=SHM_DIR):
+    """Names of the Fast DDS port segments and port semaphores in `folder` that have no lock
+    file and that no process has mapped or open: what a process killed hard left.
     """
     try:
         names = set(os.listdir(folder))
     except FileNotFoundError:
         return []
-    candidates = [n for n in names if PORT_FILE.match(n)]
     locked = {n for n in names if n.endswith(('_el', '_sl'))}
     in_use = files_in_use(folder)
+    return sorted(name for name in names if PORT_FILE.match(name)
+                  and not {name.removeprefix('sem.').removesuffix('_mutex') + lock
+                           for lock in ('_el', '_sl')} & locked
+                  and name not in in_use)
+
+
+def remove_orphan_ports(folder=SHM_DIR):
+    """Remove the orphan port files in `folder` (orphan_ports); returns the names removed."""
     removed = []
-    for name in sorted(candidates):
-        port = name.removeprefix('sem.').removesuffix('_mutex')
-        if port + '_el' in locked or port + '_sl' in locked or name in in_use:
-            continue
+    for name in orphan_ports(folder):
         try:
             (Path(folder) / name).unlink()
         except OSError:

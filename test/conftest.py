@@ -95,9 +95,15 @@ def no_history_qos():
 def private_domain():
     """A random ROS_DOMAIN_ID for one test's nodes, from TEST_DOMAINS ('LOW-HIGH', default
     1-101): scripts/test gives each of the streams of `ros` tests it runs at once a range of
-    its own, so that two tests running at the same time never share a domain.
+    its own, so that two tests running at the same time never share a domain; within a
+    stream spread over pytest-xdist workers, each worker takes its share of the range.
     """
     low, high = map(int, os.environ.get('TEST_DOMAINS', '1-101').split('-'))
+    workers = int(os.environ.get('PYTEST_XDIST_WORKER_COUNT', '1'))
+    if workers > 1:
+        share = (high - low + 1) // workers
+        low += share * int(os.environ['PYTEST_XDIST_WORKER'].removeprefix('gw'))
+        high = low + share - 1
     return random.SystemRandom().randint(low, high)
 
 

@@ -12,7 +12,7 @@ import pytest
 
 from conftest import DATA_DIR
 from curve_formation.bags.analysis import analyze_bag
-from curve_formation.dds_shm import files_in_use
+from curve_formation.dds_shm import files_in_use, orphan_ports, PORT_FILE
 from curve_formation.run.run_options import RunOptions
 
 
@@ -70,9 +70,12 @@ def test_a_controller_killed_hard_leaves_metrics_a_bag_and_an_exit_status_naming
     assert 'phase 0  error ' in stdout and ' at their targets' in stdout   # status every 5 s
     assert result['provenance']['experiment_file'] == str(DATA_DIR / 'fast_closed.yaml')
     # Under LOCALHOST discovery every participant has Fast DDS shared memory: the run removed
-    # what its dead node left there (a file no live process holds).
+    # what its dead node left there (a file no live process holds; a port's semaphore is not
+    # held between uses, so one of a live port, a test's beside this one, is left out).
     left = (set(os.listdir('/dev/shm')) - before) - files_in_use()
-    assert not [name for name in left if 'fastrtps' in name], left
+    orphans = set(orphan_ports())
+    assert not [name for name in left if 'fastrtps' in name
+                and (not PORT_FILE.match(name) or name in orphans)], left
     # The bag says the same.
     bagged = analyze_bag(bag, tmp_path / 'analysis')
     assert [d['node'] for d in bagged['node_deaths']] == ['robot_3.formation_controller']
