@@ -18,7 +18,10 @@ mona_arena, the nodes' tick pipeline (core.sim.pipeline) runs in three worlds:
 - learnt (with --worlds ...,learnt): the imperfect robots, nothing told, the controllers
   estimating their link's latency and their motors' lag online (controller.estimate_latency,
   estimate_motors; goal: every phase within 1.2x of mujoco, no contact); the estimates
-  are reported against the motors' 50 ms.
+  are reported against the motors' 50 ms;
+- checked (with --worlds ...,checked): as learnt, and each robot first turns in place while
+  its controller measures its wheel gains and dead band (controller.motor_check; goal: every
+  phase within 1.2x of mujoco, the check's time included, no contact).
 Part `speed`: seconds of world per second of wall clock, MuJoCo and kinematic worlds alone,
 9 robots (mona_arena) and 50 (a 5 m x 5 m arena), every robot driven on its own circle with
 commands renewed at 10 Hz (goals: MuJoCo >= 20x for 9, >= 1x for 50).
@@ -46,7 +49,7 @@ from curve_formation.paths import resolve_config
 CASES = ('arena_demo', 'mona_arena')
 IMPERFECTIONS = {'wheel_radius_mismatch': 0.03, 'motor_gain_spread': 0.1, 'dead_band': 0.05,
                  'command_bits': 8, 'battery_sag': 0.1}
-GOALS = {'mujoco': 1.15, 'imperfect': 1.3, 'untold': 1.3, 'learnt': 1.2}
+GOALS = {'mujoco': 1.15, 'imperfect': 1.3, 'untold': 1.3, 'learnt': 1.2, 'checked': 1.2}
 WORLDS = ('kinematic', 'mujoco', 'imperfect')
 
 
@@ -58,12 +61,13 @@ def experiment(name, seed, world):
         data['physics'] = {'engine': 'mujoco'}
     if world in ('mujoco', 'imperfect'):   # the motors' lag, measured on the robots, told
         data['limits']['motor_time_constant'] = PhysicsSpec().motor_time_constant
-    if world in ('imperfect', 'untold', 'learnt'):
+    if world in ('imperfect', 'untold', 'learnt', 'checked'):
         data['physics']['imperfections'] = {**IMPERFECTIONS, 'seed': seed}
         data['disturbance'] = {**data.get('disturbance', {}), 'value': [0.0, 0.0]}
         data['disturbance'].pop('per_agent', None)
-    if world == 'learnt':   # nothing told: learnt online
-        data['controller'].update(estimate_latency=True, estimate_motors=True)
+    if world in ('learnt', 'checked'):   # nothing told: learnt online
+        data['controller'].update(estimate_latency=True, estimate_motors=True,
+                                  motor_check=world == 'checked')
     if world == 'imperfect':   # and their dead band
         limits = data['limits']
         limits['min_wheel_speed'] = IMPERFECTIONS['dead_band'] * limits['max_wheel_speed']
@@ -109,7 +113,7 @@ def starts_report(rows):
         for k in range(phases):
             for world, against in (('kinematic', None), ('mujoco', 'kinematic'),
                                    ('imperfect', 'mujoco'), ('untold', 'mujoco'),
-                                   ('learnt', 'mujoco')):
+                                   ('learnt', 'mujoco'), ('checked', 'mujoco')):
                 if world not in case_rows[0]:
                     continue
                 against = against if against in case_rows[0] else None
@@ -140,18 +144,19 @@ def starts_report(rows):
                                               'max': max(lags)}
             print(f"learnt motor lags (ms, the motors' 50): min {min(lags):.1f}, median "
                   f'{np.median(lags):.1f}, max {max(lags):.1f} over {len(lags)} robots')
-        shares = [v for r in case_rows if r.get('learnt', {}).get('dead_band_share')
-                  for v in r['learnt']['dead_band_share']]
-        taken = [v for v in shares if v is not None]
-        if shares:
-            summary['learnt_dead_band_share'] = {
+        for world in ('learnt', 'checked'):
+            shares = [v for r in case_rows if r.get(world, {}).get('dead_band_share')
+                      for v in r[world]['dead_band_share']]
+            taken = [v for v in shares if v is not None]
+            if not shares:
+                continue
+            band = summary[f'{world}_dead_band_share'] = {
                 'robots': len(shares), 'taken': len(taken),
                 'within_20_percent': sum(abs(v - 1.0) <= 0.2 for v in taken),
                 'min': min(taken, default=None), 'max': max(taken, default=None)}
-            print(f'learnt dead bands: taken by {len(taken)} of {len(shares)} robots, '
-                  f'{summary["learnt_dead_band_share"]["within_20_percent"]} within 20 % of '
-                  'the drawn band' + (f' ({min(taken):.2f}x to {max(taken):.2f}x)' if taken
-                                      else ''))
+            print(f'{world} dead bands: taken by {len(taken)} of {len(shares)} robots, '
+                  f'{band["within_20_percent"]} within 20 % of the drawn band'
+                  + (f' ({min(taken):.2f}x to {max(taken):.2f}x)' if taken else ''))
         out[name] = summary
     return out
 

@@ -241,6 +241,13 @@ def cmd_measure_link(args):
               + f' {"-" if gains is None else f"{gains[0]:.3f}, {gains[1]:.3f}":>18s}'
               + f' {_mm(row["dead_band"]):>16s}'
               + ('' if told else '  (its commands hardly changed: nothing to time)'))
+    for i, row in found['robots'].items():
+        check = row['check']
+        if check is not None:
+            band = check['dead_band']
+            print(f'robot {i} motor check (controller.motor_check): wheel gains '
+                  f'{check["wheel_gains"][0]:.3f}, {check["wheel_gains"][1]:.3f}; dead band '
+                  + ('-' if band is None else f'{_mm(band)} +- {_mm(check["bound"])} mm/s'))
     if found['latency'] is None:
         print('no robot told its latency: record a run in which the robots drive')
         return 1
@@ -257,8 +264,9 @@ def cmd_measure_link(args):
               '(or controller: {estimate_motors: true} to estimate it online)')
     if found['dead_band'] is not None:
         print("the motors' dead band, the smallest wheel command that turns a wheel (the median "
-              f'over the robots, m/s):\nlimits: {{min_wheel_speed: {found["dead_band"]:.5f}}}\n'
-              '(or controller: {estimate_motors: true} to estimate it online)')
+              "over the robots, each its motor check's where it has one, m/s):"
+              f'\nlimits: {{min_wheel_speed: {found["dead_band"]:.5f}}}\n'
+              '(or controller: {motor_check: true} to measure it as each run begins)')
     if args.json:
         write_json(Path(args.json), found)
     return 0

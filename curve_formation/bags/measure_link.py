@@ -6,12 +6,14 @@ by their stamps, when the camera saw them), by core.controller.link_estimate. Wh
 """
 
 import math
+from typing import Any
 
 import numpy as np
 
 from curve_formation.bags.bag import bag_summary, BagError, read_messages
 from curve_formation.core.controller.dead_band_estimate import estimate_dead_band, NO_BAND
 from curve_formation.core.controller.link_estimate import estimate_latency
+from curve_formation.core.controller.motor_probe import replay_check
 from curve_formation.core.controller.wheel_estimate import estimate_gains, NO_GAINS
 from curve_formation.core.formation.curve_codec import CodecError
 from curve_formation.interface import CMD_VEL, POSE, pose_from_msg, robot_of, twist_from_msg
@@ -40,10 +42,13 @@ def measure_bag(path, motor_time_constant=None):
     """{'robots': {i: {'latency', 'spread', 'windows', 'residual', 'motor_time_constant',
     'wheel_gains' ([left, right] or None: core.controller.wheel_estimate, with the
     experiment's wheel base and speed), 'wheel_gain_errors', 'dead_band' (m/s of wheel
-    speed or None: core.controller.dead_band_estimate), 'commands', 'poses'}},
+    speed or None: core.controller.dead_band_estimate), 'check' (where the bag holds a motor
+    check, controller.motor_check: {'wheel_gains', 'dead_band' m/s or 0, 'bound' m/s},
+    else None), 'commands', 'poses'}},
     'latency': the median over the robots that told one (s, or None), 'motor_time_constant':
     the motors' lag (s) the fit took the commands through (the median of the robots' where
-    estimated, None if none told one), 'motor_estimated': whether it was} of a bag;
+    estimated, None if none told one), 'motor_estimated': whether it was, 'dead_band': the
+    median of the robots' (each its check's where it has one)} of a bag;
     motor_time_constant None: the bag's experiment's, so that the motors' lag is not read as
     latency, or where it tells none, estimated with the latency.
     """
@@ -72,7 +77,7 @@ def measure_bag(path, motor_time_constant=None):
     if not robots:
         raise BagError(f'{path}: no robot with both /robot_<i>/cmd_vel and /robot_<i>/pose: '
                        'nothing to time')
-    out = {}
+    out: dict[int, dict[str, Any]] = {}
     for i in robots:
         sent = np.array(commands[i])
         seen = np.array(poses[i])
@@ -86,18 +91,26 @@ def measure_bag(path, motor_time_constant=None):
             band = estimate_dead_band(sent[:, 0], sent[:, 1:], seen[:, 0], seen[:, 1:],
                                       wheel_base, max_wheel_speed, found.latency,
                                       found.motor_time_constant)
+        check = (replay_check(sent[:, 0], sent[:, 1:], seen[:, 0], seen[:, 1:], wheel_base,
+                              max_wheel_speed, float(limits.get('max_angular_rate') or math.inf))
+                 if wheel_base > 0.0 and math.isfinite(max_wheel_speed) else None)
         out[i] = {'latency': found.latency, 'spread': found.spread, 'windows': found.windows,
                   'residual': found.residual, 'motor_time_constant': found.motor_time_constant,
                   'wheel_gains': None if gains.gains is None else list(gains.gains),
                   'wheel_gain_errors': None if gains.errors is None else list(gains.errors),
                   'dead_band': band.band,
+                  'check': None if check is None or check.gains is None else {
+                      'wheel_gains': list(check.gains), 'dead_band': check.band,
+                      'bound': check.bound},
                   'commands': len(sent), 'poses': len(seen)}
     told = [r['latency'] for r in out.values() if r['latency'] is not None]
     if estimated:
         lags = [r['motor_time_constant'] for r in out.values()
                 if r['motor_time_constant'] is not None]
         motor_time_constant = float(np.median(lags)) if lags else None
-    bands = [r['dead_band'] for r in out.values() if r['dead_band'] is not None]
+    bands = [r['check']['dead_band'] if r['check'] and r['check']['dead_band'] is not None
+             else r['dead_band'] for r in out.values()]
+    bands = [b for b in bands if b]
     return {'robots': out, 'latency': float(np.median(told)) if told else None,
             'motor_time_constant': motor_time_constant, 'motor_estimated': estimated,
             'dead_band': float(np.median(bands)) if bands else None}

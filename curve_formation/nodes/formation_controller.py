@@ -145,7 +145,8 @@ def agent_config(p: SimpleNamespace) -> AgentConfig:
         geofence=None if fence is None else tuple(fence), predict_pose=p.predict_pose,
         command_latency=p.command_latency, feed_forward=p.feed_forward, compiled=p.compiled_law,
         min_wheel_speed=p.min_wheel_speed, motor_time_constant=p.motor_time_constant,
-        estimate_latency=p.estimate_latency, estimate_motors=p.estimate_motors)
+        estimate_latency=p.estimate_latency, estimate_motors=p.estimate_motors,
+        motor_check=p.motor_check)
 
 
 def _avoidance(p: SimpleNamespace) -> Avoidance:
@@ -215,6 +216,7 @@ class FormationController(Node):
                                          lambda *_: self._publish_diagnostics())
         self.pose_topic = self.resolve_topic_name(topics.POSE)
         self._last_reason: str | None = None
+        self._checking = False   # the last tick was the motor check's (controller.motor_check)
         self.cmd_pub = topics.publisher(self, topics.CMD_VEL)
         self.state_pub = topics.publisher(self, topics.STATE)
         self.estimate_pub = topics.publisher(self, topics.ESTIMATE)
@@ -344,6 +346,21 @@ class FormationController(Node):
             self._publish_diagnostics()
         else:
             self._last_reason = tick.stopped
+        if tick.checking != self._checking:
+            self._checking = tick.checking
+            self.get_logger().info('motor check: turning in place' if tick.checking
+                                   else f'motor check done: {self._checked()}')
+            self._publish_diagnostics()
+
+    def _checked(self) -> str:
+        """What the motor check found, in a line."""
+        found = self.controller.robot.check.result if self.controller.robot.check else None
+        if found is None or found.gains is None:
+            return 'nothing fitted (too few poses while it turned?)'
+        band = ('none seen' if not found.band
+                else f'{found.band:.5f} +- {found.bound:.5f} m/s')
+        return (f'wheel gains {found.gains[0]:.4f} {found.gains[1]:.4f}, dead band {band}, '
+                f'delay {found.delay:.2f} s')
 
     def _publish_diagnostics(self) -> None:
         c = self.controller
@@ -351,7 +368,8 @@ class FormationController(Node):
             level=(DiagnosticStatus.WARN if self._last_reason or self.source.extra
                    else DiagnosticStatus.OK),
             name=f'{self.get_fully_qualified_name()}',
-            message=f'stopped: {self._last_reason}' if self._last_reason else 'driving',
+            message=(f'stopped: {self._last_reason}' if self._last_reason
+                     else 'motor check' if self._checking else 'driving'),
             hardware_id=robot_name(self.config.index),
             values=[KeyValue(key='curve_id', value=str(c.curve_id)),
                     KeyValue(key='s', value=f'{c.s}'),

@@ -210,6 +210,13 @@ def banded_run(swinging):
     MuJoCo robots, a link 100 ms late, nothing told (shared by the dead band's tests); logs:
     {robot model: ([(t, v, w) sent], [(t, x, y, theta) seen])} over the whole run.
     """
+    return logged_run(imperfect_case('arena_demo', 1, swinging), 70.0)
+
+
+def logged_run(experiment, seconds):
+    """(experiment, controllers, result, logs) of `seconds` of the experiment, a link 100 ms
+    late; logs: {robot model: ([(t, v, w) sent], [(t, x, y, theta) seen])}.
+    """
     from curve_formation.core.controller.robot_model import RobotModel
     logs = {}
     sent, seen = RobotModel.sent, RobotModel.seen
@@ -224,8 +231,7 @@ def banded_run(swinging):
 
     RobotModel.sent, RobotModel.seen = log_sent, log_seen
     try:
-        experiment = imperfect_case('arena_demo', 1, swinging)
-        controllers, result = learnt(experiment, 0.1, seconds=70.0)
+        controllers, result = learnt(experiment, 0.1, seconds=seconds)
     finally:
         RobotModel.sent, RobotModel.seen = sent, seen
     return experiment, controllers, result, logs
@@ -293,17 +299,30 @@ def test_measure_link_finds_the_dead_band_in_a_bag_and_prints_the_line(tmp_path,
     """
     import json
 
+    from curve_formation.cli import main
+    experiment, controllers, _, logs = banded_run(False)
+    band = experiment.spec.physics.imperfections.dead_band * experiment.limits.max_wheel_speed
+    assert main(['measure-link', str(logged_bag(tmp_path / 'bag', experiment, controllers,
+                                                logs)),
+                 '--json', str(tmp_path / 'link.json')]) == 0
+    found = json.loads((tmp_path / 'link.json').read_text())
+    bands = {i: r['dead_band'] for i, r in found['robots'].items() if r['dead_band']}
+    assert len(bands) >= 4, found['robots']
+    for i, value in bands.items():
+        assert abs(value - band) <= 0.2 * band + 1e-12, (i, value, band)
+    assert 'limits: {min_wheel_speed: 0.001' in capsys.readouterr().out
+
+
+def logged_bag(path, experiment, controllers, logs):
+    """A bag at `path` of logged_run's commands and poses with the experiment: path."""
     from geometry_msgs.msg import Twist
     from rclpy.serialization import serialize_message
 
     from curve_formation.bags.analysis import EXPERIMENT_KEY
     from curve_formation.bags.bag import BagWriter, qos
-    from curve_formation.cli import main
     from curve_formation.nodes.messages import pose_to_msg
-    experiment, controllers, _, logs = banded_run(False)
-    band = experiment.spec.physics.imperfections.dead_band * experiment.limits.max_wheel_speed
     start = 1_000_000_000.0
-    with BagWriter(tmp_path / 'bag') as writer:
+    with BagWriter(path) as writer:
         for c in controllers:
             i = c.config.index
             writer.add_topic(f'/robot_{i}/cmd_vel', 'geometry_msgs/msg/Twist', qos())
@@ -317,11 +336,4 @@ def test_measure_link_finds_the_dead_band_in_a_bag_and_prints_the_line(tmp_path,
                 writer.write(f'/robot_{i}/pose', (start + t + 0.01) * 1e9,
                              serialize_message(pose_to_msg(x, y, theta, start + t)))
         writer.set_custom(EXPERIMENT_KEY, Path(experiment.source).read_text())
-    assert main(['measure-link', str(tmp_path / 'bag'), '--json',
-                 str(tmp_path / 'link.json')]) == 0
-    found = json.loads((tmp_path / 'link.json').read_text())
-    bands = {i: r['dead_band'] for i, r in found['robots'].items() if r['dead_band']}
-    assert len(bands) >= 4, found['robots']
-    for i, value in bands.items():
-        assert abs(value - band) <= 0.2 * band + 1e-12, (i, value, band)
-    assert 'limits: {min_wheel_speed: 0.001' in capsys.readouterr().out
+    return path

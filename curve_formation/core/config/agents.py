@@ -47,6 +47,7 @@ def agent_configs(experiment: Experiment, rate_hz: float) -> list[AgentConfig]:
         motor_time_constant=(spec.limits.motor_time_constant or 0.0) if spec.limits else 0.0,
         estimate_latency=spec.controller.estimate_latency,
         estimate_motors=spec.controller.estimate_motors,
+        motor_check=spec.controller.motor_check,
         leader_relay=float(relay[i - 1])), **robot_own(experiment, i))
         for i in range(1, experiment.n + 1)]
 

@@ -234,7 +234,8 @@ def point_robots(experiment: Experiment) -> Experiment:
     spec = experiment.spec
     agents = spec.agents.model_copy(update={'reassign_every': None})
     controller = spec.controller.model_copy(update={'estimate_latency': False,
-                                                    'estimate_motors': False})
+                                                    'estimate_motors': False,
+                                                    'motor_check': False})
     spec = spec.model_copy(update={'agents': agents, 'avoidance': None,
                                    'robots': RobotsSpec(), 'controller': controller})
     return dataclasses.replace(experiment, spec=spec, radius=0.0, avoidance=AVOIDANCE_OFF,

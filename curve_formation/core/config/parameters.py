@@ -49,6 +49,7 @@ def node_parameters(config: AgentConfig) -> dict[str, Any]:
         'observer_order': int(gains.observer_order),
         'estimate_latency': bool(config.estimate_latency),
         'estimate_motors': bool(config.estimate_motors),
+        'motor_check': bool(config.motor_check),
         'compiled_law': bool(config.compiled),
     }
     if av.on:

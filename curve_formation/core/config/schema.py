@@ -129,6 +129,7 @@ class ControllerSpec(Strict):
     observer_growth: float = setting('controller.observer_growth')
     estimate_latency: bool = setting('controller.estimate_latency')
     estimate_motors: bool = setting('controller.estimate_motors')
+    motor_check: bool = setting('controller.motor_check')
     observer_order: int = setting('controller.observer_order')
     k1: float = setting('controller.k1')
     k2: float = setting('controller.k2')

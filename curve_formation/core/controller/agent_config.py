@@ -52,6 +52,7 @@ class AgentConfig:
     motor_time_constant: float = default('limits.motor_time_constant')
     estimate_latency: bool = default('controller.estimate_latency')
     estimate_motors: bool = default('controller.estimate_motors')
+    motor_check: bool = default('controller.motor_check')
     # The control step (step.agent_step) compiled by numba as in the batch simulator:
     # the same source, about 15x faster a tick; loading it costs ~0.7 s and ~65 MB.
     compiled: bool = False

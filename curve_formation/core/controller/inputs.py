@@ -90,6 +90,7 @@ class Tick:
     neighbour_stamps: tuple[tuple[int, Optional[float]], ...] = ()
     filtered: bool = False            # the safety filter changed the law's command
     pose: Optional[Pose] = None       # the pose the law used (predicted, with predict_pose)
+    checking: bool = False            # a tick of the motor check, not of the law
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,8 @@
 lag, each as told or as estimated online (controller.estimate_latency, estimate_motors;
 core.controller.link_estimate), each wheel's gain as estimated online
 (core.controller.wheel_estimate) and the motors' dead band, as told or estimated online
-(core.controller.dead_band_estimate). Times in s on the controller's clock.
+(core.controller.dead_band_estimate); the motor check's gains and band before any of those
+(controller.motor_check: core.controller.motor_probe). Times in s on the controller's clock.
 """
 
 import math
@@ -10,7 +11,9 @@ import math
 from curve_formation.core.base.shapes import Command
 from curve_formation.core.controller.agent_config import AgentConfig
 from curve_formation.core.controller.dead_band_estimate import OnlineDeadBand
+from curve_formation.core.controller.limits import saturate, timed_by
 from curve_formation.core.controller.link_estimate import ONLINE_LAGS, OnlineLink
+from curve_formation.core.controller.motor_probe import MotorProbe
 from curve_formation.core.controller.wheel_estimate import OnlineGains, wheel_record
 from curve_formation.core.formation.dynamics import body_from_wheels, wheel_speeds
 
@@ -47,7 +50,11 @@ class RobotModel:
         self.band = (OnlineDeadBand(motion, limits.wheel_base, limits.max_wheel_speed)
                      if motion is not None and cfg.min_wheel_speed <= 0.0   # told wins
                      and math.isfinite(limits.max_wheel_speed) else None)
-        self.records = [r for r in (self.link, motion) if r is not None]
+        self.told_band = cfg.min_wheel_speed > 0.0
+        self.check = (MotorProbe(limits.wheel_base, limits.max_wheel_speed,
+                                 limits.max_angular_rate, 1.0 / cfg.rate_hz)
+                      if cfg.motor_check and timed_by(limits) else None)
+        self.records = [r for r in (self.link, motion, self.check) if r is not None]
         # how many commands sent a controller keeps: as far back as a pose may be
         # (pose_timeout) plus the longest the latency may be
         longest = (max(cfg.command_latency, float(ONLINE_LAGS.max()))
@@ -68,8 +75,34 @@ class RobotModel:
             self.wheels.update(now, self.latency, self.motor_time_constant)
         if self.band is not None:
             self.band.update(now, self.latency, self.motor_time_constant)
-            if self.band.band is not None:
+            if self.band.band is not None and self.checked_band is None:
                 self.min_wheel_speed = self.band.band
+
+    @property
+    def checking(self) -> bool:
+        """True while the motor check is due or under way."""
+        return self.check is not None and not self.check.done
+
+    def check_command(self, now: float) -> Command | None:
+        """The motor check's command (v m/s, rad/s) at `now`, within the turn and wheel
+        limits; None once it is done (its band then taken where none is told).
+        """
+        assert self.check is not None
+        command = self.check.command(now)
+        if command is None:
+            band = self.checked_band
+            if band is not None and not self.told_band:
+                self.min_wheel_speed = band
+            return None
+        limits = self.limits
+        return saturate(*command, limits.wheel_base, limits.max_wheel_speed,
+                        limits.max_angular_rate)
+
+    @property
+    def checked_band(self) -> float | None:
+        """m/s: the band the motor check found (None: no check, none fitted or none seen)."""
+        result = None if self.check is None else self.check.result
+        return None if result is None or not result.band else result.band
 
     def sent(self, now: float, v: float, w: float) -> None:
         """The command (v m/s, w rad/s) sent at `now`."""
@@ -96,5 +129,8 @@ class RobotModel:
 
     @property
     def wheel_gains(self) -> tuple[float, float] | None:
-        """(left, right) as estimated online, or None."""
-        return None if self.wheels is None else self.wheels.gains
+        """(left, right) as estimated online, else as the motor check found them, or None."""
+        online = None if self.wheels is None else self.wheels.gains
+        if online is not None or self.check is None or self.check.result is None:
+            return online
+        return self.check.result.gains

@@ -130,6 +130,11 @@ SETTINGS = _settings(
             "gain (every 5 s, commands compensated once told) and the motors' dead band "
             '(limits.min_wheel_speed, every 5 s, taken when 2 fits in a row agree within 20 %: '
             'core.controller.dead_band_estimate); told values win'),
+    Setting('controller.motor_check', 'motor_check', 'bool', False, '',
+            'before it first drives, each robot turns in place for about 8 s while its '
+            "controller measures each wheel's gain and the motors' dead band "
+            '(core.controller.motor_probe); they are then used as estimate_motors uses its '
+            'estimates (told values win). Needs limits.wheel_base and max_wheel_speed'),
     Setting('controller.predict_pose', 'predict_pose', 'bool', False, '',
             "carry the robot's pose forward from its stamp (capture time) to the tick, through "
             'the commands sent since, so a pose that is 80 ms old does not make an 80 ms old '
@@ -242,6 +247,9 @@ RULES = (
     Rule('controller.reverse', lambda v: 'needs limits.wheel_base and limits.max_wheel_speed '
          '(> 0) to time a trip forwards and backwards'
          if v['controller.reverse'] and not _wheel_limits_time(v) else None),
+    Rule('controller.motor_check', lambda v: 'needs limits.wheel_base and '
+         'limits.max_wheel_speed (> 0): the check turns each robot at a share of its fastest '
+         'wheel speed' if v['controller.motor_check'] and not _wheel_limits_time(v) else None),
     Rule('controller.observer_growth', lambda v: 'needs limits.wheel_base and '
          'limits.max_wheel_speed (> 0): it acts while the wheel limits saturate the command'
          if v['controller.observer_growth'] > 1.0 and not _wheel_limits_time(v) else None),

@@ -38,7 +38,11 @@ from curve_formation.core.formation import dynamics
 from curve_formation.core.formation.motion import CurveMotion
 from curve_formation.core.record import metrics
 from curve_formation.core.schedule.curve_schedule import CurveSchedule
-from curve_formation.core.sim.estimate_replay import check_replayable, held_estimates
+from curve_formation.core.sim.estimate_replay import (
+    check_replayable,
+    EstimateTakenError,
+    held_estimates,
+)
 from curve_formation.core.sim.kernel import (
     Clock,
     Delay,
@@ -151,6 +155,12 @@ def _refuse_unmodelled(experiment: Experiment, rate_hz: float | None) -> None:
         raise ConfigError(experiment.source, f'limits.{told[0]}', "describes real motors the "
                           "batch simulator's unicycles do not have: simulate them in the "
                           'MuJoCo world (sim --physics mujoco)')
+    if spec.controller.motor_check:
+        raise EstimateTakenError(experiment.source, 'controller.motor_check',
+                                 'each robot first turns in place while its motors are '
+                                 "measured, which the batch simulator's unicycles do not do: "
+                                 'simulate it with core.sim.pipeline.simulate_pipeline (as '
+                                 'sim does)')
     if rate_hz is None and spec.controller.command_latency > 0.0:
         raise ConfigError(experiment.source, 'controller.command_latency',
                           'commands that act late are sent at ticks: it needs a control rate '

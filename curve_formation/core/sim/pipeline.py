@@ -263,6 +263,7 @@ def simulate_pipeline(experiment: Experiment, engine: Literal['kinematic', 'mujo
     if link is None:
         link = Link(command_latency=spec.controller.command_latency, seed=seed)
     pipeline = Pipeline(experiment, world, rate, phases, pose_rate, link)
+    learns = spec.controller.estimate_motors or spec.controller.motor_check   # the wheels
     t, poses, dhat, commands = pipeline.run(duration, record_dt,
                                             spec.agents.reassign_every)
     sample_phase = phase_index([p.start for p in experiment.phases], t)
@@ -276,10 +277,9 @@ def simulate_pipeline(experiment: Experiment, engine: Literal['kinematic', 'mujo
                      [c.latency for c in pipeline.controllers],
                      [c.motor_time_constant for c in pipeline.controllers]
                      if spec.controller.estimate_motors else None,
-                     [c.robot.wheel_gains for c in pipeline.controllers]
-                     if spec.controller.estimate_motors else None,
+                     [c.robot.wheel_gains for c in pipeline.controllers] if learns else None,
                      [c.robot.min_wheel_speed or None for c in pipeline.controllers]
-                     if spec.controller.estimate_motors else None)
+                     if learns else None)
 
 
 def simulate_kinematic(experiment: Experiment,

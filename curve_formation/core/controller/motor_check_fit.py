@@ -1,0 +1,195 @@
+"""The motor check's fits (core.controller.motor_probe): each wheel's gain, drift, the
+delay and the motors' lag from the sweep (fit_sweep), and the dead band from a pass of the
+crossings (pass_band).
+
+A wheel's speed is measured from the poses over SPAN s (spans: the forward speed -+ half the
+wheel base times the turn rate) and modelled as its gain times its command plus a drift (a
+disturbance added on the robot, as firmware adds it), zero while that lies within the band
+(a hard cut-off, as the MuJoCo motors have it). Times in s (one clock for commands and
+poses), speeds in m/s of rim.
+"""
+
+from dataclasses import dataclass
+import math
+
+import numpy as np
+from scipy.signal import lfilter
+
+from curve_formation.core.base.shapes import BoolArray, FloatArray
+from curve_formation.core.controller import motion_record as record
+from curve_formation.core.formation.dynamics import wheel_speeds
+
+
+BAND_MAX = 0.25        # largest band sought, a share of the fastest wheel speed
+BAND_STEP = 0.002      # the band grid's step, a share of the fastest wheel speed
+DELAYS = np.arange(0.0, 0.505, 0.01)    # s: latency and pose age sought
+LAGS = np.arange(0.0, 0.1205, 0.01)      # s: motor lags sought in the sweep's fit
+MOVING = 0.2           # share of U from which a wheel's measured speed counts as moving
+SHIFTS = np.arange(-0.1, 0.1001, 0.005)  # s: a pass's model's shift in time, left free
+MIN_SAMPLES = 20
+SPAN = 0.15            # s: the shortest interval a wheel's speed is measured over
+FINE = 0.002           # s: the time step of a pass's model
+DRIFT_POINTS = 4       # fewest measures of a drift a line is fitted through
+CLEAR = 0.25           # s a wheel moves clear of the band before it is fitted (its motor's lag)
+
+
+@dataclass(frozen=True)
+class SweepFit:
+    """The sweep's fit: delay, lag (s), gains (2,), drift (2, 3: each wheel's a quadratic
+    in time about `at`: its value, rate and half its curvature, m/s, m/s^2, m/s^3), residual
+    (rms m/s).
+    """
+
+    delay: float
+    lag: float
+    gains: FloatArray
+    drift: FloatArray
+    at: float
+    residual: float
+
+    def drift_at(self, k: int, t: FloatArray) -> FloatArray:
+        """Wheel k's drift (m/s, as a command) at times t (s)."""
+        dt = t - self.at
+        return self.drift[k, 0] + self.drift[k, 1] * dt + self.drift[k, 2] * dt * dt
+
+
+def spans(tp: FloatArray, poses: FloatArray, wheel_base: float, span: float = SPAN
+          ) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """(starts, ends, speeds (2, n)): each wheel's mean rim speed (m/s) from each pose to the
+    first at least `span` s later (overlapping intervals: a camera's noise is in the poses,
+    so a longer interval measures a speed better).
+    """
+    ends_at = np.searchsorted(tp, tp + span - 1e-9)
+    first = np.flatnonzero(ends_at < len(tp))
+    pairs = np.empty(2 * len(first), dtype=int)
+    pairs[0::2], pairs[1::2] = first, ends_at[first]
+    forward, turn = record.measured_rates(tp[pairs], poses[pairs])
+    speeds = np.stack(wheel_speeds(forward[0::2], turn[0::2], wheel_base))
+    return tp[first], tp[ends_at[first]], speeds
+
+
+def fit_sweep(tc: FloatArray, wheels: FloatArray, starts: FloatArray, ends: FloatArray,
+              measured: FloatArray, amplitude: float) -> SweepFit | None:
+    """Each wheel's gain and drift (a line in time) where it clearly moves, over the grid of
+    delays and lags: tc (k,) command times, wheels (2, k) their wheel commands (m/s), the
+    wheels' speeds measured (2, n) over [starts, ends] (n,). Where a wheel moves is first
+    judged from its measured speed, then again from the first fit's model (a camera's noise
+    would otherwise choose the samples).
+    """
+    first = _sweep_over_grid(tc, wheels, starts, ends, measured, amplitude, None)
+    if first is None:
+        return None
+    return _sweep_over_grid(tc, wheels, starts, ends, measured, amplitude, first)
+
+
+def _sweep_over_grid(tc: FloatArray, wheels: FloatArray, starts: FloatArray,
+                     ends: FloatArray, measured: FloatArray, amplitude: float,
+                     model: SweepFit | None) -> SweepFit | None:
+    """fit_sweep's grid: each wheel moving where its measured speed (model None) or the
+    model's is at least MOVING of the amplitude.
+    """
+    mid = 0.5 * (starts + ends)
+    at = float(mid.mean()) if len(mid) else 0.0
+    judged = (measured if model is None else
+              np.stack([_modelled(model, k, tc, wheels[k], starts, ends, mid) for k in range(2)]))
+    # clear of the band: moving, as measured, CLEAR s before and after (a motor's lag as it
+    # leaves the band, an interval that ends in it: the fit has no band)
+    clear = np.stack([moving_about(starts, np.abs(measured[k]) >= 0.5 * MOVING * amplitude,
+                                   CLEAR) for k in range(2)])
+    best: tuple[float, float, float, FloatArray, FloatArray] | None = None
+    driven = record.driven_commands(wheels.T)
+    for lag in LAGS:
+        for delay in DELAYS:
+            means = np.stack([record.lagged_means(tc, wheels[k], starts - delay, ends - delay,
+                                                  float(lag)) for k in range(2)])
+            # the drift acts while driven: it too comes through the lag
+            steady = record.held_means(tc, driven, starts - delay - 3.0 * lag,
+                                       ends - delay) > 0.999
+            total, gains, drift = 0.0, np.zeros(2), np.zeros((2, 3))   # a line: no curvature
+            for k in range(2):
+                moving = (np.abs(judged[k]) >= MOVING * amplitude) & steady & clear[k]
+                if moving.sum() < MIN_SAMPLES:
+                    total = math.inf
+                    break
+                basis = np.column_stack([means[k], np.ones(len(mid)), mid - at,
+                                         np.sign(judged[k])])[moving]
+                coef, *_ = np.linalg.lstsq(basis, measured[k][moving], rcond=None)
+                residual = measured[k][moving] - basis @ coef
+                total += float(residual @ residual) / moving.sum()
+                gains[k] = coef[0]
+                drift[k, :2] = coef[1:3] / coef[0] if coef[0] else 0.0
+            if best is None or total < best[0]:
+                best = (total, float(delay), float(lag), gains, drift)
+    if best is None or not math.isfinite(best[0]) or min(best[3]) <= 0.0:
+        return None
+    return SweepFit(best[1], best[2], best[3], best[4], at, math.sqrt(best[0] / 2.0))
+
+
+def moving_about(starts: FloatArray, moving: BoolArray, within: float) -> BoolArray:
+    """Which intervals (their starts (n,), s, in order) moved, as did every interval that
+    starts up to `within` s before or after them.
+    """
+    still = np.concatenate([[0], np.cumsum(~moving)])
+    first = np.searchsorted(starts, starts - within)
+    last = np.searchsorted(starts, starts + within, side='right')
+    return moving & (still[last] - still[first] == 0)
+
+
+def _modelled(model: SweepFit, k: int, tc: FloatArray, wheel: FloatArray, starts: FloatArray,
+              ends: FloatArray, mid: FloatArray) -> FloatArray:
+    """Wheel k's speeds (m/s) over the intervals as the sweep's fit has them (no band)."""
+    means = record.lagged_means(tc, wheel, starts - model.delay, ends - model.delay,
+                                model.lag)
+    return model.gains[k] * (means + model.drift_at(k, mid))
+
+
+def _lagged(u: FloatArray, step: float, lag: float) -> FloatArray:
+    """u sampled every `step` s through a first-order lag of `lag` s (held between samples),
+    starting at rest on u's first value.
+    """
+    if lag <= 0.0:
+        return u
+    keep = math.exp(-step / lag)
+    return lfilter([1.0 - keep], [1.0, -keep], u, zi=[keep * u[0]])[0]
+
+
+def drift_curve(points: FloatArray, at: FloatArray) -> FloatArray:
+    """A wheel's drift (m/s) at times `at` (s) from the points (n, 2: s, m/s) measured
+    about them: a quadratic through at least DRIFT_POINTS + 2, a line through fewer, at
+    least 2, else their mean (0 without any).
+    """
+    if len(points) >= 2:
+        degree = 2 if len(points) >= DRIFT_POINTS + 2 else 1
+        origin = float(points[:, 0].mean())
+        coef = np.polyfit(points[:, 0] - origin, points[:, 1], degree)
+        return np.polyval(coef, at - origin)
+    return np.full(len(at), float(points[:, 1].mean()) if len(points) else 0.0)
+
+
+def pass_band(starts: FloatArray, ends: FloatArray, measured: FloatArray, gain: float,
+              wheel: tuple[FloatArray, FloatArray], drift: FloatArray, delay: float,
+              lag: float, max_wheel_speed: float) -> float | None:
+    """The band (m/s) of one pass of one wheel: each interval's mean speed modelled as gain
+    times its command (wheel: (command times, wheel commands), held, `delay` s late) plus
+    its drift (drift_curve through the points `drift`), zero within the band, through the
+    motors' `lag` (s); a small shift in time (SHIFTS) left free. measured (n,): the wheel's
+    speeds over [starts, ends] (n,) within the pass.
+    """
+    if len(starts) < MIN_SAMPLES:
+        return None
+    fine = np.arange(starts[0] + SHIFTS[0] - 3.0 * lag - FINE, ends[-1] + SHIFTS[-1] + FINE,
+                     FINE)
+    times, commands = wheel
+    held = commands[np.clip(np.searchsorted(times, fine - delay, side='right') - 1, 0, None)]
+    motor = held + drift_curve(drift, fine)
+    shifted_starts = (starts[None, :] - SHIFTS[:, None]).ravel()
+    shifted_ends = (ends[None, :] - SHIFTS[:, None]).ravel()
+    bands = np.arange(0.0, BAND_MAX * max_wheel_speed + 1e-12, BAND_STEP * max_wheel_speed)
+    squares = np.empty(len(bands))
+    for k, band in enumerate(bands):
+        speed = gain * _lagged(np.where(np.abs(motor) < band, 0.0, motor), FINE, lag)
+        area = np.concatenate([[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1])) * FINE])
+        means = ((np.interp(shifted_ends, fine, area) - np.interp(shifted_starts, fine, area))
+                 / (shifted_ends - shifted_starts)).reshape(len(SHIFTS), -1)
+        squares[k] = ((means - measured[None, :]) ** 2).sum(axis=1).min()
+    return float(bands[int(np.argmin(squares))])

@@ -1,0 +1,321 @@
+"""A motor check: a robot turns in place for about 8 s before it first drives, so that its
+controller learns each wheel's gain and the motors' dead band at once, instead of waiting for
+the formation's commands to cross them (controller.motor_check).
+
+The robot's wheels are commanded opposite speeds (left -u, right +u: it turns on the spot,
+never leaving its disc). Each wheel is measured from the poses (its rim speed over SPAN s:
+the forward speed -+ half the wheel base times the turn rate) and modelled as its gain times
+its command plus a drift (a disturbance added on the robot, as firmware adds it), zero while
+that lies within the band (a hard cut-off, as the MuJoCo motors have it).
+- Sweep (SWEEP_SECONDS): u goes 0 -> +U -> -U -> 0, U a share SWEEP_SHARE of the fastest wheel
+  speed (within the turn limit). Where a wheel clearly moves, one least-squares fit per wheel
+  (gain, drift as a line in time) over a grid of delays (the link's latency and the pose's
+  age) and motor lags gives its gain, its drift, the delay and the lag
+  (core.controller.motor_check_fit.fit_sweep).
+- Crossings (CROSS_SECONDS): each wheel's command is centred on where its drift leaves it
+  standing and swept slowly through +-A there (A = CROSS_SHARE of the fastest wheel speed),
+  up, then down between the first pass's commands. The drift is followed while the wheel
+  moves (its speed less what its commands ask, once clear of the band for CLEAR s) and
+  carried on as a line while it stands, so that a swinging drift keeps the band within
+  reach. Each pass's band is the one whose model (the commands sent, the drift followed as a
+  curve through the pass, the sweep's gain, delay and lag, a small shift left free) fits its
+  measured speeds best (motor_check_fit.pass_band).
+The band is the mean of the two passes and the two wheels; its bound the grid's step or half
+the wheels' difference, whichever is larger. Times in s (the controller's clock), speeds in
+m/s of rim.
+"""
+
+from dataclasses import dataclass, field
+import math
+
+import numpy as np
+
+from curve_formation.core.base.shapes import Command, FloatArray
+from curve_formation.core.controller import motion_record as record
+from curve_formation.core.controller.motor_check_fit import (
+    BAND_STEP,
+    CLEAR,
+    DRIFT_POINTS,
+    fit_sweep,
+    MIN_SAMPLES,
+    MOVING,
+    pass_band,
+    SPAN,
+    spans,
+    SweepFit,
+)
+from curve_formation.core.formation.dynamics import body_from_wheels, wheel_speeds
+
+
+SWEEP_SECONDS = 3.0
+SWEEP_SHARE = 0.8      # of the fastest wheel speed: beyond the band and a drift of 0.5
+CROSS_SECONDS = 5.0    # two passes of 2.5 s
+CROSS_SHARE = 0.3      # of the fastest wheel speed: bands up to about BAND_MAX are crossed
+DRIFT_WINDOW = 1.0     # s of the crossings' drift measures a line is fitted through
+SETTLE = 0.4           # s at each pass's start left out (the jump to it, through the link)
+
+
+@dataclass(frozen=True)
+class ProbeResult:
+    """What a motor check found: gains (left, right speed per unit of command; None if not
+    fitted), band (m/s; 0.0 where none was seen, None if not fitted), bound (m/s), the
+    sweep's delay and lag (s) and its residual (rms m/s).
+    """
+
+    gains: tuple[float, float] | None
+    band: float | None
+    bound: float | None
+    delay: float | None
+    lag: float | None
+    residual: float | None
+
+
+NOT_FITTED = ProbeResult(None, None, None, None, None, None)
+
+
+def sweep_command(t: float, amplitude: float) -> float:
+    """u (m/s) of the sweep at t s after its start: 0 -> +A -> -A -> 0 in SWEEP_SECONDS."""
+    quarter = SWEEP_SECONDS / 4.0
+    if t < quarter:
+        return amplitude * t / quarter
+    if t < 3.0 * quarter:
+        return amplitude * (1.0 - (t - quarter) / quarter)
+    return amplitude * (-1.0 + (t - 3.0 * quarter) / quarter)
+
+
+def cross_offset(t: float, amplitude: float, period: float) -> float:
+    """The crossings' offset (m/s) at t s after their start: -A -> +A, then +A -> -A less
+    half of what it moves in a control `period` (s), so that the second pass's commands lie
+    between the first's.
+    """
+    half = CROSS_SECONDS / 2.0
+    if t < half:
+        return amplitude * (-1.0 + 2.0 * t / half)
+    return amplitude * (1.0 - 2.0 * (t - half) / half - period / half)
+
+
+@dataclass
+class MotorProbe:
+    """One robot's motor check, run by its controller before it first drives: command(t)
+    gives what to send while it lasts (None once done), seen() and sent() record the poses
+    taken and the commands sent; `result` once done. wheel_base (m), max_wheel_speed (m/s),
+    max_angular_rate (rad/s) as the limits say.
+    """
+
+    wheel_base: float
+    max_wheel_speed: float
+    max_angular_rate: float = math.inf
+    period: float = 0.1   # s between the controller's ticks
+    started: float | None = None
+    result: ProbeResult | None = None
+    commands: list[tuple[float, float, float]] = field(default_factory=list)
+    poses: list[tuple[float, float, float, float]] = field(default_factory=list)
+    _sweep: SweepFit | None = None
+    _swept: bool = False
+    # each wheel's drift as the crossings measured it: [(s at the wheels, m/s), ...]
+    _drifts: tuple[list[tuple[float, float]], list[tuple[float, float]]] = field(
+        default_factory=lambda: ([], []))
+    _followed_to: float = -math.inf   # s: the last pose _follow_drift read
+    # s: since when each wheel has moved without a break, as _follow_drift measured it
+    _moving_since: list[float] = field(default_factory=lambda: [math.inf, math.inf])
+
+    @property
+    def amplitude(self) -> float:
+        """U (m/s): SWEEP_SHARE of the fastest wheel speed, within the turn limit."""
+        return min(SWEEP_SHARE * self.max_wheel_speed,
+                   0.5 * self.max_angular_rate * self.wheel_base)
+
+    @property
+    def crossing(self) -> float:
+        """A (m/s) of the crossings: CROSS_SHARE of the fastest wheel speed."""
+        return CROSS_SHARE * self.max_wheel_speed
+
+    @property
+    def done(self) -> bool:
+        return self.result is not None
+
+    def restart(self) -> None:
+        """Forget a check that was interrupted (a stop): the next command starts it again."""
+        self.started, self._sweep, self._swept = None, None, False
+        self._drifts, self._followed_to = ([], []), -math.inf
+        self._moving_since = [math.inf, math.inf]
+        self.commands.clear()
+        self.poses.clear()
+
+    def seen(self, taken: float, x: float, y: float, theta: float) -> None:
+        if self.started is not None and not self.done:
+            self.poses.append((taken, x, y, theta))
+
+    def sent(self, now: float, v: float, w: float) -> None:
+        if self.started is not None and not self.done:
+            self.commands.append((now, v, w))
+
+    def command(self, now: float) -> Command | None:
+        """(v, w) to send at `now` (m/s, rad/s) while the check lasts; None once done."""
+        if self.done:
+            return None
+        if self.started is None:
+            self.started = now
+        t = now - self.started
+        if t < SWEEP_SECONDS:
+            u = sweep_command(t, self.amplitude)
+            return body_from_wheels(-u, u, self.wheel_base)
+        if not self._swept:
+            self._swept = True
+            self._sweep = self._fit_sweep()
+            if self._sweep is None:
+                self.result = NOT_FITTED
+                return None
+        t -= SWEEP_SECONDS
+        if t >= CROSS_SECONDS:
+            self.result = self._fit_crossings()
+            return None
+        left, right = self._crossing_wheels(now, t)
+        return body_from_wheels(left, right, self.wheel_base)
+
+    def _crossing_wheels(self, now: float, t: float) -> tuple[float, float]:
+        """Each wheel's command in the crossings at `now`, t s after they began: its centre
+        (minus its drift as followed, _follow_drift) plus the offset (left -, right +: a
+        turn), within the fastest wheel speed.
+        """
+        assert self._sweep is not None
+        self._follow_drift()
+        acts = now + self._sweep.delay
+        offset = cross_offset(t, self.crossing, self.period)
+        top = self.max_wheel_speed
+        return (float(np.clip(-self._drift_at(0, acts) - offset, -top, top)),
+                float(np.clip(-self._drift_at(1, acts) + offset, -top, top)))
+
+    def _drift_at(self, k: int, at: float) -> float:
+        """Wheel k's drift (m/s, as a command) at the wheels at `at` (s): a line through what
+        the crossings measured over the last DRIFT_WINDOW s, where at least DRIFT_POINTS;
+        else the last measured carried on at the sweep's rate; else the sweep's line.
+        """
+        assert self._sweep is not None
+        sweep = self._sweep
+        seen = np.array(self._drifts[k]).reshape(-1, 2)
+        if not len(seen):
+            return float(sweep.drift_at(k, np.array([at]))[0])
+        recent = seen[seen[:, 0] >= seen[-1, 0] - DRIFT_WINDOW]
+        if len(recent) >= DRIFT_POINTS:
+            rate, value = np.polyfit(recent[:, 0] - seen[-1, 0], recent[:, 1], 1)
+            return float(value + rate * (at - seen[-1, 0]))
+        rate = sweep.drift[k, 1] + 2.0 * sweep.drift[k, 2] * (seen[-1, 0] - sweep.at)
+        return float(seen[-1, 1] + rate * (at - seen[-1, 0]))
+
+    def _follow_drift(self) -> None:
+        """Each wheel's drift (m/s, as a command) from its speed over the last SPAN s of
+        poses less what its commands ask for, where it moves (a swinging drift would carry
+        the band out of the crossings' reach), kept in _drifts at the interval's middle.
+        """
+        assert self._sweep is not None
+        sweep = self._sweep
+        if len(self.poses) < 2 or len(self.commands) < 2:
+            return
+        seen = np.array(self.poses[-int(SPAN * 120) - 2:])
+        last = seen[-1]
+        earlier = np.flatnonzero(seen[:, 0] <= last[0] - SPAN + 1e-9)
+        if not len(earlier) or last[0] <= self._followed_to:
+            return
+        self._followed_to = float(last[0])
+        pair = seen[[earlier[-1], -1]]
+        forward, turn = record.measured_rates(pair[:, 0], pair[:, 1:])
+        speeds = wheel_speeds(float(forward[0]), float(turn[0]), self.wheel_base)
+        sent = np.array(self.commands[-60:])
+        wheels = np.stack(wheel_speeds(sent[:, 1], sent[:, 2], self.wheel_base))
+        start, end = np.array([pair[0, 0] - sweep.delay]), np.array([pair[1, 0] - sweep.delay])
+        mid = 0.5 * float(pair[0, 0] + pair[1, 0])
+        for k in range(2):
+            if abs(speeds[k]) < MOVING * self.crossing * sweep.gains[k]:
+                self._moving_since[k] = math.inf
+                continue
+            self._moving_since[k] = min(self._moving_since[k], mid)
+            if mid - self._moving_since[k] >= CLEAR:   # its motor has left the band behind
+                asked = record.lagged_means(sent[:, 0], wheels[k], start, end, sweep.lag)[0]
+                self._drifts[k].append((mid, speeds[k] / sweep.gains[k] - asked))
+
+    def _arrays(self, begin: float, end: float
+                ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """The commands (times, wheels (2, k)) and poses (times, (m, 3)) from begin to end."""
+        assert self.started is not None
+        sent = np.array(self.commands).reshape(-1, 3)
+        seen = np.array(self.poses).reshape(-1, 4)
+        tc, cmd, tp, pose = record.cleaned(sent[:, 0], sent[:, 1:], seen[:, 0], seen[:, 1:])
+        keep = (tp >= self.started + begin) & (tp <= self.started + end)
+        wheels = np.stack(wheel_speeds(cmd[:, 0], cmd[:, 1], self.wheel_base))
+        return tc, wheels, tp[keep], pose[keep]
+
+    def _fit_sweep(self) -> SweepFit | None:
+        tc, wheels, tp, pose = self._arrays(0.0, SWEEP_SECONDS)
+        if len(tc) < 2 or len(tp) < MIN_SAMPLES:
+            return None
+        return fit_sweep(tc, wheels, *spans(tp, pose, self.wheel_base), self.amplitude)
+
+    def _fit_crossings(self) -> ProbeResult:
+        sweep = self._sweep
+        assert sweep is not None and self.started is not None
+        half = CROSS_SECONDS / 2.0
+        tc, wheels, _, _ = self._arrays(0.0, 0.0)
+        gains = (float(sweep.gains[0]), float(sweep.gains[1]))
+        bands = []
+        for k in range(2):
+            found = []
+            drifts = np.array(self._drifts[k]).reshape(-1, 2)
+            for first in (SWEEP_SECONDS, SWEEP_SECONDS + half):
+                _, _, tp, pose = self._arrays(first + SETTLE, first + half)
+                starts, ends, measured = spans(tp, pose, self.wheel_base)
+                middle = self.started + first + 0.5 * half
+                near = np.abs(drifts[:, 0] - middle) <= half
+                found.append(pass_band(starts, ends, measured[k], gains[k], (tc, wheels[k]),
+                                       drifts[near], sweep.delay, sweep.lag,
+                                       self.max_wheel_speed))
+            up, down = found
+            if up is None or down is None:
+                return ProbeResult(gains, None, None, sweep.delay, sweep.lag, sweep.residual)
+            bands.append(0.5 * (up + down))
+        band = 0.5 * (bands[0] + bands[1])
+        bound = max(BAND_STEP * self.max_wheel_speed, 0.5 * abs(bands[0] - bands[1]))
+        return ProbeResult(gains, band, bound, sweep.delay, sweep.lag, sweep.residual)
+
+
+def replay_check(command_times: FloatArray, commands: FloatArray, pose_times: FloatArray,
+                 poses: FloatArray, wheel_base: float, max_wheel_speed: float,
+                 max_angular_rate: float = math.inf, period: float = 0.1,
+                 tolerance: float = 0.05) -> ProbeResult | None:
+    """A recorded motor check's result: the commands (k,) s and (k, 2) (v m/s, w rad/s)
+    as sent and the poses (m,) s and (m, 3) as taken, replayed through a MotorProbe from the
+    first command that drives (or the one before it: the sweep's first is a standstill).
+    None where no check is recorded there: the sweep's commands differ from the probe's by
+    more than `tolerance` of its amplitude, or it ends early.
+    """
+    driving = np.flatnonzero(np.abs(commands).max(axis=1) > 0.0) if len(commands) else None
+    if driving is None or not len(driving):
+        return None
+    for first in (driving[0] - 1, driving[0]):
+        if first >= 0:
+            found = _replayed(command_times[first:], commands[first:], pose_times, poses,
+                              MotorProbe(wheel_base, max_wheel_speed, max_angular_rate, period),
+                              tolerance)
+            if found is not None:
+                return found
+    return None
+
+
+def _replayed(command_times: FloatArray, commands: FloatArray, pose_times: FloatArray,
+              poses: FloatArray, probe: MotorProbe, tolerance: float) -> ProbeResult | None:
+    """replay_check from the first of the commands given."""
+    seen = 0
+    for t, (v, w) in zip(command_times, commands, strict=True):
+        while seen < len(pose_times) and pose_times[seen] <= t:
+            probe.seen(float(pose_times[seen]), *map(float, poses[seen]))
+            seen += 1
+        wanted = probe.command(float(t))
+        if wanted is None:
+            return probe.result
+        if t - (probe.started or t) < SWEEP_SECONDS:
+            asked = np.subtract(wheel_speeds(*wanted, probe.wheel_base),
+                                wheel_speeds(v, w, probe.wheel_base))
+            if np.abs(asked).max() > tolerance * probe.amplitude:
+                return None
+        probe.sent(float(t), float(v), float(w))
+    return None

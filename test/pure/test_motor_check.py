@@ -1,0 +1,245 @@
+"""The motor check (controller.motor_check, core.controller.motor_probe): a robot turns in
+place before it first drives while its controller measures each wheel's gain and the motors'
+dead band; on a differential drive simulated here and on the MuJoCo robots.
+"""
+
+import dataclasses
+import functools
+import json
+import math
+
+import numpy as np
+import pytest
+from test_robot_estimate import imperfect_case, IMPERFECTIONS, logged_bag, logged_run
+
+from curve_formation.core.config.errors import ConfigError
+from curve_formation.core.controller.agent import AgentController
+from curve_formation.core.controller.gains import Gains
+from curve_formation.core.controller.limits import WheelLimits
+from curve_formation.core.controller.motor_probe import (
+    CROSS_SECONDS,
+    MotorProbe,
+    SWEEP_SECONDS,
+)
+from curve_formation.core.formation.dynamics import wheel_speeds
+
+
+BASE, FASTEST = 0.08, 0.0225   # Mona: wheel base (m), fastest wheel speed (m/s)
+CHECK = SWEEP_SECONDS + CROSS_SECONDS
+
+
+class Drive:
+    """A differential drive as firmware and motors turn it: each wheel's command (plus a
+    drift on the body, (v m/s, w rad/s), while driven, times 1 + swing sin(2 pi t / 10 s))
+    `latency` s late, zero within `band` (m/s), through a first-order lag `tau` (s), times
+    its gain; poses every 1/30 s with Gaussian noise (m, rad). Times in s.
+    """
+
+    def __init__(self, band, gains, drift=(0.005, 0.1), swing=0.0, latency=0.1, tau=0.05,
+                 noise=(0.0, 0.0), seed=0):
+        self.band, self.gains, self.drift, self.swing = band, np.array(gains), drift, swing
+        self.latency, self.tau, self.noise = latency, tau, noise
+        self.rng = np.random.default_rng(seed)
+        self.pose = np.zeros(3)
+        self.motor = np.zeros(2)
+        self.queue, self.wheels, self.t = [], np.zeros(2), 0.0
+
+    def send(self, v, w):
+        self.queue.append((self.t + self.latency, v, w))
+
+    def run(self, until, dt=0.001):
+        """Step to `until`, returning the poses taken on the way [(t, x, y, theta)]."""
+        taken = []
+        while self.t < until - 1e-9:
+            while self.queue and self.queue[0][0] <= self.t:
+                _, v, w = self.queue.pop(0)
+                driven = v != 0.0 or w != 0.0
+                scale = 1.0 + self.swing * math.sin(2.0 * math.pi * self.t / 10.0)
+                drift = np.array(wheel_speeds(self.drift[0] * scale, self.drift[1] * scale,
+                                              BASE))
+                self.wheels = np.array(wheel_speeds(v, w, BASE)) + (drift if driven else 0.0)
+            want = np.where(np.abs(self.wheels) < self.band, 0.0, self.wheels)
+            self.motor += (want - self.motor) * dt / self.tau
+            left, right = self.motor * self.gains
+            v, w = 0.5 * (left + right), (right - left) / BASE
+            x, y, theta = self.pose
+            self.pose = np.array([x + v * math.cos(theta) * dt, y + v * math.sin(theta) * dt,
+                                  theta + w * dt])
+            before, self.t = self.t, self.t + dt
+            if math.floor(self.t * 30.0 + 1e-9) > math.floor(before * 30.0 + 1e-9):
+                xy, heading = self.noise
+                taken.append((self.t, *(self.pose + self.rng.normal(0.0, 1.0, 3)
+                                        * (xy, xy, heading))))
+        return taken
+
+
+def checked(drive, probe):
+    """Run the probe against the drive at 10 Hz until it is done (or 20 s): the time."""
+    t = 0.0
+    while not probe.done and t < 20.0:
+        command = probe.command(t)
+        if command is None:
+            break
+        probe.sent(t, *command)
+        drive.send(*command)
+        for pose in drive.run(t + 0.1):
+            probe.seen(*pose)
+        t += 0.1
+    return t
+
+
+@pytest.mark.parametrize('band, swing', [(0.05, 0.0), (0.05, 0.5), (0.1, 0.0), (0.0, 0.0),
+                                         (0.2, 0.0)])
+def test_the_check_finds_each_wheels_gain_and_the_dead_band(band, swing):
+    """A drive with unequal wheels (gains 1.04, 0.95), a drift as arena_demo's (5 mm/s,
+    0.1 rad/s: the right wheel drifts by 40 % of its fastest speed) constant or swinging
+    +-50 % in 10 s, a link 100 ms late and 50 ms motors, nothing told: within CHECK s the
+    check tells both gains within 3 % and the band (a share of the fastest wheel speed)
+    within 20 % (none where there is none); the robot turns on its spot.
+    """
+    drive = Drive(band * FASTEST, (1.04, 0.95), swing=swing)
+    probe = MotorProbe(BASE, FASTEST)
+    took = checked(drive, probe)
+    assert probe.done and took <= CHECK + 0.2, took
+    found = probe.result
+    np.testing.assert_allclose(found.gains, (1.04, 0.95), rtol=0.03)
+    assert found.band == pytest.approx(band * FASTEST, rel=0.2, abs=0.01 * FASTEST), found
+    assert np.hypot(*drive.pose[:2]) < 0.03   # m: the drift's while turning
+
+
+def test_the_check_commands_stay_within_the_wheel_and_turn_limits():
+    """A turn limit below the sweep's: every command of the check keeps both wheels within
+    the fastest speed and |w| within the turn rate, and it still finds the gains.
+    """
+    limits = WheelLimits(BASE, FASTEST, max_angular_rate=0.4)
+    controller = AgentController(_config(limits))
+    drive = Drive(0.05 * FASTEST, (1.0, 1.0), drift=(0.0, 0.0))
+    _start(controller)
+    commands = []
+    for k in range(int(CHECK * 10) + 5):
+        now = 10.0 + 0.1 * k
+        tick = controller.tick(now)
+        commands.append((tick.v, tick.w, tick.checking))
+        drive.send(tick.v, tick.w)
+        for t, x, y, theta in drive.run(0.1 * (k + 1)):
+            controller.on_pose(x, y, theta, 10.0 + t)
+    checking = [(v, w) for v, w, c in commands if c]
+    assert len(checking) >= CHECK * 10 - 2
+    for v, w in checking:
+        assert max(abs(s) for s in wheel_speeds(v, w, BASE)) <= FASTEST + 1e-12
+        assert abs(w) <= 0.4 + 1e-12
+    assert not commands[-1][2]   # done: the law drives
+    np.testing.assert_allclose(controller.robot.wheel_gains, (1.0, 1.0), rtol=0.02)
+
+
+def _config(limits, **kw):
+    from test_agent import config
+    return config(index=1, agent_count=3, neighbours=(), limits=limits, motor_check=True,
+                  gains=Gains(1.0, 0.5, 0.1, law='observer'), **kw)
+
+
+def _start(controller):
+    from test_agent import circle, THIRDS
+    controller.set_curve(circle(), 0, THIRDS)
+    controller.on_pose(0.0, 0.0, 0.0, 10.0)
+
+
+def test_a_stop_restarts_the_check_and_a_told_band_wins():
+    """The check begins at the first tick that may move the robot (a turn in place: v = 0);
+    a stale pose stops the robot and the check starts again when poses return; a band
+    told (limits.min_wheel_speed) is kept whatever the check finds.
+    """
+    limits = WheelLimits(BASE, FASTEST)
+    controller = AgentController(_config(limits, min_wheel_speed=0.004))
+    assert controller.tick(9.9).stopped == 'no curve received yet'
+    _start(controller)
+    first = controller.tick(10.05)
+    assert first.checking and first.stopped is None and first.v == pytest.approx(0.0)
+    started = controller.robot.check.started
+    assert controller.tick(11.0).stopped.startswith('own pose stale')
+    assert controller.robot.check.started is None
+    controller.on_pose(0.0, 0.0, 0.0, 11.0)
+    assert controller.tick(11.05).checking and controller.robot.check.started > started
+    drive = Drive(0.05 * FASTEST, (1.0, 1.0), latency=0.0)
+    for k in range(int(CHECK * 10) + 5):
+        now = 11.05 + 0.1 * (k + 1)
+        for t, x, y, theta in drive.run(0.1 * (k + 1)):
+            controller.on_pose(x, y, theta, 11.05 + t)
+        tick = controller.tick(now)
+        drive.send(tick.v, tick.w)
+    assert controller.robot.check.done
+    assert controller.robot.check.result.band is not None
+    assert controller.robot.min_wheel_speed == 0.004
+
+
+def test_the_check_needs_the_wheel_limits():
+    """controller.motor_check without limits.max_wheel_speed is refused naming the key."""
+    experiment = imperfect_case('arena_demo', 1)
+    data = {'controller': {'motor_check': True}}
+    from curve_formation.core.config.loading import check_rules
+    spec = experiment.spec.model_copy(update={
+        'controller': experiment.spec.controller.model_copy(update=data['controller']),
+        'limits': None})
+    with pytest.raises(ConfigError, match='controller.motor_check'):
+        check_rules(spec, 'arena_demo.yaml')
+
+
+@functools.cache
+def checked_run(swinging):
+    """logged_run of 10 s of arena_demo seed 1 on imperfect MuJoCo robots (nothing told, the
+    drift constant or swinging), each controller checking its motors; and the true gains
+    (robots, 2) and band (m/s).
+    """
+    from curve_formation.core.world.mujoco_world import draw_robots
+    experiment = imperfect_case('arena_demo', 1, swinging)
+    spec = experiment.spec
+    spec = spec.model_copy(update={
+        'controller': spec.controller.model_copy(update={'motor_check': True})})
+    experiment = dataclasses.replace(experiment, spec=spec)
+    robots = draw_robots(experiment)
+    true = robots.wheel_radii / robots.nominal_radius * robots.gains
+    band = IMPERFECTIONS['dead_band'] * experiment.limits.max_wheel_speed
+    return logged_run(experiment, 10.0), true, band
+
+
+@pytest.mark.parametrize('swinging', [False, True], ids=['constant', 'swinging'])
+def test_each_mujoco_robot_checks_its_motors_within_10_s(swinging):
+    """arena_demo's imperfect MuJoCo robots (wheel radii within 3 %, motor gains within
+    10 %, a dead band of 5 % of the fastest wheel speed, 8-bit commands, battery sag, 50 ms
+    motors), a link 100 ms late, nothing told, the file's drift constant or swinging +-50 %:
+    every controller's check is done within 10 s, tells each wheel's gain within 3 % and the
+    band within 20 %, and the metrics carry both.
+    """
+    from curve_formation.core.record.metrics import result_metrics
+    (_, controllers, result, _), true, band = checked_run(swinging)
+    for c, gains in zip(controllers, true, strict=True):
+        found = c.robot.check.result
+        assert found is not None, c.config.index
+        np.testing.assert_allclose(found.gains, gains, rtol=0.03,
+                                   err_msg=f'robot {c.config.index}')
+        assert found.band == pytest.approx(band, rel=0.2), (c.config.index, found)
+        assert c.robot.min_wheel_speed == found.band
+    metrics = result_metrics(result)
+    assert metrics['estimated_dead_band'] == [c.robot.check.result.band for c in controllers]
+    assert metrics['estimated_wheel_gains'] == [list(c.robot.wheel_gains)
+                                                for c in controllers]
+
+
+def test_measure_link_replays_the_motor_check_of_a_bag(tmp_path, capsys):
+    """The constant case's commands and poses in a bag with its experiment: measure-link
+    finds each robot's check and tells its gains within 3 % and its band within 20 %, as
+    the controllers did, and the limits line from them.
+    """
+    from curve_formation.cli import main
+    (experiment, controllers, _, logs), true, band = checked_run(False)
+    bag = logged_bag(tmp_path / 'bag', experiment, controllers, logs)
+    assert main(['measure-link', str(bag), '--json', str(tmp_path / 'link.json')]) == 0
+    robots = json.loads((tmp_path / 'link.json').read_text())['robots']
+    for c, gains in zip(controllers, true, strict=True):
+        check = robots[str(c.config.index)]['check']
+        assert check is not None, c.config.index
+        np.testing.assert_allclose(check['wheel_gains'], gains, rtol=0.03)
+        assert check['dead_band'] == pytest.approx(band, rel=0.2)
+    out = capsys.readouterr().out
+    assert 'robot 9 motor check (controller.motor_check): wheel gains' in out
+    assert 'limits: {min_wheel_speed: 0.00' in out
