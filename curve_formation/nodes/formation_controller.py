@@ -348,8 +348,11 @@ class FormationController(Node):
             self._last_reason = tick.stopped
         if tick.checking != self._checking:
             self._checking = tick.checking
-            self.get_logger().info('motor check: turning in place' if tick.checking
-                                   else f'motor check done: {self._checked()}')
+            check = self.controller.robot.check
+            if tick.checking:
+                self.get_logger().info('motor check: turning in place')
+            elif check is not None and check.done:   # else stopped: it starts again
+                self.get_logger().info(f'motor check done: {self._checked()}')
             self._publish_diagnostics()
 
     def _checked(self) -> str:

@@ -22,6 +22,7 @@ from curve_formation.core.formation.dynamics import wheel_speeds
 
 BAND_MAX = 0.25        # largest band sought, a share of the fastest wheel speed
 BAND_STEP = 0.002      # the band grid's step, a share of the fastest wheel speed
+COARSE = 5             # band steps in a step of the first, coarse, grid
 DELAYS = np.arange(0.0, 0.505, 0.01)    # s: latency and pose age sought
 LAGS = np.arange(0.0, 0.1205, 0.01)      # s: motor lags sought in the sweep's fit
 MOVING = 0.2           # share of U from which a wheel's measured speed counts as moving
@@ -96,30 +97,43 @@ def _sweep_over_grid(tc: FloatArray, wheels: FloatArray, starts: FloatArray,
     # leaves the band, an interval that ends in it: the fit has no band)
     clear = np.stack([moving_about(starts, np.abs(measured[k]) >= 0.5 * MOVING * amplitude,
                                    CLEAR) for k in range(2)])
-    best: tuple[float, float, float, FloatArray, FloatArray] | None = None
     driven = record.driven_commands(wheels.T)
+    n = len(starts)
+    shifted_starts = (starts[None, :] - DELAYS[:, None]).ravel()   # every delay at once
+    shifted_ends = (ends[None, :] - DELAYS[:, None]).ravel()
+    best: tuple[float, float, float, FloatArray, FloatArray] | None = None
     for lag in LAGS:
-        for delay in DELAYS:
-            means = np.stack([record.lagged_means(tc, wheels[k], starts - delay, ends - delay,
-                                                  float(lag)) for k in range(2)])
-            # the drift acts while driven: it too comes through the lag
-            steady = record.held_means(tc, driven, starts - delay - 3.0 * lag,
-                                       ends - delay) > 0.999
-            total, gains, drift = 0.0, np.zeros(2), np.zeros((2, 3))   # a line: no curvature
+        # the drift acts while driven: it too comes through the lag
+        steady = (record.held_means(tc, driven, shifted_starts - 3.0 * lag, shifted_ends)
+                  > 0.999).reshape(len(DELAYS), n)
+        totals = np.zeros(len(DELAYS))
+        coefs = np.zeros((2, len(DELAYS), 4))
+        for k in range(2):
+            means = record.lagged_means(tc, wheels[k], shifted_starts, shifted_ends,
+                                        float(lag)).reshape(len(DELAYS), n)
+            weight = ((np.abs(judged[k]) >= MOVING * amplitude) & clear[k] & steady).astype(float)
+            count = weight.sum(axis=1)
+            basis = np.stack([means, *np.broadcast_to(
+                [np.ones(n), mid - at, np.sign(judged[k])], (len(DELAYS), 3, n)
+            ).transpose(1, 0, 2)], axis=2)   # (delays, n, 4)
+            target = measured[k]
+            # least squares of each delay by its normal equations (4 unknowns)
+            normal = np.einsum('dn,dni,dnj->dij', weight, basis, basis)
+            projected = np.einsum('dn,dni,n->di', weight, basis, target)
+            usable = count >= MIN_SAMPLES
+            # the pseudo-inverse: a wheel that moved one way only has its sign column equal
+            # to the constant one, whose share of the offset it leaves undecided
+            coefs[k] = (np.linalg.pinv(normal, rcond=1e-12) @ projected[..., None])[..., 0]
+            squares = weight @ (target * target) - np.einsum('di,di->d', coefs[k], projected)
+            totals += np.where(usable, np.maximum(squares, 0.0) / np.maximum(count, 1.0),
+                               math.inf)
+        d = int(np.argmin(totals))
+        if best is None or totals[d] < best[0]:
+            gains = coefs[:, d, 0].copy()
+            drift = np.zeros((2, 3))   # a line: no curvature
             for k in range(2):
-                moving = (np.abs(judged[k]) >= MOVING * amplitude) & steady & clear[k]
-                if moving.sum() < MIN_SAMPLES:
-                    total = math.inf
-                    break
-                basis = np.column_stack([means[k], np.ones(len(mid)), mid - at,
-                                         np.sign(judged[k])])[moving]
-                coef, *_ = np.linalg.lstsq(basis, measured[k][moving], rcond=None)
-                residual = measured[k][moving] - basis @ coef
-                total += float(residual @ residual) / moving.sum()
-                gains[k] = coef[0]
-                drift[k, :2] = coef[1:3] / coef[0] if coef[0] else 0.0
-            if best is None or total < best[0]:
-                best = (total, float(delay), float(lag), gains, drift)
+                drift[k, :2] = coefs[k, d, 1:3] / gains[k] if gains[k] else 0.0
+            best = (float(totals[d]), float(DELAYS[d]), float(lag), gains, drift)
     if best is None or not math.isfinite(best[0]) or min(best[3]) <= 0.0:
         return None
     return SweepFit(best[1], best[2], best[3], best[4], at, math.sqrt(best[0] / 2.0))
@@ -184,12 +198,16 @@ def pass_band(starts: FloatArray, ends: FloatArray, measured: FloatArray, gain: 
     motor = held + drift_curve(drift, fine)
     shifted_starts = (starts[None, :] - SHIFTS[:, None]).ravel()
     shifted_ends = (ends[None, :] - SHIFTS[:, None]).ravel()
-    bands = np.arange(0.0, BAND_MAX * max_wheel_speed + 1e-12, BAND_STEP * max_wheel_speed)
-    squares = np.empty(len(bands))
-    for k, band in enumerate(bands):
+    def squares(band: float) -> float:
         speed = gain * _lagged(np.where(np.abs(motor) < band, 0.0, motor), FINE, lag)
         area = np.concatenate([[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1])) * FINE])
         means = ((np.interp(shifted_ends, fine, area) - np.interp(shifted_starts, fine, area))
                  / (shifted_ends - shifted_starts)).reshape(len(SHIFTS), -1)
-        squares[k] = ((means - measured[None, :]) ** 2).sum(axis=1).min()
-    return float(bands[int(np.argmin(squares))])
+        return float(((means - measured[None, :]) ** 2).sum(axis=1).min())
+
+    # a coarse grid (COARSE steps), then BAND_STEP steps across a coarse step either side
+    top, step = BAND_MAX * max_wheel_speed, BAND_STEP * max_wheel_speed
+    coarse = np.arange(0.0, top + 1e-12, COARSE * step)
+    best = float(coarse[int(np.argmin([squares(b) for b in coarse]))])
+    near = np.arange(max(best - COARSE * step, 0.0), min(best + COARSE * step, top) + 1e-12, step)
+    return float(near[int(np.argmin([squares(b) for b in near]))])

@@ -21,8 +21,8 @@ that lies within the band (a hard cut-off, as the MuJoCo motors have it).
   curve through the pass, the sweep's gain, delay and lag, a small shift left free) fits its
   measured speeds best (motor_check_fit.pass_band).
 The band is the mean of the two passes and the two wheels; its bound the grid's step or half
-the wheels' difference, whichever is larger. Times in s (the controller's clock), speeds in
-m/s of rim.
+the wheels' difference, whichever is larger; a band within its bound is told as none (0).
+Times in s (the controller's clock), speeds in m/s of rim.
 """
 
 from dataclasses import dataclass, field
@@ -275,6 +275,8 @@ class MotorProbe:
             bands.append(0.5 * (up + down))
         band = 0.5 * (bands[0] + bands[1])
         bound = max(BAND_STEP * self.max_wheel_speed, 0.5 * abs(bands[0] - bands[1]))
+        if band <= bound:   # not told apart from none
+            band = 0.0
         return ProbeResult(gains, band, bound, sweep.delay, sweep.lag, sweep.residual)
 
 
