@@ -23,6 +23,7 @@ from curve_formation.core.formation.dynamics import wheel_speeds
 BAND_MAX = 0.25        # largest band sought, a share of the fastest wheel speed
 BAND_STEP = 0.002      # the band grid's step, a share of the fastest wheel speed
 COARSE = 5             # band steps in a step of the first, coarse, grid
+TIE = 0.02             # share of the best fit's squares within which bands fit alike
 DELAYS = np.arange(0.0, 0.505, 0.01)    # s: latency and pose age sought
 LAGS = np.arange(0.0, 0.1205, 0.01)      # s: motor lags sought in the sweep's fit
 MOVING = 0.2           # share of U from which a wheel's measured speed counts as moving
@@ -210,4 +211,11 @@ def pass_band(starts: FloatArray, ends: FloatArray, measured: FloatArray, gain: 
     coarse = np.arange(0.0, top + 1e-12, COARSE * step)
     best = float(coarse[int(np.argmin([squares(b) for b in coarse]))])
     near = np.arange(max(best - COARSE * step, 0.0), min(best + COARSE * step, top) + 1e-12, step)
-    return float(near[int(np.argmin([squares(b) for b in near]))])
+    fits = np.array([squares(b) for b in near])
+    # commands held a tick apart leave a band anywhere between two of their levels fitting
+    # alike: the middle of the bands that fit within TIE of the best
+    k = int(np.argmin(fits))
+    alike = fits <= fits[k] * (1.0 + TIE) + 1e-18
+    low = k - int(np.argmin(alike[k::-1])) + 1 if not alike[:k + 1].all() else 0
+    high = k + int(np.argmin(alike[k:])) - 1 if not alike[k:].all() else len(near) - 1
+    return float(0.5 * (near[low] + near[high]))

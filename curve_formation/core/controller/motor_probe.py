@@ -86,14 +86,15 @@ def sweep_command(t: float, amplitude: float) -> float:
 def cross_offset(t: float, amplitude: float, period: float) -> float:
     """The crossings' offset (m/s) at t s after their start: -A -> +A, then +A -> -A less
     half of what it moves in a control `period` (s), so that the second pass's commands lie
-    between the first's.
+    between the first's; every other tick a quarter of that further, so that the levels the
+    commands hold for a tick lie a quarter of its step apart over both passes.
     """
     half = CROSS_SECONDS / 2.0
+    step = 2.0 * amplitude * period / half   # m/s the offset moves in a tick
+    dither = 0.25 * step * (int(math.floor(t / period + 0.5)) % 2)
     if t < half:
-        return amplitude * (-1.0 + 2.0 * t / half)
-    return amplitude * (1.0 - 2.0 * (t - half) / half - period / half)
-
-
+        return amplitude * (-1.0 + 2.0 * t / half) + dither
+    return amplitude * (1.0 - 2.0 * (t - half) / half) - 0.5 * step - dither
 @dataclass
 class MotorProbe:
     """One robot's motor check, run by its controller before it first drives: command(t)
