@@ -10,8 +10,8 @@ Each tick either computes a command with the paper's local law, or stops the rob
 velocity, at once: stopping is never rate-limited) and says why: e-stop, no curve yet, own
 pose stale, outside the geofence, no news from the leader, a neighbour missing, stale or on
 another curve. While stopped the disturbance estimate is frozen, so it does not wind up, and
-with an acceleration limit the robot ramps up again from rest. With controller.motor_check
-the robot first turns in place while its motors are measured (core.controller.motor_probe).
+with an acceleration limit the robot ramps up again from rest. A motor check comes first
+where told (controller.motor_check: the robot turns in place; core.controller.motor_probe).
 
 Leader heartbeat: every state carries the age of its sender's newest news of the leader, so
 a follower learns when the leader is gone (core.controller.neighbourhood).
@@ -45,7 +45,7 @@ from curve_formation.core.controller.inputs import (
     State,
     Tick,
 )
-from curve_formation.core.controller.limits import inside_fence, limit_acceleration
+from curve_formation.core.controller.limits import inside_fence
 from curve_formation.core.controller.motion_observer import MotionObserver
 from curve_formation.core.controller.neighbourhood import Neighbourhood, NO_ERRORS
 from curve_formation.core.controller.others import OtherRobots
@@ -295,12 +295,10 @@ class AgentController:
 
     def _taken_at(self, stamp: float, received: float) -> float:
         """When a pose was taken (s, this controller's clock): its stamp where the pose's
-        source shares this clock (the pose is 0 to config.shared_clock s old by
-        it), else its receipt.
+        source shares this clock (the pose is 0 to config.shared_clock s old by it), else its
+        receipt.
         """
-        if shares_clock(received - stamp, self.config.shared_clock):
-            return stamp
-        return received
+        return stamp if shares_clock(received - stamp, self.config.shared_clock) else received
 
     def _error_at(self, pose: Pose, target: Point) -> Point:
         return target_error(*pose, self.front, *target, self.config.gains.offset)
@@ -310,8 +308,7 @@ class AgentController:
         self.robot.update(now)
         tick = self._tick(now)   # the motion wanted, as the observer and predictions read it
         self.observer.log_sent(self.sent, now, tick.v, tick.w, tick.stopped is not None)
-        if not tick.checking:   # what the motors are sent
-            tick.v, tick.w = self.robot.compensated(tick.v, tick.w)
+        tick.v, tick.w = self.robot.compensated(tick.v, tick.w, tick.checking)   # to the motors
         self.robot.sent(now, tick.v, tick.w)
         return tick
 
@@ -379,12 +376,15 @@ class AgentController:
             return self._stop(why)
         assert self.pose is not None and self.pose_stamp is not None
         assert self.pose_received is not None and self.target is not None
-        if self.robot.checking:
-            command = self.robot.check_command(now)
-            if command is not None:
-                return self._checking(command)
         pose = measured = self.pose
         stamp = self.pose_stamp
+        if self.robot.checking:   # the motor check: the law and its estimate wait
+            command = self.robot.check_command(now, self.last_command, 1.0 / cfg.rate_hz)
+            if command is not None:
+                self.last_command = command
+                return Tick(*command, error=self._error_at(self.pose, self.target),
+                            error_stamp=stamp, curve_id=self.curve_id, dhat=(self.dhat[0],
+                            self.dhat[1]), checking=True)
         aim = now   # when the target is taken: with the pose predicted, when this command acts
         if cfg.predict_pose:
             pose = self.predicted(pose, stamp, self.pose_received, now)
@@ -439,25 +439,9 @@ class AgentController:
         """The observer's updates so far."""
         return self.observer.updates
 
-    def _checking(self, command: Command) -> Tick:
-        """A tick of the motor check (controller.motor_check): its command (m/s, rad/s)
-        within the acceleration limits; the law and its estimate wait.
-        """
-        assert self.pose is not None and self.target is not None
-        limits = self.config.limits
-        v, w = limit_acceleration(*command, *self.last_command, 1.0 / self.config.rate_hz,
-                                  limits.max_linear_accel, limits.max_angular_accel)
-        self.last_command = (v, w)
-        return Tick(v=v, w=w, error=self._error_at(self.pose, self.target),
-                    error_stamp=self.pose_stamp, curve_id=self.curve_id,
-                    dhat=(self.dhat[0], self.dhat[1]), checking=True)
-
     def _stop(self, reason: str, base: Tick | None = None) -> Tick:
-        """Stop the robot (zero velocity) for `reason`; base: the tick's outcome so far. A
-        motor check under way starts again when the robot may move again.
-        """
-        if self.robot.check is not None and not self.robot.check.done:
-            self.robot.check.restart()
+        """Stop the robot (zero velocity) for `reason`; base: the tick's outcome so far."""
+        self.robot.stopped()
         tick = base or Tick()
         self.observer.stopped()
         tick.v, tick.w, tick.stopped = 0.0, 0.0, reason

@@ -11,7 +11,7 @@ import math
 from curve_formation.core.base.shapes import Command
 from curve_formation.core.controller.agent_config import AgentConfig
 from curve_formation.core.controller.dead_band_estimate import OnlineDeadBand
-from curve_formation.core.controller.limits import saturate, timed_by
+from curve_formation.core.controller.limits import limit_acceleration, saturate, timed_by
 from curve_formation.core.controller.link_estimate import ONLINE_LAGS, OnlineLink
 from curve_formation.core.controller.motor_probe import MotorProbe
 from curve_formation.core.controller.wheel_estimate import OnlineGains, wheel_record
@@ -83,9 +83,10 @@ class RobotModel:
         """True while the motor check is due or under way."""
         return self.check is not None and not self.check.done
 
-    def check_command(self, now: float) -> Command | None:
+    def check_command(self, now: float, last: Command, period: float) -> Command | None:
         """The motor check's command (v m/s, rad/s) at `now`, within the turn and wheel
-        limits; None once it is done (its band then taken where none is told).
+        limits and, from the `last` sent `period` s before, the acceleration limits; None
+        once it is done (its band then taken where none is told).
         """
         assert self.check is not None
         command = self.check.command(now)
@@ -95,8 +96,15 @@ class RobotModel:
                 self.min_wheel_speed = band
             return None
         limits = self.limits
-        return saturate(*command, limits.wheel_base, limits.max_wheel_speed,
+        v, w = saturate(*command, limits.wheel_base, limits.max_wheel_speed,
                         limits.max_angular_rate)
+        return limit_acceleration(v, w, *last, period, limits.max_linear_accel,
+                                  limits.max_angular_accel)
+
+    def stopped(self) -> None:
+        """The robot was stopped: a motor check under way starts again when it may move."""
+        if self.check is not None and not self.check.done:
+            self.check.restart()
 
     @property
     def checked_band(self) -> float | None:
@@ -109,14 +117,15 @@ class RobotModel:
         for record in self.records:
             record.sent(now, v, w)
 
-    def compensated(self, v: float, w: float) -> Command:
+    def compensated(self, v: float, w: float, checking: bool = False) -> Command:
         """(v, w) to send (m/s, rad/s) for the motion (v, w): with wheel_gains estimated,
         each wheel's command divided by its gain (a wheel that turns 3 % fast is asked 3 %
         less), both wheels scaled down together where that would pass max_wheel_speed or
-        max_angular_rate; (v, w) itself otherwise.
+        max_angular_rate; (v, w) itself otherwise, and for the motor check's commands
+        (`checking`), which measure the wheels as they are.
         """
         gains = self.wheel_gains
-        if gains is None or (v == 0.0 and w == 0.0):
+        if gains is None or checking or (v == 0.0 and w == 0.0):
             return v, w
         limits = self.limits
         left, right = wheel_speeds(v, w, limits.wheel_base)
