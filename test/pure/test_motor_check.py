@@ -243,3 +243,22 @@ def test_measure_link_replays_the_motor_check_of_a_bag(tmp_path, capsys):
     out = capsys.readouterr().out
     assert 'robot 9 motor check (controller.motor_check): wheel gains' in out
     assert 'limits: {min_wheel_speed: 0.00' in out
+
+
+def test_sim_of_a_file_with_the_check_runs_the_nodes_pipeline():
+    """The batch simulator's unicycles do not turn in place first: simulating arena_demo
+    with controller.motor_check runs the nodes' pipeline instead and says why, and its
+    kinematic robots come out with exact gains and no band.
+    """
+    from curve_formation.core.config.loading import load_experiment
+    from curve_formation.core.sim.pipeline import simulate_kinematic
+    from curve_formation.paths import resolve_config
+    experiment = load_experiment(resolve_config('arena_demo'))
+    spec = experiment.spec
+    spec = spec.model_copy(update={
+        'controller': spec.controller.model_copy(update={'motor_check': True})})
+    result, why = simulate_kinematic(dataclasses.replace(experiment, spec=spec), duration=10.0)
+    assert why is not None and 'controller.motor_check' in why
+    for gains in result.wheel_gains:
+        np.testing.assert_allclose(gains, (1.0, 1.0), rtol=0.03)
+    assert all(band is None for band in result.dead_bands), result.dead_bands

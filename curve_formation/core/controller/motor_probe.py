@@ -20,8 +20,9 @@ that lies within the band (a hard cut-off, as the MuJoCo motors have it).
   reach. Each pass's band is the one whose model (the commands sent, the drift followed as a
   curve through the pass, the sweep's gain, delay and lag, a small shift left free) fits its
   measured speeds best (motor_check_fit.pass_band).
-The band is the mean of the two passes and the two wheels; its bound the grid's step or half
-the wheels' difference, whichever is larger; a band within its bound is told as none (0).
+The band is the mean of the two passes and the two wheels; its bound the largest of the
+grid's step, the commands' levels apart (a quarter of a tick's step: 0.6 % of the fastest
+wheel speed at 10 Hz) and half the wheels' difference; a band within it is told as none (0).
 Times in s (the controller's clock), speeds in m/s of rim.
 """
 
@@ -275,7 +276,8 @@ class MotorProbe:
                 return ProbeResult(gains, None, None, sweep.delay, sweep.lag, sweep.residual)
             bands.append(0.5 * (up + down))
         band = 0.5 * (bands[0] + bands[1])
-        bound = max(BAND_STEP * self.max_wheel_speed, 0.5 * abs(bands[0] - bands[1]))
+        levels = 0.5 * self.crossing * self.period / half   # the commands' levels apart
+        bound = max(BAND_STEP * self.max_wheel_speed, levels, 0.5 * abs(bands[0] - bands[1]))
         if band <= bound:   # not told apart from none
             band = 0.0
         return ProbeResult(gains, band, bound, sweep.delay, sweep.lag, sweep.residual)
