@@ -37,9 +37,8 @@ CLEAR = 0.25           # s a wheel moves clear of the band before it is fitted (
 
 @dataclass(frozen=True)
 class SweepFit:
-    """The sweep's fit: delay, lag (s), gains (2,), drift (2, 3: each wheel's a quadratic
-    in time about `at`: its value, rate and half its curvature, m/s, m/s^2, m/s^3), residual
-    (rms m/s).
+    """The sweep's fit: delay, lag (s), gains (2,), drift (2, 2: each wheel's a line in time
+    about `at`: its value and rate, m/s and m/s^2), residual (rms m/s).
     """
 
     delay: float
@@ -51,8 +50,7 @@ class SweepFit:
 
     def drift_at(self, k: int, t: FloatArray) -> FloatArray:
         """Wheel k's drift (m/s, as a command) at times t (s)."""
-        dt = t - self.at
-        return self.drift[k, 0] + self.drift[k, 1] * dt + self.drift[k, 2] * dt * dt
+        return self.drift[k, 0] + self.drift[k, 1] * (t - self.at)
 
 
 def spans(tp: FloatArray, poses: FloatArray, wheel_base: float, span: float = SPAN
@@ -131,9 +129,9 @@ def _sweep_over_grid(tc: FloatArray, wheels: FloatArray, starts: FloatArray,
         d = int(np.argmin(totals))
         if best is None or totals[d] < best[0]:
             gains = coefs[:, d, 0].copy()
-            drift = np.zeros((2, 3))   # a line: no curvature
+            drift = np.zeros((2, 2))
             for k in range(2):
-                drift[k, :2] = coefs[k, d, 1:3] / gains[k] if gains[k] else 0.0
+                drift[k] = coefs[k, d, 1:3] / gains[k] if gains[k] else 0.0
             best = (float(totals[d]), float(DELAYS[d]), float(lag), gains, drift)
     if best is None or not math.isfinite(best[0]) or min(best[3]) <= 0.0:
         return None

@@ -96,6 +96,8 @@ def cross_offset(t: float, amplitude: float, period: float) -> float:
     if t < half:
         return amplitude * (-1.0 + 2.0 * t / half) + dither
     return amplitude * (1.0 - 2.0 * (t - half) / half) - 0.5 * step - dither
+
+
 @dataclass
 class MotorProbe:
     """One robot's motor check, run by its controller before it first drives: command(t)
@@ -112,8 +114,7 @@ class MotorProbe:
     result: ProbeResult | None = None
     commands: list[tuple[float, float, float]] = field(default_factory=list)
     poses: list[tuple[float, float, float, float]] = field(default_factory=list)
-    _sweep: SweepFit | None = None
-    _swept: bool = False
+    _sweep: SweepFit | None = None   # the sweep's fit, once made
     # each wheel's drift as the crossings measured it: [(s at the wheels, m/s), ...]
     _drifts: tuple[list[tuple[float, float]], list[tuple[float, float]]] = field(
         default_factory=lambda: ([], []))
@@ -138,7 +139,7 @@ class MotorProbe:
 
     def restart(self) -> None:
         """Forget a check that was interrupted (a stop): the next command starts it again."""
-        self.started, self._sweep, self._swept = None, None, False
+        self.started, self._sweep = None, None
         self._drifts, self._followed_to = ([], []), -math.inf
         self._moving_since = [math.inf, math.inf]
         self.commands.clear()
@@ -162,8 +163,7 @@ class MotorProbe:
         if t < SWEEP_SECONDS:
             u = sweep_command(t, self.amplitude)
             return body_from_wheels(-u, u, self.wheel_base)
-        if not self._swept:
-            self._swept = True
+        if self._sweep is None:   # its fit, once (none fitted ends the check)
             self._sweep = self._fit_sweep()
             if self._sweep is None:
                 self.result = NOT_FITTED
@@ -202,8 +202,7 @@ class MotorProbe:
         if len(recent) >= DRIFT_POINTS:
             rate, value = np.polyfit(recent[:, 0] - seen[-1, 0], recent[:, 1], 1)
             return float(value + rate * (at - seen[-1, 0]))
-        rate = sweep.drift[k, 1] + 2.0 * sweep.drift[k, 2] * (seen[-1, 0] - sweep.at)
-        return float(seen[-1, 1] + rate * (at - seen[-1, 0]))
+        return float(seen[-1, 1] + sweep.drift[k, 1] * (at - seen[-1, 0]))
 
     def _follow_drift(self) -> None:
         """Each wheel's drift (m/s, as a command) from its speed over the last SPAN s of
