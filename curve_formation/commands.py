@@ -247,7 +247,9 @@ def cmd_measure_link(args):
             band = check['dead_band']
             print(f'robot {i} motor check (controller.motor_check): wheel gains '
                   f'{check["wheel_gains"][0]:.3f}, {check["wheel_gains"][1]:.3f}; dead band '
-                  + ('-' if band is None else f'{_mm(band)} +- {_mm(check["bound"])} mm/s'))
+                  + ('-' if band is None else f'{_mm(band)} +- {_mm(check["bound"])} mm/s')
+                  + (f'; {check["repeated"]} stage(s) run again (a gap in poses or ticks)'
+                     if check['repeated'] else ''))
     if found['latency'] is None:
         print('no robot told its latency: record a run in which the robots drive')
         return 1

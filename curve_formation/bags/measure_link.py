@@ -43,7 +43,8 @@ def measure_bag(path, motor_time_constant=None):
     'wheel_gains' ([left, right] or None: core.controller.wheel_estimate, with the
     experiment's wheel base and speed), 'wheel_gain_errors', 'dead_band' (m/s of wheel
     speed or None: core.controller.dead_band_estimate), 'check' (where the bag holds a motor
-    check, controller.motor_check: {'wheel_gains', 'dead_band' m/s or 0, 'bound' m/s},
+    check, controller.motor_check: {'wheel_gains', 'dead_band' m/s or 0, 'bound' m/s,
+    'repeated': stages run again},
     else None), 'commands', 'poses'}},
     'latency': the median over the robots that told one (s, or None), 'motor_time_constant':
     the motors' lag (s) the fit took the commands through (the median of the robots' where
@@ -101,7 +102,7 @@ def measure_bag(path, motor_time_constant=None):
                   'dead_band': band.band,
                   'check': None if check is None or check.gains is None else {
                       'wheel_gains': list(check.gains), 'dead_band': check.band,
-                      'bound': check.bound},
+                      'bound': check.bound, 'repeated': check.repeated},
                   'commands': len(sent), 'poses': len(seen)}
     told = [r['latency'] for r in out.values() if r['latency'] is not None]
     if estimated:

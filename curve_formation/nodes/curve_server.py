@@ -30,6 +30,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from curve_formation.core.config.checks import points_outside_arena
 from curve_formation.core.config.experiment import ANNOUNCE_AHEAD
+from curve_formation.core.controller.motor_probe import CHECK_SECONDS
 from curve_formation.core.controller.plausibility import MAX_COORDINATE
 from curve_formation.core.controller.settings import default
 from curve_formation.core.formation.assignment import AssignmentError, phase_parameters
@@ -76,8 +77,9 @@ PARAMETERS = (
     Param('pose_timeout', 'double', default('safety.pose_timeout'), 'robot poses older than '
           'this are not used to re-assign (s)', positive=True),
     Param('wait_for_ready', 'int', 0, 'start the schedule (t = 0) only once this many nodes '
-          'have said on /formation/ready that they receive /formation/curve from this server, '
-          'and its publisher has matched as many subscriptions, so all robots start together '
+          'have said on /formation/ready that they receive /formation/curve from this server '
+          '(a controller with controller.motor_check: once its check is done), and its '
+          'publisher has matched as many subscriptions, so all robots start together '
           '(readiness.py)', low=0),
     Param('wait_for_poses', 'bool', False, "start the schedule only once every robot's pose "
           '(/robot_<i>/pose) has been received, so that t = 0 is not spent waiting for a '
@@ -157,10 +159,13 @@ class CurveServer(Node):
             awaited = self.params.wait_for_ready
             matched = self.curve_pub.get_subscription_count()
             if len(self.ready) < awaited or matched < awaited:
+                checks = ('; controllers say so once their motor check is done '
+                          f'({CHECK_SECONDS:g} s)'
+                          if self.experiment.spec.controller.motor_check else '')
                 self.get_logger().warn(
                     f'waiting for {awaited} curve subscribers to be ready, '
                     f'{len(self.ready)} so far: {sorted(self.ready.names)}; this server '
-                    f'reaches {matched}', skip_first=True, throttle_duration_sec=5.0)
+                    f'reaches {matched}{checks}', skip_first=True, throttle_duration_sec=5.0)
                 return
             if self.unposed:
                 self.get_logger().warn(

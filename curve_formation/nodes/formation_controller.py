@@ -225,7 +225,8 @@ class FormationController(Node):
         self.diag_pub = topics.publisher(self, topics.DIAGNOSTICS)
         if not self.params.pose_from_all:
             topics.subscription(self, topics.POSE, self._on_pose)
-        subscribe_to_curve(self, self._on_curve)
+        # ready for the first curve once the motor check (if any) is done: it runs before
+        subscribe_to_curve(self, self._on_curve, waits=lambda: self.controller.robot.checking)
         # Stopped until the e-stop state is heard: one that starts while the formation is
         # stopped must not move first.
         self.controller.set_estop(True, 'e-stop state not heard yet')
@@ -362,8 +363,10 @@ class FormationController(Node):
             return 'nothing fitted (too few poses while it turned?)'
         band = ('none seen' if not found.band
                 else f'{found.band:.5f} +- {found.bound:.5f} m/s')
+        again = (f', {found.repeated} stage(s) run again (a gap in poses or ticks)'
+                 if found.repeated else '')
         return (f'wheel gains {found.gains[0]:.4f} {found.gains[1]:.4f}, dead band {band}, '
-                f'delay {found.delay:.2f} s')
+                f'delay {found.delay:.2f} s{again}')
 
     def _publish_diagnostics(self) -> None:
         c = self.controller

@@ -27,35 +27,43 @@ POLL = 0.05   # s, how often a node checks whether its curve subscription has a 
 
 
 class ReadyReport:
-    """Publishes the node's name on /formation/ready once `subscription` has a publisher.
+    """Publishes the node's name on /formation/ready once `subscription` has a publisher and
+    `waits` (if given) is False: nothing more is awaited (a controller's motor check, which runs
+    before the experiment's first curve: controller.motor_check).
 
     log: say so in the node's log (the runner's own monitor does not, to keep a terminal quiet).
     """
 
-    def __init__(self, node: Node, subscription: Subscription, log: bool = True) -> None:
+    def __init__(self, node: Node, subscription: Subscription, log: bool = True,
+                 waits: Callable[[], bool] | None = None) -> None:
         self._node = node
         self._log = log
         self._subscription = subscription
+        self._waits = waits
         self._pub = topics.publisher(node, topics.READY)
         self._timer = node.create_timer(POLL, self._poll)
         self.reported = False
 
     def _poll(self) -> None:
-        if self._subscription.get_publisher_count() > 0:
-            self.reported = True
-            self._pub.publish(String(data=self._node.get_fully_qualified_name()))
-            self._timer.cancel()
-            if self._log:
-                self._node.get_logger().info('ready: /formation/curve has a publisher')
+        if self._subscription.get_publisher_count() == 0:
+            return
+        if self._waits is not None and self._waits():
+            return
+        self.reported = True
+        self._pub.publish(String(data=self._node.get_fully_qualified_name()))
+        self._timer.cancel()
+        if self._log:
+            self._node.get_logger().info('ready: /formation/curve has a publisher')
 
 
 def subscribe_to_curve(node: Node, callback: Callable[..., Any], log: bool = True,
+                       waits: Callable[[], bool] | None = None,
                        **kwargs: Any) -> Subscription:
-    """node's subscription to /formation/curve, reported ready once it has a publisher
-    (kwargs go to create_subscription).
+    """node's subscription to /formation/curve, reported ready once it has a publisher and
+    `waits` (if given) is False (ReadyReport; kwargs go to create_subscription).
     """
     subscription = topics.subscription(node, topics.CURVE, callback, **kwargs)
-    ReadyReport(node, subscription, log)   # kept alive by its timer, which the node holds
+    ReadyReport(node, subscription, log, waits)   # kept alive by its timer, which the node holds
     return subscription
 
 

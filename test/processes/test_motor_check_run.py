@@ -15,19 +15,36 @@ FASTEST = 2.0   # m/s: fast_closed's max_wheel_speed
 
 
 def test_a_run_checks_its_robots_motors_then_drives(ros_domain, tmp_path):
-    """fast_closed with controller.motor_check, 16 s in one process: every controller's last
+    """fast_closed with controller.motor_check, in one process: every controller says
+    'motor check' on /diagnostics, and only before the first curve (the curve server starts
+    the schedule once every controller has checked its motors); every controller's last
     report tells wheel gains within 3 % of the fake robots' (exact wheels: 1, 1) and no dead
     band beyond 1 % of the fastest wheel speed (they have none; beside the other worker's
     nodes the jitter of ticks and poses gave one robot 0.7 %, past the check's bound of
-    0.6 %), and after the 8 s check the formation closes in (its error at the end under half
-    the start's).
+    0.6 %); in the 8 s from the first curve the formation closes in (its error at the end
+    under half the start's).
     """
+    from curve_formation.bags.bag import read_messages
     data = yaml.safe_load((DATA_DIR / 'fast_closed.yaml').read_text())
     assert data['limits']['max_wheel_speed'] == FASTEST
     data['controller']['motor_check'] = True
     path = tmp_path / 'checked.yaml'
     path.write_text(yaml.safe_dump(data))
-    run_experiment(path, tmp_path / 'out', 16.0, RunOptions(single_process=True), log=quiet)
+    run_experiment(path, tmp_path / 'out', 8.0,
+                   RunOptions(single_process=True, bag_path=tmp_path / 'bag'), log=quiet)
+    first_curve, checking = None, {}
+    for topic, _, stamp, msg in read_messages(tmp_path / 'bag', ['/diagnostics',
+                                                                 '/formation/curve']):
+        if topic == '/formation/curve':
+            first_curve = stamp if first_curve is None else first_curve
+            continue
+        for status in msg.status:
+            if status.message == 'motor check':
+                checking.setdefault(status.hardware_id, []).append(stamp)
+    assert first_curve is not None
+    assert len(checking) == 6, checking
+    assert all(max(stamps) < first_curve for stamps in checking.values()), (first_curve,
+                                                                           checking)
     saved = json.loads((tmp_path / 'out' / 'metrics.json').read_text())
     estimates = saved['robot_estimates']
     assert len(estimates) == 6, estimates

@@ -7,11 +7,11 @@ given): stamps come from other hosts' clocks (the camera PC's, the neighbours'),
 PCs without time sync can differ by more than any timeout. Stamps serve only differences
 between samples of one source (the observer's elapsed time).
 Each tick either computes a command with the paper's local law, or stops the robot (zero
-velocity, at once: stopping is never rate-limited) and says why: e-stop, no curve yet, own
-pose stale, outside the geofence, no news from the leader, a neighbour missing, stale or on
-another curve. While stopped the disturbance estimate is frozen, so it does not wind up, and
-with an acceleration limit the robot ramps up again from rest. A motor check comes first
-where told (controller.motor_check: the robot turns in place; core.controller.motor_probe).
+velocity, at once: never rate-limited) and says why: e-stop, no curve yet, own pose stale,
+outside the geofence, no news from the leader, a neighbour missing, stale or on another
+curve. While stopped the disturbance estimate is frozen (no wind-up); with an acceleration
+limit the robot ramps up from rest. A motor check, where told, comes first, with or without
+a curve (controller.motor_check: it turns in place; core.controller.motor_probe).
 
 Leader heartbeat: every state carries the age of its sender's newest news of the leader, so
 a follower learns when the leader is gone (core.controller.neighbourhood).
@@ -171,9 +171,8 @@ class AgentController:
                 received: float | None = None) -> bool:
         """Own pose (arena frame) taken at `stamp` (s, its source's clock), received at
         `received` (s, this controller's clock; default: stamp). Returns False (and ignores it,
-        saying why in `rejection`) if not finite or not believable (core.controller.plausibility:
-        outside
-        the arena and more, or further from the last pose than the robot can drive).
+        saying why in `rejection`) if not finite or not believable (controller.plausibility:
+        outside the arena and more, or further from the last pose than the robot can drive).
         """
         at = receipt(stamp, received)
         problem = ('not finite' if not all_finite(x, y, theta, stamp, at)
@@ -340,8 +339,8 @@ class AgentController:
         cfg = self.config
         if self.estop:
             return self.estop_reason
-        if self.curve is None or self.target is None:
-            return 'no curve received yet'
+        if (self.curve is None or self.target is None) and not self.robot.checking:
+            return 'no curve received yet'   # the motor check needs none: it runs before
         pose, received = self.pose, self.pose_received
         if pose is None or self.pose_stamp is None or received is None:
             return 'no pose received yet'
@@ -375,16 +374,17 @@ class AgentController:
         if why is not None:
             return self._stop(why)
         assert self.pose is not None and self.pose_stamp is not None
-        assert self.pose_received is not None and self.target is not None
-        pose = measured = self.pose
-        stamp = self.pose_stamp
+        assert self.pose_received is not None
+        pose, stamp = self.pose, self.pose_stamp   # pose: as measured, until predicted
         if self.robot.checking:   # the motor check: the law and its estimate wait
             command = self.robot.check_command(now, self.last_command, 1.0 / cfg.rate_hz)
             if command is not None:
                 self.last_command = command
-                return Tick(*command, error=self._error_at(self.pose, self.target),
-                            error_stamp=stamp, curve_id=self.curve_id, dhat=(self.dhat[0],
-                            self.dhat[1]), checking=True)
+                return Tick(*command, error=self.own_error(), error_stamp=stamp,
+                            curve_id=self.curve_id, dhat=(self.dhat[0], self.dhat[1]),
+                            checking=True)
+        if self.target is None:   # a motor check just done before any curve
+            return self._stop('no curve received yet')
         aim = now   # when the target is taken: with the pose predicted, when this command acts
         if cfg.predict_pose:
             pose = self.predicted(pose, stamp, self.pose_received, now)
@@ -426,8 +426,8 @@ class AgentController:
         if code == STOPPED:
             return self._stop('safety filter: no motion keeps the robots apart', base)
         self.filtered += code != 0
-        self.observer.commanded(v, w, (ref_v, ref_w), (shift_v, shift_w), limited, measured,
-                                stamp, now, self.robot.min_wheel_speed)
+        self.observer.commanded(v, w, (ref_v, ref_w), (shift_v, shift_w), limited,
+                                self.pose, stamp, now, self.robot.min_wheel_speed)
         self.last_command = (v, w)
         base.v, base.w, base.dhat, base.feedback = v, w, (self.dhat[0], self.dhat[1]), (fx, fy)
         base.pose = pose

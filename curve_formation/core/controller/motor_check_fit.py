@@ -63,7 +63,8 @@ def spans(tp: FloatArray, poses: FloatArray, wheel_base: float, span: float = SP
     first = np.flatnonzero(ends_at < len(tp))
     pairs = np.empty(2 * len(first), dtype=int)
     pairs[0::2], pairs[1::2] = first, ends_at[first]
-    forward, turn = record.measured_rates(tp[pairs], poses[pairs])
+    with np.errstate(divide='ignore', invalid='ignore'):   # the gaps between pairs: dropped
+        forward, turn = record.measured_rates(tp[pairs], poses[pairs])
     speeds = np.stack(wheel_speeds(forward[0::2], turn[0::2], wheel_base))
     return tp[first], tp[ends_at[first]], speeds
 

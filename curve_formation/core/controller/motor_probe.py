@@ -20,9 +20,14 @@ that lies within the band (a hard cut-off, as the MuJoCo motors have it).
   reach. Each pass's band is the one whose model (the commands sent, the drift followed as a
   curve through the pass, the sweep's gain, delay and lag, a small shift left free) fits its
   measured speeds best (motor_check_fit.pass_band).
-The band is the mean of the two passes and the two wheels; its bound the largest of the
+The band is the mean over both wheels and both passes; a band within the largest of the
 grid's step, the commands' levels apart (a quarter of a tick's step: 0.6 % of the fastest
-wheel speed at 10 Hz) and half the wheels' difference; a band within it is told as none (0).
+wheel speed at 10 Hz) and half the wheels' difference is told as none (0); its bound that, or
+half a wheel's passes' difference where larger.
+Each stage (the sweep, the up pass, the down pass) is run again (REPEATS in all at most)
+where a gap of more than GAP s in its poses or its ticks shows a process held up (the
+camera's, the robot's, this controller's, as a loaded machine holds one): a robot then moves
+as no command says, and standing still through a crossing it looks as if in a band.
 Times in s (the controller's clock), speeds in m/s of rim.
 """
 
@@ -51,9 +56,13 @@ from curve_formation.core.formation.dynamics import body_from_wheels, wheel_spee
 SWEEP_SECONDS = 3.0
 SWEEP_SHARE = 0.8      # of the fastest wheel speed: beyond the band and a drift of 0.5
 CROSS_SECONDS = 5.0    # two passes of 2.5 s
+CHECK_SECONDS = SWEEP_SECONDS + CROSS_SECONDS
 CROSS_SHARE = 0.3      # of the fastest wheel speed: bands up to about BAND_MAX are crossed
 DRIFT_WINDOW = 1.0     # s of the crossings' drift measures a line is fitted through
 SETTLE = 0.4           # s at each pass's start left out (the jump to it, through the link)
+GAP = 0.25             # s: a longer gap in poses or ticks disturbs a stage (a process held up)
+REPEATS = 3            # stages a check runs again at most
+REACH = 0.6            # passes either side of a pass's middle whose drift measures it is fitted to
 
 
 @dataclass(frozen=True)
@@ -69,9 +78,12 @@ class ProbeResult:
     delay: float | None
     lag: float | None
     residual: float | None
+    repeated: int = 0   # stages run again: a gap in its poses or ticks disturbed them
 
 
 NOT_FITTED = ProbeResult(None, None, None, None, None, None)
+SWEEP, UP, DOWN = 'sweep', 'up', 'down'   # the check's stages, in order
+STAGE_SECONDS = {SWEEP: SWEEP_SECONDS, UP: 0.5 * CROSS_SECONDS, DOWN: 0.5 * CROSS_SECONDS}
 
 
 def sweep_command(t: float, amplitude: float) -> float:
@@ -115,6 +127,8 @@ class MotorProbe:
     commands: list[tuple[float, float, float]] = field(default_factory=list)
     poses: list[tuple[float, float, float, float]] = field(default_factory=list)
     _sweep: SweepFit | None = None   # the sweep's fit, once made
+    # (stage, when it began: s) of the stages begun, in order; a disturbed one is run again
+    _stages: list[tuple[str, float]] = field(default_factory=list)
     # each wheel's drift as the crossings measured it: [(s at the wheels, m/s), ...]
     _drifts: tuple[list[tuple[float, float]], list[tuple[float, float]]] = field(
         default_factory=lambda: ([], []))
@@ -140,6 +154,7 @@ class MotorProbe:
     def restart(self) -> None:
         """Forget a check that was interrupted (a stop): the next command starts it again."""
         self.started, self._sweep = None, None
+        self._stages.clear()
         self._drifts, self._followed_to = ([], []), -math.inf
         self._moving_since = [math.inf, math.inf]
         self.commands.clear()
@@ -159,21 +174,56 @@ class MotorProbe:
             return None
         if self.started is None:
             self.started = now
-        t = now - self.started
-        if t < SWEEP_SECONDS:
+            self._stages.append((SWEEP, now))
+        stage, begun = self._stages[-1]
+        if now - begun >= STAGE_SECONDS[stage]:
+            following = self._next_stage(stage, begun)
+            if following is None:
+                return None
+            stage, begun = following, now
+            self._stages.append((stage, begun))
+        t = now - begun
+        if stage == SWEEP:
             u = sweep_command(t, self.amplitude)
             return body_from_wheels(-u, u, self.wheel_base)
-        if self._sweep is None:   # its fit, once (none fitted ends the check)
-            self._sweep = self._fit_sweep()
-            if self._sweep is None:
+        left, right = self._crossing_wheels(now, t if stage == UP else t + STAGE_SECONDS[UP])
+        return body_from_wheels(left, right, self.wheel_base)
+
+    def _next_stage(self, stage: str, begun: float) -> str | None:
+        """The stage after `stage` (begun at `begun` s, now over): the same again where a
+        gap in its poses or ticks disturbed it (REPEATS at most), else the next, the sweep
+        fitted on the way; None once the check is done (`result` set).
+        """
+        if self.repeats < REPEATS and self._disturbed(begun, begun + STAGE_SECONDS[stage]):
+            return stage
+        if stage == SWEEP:
+            self._sweep = self._fit_sweep(begun)
+            if self._sweep is None:   # none fitted ends the check
                 self.result = NOT_FITTED
                 return None
-        t -= SWEEP_SECONDS
-        if t >= CROSS_SECONDS:
-            self.result = self._fit_crossings()
-            return None
-        left, right = self._crossing_wheels(now, t)
-        return body_from_wheels(left, right, self.wheel_base)
+            return UP
+        if stage == UP:
+            return DOWN
+        self.result = self._fit_crossings()
+        return None
+
+    @property
+    def repeats(self) -> int:
+        """How many stages were run again."""
+        return len(self._stages) - len({stage for stage, _ in self._stages})
+
+    def _disturbed(self, begin: float, end: float) -> bool:
+        """Whether from `begin` to `end` (s) the poses taken or the commands sent have a gap
+        longer than GAP: a process held up (the camera's, the robot's, this controller's)
+        moves a robot as no command says, which a pass would take for a band.
+        """
+        for times in (np.array([p[0] for p in self.poses]),
+                      np.array([c[0] for c in self.commands])):
+            times = np.sort(times)
+            inside = times[(times >= begin) & (times <= end)]
+            if np.diff(np.concatenate([[begin], inside])).max() > GAP:
+                return True
+        return False
 
     def _crossing_wheels(self, now: float, t: float) -> tuple[float, float]:
         """Each wheel's command in the crossings at `now`, t s after they began: its centre
@@ -237,49 +287,54 @@ class MotorProbe:
 
     def _arrays(self, begin: float, end: float
                 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-        """The commands (times, wheels (2, k)) and poses (times, (m, 3)) from begin to end."""
-        assert self.started is not None
+        """The commands (times, wheels (2, k)), all of them, and the poses (times, (m, 3))
+        taken from begin to end (s).
+        """
         sent = np.array(self.commands).reshape(-1, 3)
         seen = np.array(self.poses).reshape(-1, 4)
         tc, cmd, tp, pose = record.cleaned(sent[:, 0], sent[:, 1:], seen[:, 0], seen[:, 1:])
-        keep = (tp >= self.started + begin) & (tp <= self.started + end)
+        keep = (tp >= begin) & (tp <= end)
         wheels = np.stack(wheel_speeds(cmd[:, 0], cmd[:, 1], self.wheel_base))
         return tc, wheels, tp[keep], pose[keep]
 
-    def _fit_sweep(self) -> SweepFit | None:
-        tc, wheels, tp, pose = self._arrays(0.0, SWEEP_SECONDS)
+    def _fit_sweep(self, begun: float) -> SweepFit | None:
+        """The sweep begun at `begun` (s), fitted."""
+        tc, wheels, tp, pose = self._arrays(begun, begun + SWEEP_SECONDS)
         if len(tc) < 2 or len(tp) < MIN_SAMPLES:
             return None
         return fit_sweep(tc, wheels, *spans(tp, pose, self.wheel_base), self.amplitude)
 
     def _fit_crossings(self) -> ProbeResult:
+        """The band from the last up pass and the last down pass (module doc)."""
         sweep = self._sweep
-        assert sweep is not None and self.started is not None
-        half = CROSS_SECONDS / 2.0
+        assert sweep is not None
+        half = STAGE_SECONDS[UP]
+        last = dict(self._stages)   # each stage's last run
         tc, wheels, _, _ = self._arrays(0.0, 0.0)
         gains = (float(sweep.gains[0]), float(sweep.gains[1]))
-        bands = []
+        passes = []   # (starts, ends, measured (2, n), its middle s) of each pass
+        for begun in (last[UP], last[DOWN]):
+            _, _, tp, pose = self._arrays(begun + SETTLE, begun + half)
+            passes.append((*spans(tp, pose, self.wheel_base), begun + 0.5 * half))
+        bands, apart = [], 0.0
         for k in range(2):
-            found = []
             drifts = np.array(self._drifts[k]).reshape(-1, 2)
-            for first in (SWEEP_SECONDS, SWEEP_SECONDS + half):
-                _, _, tp, pose = self._arrays(first + SETTLE, first + half)
-                starts, ends, measured = spans(tp, pose, self.wheel_base)
-                middle = self.started + first + 0.5 * half
-                near = np.abs(drifts[:, 0] - middle) <= half
-                found.append(pass_band(starts, ends, measured[k], gains[k], (tc, wheels[k]),
-                                       drifts[near], sweep.delay, sweep.lag,
-                                       self.max_wheel_speed))
-            up, down = found
+            up, down = (pass_band(starts, ends, measured[k], gains[k], (tc, wheels[k]),
+                                  drifts[np.abs(drifts[:, 0] - middle) <= REACH * half],
+                                  sweep.delay, sweep.lag, self.max_wheel_speed)
+                        for starts, ends, measured, middle in passes)
             if up is None or down is None:
-                return ProbeResult(gains, None, None, sweep.delay, sweep.lag, sweep.residual)
+                return ProbeResult(gains, None, None, sweep.delay, sweep.lag, sweep.residual,
+                                   self.repeats)
             bands.append(0.5 * (up + down))
+            apart = max(apart, 0.5 * abs(up - down))
         band = 0.5 * (bands[0] + bands[1])
         levels = 0.5 * self.crossing * self.period / half   # the commands' levels apart
         bound = max(BAND_STEP * self.max_wheel_speed, levels, 0.5 * abs(bands[0] - bands[1]))
         if band <= bound:   # not told apart from none
             band = 0.0
-        return ProbeResult(gains, band, bound, sweep.delay, sweep.lag, sweep.residual)
+        return ProbeResult(gains, band, max(bound, apart), sweep.delay, sweep.lag,
+                           sweep.residual, self.repeats)
 
 
 def replay_check(command_times: FloatArray, commands: FloatArray, pose_times: FloatArray,

@@ -131,10 +131,11 @@ SETTINGS = _settings(
             '(limits.min_wheel_speed, every 5 s, taken when 2 fits in a row agree within 20 %: '
             'core.controller.dead_band_estimate); told values win'),
     Setting('controller.motor_check', 'motor_check', 'bool', False, '',
-            'before it first drives, each robot turns in place for about 8 s while its '
+            'before the first curve, each robot turns in place for about 8 s while its '
             "controller measures each wheel's gain and the motors' dead band "
-            '(core.controller.motor_probe); they are then used as estimate_motors uses its '
-            'estimates (told values win). Needs limits.wheel_base and max_wheel_speed'),
+            '(core.controller.motor_probe; the curve server starts the schedule once every '
+            'controller is done); they are then used as estimate_motors uses its estimates '
+            '(told values win). Needs limits.wheel_base and max_wheel_speed'),
     Setting('controller.predict_pose', 'predict_pose', 'bool', False, '',
             "carry the robot's pose forward from its stamp (capture time) to the tick, through "
             'the commands sent since, so a pose that is 80 ms old does not make an 80 ms old '

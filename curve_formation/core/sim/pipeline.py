@@ -14,7 +14,9 @@ Everything happens at exact event times on one clock (s), in this order at equal
 curves, poses, ticks, records. A Link delays, jitters and loses commands on their way to the
 robots and poses on their way to the controllers (the camera and Wi-Fi a lab has); the
 default link delivers everything at once. The graph's own messages (curves, neighbours'
-states) arrive the instant they are sent.
+states) arrive the instant they are sent. With controller.motor_check the schedule starts
+once every controller can have checked its motors (as the curve server waits for their
+ready reports): poses and ticks run that long before its t = 0.
 """
 
 import dataclasses
@@ -36,6 +38,7 @@ from curve_formation.core.config.experiment import (
 from curve_formation.core.config.experiment import pose_rate as experiment_pose_rate
 from curve_formation.core.config.loading import control_rate
 from curve_formation.core.controller.agent import AgentController
+from curve_formation.core.controller.motor_probe import CHECK_SECONDS
 from curve_formation.core.formation import dynamics
 from curve_formation.core.schedule.curve_schedule import CurveSchedule, Publication
 from curve_formation.core.sim.batch import SimResult, simulate
@@ -78,8 +81,10 @@ class Pipeline:
     """The controllers, the curve schedule and the world of one run (see the module)."""
 
     def __init__(self, experiment: Experiment, world: World, rate_hz: float,
-                 tick_phases: FloatArray, pose_rate: float, link: Link = Link()) -> None:
+                 tick_phases: FloatArray, pose_rate: float, link: Link = Link(),
+                 origin: float = 0.0) -> None:
         self.experiment = experiment
+        self.origin = origin   # s: the schedule's t = 0 on the pipeline's clock (preflight)
         self.link = link
         self.rng = np.random.default_rng(link.seed)
         self.due = np.full(experiment.n, -math.inf)   # each robot's last command's arrival
@@ -99,7 +104,7 @@ class Pipeline:
         self.pose_rate = pose_rate
         self.commands = np.zeros((n, 2))
         self.schedule = CurveSchedule(experiment)
-        self.schedule.begin(0.0)
+        self.schedule.begin(origin)
         self.followed: tuple[Phase, ...] = ()   # the phases as followed, once run
 
     def publish_due(self, now: float) -> None:
@@ -168,7 +173,7 @@ class Pipeline:
     def tick(self, i: int, now: float) -> None:
         experiment = self.experiment
         if experiment.variations:   # held over the control period, as the batch simulator
-            d = experiment.disturbance_at(now)[i]
+            d = experiment.disturbance_at(now - self.origin)[i]
             if experiment.spec.disturbance.injected == 'on_pc':
                 self.controllers[i].pc_disturbance = (float(d[0]), float(d[1]))
             else:
@@ -186,7 +191,10 @@ class Pipeline:
 
     def run(self, duration: float, record_dt: float, reassign_every: float | None
             ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-        """Run to `duration` (s); (t, poses, dhat, commands) recorded every record_dt."""
+        """Run to `duration` (s) after the schedule's start, `origin` s on the pipeline's
+        clock (poses and ticks before it: the motor check); (t, poses, dhat, commands)
+        recorded every record_dt from the schedule's start (t from 0).
+        """
         events: list[tuple[float, int, int]] = []
         for index, phase in enumerate(self.experiment.phases):
             if phase.start < duration:
@@ -202,12 +210,14 @@ class Pipeline:
         if reassign_every:
             events += [(t, REASSIGN, 0) for t in _times(reassign_every, reassign_every,
                                                            duration)]
-        events += [(t, POSE, -1) for t in _times(1.0 / self.pose_rate, 0.0, duration)]
-        period = 1.0 / self.rate_hz
-        for i, phase in enumerate(self.tick_phases):
-            events += [(t, TICK, i) for t in _times(period, float(phase) * period, duration)]
         records = _times(record_dt, 0.0, duration)
         events += [(t, RECORD, k) for k, t in enumerate(records)]
+        origin, end = self.origin, self.origin + duration
+        events = [(t + origin, kind, index) for t, kind, index in events]
+        events += [(t, POSE, -1) for t in _times(1.0 / self.pose_rate, 0.0, end)]
+        period = 1.0 / self.rate_hz
+        for i, phase in enumerate(self.tick_phases):
+            events += [(t, TICK, i) for t in _times(period, float(phase) * period, end)]
         heapq.heapify(events)
         n = self.experiment.n
         rec_poses = np.zeros((len(records), n, 3))
@@ -262,7 +272,11 @@ def simulate_pipeline(experiment: Experiment, engine: Literal['kinematic', 'mujo
               else np.random.default_rng(seed).random(experiment.n))
     if link is None:
         link = Link(command_latency=spec.controller.command_latency, seed=seed)
-    pipeline = Pipeline(experiment, world, rate, phases, pose_rate, link)
+    # the curve server starts the schedule once every controller has checked its motors
+    # (formation_controller's ready report): a check begins at the first tick with a pose
+    origin = (CHECK_SECONDS + link.pose_latency + 2.0 / rate if spec.controller.motor_check
+              else 0.0)
+    pipeline = Pipeline(experiment, world, rate, phases, pose_rate, link, origin)
     learns = spec.controller.estimate_motors or spec.controller.motor_check   # the wheels
     t, poses, dhat, commands = pipeline.run(duration, record_dt,
                                             spec.agents.reassign_every)
