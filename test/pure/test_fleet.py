@@ -220,7 +220,7 @@ def test_run_preflight_over_real_links_refuses_a_camera_without_its_calibration(
         for i, endpoint in enumerate(endpoints, 1):
             for line in endpoint.lines():
                 said = wire.decode(wire.PRESETS[fleet[i - 1].format], line, 0.015)
-                heard.append(said and said[0])
+                heard.append(said[0] if said else (i, line))
                 endpoint.send(b'ok\n')
             watch.poses[i].append((watch.now(), *start[i - 1]))
     try:
@@ -229,7 +229,9 @@ def test_run_preflight_over_real_links_refuses_a_camera_without_its_calibration(
         for endpoint in endpoints:
             endpoint.close()
     assert result.failing == [] and all(r.stop_confirmed for r in result.robots)
-    assert heard and set(heard) == {'stop'}   # stop lines only, in each robot's format
+    # stop lines only, in each robot's format (once, in a fresh clone's run beside the node
+    # tests, a line that was not one came: the message says which robot heard what)
+    assert heard and set(heard) == {'stop'}, [h for h in heard if h != 'stop']
     assert result.problems == ['the camera tracker has no arena calibration (corner markers '
                                'not seen, or no calibration_file)']
     assert not result.passed and 'camera: arena calibration residual none px' in result.table()
