@@ -256,10 +256,10 @@ def test_each_mujoco_robot_checks_its_motors_within_10_s(swinging):
     from the first pose), tells each wheel's gain within 3 % (swinging: 4 %, see below) and
     the band within 20 %, and the metrics carry both; the robots turned on their spots
     (within 3 cm at t = 0); 10 s after the first pose 8 of 9 hold a motor lag (the online
-    fit, over the check's commands) within 15 ms. The swing's phase matters: with the check before t = 0 (the
-    swing's 8 s before the schedule) robot 9's right wheel, whose drift is 40 % of its
-    fastest speed and swings by +-20 % of it within the 3 s sweep, measured 3.6 % off; with
-    the check in the schedule's first 8 s every gain was within 3 %.
+    fit, over the check's commands) within 15 ms. The swing's phase matters: with the check
+    before t = 0 (the swing's 8 s before the schedule) robot 9's right wheel, whose drift is
+    40 % of its fastest speed and swings by +-20 % of it within the 3 s sweep, measured
+    3.6 % off; with the check in the schedule's first 8 s every gain was within 3 %.
     """
     from curve_formation.core.record.metrics import result_metrics
     (experiment, controllers, result, _), true, band = checked_run(swinging)
