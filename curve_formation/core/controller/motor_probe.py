@@ -60,7 +60,7 @@ CHECK_SECONDS = SWEEP_SECONDS + CROSS_SECONDS
 CROSS_SHARE = 0.3      # of the fastest wheel speed: bands up to about BAND_MAX are crossed
 DRIFT_WINDOW = 1.0     # s of the crossings' drift measures a line is fitted through
 SETTLE = 0.4           # s at each pass's start left out (the jump to it, through the link)
-GAP = 0.25             # s: a longer gap in poses or ticks disturbs a stage (a process held up)
+GAP = 0.15             # s: a longer gap in poses or ticks disturbs a stage (a process held up)
 REPEATS = 3            # stages a check runs again at most
 REACH = 0.6            # passes either side of a pass's middle whose drift measures it is fitted to
 
