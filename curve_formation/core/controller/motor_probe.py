@@ -122,7 +122,6 @@ class MotorProbe:
     max_wheel_speed: float
     max_angular_rate: float = math.inf
     period: float = 0.1   # s between the controller's ticks
-    started: float | None = None
     result: ProbeResult | None = None
     commands: list[tuple[float, float, float]] = field(default_factory=list)
     poses: list[tuple[float, float, float, float]] = field(default_factory=list)
@@ -151,9 +150,14 @@ class MotorProbe:
     def done(self) -> bool:
         return self.result is not None
 
+    @property
+    def started(self) -> float | None:
+        """When the check began (s), None before (or since a restart)."""
+        return self._stages[0][1] if self._stages else None
+
     def restart(self) -> None:
         """Forget a check that was interrupted (a stop): the next command starts it again."""
-        self.started, self._sweep = None, None
+        self._sweep = None
         self._stages.clear()
         self._drifts, self._followed_to = ([], []), -math.inf
         self._moving_since = [math.inf, math.inf]
@@ -172,8 +176,7 @@ class MotorProbe:
         """(v, w) to send at `now` (m/s, rad/s) while the check lasts; None once done."""
         if self.done:
             return None
-        if self.started is None:
-            self.started = now
+        if not self._stages:
             self._stages.append((SWEEP, now))
         stage, begun = self._stages[-1]
         if now - begun >= STAGE_SECONDS[stage]:

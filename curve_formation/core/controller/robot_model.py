@@ -103,7 +103,7 @@ class RobotModel:
 
     def stopped(self) -> None:
         """The robot was stopped: a motor check under way starts again when it may move."""
-        if self.check is not None and not self.check.done:
+        if self.check is not None and self.checking:
             self.check.restart()
 
     @property
