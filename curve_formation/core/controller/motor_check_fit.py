@@ -33,6 +33,7 @@ SPAN = 0.15            # s: the shortest interval a wheel's speed is measured ov
 FINE = 0.002           # s: the time step of a pass's model
 DRIFT_POINTS = 4       # fewest measures of a drift a line is fitted through
 CLEAR = 0.25           # s a wheel moves clear of the band before it is fitted (its motor's lag)
+HELD = 2.5             # pose intervals over this many times their median: a process held up
 
 
 @dataclass(frozen=True)
@@ -57,16 +58,36 @@ def spans(tp: FloatArray, poses: FloatArray, wheel_base: float, span: float = SP
           ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """(starts, ends, speeds (2, n)): each wheel's mean rim speed (m/s) from each pose to the
     first at least `span` s later (overlapping intervals: a camera's noise is in the poses,
-    so a longer interval measures a speed better).
+    so a longer interval measures a speed better), but for those across a gap in the poses
+    or starting within CLEAR s after one (held_up).
     """
     ends_at = np.searchsorted(tp, tp + span - 1e-9)
     first = np.flatnonzero(ends_at < len(tp))
+    first = first[~held_up(tp, tp[first], tp[ends_at[first]])]
     pairs = np.empty(2 * len(first), dtype=int)
     pairs[0::2], pairs[1::2] = first, ends_at[first]
     with np.errstate(divide='ignore', invalid='ignore'):   # the gaps between pairs: dropped
         forward, turn = record.measured_rates(tp[pairs], poses[pairs])
     speeds = np.stack(wheel_speeds(forward[0::2], turn[0::2], wheel_base))
     return tp[first], tp[ends_at[first]], speeds
+
+
+def held_up(tp: FloatArray, starts: FloatArray, ends: FloatArray) -> BoolArray:
+    """Which intervals [starts, ends] (s) span a gap in the poses taken at tp (s, in order)
+    longer than HELD times their median interval, or start within CLEAR s after one: a
+    robot's process held up (its wheels go on with the command it had, then take the ones
+    queued at once; a gap under motor_probe.GAP runs no sweep again), and its motors' lag
+    after.
+    """
+    steps = np.diff(tp)
+    if not len(steps):
+        return np.zeros(len(starts), dtype=bool)
+    gap = np.flatnonzero(steps > HELD * np.median(steps))
+    if not len(gap):
+        return np.zeros(len(starts), dtype=bool)
+    before, after = tp[gap], tp[gap + 1]   # each gap's last pose before it, first after
+    spanning = (ends[:, None] > before) & (starts[:, None] < after + CLEAR)
+    return np.asarray(spanning.any(axis=1), dtype=bool)
 
 
 def fit_sweep(tc: FloatArray, wheels: FloatArray, starts: FloatArray, ends: FloatArray,

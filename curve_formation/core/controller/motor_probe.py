@@ -27,7 +27,9 @@ half a wheel's passes' difference where larger.
 Each stage (the sweep, the up pass, the down pass) is run again (REPEATS in all at most)
 where a gap of more than GAP s in its poses or its ticks shows a process held up (the
 camera's, the robot's, this controller's, as a loaded machine holds one): a robot then moves
-as no command says, and standing still through a crossing it looks as if in a band.
+as no command says, and standing still through a crossing it looks as if in a band. A
+shorter gap in the poses (motor_check_fit.held_up) is left out of the fits, and runs a pass
+again (its wheel may cross its band there).
 Times in s (the controller's clock), speeds in m/s of rim.
 """
 
@@ -43,6 +45,7 @@ from curve_formation.core.controller.motor_check_fit import (
     CLEAR,
     DRIFT_POINTS,
     fit_sweep,
+    held_up,
     MIN_SAMPLES,
     MOVING,
     pass_band,
@@ -197,7 +200,7 @@ class MotorProbe:
         gap in its poses or ticks disturbed it (REPEATS at most), else the next, the sweep
         fitted on the way; None once the check is done (`result` set).
         """
-        if self.repeats < REPEATS and self._disturbed(begun, begun + STAGE_SECONDS[stage]):
+        if self.repeats < REPEATS and self._disturbed(stage, begun, begun + STAGE_SECONDS[stage]):
             return stage
         if stage == SWEEP:
             self._sweep = self._fit_sweep(begun)
@@ -215,18 +218,18 @@ class MotorProbe:
         """How many stages were run again."""
         return len(self._stages) - len({stage for stage, _ in self._stages})
 
-    def _disturbed(self, begin: float, end: float) -> bool:
+    def _disturbed(self, stage: str, begin: float, end: float) -> bool:
         """Whether from `begin` to `end` (s) the poses taken or the commands sent have a gap
         longer than GAP: a process held up (the camera's, the robot's, this controller's)
-        moves a robot as no command says, which a pass would take for a band.
+        moves a robot as no command says, which a pass would take for a band. In a pass, a
+        shorter gap in the poses too (HELD of their interval, motor_check_fit.held_up): the
+        pass's fit leaves out the speeds about it, where its wheel may cross its band.
         """
-        for times in (np.array([p[0] for p in self.poses]),
-                      np.array([c[0] for c in self.commands])):
-            times = np.sort(times)
-            inside = times[(times >= begin) & (times <= end)]
-            if np.diff(np.concatenate([[begin], inside])).max() > GAP:
-                return True
-        return False
+        poses, ticks = (np.sort([row[0] for row in rows]) for rows in (self.poses, self.commands))
+        poses, ticks = (times[(times >= begin) & (times <= end)] for times in (poses, ticks))
+        if any(np.diff(np.concatenate([[begin], times])).max() > GAP for times in (poses, ticks)):
+            return True
+        return stage != SWEEP and bool(held_up(poses, poses[:-1], poses[1:]).any())
 
     def _crossing_wheels(self, now: float, t: float) -> tuple[float, float]:
         """Each wheel's command in the crossings at `now`, t s after they began: its centre
