@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import math
 
 import numpy as np
+from scipy.interpolate import BSpline
 from scipy.signal import lfilter
 
 from curve_formation.core.base.shapes import BoolArray, FloatArray
@@ -34,6 +35,9 @@ FINE = 0.002           # s: the time step of a pass's model
 DRIFT_POINTS = 4       # fewest measures of a drift a line is fitted through
 CLEAR = 0.25           # s a wheel moves clear of the band before it is fitted (its motor's lag)
 HELD = 2.5             # pose intervals over this many times their median: a process held up
+DRIFT_KNOTS = 4.0      # s between the knots of the whole check's drift (a cubic spline)
+MOVING_CHECK = 0.08    # share of the fastest wheel speed from which a wheel moves, band aside
+BEYOND = 1.2           # times the band a modelled wheel's command clears it by
 
 
 @dataclass(frozen=True)
@@ -239,3 +243,46 @@ def pass_band(starts: FloatArray, ends: FloatArray, measured: FloatArray, gain: 
     low = k - int(np.argmin(alike[k::-1])) + 1 if not alike[:k + 1].all() else 0
     high = k + int(np.argmin(alike[k:])) - 1 if not alike[k:].all() else len(near) - 1
     return float(0.5 * (near[low] + near[high]))
+
+
+def check_gains(tc: FloatArray, wheels: FloatArray, starts: FloatArray, ends: FloatArray,
+                measured: FloatArray, sweep: SweepFit, band: float, max_wheel_speed: float
+                ) -> FloatArray | None:
+    """Each wheel's gain (2,) over the whole check, its drift a cubic spline in time (knots
+    DRIFT_KNOTS s apart) rather than the sweep's line: where the wheel moves clear of the
+    band (`band` m/s: at least half its speed, MOVING_CHECK of the fastest, for CLEAR s
+    about), the sweep's delay and lag taken. tc (k,), wheels (2, k): the commands; measured
+    (2, n): the wheels' speeds over [starts, ends] (n,). A drift that swings within the
+    sweep's 3 s bends its line, and so its gains (3.6 % on a MuJoCo robot whose drift swings
+    by +-20 % of its fastest speed; 2.6 % so). None where a wheel has fewer than
+    2 MIN_SAMPLES such intervals.
+    """
+    if len(starts) < 2 * MIN_SAMPLES:
+        return None
+    mid = 0.5 * (starts + ends)
+    begin, end = float(starts[0]), float(ends[-1])
+    pieces = max(1, round((end - begin) / DRIFT_KNOTS))
+    knots = np.concatenate([[begin] * 3, np.linspace(begin, end, pieces + 1), [end] * 3])
+    drift = BSpline.design_matrix(np.clip(mid, begin, np.nextafter(end, begin)), knots,
+                                  3).toarray()
+    steady = record.held_means(tc, record.driven_commands(wheels.T),
+                               starts - sweep.delay - 3.0 * sweep.lag,
+                               ends - sweep.delay) > 0.999
+    gains = np.zeros(2)
+    for k in range(2):
+        means = record.lagged_means(tc, wheels[k], starts - sweep.delay, ends - sweep.delay,
+                                    sweep.lag)
+        basis = np.column_stack([means, drift])
+        # moving as measured (beyond half the band's speed), then as the first fit has it
+        # (beyond the band: noise would choose the samples, and a wheel that crossed the
+        # band within a few frames is seen moving throughout)
+        judged, least = measured[k], 0.5 * band * sweep.gains[k]
+        for _ in range(2):
+            least = max(least, MOVING_CHECK * max_wheel_speed)
+            use = moving_about(starts, np.abs(judged) >= least, CLEAR) & steady
+            if use.sum() < 2 * MIN_SAMPLES:
+                return None
+            coef = np.linalg.lstsq(basis[use], measured[k][use], rcond=None)[0]
+            judged, least = basis @ coef, BEYOND * band * coef[0]
+        gains[k] = coef[0]
+    return gains

@@ -20,6 +20,8 @@ that lies within the band (a hard cut-off, as the MuJoCo motors have it).
   reach. Each pass's band is the one whose model (the commands sent, the drift followed as a
   curve through the pass, the sweep's gain, delay and lag, a small shift left free) fits its
   measured speeds best (motor_check_fit.pass_band).
+Each wheel's gain is then fitted again over the whole check, its drift a spline in time
+(motor_check_fit.check_gains: a drift that swings within the sweep bends its line).
 The band is the mean over both wheels and both passes; a band within the largest of the
 grid's step, the commands' levels apart (a quarter of a tick's step: 0.6 % of the fastest
 wheel speed at 10 Hz) and half the wheels' difference is told as none (0); its bound that, or
@@ -42,6 +44,7 @@ from curve_formation.core.base.shapes import Command, FloatArray
 from curve_formation.core.controller import motion_record as record
 from curve_formation.core.controller.motor_check_fit import (
     BAND_STEP,
+    check_gains,
     CLEAR,
     DRIFT_POINTS,
     fit_sweep,
@@ -339,6 +342,11 @@ class MotorProbe:
         bound = max(BAND_STEP * self.max_wheel_speed, levels, 0.5 * abs(bands[0] - bands[1]))
         if band <= bound:   # not told apart from none
             band = 0.0
+        _, _, tp, pose = self._arrays(last[SWEEP], last[DOWN] + half)
+        whole = check_gains(tc, wheels, *spans(tp, pose, self.wheel_base), sweep, band,
+                            self.max_wheel_speed)
+        if whole is not None:
+            gains = (float(whole[0]), float(whole[1]))
         return ProbeResult(gains, band, max(bound, apart), sweep.delay, sweep.lag,
                            sweep.residual, self.repeats)
 
