@@ -23,7 +23,9 @@ mona_arena, the nodes' tick pipeline (core.sim.pipeline) runs in three worlds:
   its controller measures its wheel gains and dead band (controller.motor_check), before the
   schedule's t = 0 as the nodes run it (the curve server waits for every controller's check:
   8.2 s from the first pose, not counted); goal: every phase within 1.2x of mujoco, no
-  contact.
+  contact. Its estimates 10 s after the first pose (a second run, stopped at t = 2 s):
+  wheel gains against the drawn ones (goal 3 %), dead band (20 %), and the motors' lag
+  against their first-order part (15 ms).
 Part `speed`: seconds of world per second of wall clock, MuJoCo and kinematic worlds alone,
 9 robots (mona_arena) and 50 (a 5 m x 5 m arena), every robot driven on its own circle with
 commands renewed at 10 Hz (goals: MuJoCo >= 20x for 9, >= 1x for 50).
@@ -44,6 +46,7 @@ from curve_formation.core.config.physics_schema import PhysicsSpec
 from curve_formation.core.config.starts import seeded_start
 from curve_formation.core.record import metrics
 from curve_formation.core.sim.pipeline import simulate_pipeline
+from curve_formation.core.world.mujoco_world import draw_robots, SERVO_LAG
 from curve_formation.core.world.worlds import make_world
 from curve_formation.paths import resolve_config
 
@@ -77,6 +80,26 @@ def experiment(name, seed, world):
     return with_start(case, seeded_start(case, seed))
 
 
+def early_estimates(case):
+    """A checked world's estimates 10 s after the first pose (t = 2 s: the check's 8.2 s
+    before t = 0): each robot's wheel gains over the drawn ones less 1, its dead band over
+    the drawn one, its motor lag less the motors' first-order part (s; None while none).
+    """
+    result = simulate_pipeline(case, 'mujoco', duration=2.0)
+    data = metrics.result_metrics(result)
+    robots = draw_robots(case)
+    drawn = robots.wheel_radii / robots.nominal_radius * robots.gains
+    band = IMPERFECTIONS['dead_band'] * result.limits.max_wheel_speed
+    first_order = PhysicsSpec().motor_time_constant - 2.0 * SERVO_LAG
+    return {
+        'gain_error': [None if g is None else float(np.abs(np.divide(g, d) - 1.0).max())
+                       for g, d in zip(data['estimated_wheel_gains'], drawn, strict=True)],
+        'dead_band_share': [None if b is None else b / band
+                            for b in data['estimated_dead_band']],
+        'lag_error': [lag - first_order if lag > 0.0 else None
+                      for lag in data['estimated_motor_time_constant']]}
+
+
 def one_start(job):
     """Every world's run of one (experiment, seed): settle times, contacts, wall time."""
     name, seed, worlds = job
@@ -86,6 +109,8 @@ def one_start(job):
         result = simulate_pipeline(experiment(name, seed, world),
                                    'kinematic' if world == 'kinematic' else 'mujoco')
         data = metrics.result_metrics(result)
+        if world == 'checked':
+            row['checked_at_10_s'] = early_estimates(experiment(name, seed, world))
         row[world] = {'settle': [p['settle_time'] for p in data['phases']],
                       'final_mm': [1000 * p['final_max_agent_error'] for p in data['phases']],
                       'contacts': result.contacts, 'wall_s': time.perf_counter() - begin,
@@ -159,7 +184,30 @@ def starts_report(rows):
             print(f'{world} dead bands: taken by {len(taken)} of {len(shares)} robots, '
                   f'{band["within_20_percent"]} within 20 % of the drawn band'
                   + (f' ({min(taken):.2f}x to {max(taken):.2f}x)' if taken else ''))
+        early = [r['checked_at_10_s'] for r in case_rows if 'checked_at_10_s' in r]
+        if early:
+            summary['checked_at_10_s'] = early_report(early)
         out[name] = summary
+    return out
+
+
+def early_report(early):
+    """The checked world's estimates 10 s after the first pose, over every robot of every
+    start: how many are within the goals, and the worst.
+    """
+    out = {}
+    for key, goal, unit, scale in (('gain_error', 0.03, '%', 100.0),
+                                   ('dead_band_share', 0.2, 'x', 1.0),
+                                   ('lag_error', 0.015, 'ms', 1000.0)):
+        values = [v for row in early for v in row[key]]
+        taken = [v for v in values if v is not None]
+        off = [abs(v - 1.0) if key == 'dead_band_share' else abs(v) for v in taken]
+        within = sum(v <= goal + 1e-12 for v in off)
+        out[key] = {'robots': len(values), 'taken': len(taken), 'within_goal': within,
+                    'worst': max(off, default=None)}
+        worst = '' if not off else f', worst {scale * max(off):.1f} {unit} off'
+        print(f'checked at 10 s, {key}: {within} of {len(values)} robots within '
+              f'{scale * goal:g} {unit} ({len(taken)} taken{worst})')
     return out
 
 
