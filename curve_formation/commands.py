@@ -223,6 +223,7 @@ def cmd_animate(args):
 
 def cmd_measure_link(args):
     from curve_formation.bags.measure_link import measure_bag
+    from curve_formation.core.controller.wheel_estimate import GAIN_ERROR
     found = measure_bag(args.bag, args.motor_time_constant)
     estimated = found['motor_estimated']
     if not estimated and found['motor_time_constant'] > 0:
@@ -245,8 +246,13 @@ def cmd_measure_link(args):
         check = row['check']
         if check is not None:
             band = check['dead_band']
+            errors = check['gain_errors']
             print(f'robot {i} motor check (controller.motor_check): wheel gains '
-                  f'{check["wheel_gains"][0]:.3f}, {check["wheel_gains"][1]:.3f}; dead band '
+                  f'{check["wheel_gains"][0]:.3f}, {check["wheel_gains"][1]:.3f}'
+                  + ('' if errors is None else
+                     f' +- {errors[0]:.3f}, {errors[1]:.3f}'
+                     + (f' (not used: over {GAIN_ERROR:g})' if max(errors) > GAIN_ERROR else ''))
+                  + '; dead band '
                   + ('-' if band is None else f'{_mm(band)} +- {_mm(check["bound"])} mm/s')
                   + (f'; {check["repeated"]} stage(s) run again (a gap in poses or ticks)'
                      if check['repeated'] else ''))

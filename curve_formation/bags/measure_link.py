@@ -102,7 +102,9 @@ def measure_bag(path, motor_time_constant=None):
                   'dead_band': band.band,
                   'check': None if check is None or check.gains is None else {
                       'wheel_gains': list(check.gains), 'dead_band': check.band,
-                      'bound': check.bound, 'repeated': check.repeated},
+                      'bound': check.bound, 'repeated': check.repeated,
+                      'gain_errors': (None if check.gain_errors is None
+                                      else list(check.gain_errors))},
                   'commands': len(sent), 'poses': len(seen)}
     told = [r['latency'] for r in out.values() if r['latency'] is not None]
     if estimated:

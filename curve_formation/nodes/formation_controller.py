@@ -28,6 +28,7 @@ from curve_formation.core.controller.limits import WheelLimits
 from curve_formation.core.controller.plausibility import bounded_command
 from curve_formation.core.controller.safety import Avoidance, AVOIDANCE_OFF
 from curve_formation.core.controller.settings import broken_rules, DEFAULT_RATE_HZ, SETTINGS
+from curve_formation.core.controller.wheel_estimate import GAIN_ERROR
 from curve_formation.core.formation.assignment import AssignmentError
 from curve_formation.interface import robot_name
 from curve_formation.nodes import messages, shared_readers, topics
@@ -365,8 +366,13 @@ class FormationController(Node):
                 else f'{found.band:.5f} +- {found.bound:.5f} m/s')
         again = (f', {found.repeated} stage(s) run again (a gap in poses or ticks)'
                  if found.repeated else '')
-        return (f'wheel gains {found.gains[0]:.4f} {found.gains[1]:.4f}, dead band {band}, '
-                f'delay {found.delay:.2f} s{again}')
+        errors = found.gain_errors
+        gains = (f'wheel gains {found.gains[0]:.4f} {found.gains[1]:.4f}'
+                 + ('' if errors is None else f' +- {errors[0]:.4f} {errors[1]:.4f}'))
+        if self.controller.robot.wheel_gains is None:
+            gains += (f' (not used: their standard errors over {GAIN_ERROR:g}; noisy poses? '
+                      'the online fit may tell them)')
+        return f'{gains}, dead band {band}, delay {found.delay:.2f} s{again}'
 
     def _publish_diagnostics(self) -> None:
         c = self.controller

@@ -18,6 +18,7 @@ from scipy.signal import lfilter
 
 from curve_formation.core.base.shapes import BoolArray, FloatArray
 from curve_formation.core.controller import motion_record as record
+from curve_formation.core.controller.wheel_estimate import gain_fit
 from curve_formation.core.formation.dynamics import wheel_speeds
 
 
@@ -247,15 +248,16 @@ def pass_band(starts: FloatArray, ends: FloatArray, measured: FloatArray, gain: 
 
 def check_gains(tc: FloatArray, wheels: FloatArray, starts: FloatArray, ends: FloatArray,
                 measured: FloatArray, sweep: SweepFit, band: float, max_wheel_speed: float
-                ) -> FloatArray | None:
-    """Each wheel's gain (2,) over the whole check, its drift a cubic spline in time (knots
-    DRIFT_KNOTS s apart) rather than the sweep's line: where the wheel moves clear of the
-    band (`band` m/s: at least half its speed, MOVING_CHECK of the fastest, for CLEAR s
-    about), the sweep's delay and lag taken. tc (k,), wheels (2, k): the commands; measured
-    (2, n): the wheels' speeds over [starts, ends] (n,). A drift that swings within the
-    sweep's 3 s bends its line, and so its gains (3.6 % on a MuJoCo robot whose drift swings
-    by +-20 % of its fastest speed; 2.6 % so). None where a wheel has fewer than
-    2 MIN_SAMPLES such intervals.
+                ) -> tuple[FloatArray, FloatArray] | None:
+    """Each wheel's gain (2,) over the whole check and its standard error (2,), its drift a
+    cubic spline in time (knots DRIFT_KNOTS s apart) rather than the sweep's line: where the
+    wheel moves clear of the band (`band` m/s), the sweep's delay and lag taken. tc (k,),
+    wheels (2, k): the commands; measured (2, n): the wheels' speeds over [starts, ends]
+    (n,), which overlap: the error is that of independent intervals times the square root of
+    how many intervals a pose's step lies in. A drift that swings within the sweep's 3 s
+    bends its line, and so its gains (3.6 % on a MuJoCo robot whose drift swings by +-20 % of
+    its fastest speed; 2.6 % so). None where a wheel has fewer than MIN_SAMPLES such
+    intervals.
     """
     if len(starts) < 2 * MIN_SAMPLES:
         return None
@@ -268,11 +270,11 @@ def check_gains(tc: FloatArray, wheels: FloatArray, starts: FloatArray, ends: Fl
     steady = record.held_means(tc, record.driven_commands(wheels.T),
                                starts - sweep.delay - 3.0 * sweep.lag,
                                ends - sweep.delay) > 0.999
-    gains = np.zeros(2)
+    overlap = max(float(np.median(ends - starts) / np.median(np.diff(starts))), 1.0)
+    gains, errors = np.zeros(2), np.zeros(2)
     for k in range(2):
         means = record.lagged_means(tc, wheels[k], starts - sweep.delay, ends - sweep.delay,
                                     sweep.lag)
-        basis = np.column_stack([means, drift])
         # moving as measured (beyond half the band's speed), then as the first fit has it
         # (beyond the band: noise would choose the samples, and a wheel that crossed the
         # band within a few frames is seen moving throughout)
@@ -280,9 +282,11 @@ def check_gains(tc: FloatArray, wheels: FloatArray, starts: FloatArray, ends: Fl
         for _ in range(2):
             least = max(least, MOVING_CHECK * max_wheel_speed)
             use = moving_about(starts, np.abs(judged) >= least, CLEAR) & steady
-            if use.sum() < 2 * MIN_SAMPLES:
+            if use.sum() < MIN_SAMPLES:
                 return None
-            coef = np.linalg.lstsq(basis[use], measured[k][use], rcond=None)[0]
-            judged, least = basis @ coef, BEYOND * band * coef[0]
-        gains[k] = coef[0]
-    return gains
+            gains[k], errors[k], _ = gain_fit(means[use], measured[k][use], drift[use])
+            judged = means * gains[k] + drift @ np.linalg.lstsq(
+                drift[use], measured[k][use] - gains[k] * means[use], rcond=None)[0]
+            least = BEYOND * band * gains[k]
+        errors[k] *= math.sqrt(overlap)
+    return gains, errors

@@ -85,6 +85,9 @@ class ProbeResult:
     lag: float | None
     residual: float | None
     repeated: int = 0   # stages run again: a gap in its poses or ticks disturbed them
+    # the gains' standard errors (left, right: speed per unit of command) over the whole
+    # check (check_gains); None where only the sweep's fit has them
+    gain_errors: tuple[float, float] | None = None
 
 
 NOT_FITTED = ProbeResult(None, None, None, None, None, None)
@@ -345,10 +348,12 @@ class MotorProbe:
         _, _, tp, pose = self._arrays(last[SWEEP], last[DOWN] + half)
         whole = check_gains(tc, wheels, *spans(tp, pose, self.wheel_base), sweep, band,
                             self.max_wheel_speed)
+        errors = None
         if whole is not None:
-            gains = (float(whole[0]), float(whole[1]))
+            gains = (float(whole[0][0]), float(whole[0][1]))
+            errors = (float(whole[1][0]), float(whole[1][1]))
         return ProbeResult(gains, band, max(bound, apart), sweep.delay, sweep.lag,
-                           sweep.residual, self.repeats)
+                           sweep.residual, self.repeats, errors)
 
 
 def replay_check(command_times: FloatArray, commands: FloatArray, pose_times: FloatArray,

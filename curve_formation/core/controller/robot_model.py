@@ -14,7 +14,7 @@ from curve_formation.core.controller.dead_band_estimate import OnlineDeadBand
 from curve_formation.core.controller.limits import limit_acceleration, saturate, timed_by
 from curve_formation.core.controller.link_estimate import ONLINE_LAGS, OnlineLink
 from curve_formation.core.controller.motor_probe import MotorProbe
-from curve_formation.core.controller.wheel_estimate import OnlineGains, wheel_record
+from curve_formation.core.controller.wheel_estimate import GAIN_ERROR, OnlineGains, wheel_record
 from curve_formation.core.formation.dynamics import body_from_wheels, wheel_speeds
 
 
@@ -138,8 +138,14 @@ class RobotModel:
 
     @property
     def wheel_gains(self) -> tuple[float, float] | None:
-        """(left, right) as estimated online, else as the motor check found them, or None."""
+        """(left, right) as estimated online, else as the motor check found them where their
+        standard errors are known and at most GAIN_ERROR (a camera's noise can leave a
+        check's gains 10 % off), or None.
+        """
         online = None if self.wheels is None else self.wheels.gains
         if online is not None or self.check is None or self.check.result is None:
             return online
-        return self.check.result.gains
+        found = self.check.result
+        if found.gain_errors is None or max(found.gain_errors) > GAIN_ERROR:
+            return None
+        return found.gains

@@ -79,9 +79,11 @@ def _drift_basis(mid: FloatArray, on: FloatArray, window: float) -> FloatArray:
     return np.column_stack(columns)
 
 
-def _gain(x: FloatArray, measured: FloatArray, drift: FloatArray
-          ) -> tuple[float, float, FloatArray]:
-    """Least squares of measured ~ g x + drift: (g, its standard error, residuals)."""
+def gain_fit(x: FloatArray, measured: FloatArray, drift: FloatArray
+             ) -> tuple[float, float, FloatArray]:
+    """Least squares of measured ~ g x + drift (x, measured (n,): m/s; drift (n, m): its
+    basis): (g, its standard error, residuals).
+    """
     basis = np.column_stack([x, drift])
     coef, *_ = np.linalg.lstsq(basis, measured, rcond=None)
     residuals = measured - basis @ coef
@@ -127,7 +129,7 @@ def estimate_gains(command_times: ArrayLike, commands: ArrayLike, pose_times: Ar
     drift = _drift_basis(mid, on[sel], window)
     gains, errors, squares = [], [], 0.0
     for k in range(2):
-        gain, error, residuals = _gain(x[k, sel], measured[k, sel], drift)
+        gain, error, residuals = gain_fit(x[k, sel], measured[k, sel], drift)
         gains.append(gain)
         errors.append(error)
         squares += float(residuals @ residuals)
