@@ -253,8 +253,9 @@ def check_gains(tc: FloatArray, wheels: FloatArray, starts: FloatArray, ends: Fl
     cubic spline in time (knots DRIFT_KNOTS s apart) rather than the sweep's line: where the
     wheel moves clear of the band (`band` m/s), the sweep's delay and lag taken. tc (k,),
     wheels (2, k): the commands; measured (2, n): the wheels' speeds over [starts, ends]
-    (n,), which overlap: the error is that of independent intervals times the square root of
-    how many intervals a pose's step lies in. A drift that swings within the sweep's 3 s
+    (n,): they overlap, but no two that follow each other share a pose, so that a camera's
+    noise in the poses is nearly independent between them (on a simulated drive, the
+    errors came out 0 to 1.5 of the standard error). A drift that swings within the sweep's 3 s
     bends its line, and so its gains (3.6 % on a MuJoCo robot whose drift swings by +-20 % of
     its fastest speed; 2.6 % so). None where a wheel has fewer than MIN_SAMPLES such
     intervals.
@@ -270,7 +271,6 @@ def check_gains(tc: FloatArray, wheels: FloatArray, starts: FloatArray, ends: Fl
     steady = record.held_means(tc, record.driven_commands(wheels.T),
                                starts - sweep.delay - 3.0 * sweep.lag,
                                ends - sweep.delay) > 0.999
-    overlap = max(float(np.median(ends - starts) / np.median(np.diff(starts))), 1.0)
     gains, errors = np.zeros(2), np.zeros(2)
     for k in range(2):
         means = record.lagged_means(tc, wheels[k], starts - sweep.delay, ends - sweep.delay,
@@ -288,5 +288,4 @@ def check_gains(tc: FloatArray, wheels: FloatArray, starts: FloatArray, ends: Fl
             judged = means * gains[k] + drift @ np.linalg.lstsq(
                 drift[use], measured[k][use] - gains[k] * means[use], rcond=None)[0]
             least = BEYOND * band * gains[k]
-        errors[k] *= math.sqrt(overlap)
     return gains, errors

@@ -86,7 +86,7 @@ class ProbeResult:
     residual: float | None
     repeated: int = 0   # stages run again: a gap in its poses or ticks disturbed them
     # the gains' standard errors (left, right: speed per unit of command) over the whole
-    # check (check_gains); None where only the sweep's fit has them
+    # check (check_gains); None where only the sweep's fit has them (not used then)
     gain_errors: tuple[float, float] | None = None
 
 
