@@ -107,10 +107,24 @@ class RobotModel:
             self.check.restart()
 
     @property
+    def check_trusted(self) -> bool:
+        """Whether the motor check is done and its gains' standard errors are known and at
+        most GAIN_ERROR: its band is measured from the same poses (a camera's noise can leave
+        a check's gains 10 % off and its band 3 times the drawn one).
+        """
+        found = None if self.check is None else self.check.result
+        return (found is not None and found.gain_errors is not None
+                and max(found.gain_errors) <= GAIN_ERROR)
+
+    @property
     def checked_band(self) -> float | None:
-        """m/s: the band the motor check found (None: no check, none fitted or none seen)."""
+        """m/s: the band the motor check found, where trusted (None: no check, none fitted,
+        none seen or not trusted).
+        """
         result = None if self.check is None else self.check.result
-        return None if result is None or not result.band else result.band
+        if result is None or not result.band or not self.check_trusted:
+            return None
+        return result.band
 
     def sent(self, now: float, v: float, w: float) -> None:
         """The command (v m/s, w rad/s) sent at `now`."""
@@ -138,14 +152,11 @@ class RobotModel:
 
     @property
     def wheel_gains(self) -> tuple[float, float] | None:
-        """(left, right) as estimated online, else as the motor check found them where their
-        standard errors are known and at most GAIN_ERROR (a camera's noise can leave a
-        check's gains 10 % off), or None.
+        """(left, right) as estimated online, else as the motor check found them where
+        trusted (check_trusted), or None.
         """
         online = None if self.wheels is None else self.wheels.gains
-        if online is not None or self.check is None or self.check.result is None:
+        found = None if self.check is None else self.check.result
+        if online is not None or found is None or not self.check_trusted:
             return online
-        found = self.check.result
-        if found.gain_errors is None or max(found.gain_errors) > GAIN_ERROR:
-            return None
         return found.gains
