@@ -297,24 +297,31 @@ class MotorProbe:
                 asked = record.lagged_means(sent[:, 0], wheels[k], start, end, sweep.lag)[0]
                 self._drifts[k].append((mid, speeds[k] / sweep.gains[k] - asked))
 
-    def _arrays(self, begin: float, end: float
-                ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-        """The commands (times, wheels (2, k)), all of them, and the poses (times, (m, 3))
-        taken from begin to end (s).
+    def _arrays(self) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """The commands (times (k,), wheels (2, k)) and the poses (times (m,), (m, 3)), all
+        of them, cleaned (motion_record.cleaned).
         """
         sent = np.array(self.commands).reshape(-1, 3)
         seen = np.array(self.poses).reshape(-1, 4)
         tc, cmd, tp, pose = record.cleaned(sent[:, 0], sent[:, 1:], seen[:, 0], seen[:, 1:])
+        return tc, np.stack(wheel_speeds(cmd[:, 0], cmd[:, 1], self.wheel_base)), tp, pose
+
+    def _speeds(self, tp: FloatArray, pose: FloatArray, begin: float, end: float
+                ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """motor_check_fit.spans of the poses (tp (m,) s, pose (m, 3)) taken from begin to
+        end (s).
+        """
         keep = (tp >= begin) & (tp <= end)
-        wheels = np.stack(wheel_speeds(cmd[:, 0], cmd[:, 1], self.wheel_base))
-        return tc, wheels, tp[keep], pose[keep]
+        return spans(tp[keep], pose[keep], self.wheel_base)
 
     def _fit_sweep(self, begun: float) -> SweepFit | None:
         """The sweep begun at `begun` (s), fitted."""
-        tc, wheels, tp, pose = self._arrays(begun, begun + SWEEP_SECONDS)
-        if len(tc) < 2 or len(tp) < MIN_SAMPLES:
+        tc, wheels, tp, pose = self._arrays()
+        inside = ((tp >= begun) & (tp <= begun + SWEEP_SECONDS)).sum()
+        if len(tc) < 2 or inside < MIN_SAMPLES:
             return None
-        return fit_sweep(tc, wheels, *spans(tp, pose, self.wheel_base), self.amplitude)
+        return fit_sweep(tc, wheels, *self._speeds(tp, pose, begun, begun + SWEEP_SECONDS),
+                         self.amplitude)
 
     def _fit_crossings(self) -> ProbeResult:
         """The band from the last up pass and the last down pass (module doc)."""
@@ -322,12 +329,12 @@ class MotorProbe:
         assert sweep is not None
         half = STAGE_SECONDS[UP]
         last = dict(self._stages)   # each stage's last run
-        tc, wheels, _, _ = self._arrays(0.0, 0.0)
+        tc, wheels, tp, pose = self._arrays()
         gains = (float(sweep.gains[0]), float(sweep.gains[1]))
         passes = []   # (starts, ends, measured (2, n), its middle s) of each pass
         for begun in (last[UP], last[DOWN]):
-            _, _, tp, pose = self._arrays(begun + SETTLE, begun + half)
-            passes.append((*spans(tp, pose, self.wheel_base), begun + 0.5 * half))
+            passes.append((*self._speeds(tp, pose, begun + SETTLE, begun + half),
+                           begun + 0.5 * half))
         bands, apart = [], 0.0
         for k in range(2):
             drifts = np.array(self._drifts[k]).reshape(-1, 2)
@@ -345,9 +352,8 @@ class MotorProbe:
         bound = max(BAND_STEP * self.max_wheel_speed, levels, 0.5 * abs(bands[0] - bands[1]))
         if band <= bound:   # not told apart from none
             band = 0.0
-        _, _, tp, pose = self._arrays(last[SWEEP], last[DOWN] + half)
-        whole = check_gains(tc, wheels, *spans(tp, pose, self.wheel_base), sweep, band,
-                            self.max_wheel_speed)
+        whole = check_gains(tc, wheels, *self._speeds(tp, pose, last[SWEEP], last[DOWN] + half),
+                            sweep, band, self.max_wheel_speed)
         errors = None
         if whole is not None:
             gains = (float(whole[0][0]), float(whole[0][1]))
