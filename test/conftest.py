@@ -30,20 +30,24 @@ CONFIG_DIR = ROOT / 'config'
 
 
 TIERS = ('pure', 'in_process', 'processes')
+RUNS_NODE_PROCESSES = frozenset({'recorded'})   # session fixtures that run node processes
 
 
 def pytest_collection_modifyitems(items):
     """A test's folder is its tier, and its markers: pure/ (no DDS; the default run,
     scripts/test, spreads them over the cores), in_process/ (rclpy nodes on a context of the
     test's own, the `ros` fixture) and processes/ (node processes on a private domain); the
-    last two are also `ros`, run one at a time, their nodes having the machine to themselves.
-    A test whose fixtures say another tier than its folder is refused at collection.
+    last two are also `ros`, run one at a time, their nodes having the machine to themselves;
+    a test on a recorded run (RUNS_NODE_PROCESSES) is in processes/, whose session records it
+    once for all. A test whose fixtures say another tier than its folder is refused at
+    collection.
     """
     misplaced = []
     for item in items:
         tier = item.path.parent.name
         fixtures = set(getattr(item, 'fixturenames', ()))
-        says = ('in_process' if 'ros' in fixtures
+        says = ('processes' if fixtures & RUNS_NODE_PROCESSES
+                else 'in_process' if 'ros' in fixtures
                 else 'processes' if 'ros_domain' in fixtures else None)
         if tier not in TIERS or (says is not None and says != tier) or (
                 tier == 'in_process' and says is None):

@@ -84,15 +84,15 @@ def stream(topic, first, received, in_order=True):
             'received': received, 'in_order': in_order}
 
 
-@pytest.mark.parametrize('received, recorded, lost', [
+@pytest.mark.parametrize('received, written, lost', [
     (7, 7, 0),    # the recorder matched at the 4th of 10: nothing after it is missing
     (6, 6, 1),    # one of the seven from the 4th on never arrived
     (7, 6, 1),    # arrived but not written
 ])
-def test_the_bag_accounting_starts_at_the_first_sample_recorded(tmp_path, received, recorded,
+def test_the_bag_accounting_starts_at_the_first_sample_recorded(tmp_path, received, written,
                                                                  lost):
     cmd = '/robot_1/cmd_vel'
-    out = accounting(tmp_path, [{cmd: 10}], {cmd: stream(cmd, 4, received)}, {cmd: recorded})
+    out = accounting(tmp_path, [{cmd: 10}], {cmd: stream(cmd, 4, received)}, {cmd: written})
     assert out['lost'] == lost and out['published'] == 10
     assert out['topics'][cmd]['expected'] == 7
 
