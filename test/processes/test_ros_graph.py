@@ -123,7 +123,7 @@ def test_observer_law_learns_the_disturbance_from_camera_rate_poses(ros_domain, 
 
 def test_curve_switch_is_picked_up_within_one_control_period(ros_domain, tmp_path):
     with Run(DATA_DIR / 'fast_switch.yaml', tmp_path, log=quiet) as run:
-        run.spin_for(22.0)   # the switch at 12 s, and 10 s on the second curve
+        run.spin_for(17.0)   # the switch at 7 s, and 10 s on the second curve
         data = run.recording()
         monitor = run.monitor
     switch = monitor.curve_times[1]
