@@ -1,6 +1,7 @@
 """The motor check's fits (core.controller.motor_probe): each wheel's gain, drift, the
-delay and the motors' lag from the sweep (fit_sweep), and the dead band from a pass of the
-crossings (pass_band).
+delay and the motors' lag from the sweep (fit_sweep), the dead band from a pass of the
+crossings (pass_band), and each wheel's gain and its standard error again over the whole
+check (check_gains). Speeds across a gap in the poses are not measured (held_up).
 
 A wheel's speed is measured from the poses over SPAN s (spans: the forward speed -+ half the
 wheel base times the turn rate) and modelled as its gain times its command plus a drift (a
