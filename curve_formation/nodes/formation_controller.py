@@ -374,6 +374,13 @@ class FormationController(Node):
                       f'{GAIN_ERROR:g}; noisy poses? the online fits may tell them)')
         return f'{gains}, dead band {band}, delay {found.delay:.2f} s{again}'
 
+    def _check_state(self) -> str:
+        """The motor check for /diagnostics: what it found, 'under way', or '-' (none)."""
+        check = self.controller.robot.check
+        if check is None or (not check.done and not self._checking):
+            return '-'
+        return self._checked() if check.done else 'under way'
+
     def _publish_diagnostics(self) -> None:
         c = self.controller
         status = DiagnosticStatus(
@@ -396,6 +403,8 @@ class FormationController(Node):
                     # m/s of wheel speed: the motors' dead band as told or estimated; '-': none
                     KeyValue(key='dead_band', value=f'{c.robot.min_wheel_speed:.5f}'
                              if c.robot.min_wheel_speed > 0.0 else '-'),
+                    # what the motor check found (_checked), 'under way', or '-': none
+                    KeyValue(key='motor_check', value=self._check_state()),
                     KeyValue(key='rejected_inputs', value=str(c.rejected)),
                     KeyValue(key='rejected_messages', value=self.rejections.summary()),
                     KeyValue(key='last_rejection', value=self.rejections.last),

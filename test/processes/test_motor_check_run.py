@@ -16,7 +16,8 @@ FASTEST = 2.0   # m/s: fast_closed's max_wheel_speed
 
 def test_a_run_checks_its_robots_motors_then_drives(ros_domain, tmp_path):
     """fast_closed with controller.motor_check, in one process: every controller says
-    'motor check' on /diagnostics, and only before the first curve (the curve server starts
+    'motor check' on /diagnostics, then what it found (its `motor_check` value), and only
+    before the first curve (the curve server starts
     the schedule once every controller has checked its motors); every controller's last
     report tells wheel gains within 3 % of the fake robots' (exact wheels: 1, 1) and no dead
     band beyond 1 % of the fastest wheel speed (they have none; beside the other worker's
@@ -32,7 +33,7 @@ def test_a_run_checks_its_robots_motors_then_drives(ros_domain, tmp_path):
     path.write_text(yaml.safe_dump(data))
     run_experiment(path, tmp_path / 'out', 8.0,
                    RunOptions(single_process=True, bag_path=tmp_path / 'bag'), log=quiet)
-    first_curve, checking = None, {}
+    first_curve, checking, found = None, {}, {}
     for topic, _, stamp, msg in read_messages(tmp_path / 'bag', ['/diagnostics',
                                                                  '/formation/curve']):
         if topic == '/formation/curve':
@@ -41,8 +42,14 @@ def test_a_run_checks_its_robots_motors_then_drives(ros_domain, tmp_path):
         for status in msg.status:
             if status.message == 'motor check':
                 checking.setdefault(status.hardware_id, []).append(stamp)
+            said = {kv.key: kv.value for kv in status.values}.get('motor_check', '-')
+            if said.startswith('wheel gains'):
+                found[status.hardware_id] = said
     assert first_curve is not None
     assert len(checking) == 6, checking
+    # and once done, what it found: the gains with their errors, trusted (exact poses)
+    assert sorted(found) == sorted(checking), found
+    assert all(' +- ' in said and 'not used' not in said for said in found.values()), found
     assert all(max(stamps) < first_curve for stamps in checking.values()), (first_curve,
                                                                            checking)
     saved = json.loads((tmp_path / 'out' / 'metrics.json').read_text())
