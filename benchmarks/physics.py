@@ -106,11 +106,11 @@ def one_start(job):
     row = {'case': name, 'seed': seed}
     for world in worlds:
         begin = time.perf_counter()
-        result = simulate_pipeline(experiment(name, seed, world),
-                                   'kinematic' if world == 'kinematic' else 'mujoco')
+        case = experiment(name, seed, world)
+        result = simulate_pipeline(case, 'kinematic' if world == 'kinematic' else 'mujoco')
         data = metrics.result_metrics(result)
         if world == 'checked':
-            row['checked_at_10_s'] = early_estimates(experiment(name, seed, world))
+            row['checked_at_10_s'] = early_estimates(case)
         row[world] = {'settle': [p['settle_time'] for p in data['phases']],
                       'final_mm': [1000 * p['final_max_agent_error'] for p in data['phases']],
                       'contacts': result.contacts, 'wall_s': time.perf_counter() - begin,

@@ -251,7 +251,7 @@ def cmd_measure_link(args):
                   f'{check["wheel_gains"][0]:.3f}, {check["wheel_gains"][1]:.3f}'
                   + ('' if errors is None else
                      f' +- {errors[0]:.3f}, {errors[1]:.3f}'
-                     + (f' (not used: over {GAIN_ERROR:g})' if max(errors) > GAIN_ERROR else ''))
+                     + ('' if check['used'] else f' (not used: over {GAIN_ERROR:g})'))
                   + '; dead band '
                   + ('-' if band is None else f'{_mm(band)} +- {_mm(check["bound"])} mm/s')
                   + (f'; {check["repeated"]} stage(s) run again (a gap in poses or ticks)'

@@ -104,7 +104,8 @@ def measure_bag(path, motor_time_constant=None):
                       'wheel_gains': list(check.gains), 'dead_band': check.band,
                       'bound': check.bound, 'repeated': check.repeated,
                       'gain_errors': (None if check.gain_errors is None
-                                      else list(check.gain_errors))},
+                                      else list(check.gain_errors)),
+                      'used': check.trusted},
                   'commands': len(sent), 'poses': len(seen)}
     told = [r['latency'] for r in out.values() if r['latency'] is not None]
     if estimated:

@@ -17,7 +17,7 @@ import numpy as np
 from scipy.interpolate import BSpline
 from scipy.signal import lfilter
 
-from curve_formation.core.base.shapes import BoolArray, FloatArray
+from curve_formation.core.base.shapes import BoolArray, FloatArray, IntArray
 from curve_formation.core.controller import motion_record as record
 from curve_formation.core.controller.wheel_estimate import gain_fit
 from curve_formation.core.formation.dynamics import wheel_speeds
@@ -78,6 +78,16 @@ def spans(tp: FloatArray, poses: FloatArray, wheel_base: float, span: float = SP
     return tp[first], tp[ends_at[first]], speeds
 
 
+def pose_gaps(tp: FloatArray) -> IntArray:
+    """The indices k of the steps tp[k] -> tp[k + 1] (s, in order) longer than HELD times
+    their median: a process held up.
+    """
+    steps = np.diff(tp)
+    if not len(steps):
+        return np.zeros(0, dtype=int)
+    return np.flatnonzero(steps > HELD * np.median(steps))
+
+
 def held_up(tp: FloatArray, starts: FloatArray, ends: FloatArray) -> BoolArray:
     """Which intervals [starts, ends] (s) span a gap in the poses taken at tp (s, in order)
     longer than HELD times their median interval, or start within CLEAR s after one: a
@@ -85,10 +95,7 @@ def held_up(tp: FloatArray, starts: FloatArray, ends: FloatArray) -> BoolArray:
     queued at once; a gap under motor_probe.GAP runs no sweep again), and its motors' lag
     after.
     """
-    steps = np.diff(tp)
-    if not len(steps):
-        return np.zeros(len(starts), dtype=bool)
-    gap = np.flatnonzero(steps > HELD * np.median(steps))
+    gap = pose_gaps(tp)
     if not len(gap):
         return np.zeros(len(starts), dtype=bool)
     before, after = tp[gap], tp[gap + 1]   # each gap's last pose before it, first after
@@ -285,8 +292,8 @@ def check_gains(tc: FloatArray, wheels: FloatArray, starts: FloatArray, ends: Fl
             use = moving_about(starts, np.abs(judged) >= least, CLEAR) & steady
             if use.sum() < MIN_SAMPLES:
                 return None
-            gains[k], errors[k], _ = gain_fit(means[use], measured[k][use], drift[use])
-            judged = means * gains[k] + drift @ np.linalg.lstsq(
-                drift[use], measured[k][use] - gains[k] * means[use], rcond=None)[0]
+            coef, errors[k], _ = gain_fit(means[use], measured[k][use], drift[use])
+            gains[k] = coef[0]
+            judged = np.column_stack([means, drift]) @ coef
             least = BEYOND * band * gains[k]
     return gains, errors

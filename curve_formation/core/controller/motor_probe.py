@@ -48,14 +48,15 @@ from curve_formation.core.controller.motor_check_fit import (
     CLEAR,
     DRIFT_POINTS,
     fit_sweep,
-    held_up,
     MIN_SAMPLES,
     MOVING,
     pass_band,
+    pose_gaps,
     SPAN,
     spans,
     SweepFit,
 )
+from curve_formation.core.controller.wheel_estimate import told
 from curve_formation.core.formation.dynamics import body_from_wheels, wheel_speeds
 
 
@@ -88,6 +89,14 @@ class ProbeResult:
     # the gains' standard errors (left, right: speed per unit of command) over the whole
     # check (check_gains); None where only the sweep's fit has them (not used then)
     gain_errors: tuple[float, float] | None = None
+
+    @property
+    def trusted(self) -> bool:
+        """Whether its gains, and its band measured from the same poses, are used: their
+        standard errors known and told (wheel_estimate.told; a camera's noise can leave a
+        check's gains 10 % off and its band 3 times the drawn one).
+        """
+        return self.gain_errors is not None and told(self.gain_errors)
 
 
 NOT_FITTED = ProbeResult(None, None, None, None, None, None)
@@ -235,7 +244,7 @@ class MotorProbe:
         poses, ticks = (times[(times >= begin) & (times <= end)] for times in (poses, ticks))
         if any(np.diff(np.concatenate([[begin], times])).max() > GAP for times in (poses, ticks)):
             return True
-        return stage != SWEEP and bool(held_up(poses, poses[:-1], poses[1:]).any())
+        return stage != SWEEP and len(pose_gaps(poses)) > 0
 
     def _crossing_wheels(self, now: float, t: float) -> tuple[float, float]:
         """Each wheel's command in the crossings at `now`, t s after they began: its centre

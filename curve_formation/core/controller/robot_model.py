@@ -14,7 +14,7 @@ from curve_formation.core.controller.dead_band_estimate import OnlineDeadBand
 from curve_formation.core.controller.limits import limit_acceleration, saturate, timed_by
 from curve_formation.core.controller.link_estimate import ONLINE_LAGS, OnlineLink
 from curve_formation.core.controller.motor_probe import MotorProbe
-from curve_formation.core.controller.wheel_estimate import GAIN_ERROR, OnlineGains, wheel_record
+from curve_formation.core.controller.wheel_estimate import OnlineGains, wheel_record
 from curve_formation.core.formation.dynamics import body_from_wheels, wheel_speeds
 
 
@@ -108,13 +108,9 @@ class RobotModel:
 
     @property
     def check_trusted(self) -> bool:
-        """Whether the motor check is done and its gains' standard errors are known and at
-        most GAIN_ERROR: its band is measured from the same poses (a camera's noise can leave
-        a check's gains 10 % off and its band 3 times the drawn one).
-        """
+        """Whether the motor check is done and its result trusted (ProbeResult.trusted)."""
         found = None if self.check is None else self.check.result
-        return (found is not None and found.gain_errors is not None
-                and max(found.gain_errors) <= GAIN_ERROR)
+        return found is not None and found.trusted
 
     @property
     def checked_band(self) -> float | None:

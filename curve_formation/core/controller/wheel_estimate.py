@@ -79,10 +79,17 @@ def _drift_basis(mid: FloatArray, on: FloatArray, window: float) -> FloatArray:
     return np.column_stack(columns)
 
 
+def told(errors: tuple[float, float]) -> bool:
+    """Whether gains with these standard errors (left, right) are told: both at most
+    GAIN_ERROR (the online fit's rule, and the motor check's).
+    """
+    return max(errors) <= GAIN_ERROR
+
+
 def gain_fit(x: FloatArray, measured: FloatArray, drift: FloatArray
-             ) -> tuple[float, float, FloatArray]:
+             ) -> tuple[FloatArray, float, FloatArray]:
     """Least squares of measured ~ g x + drift (x, measured (n,): m/s; drift (n, m): its
-    basis): (g, its standard error, residuals).
+    basis): (the coefficients (m + 1,): g, then the drift's; g's standard error; residuals).
     """
     basis = np.column_stack([x, drift])
     coef, *_ = np.linalg.lstsq(basis, measured, rcond=None)
@@ -92,7 +99,7 @@ def gain_fit(x: FloatArray, measured: FloatArray, drift: FloatArray
     dof = max(len(x) - basis.shape[1], 1)
     error = (math.sqrt(float(residuals @ residuals) / dof / spread) if spread > 1e-18
              else math.inf)
-    return float(coef[0]), error, residuals
+    return coef, error, residuals
 
 
 def estimate_gains(command_times: ArrayLike, commands: ArrayLike, pose_times: ArrayLike,
@@ -129,12 +136,12 @@ def estimate_gains(command_times: ArrayLike, commands: ArrayLike, pose_times: Ar
     drift = _drift_basis(mid, on[sel], window)
     gains, errors, squares = [], [], 0.0
     for k in range(2):
-        gain, error, residuals = gain_fit(x[k, sel], measured[k, sel], drift)
-        gains.append(gain)
+        coef, error, residuals = gain_fit(x[k, sel], measured[k, sel], drift)
+        gains.append(float(coef[0]))
         errors.append(error)
         squares += float(residuals @ residuals)
     residual = math.sqrt(squares / (2 * int(sel.sum())))
-    if max(errors) > GAIN_ERROR:
+    if not told((errors[0], errors[1])):
         return WheelGains(None, (errors[0], errors[1]), residual, int(sel.sum()))
     return WheelGains((gains[0], gains[1]), (errors[0], errors[1]), residual, int(sel.sum()))
 
