@@ -11,9 +11,24 @@ own node name.
 from collections.abc import Callable
 
 from rclpy.node import Node
+from rclpy.subscription import Subscription
 
 
-WATCH_PERIOD = 0.5   # s between two looks at the graph
+WATCH_PERIOD = 0.5   # s between two looks at a robot side's or the monitor's subscription
+# s between two looks at the graph by a node that only publishes the topic (a controller,
+# which reports a second source but does not stop the robot): a count of the graph's
+# publishers walks the graph, whose size grows with the team (a hundred controllers looking
+# twice a second took 9 % of their process)
+REPORT_PERIOD = 2.0
+
+
+def publisher_count(node: Node, topic: str, subscription: Subscription | None = None) -> int:
+    """How many publish `topic`: as matched with `subscription` (a number DDS keeps, where
+    the node reads the topic), else counted in the graph.
+    """
+    if subscription is not None:
+        return subscription.get_publisher_count()
+    return node.count_publishers(topic)
 
 
 def command_publishers(node: Node, topic: str) -> list[str]:
@@ -28,25 +43,29 @@ def command_publishers(node: Node, topic: str) -> list[str]:
 class CommandSourceWatch:
     """Watches a robot's cmd_vel for more than one publishing node; `extra` while it has.
 
-    on_change(extra, names) runs when that changes; the change is logged.
+    on_change(extra, names) runs when that changes; the change is logged. With `subscription`
+    (the node's own to the topic) it looks every WATCH_PERIOD at the publishers matched with
+    it, without it every REPORT_PERIOD at the graph.
     """
 
     def __init__(self, node: Node, topic: str,
-                 on_change: Callable[[bool, list[str]], None] | None = None) -> None:
+                 on_change: Callable[[bool, list[str]], None] | None = None,
+                 subscription: Subscription | None = None) -> None:
         self.node = node
+        self.subscription = subscription
         self.topic = node.resolve_topic_name(topic)
         self.on_change = on_change
         self.names: list[str] = []
         self.extra = False
         self.episodes = 0     # times a second publisher appeared
         self.count = -1       # publishers DDS counted at the last look
-        node.create_timer(WATCH_PERIOD, self.look)
+        node.create_timer(REPORT_PERIOD if subscription is None else WATCH_PERIOD, self.look)
 
     def look(self) -> None:
         # Named again only when the count changes, is more than one or was not all named
         # yet: the names are a walk of the graph in Python, the count a number (a hundred
         # robots' watches looked 400 times a second)
-        count = self.node.count_publishers(self.topic)
+        count = publisher_count(self.node, self.topic, self.subscription)
         if count == self.count and count <= 1 and len(self.names) == count:
             return
         self.count = count

@@ -9,7 +9,9 @@ and the curve server holds the e-stop through an EstopHolder:
 and
   whether or not the sender is still there;
 - it announces its state on /formation/estop_state (latched, and again every
-  ANNOUNCE_PERIOD for a late joiner whose history Fast DDS failed to deliver): the
+  announce_period for a late joiner whose history Fast DDS failed to deliver: every second,
+  less often in a team of more than TEAM_ANNOUNCEMENTS holders, so that a late joiner still
+  hears one within about 1/TEAM_ANNOUNCEMENTS s): the
   confirmation `curve-formation estop` waits for, and how the other nodes learn of a stop
   that reached this one first (a sender that found only some nodes yet still stops them
   all) or that was engaged before they started.
@@ -31,15 +33,19 @@ from curve_formation.nodes.runtime import now_seconds, WithMessageInfo
 from curve_formation.nodes.topics import Use
 
 
-ANNOUNCE_PERIOD = 1.0   # s between two announcements of an unchanged state
-# s after its last announcement that a holder is still counted among those heard (the
-# `holders` it announces, which `curve-formation estop` waits to have heard itself): a
-# node that died is forgotten after a few of its announcements are missed
-HOLDER_FORGOTTEN = 3.5 * ANNOUNCE_PERIOD
+ANNOUNCE_PERIOD = 1.0   # s between two announcements of an unchanged state, at the least
+# Unchanged states a team announces per second, about, at most: a holder that hears more
+# holders than this announces less often (announce_period), as every announcement reaches
+# every process (a hundred robots' holders announcing every second took 19 % of a core)
+TEAM_ANNOUNCEMENTS = 20.0
+# announcement periods after its last announcement that a holder is still counted among
+# those heard (the `holders` it announces, which `curve-formation estop` waits to have heard
+# itself): a node that died is forgotten after a few of its announcements are missed
+HOLDER_FORGOTTEN = 3.5
 # s a node waits, at its start, to hear another node's e-stop state (or a command) before it
 # takes the formation as not stopped: alone on the domain, nobody can hold a stop. A node that
 # has discovered another holder by then waits on for that holder's state (latched, and
-# announced every second), however long discovery takes.
+# announced again every announce_period), however long discovery takes.
 HEAR_WAIT = 2.0
 UNNAMED = 'a publisher not yet named by discovery'
 
@@ -50,7 +56,8 @@ def estop_uses(on_stop: str) -> tuple[Use, ...]:
             Use('sub', topics.ESTOP_STATE, "other nodes' e-stop state: started while the "
                 'formation is stopped, it stays stopped'),
             Use('pub', topics.ESTOP_STATE, 'its e-stop state on every change and every second '
-                '(what `curve-formation estop` waits for)'))
+                '(less often past 20 holders: about 20 a second in all; what '
+                '`curve-formation estop` waits for)'))
 
 
 class EstopHolder:
@@ -72,7 +79,9 @@ class EstopHolder:
         self.latch = EstopLatch()
         self.heard = False
         self.name = node.get_fully_qualified_name()
-        self.peers: dict[str, float] = {}   # other holder -> time.monotonic() last heard
+        # other holder -> time.monotonic() until which it is counted as heard
+        self.peers: dict[str, float] = {}
+        self.announced = -float('inf')   # time.monotonic() of the last announcement
         self.state_pub = topics.publisher(node, topics.ESTOP_STATE)
         on_command = Guarded(node, topics.ESTOP, WithMessageInfo(self._on_command))
         node.create_subscription(Bool, topics.ESTOP, on_command, qos.ANY_PUBLISHER)
@@ -82,7 +91,7 @@ class EstopHolder:
                                  event_callbacks=qos.observer_events())
         # one subscription for a group's holders (shared_readers), each state converted once
         shared_readers.subscribe(node, topics.ESTOP_STATE, self._on_heard, heard_report)
-        node.create_timer(ANNOUNCE_PERIOD, self.announce)
+        node.create_timer(ANNOUNCE_PERIOD, self._announce_if_due)
         self._hear_timer = node.create_timer(HEAR_WAIT, self._silence)
         self.announce()
 
@@ -112,7 +121,12 @@ class EstopHolder:
         if not self.latch.engaged and self.on_change is not None:
             self.on_change(False)
 
+    def _announce_if_due(self) -> None:
+        if time.monotonic() - self.announced >= announce_period(self.holders()) - 0.05:
+            self.announce()
+
     def announce(self) -> None:
+        self.announced = time.monotonic()
         latch = self.latch
         if latch.by == UNNAMED:   # discovery may know the sender's name by now
             latch.by = self._senders()
@@ -122,8 +136,8 @@ class EstopHolder:
 
     def holders(self) -> int:
         """The holders this node hears announce now (HOLDER_FORGOTTEN), itself included."""
-        alive = time.monotonic() - HOLDER_FORGOTTEN
-        return 1 + sum(1 for heard in self.peers.values() if heard >= alive)
+        now = time.monotonic()
+        return 1 + sum(1 for until in self.peers.values() if until >= now)
 
     def _senders(self) -> str:
         """Names of the nodes publishing e-stop commands now (who sent, as far as DDS tells:
@@ -151,7 +165,8 @@ class EstopHolder:
         """
         if report.holder == self.name:
             return
-        self.peers[report.holder] = time.monotonic() if heard is None else heard
+        heard = time.monotonic() if heard is None else heard
+        self.peers[report.holder] = heard + HOLDER_FORGOTTEN * announce_period(report.holders)
         # (a release is never adopted from a peer: the clock is read only for a stop)
         if report.engaged and self.latch.peer(True, report.since, report.by,
                                               now_seconds(self.node)):
@@ -165,6 +180,13 @@ class EstopHolder:
         self.node.get_logger().warning(
             f'e-stop {"engaged" if latch.engaged else "released"} by {latch.by}{how}')
         self.announce()
+
+
+def announce_period(holders: int) -> float:
+    """s between two announcements of an unchanged state by a holder that hears `holders`
+    (itself included; 0: not told): ANNOUNCE_PERIOD, longer past TEAM_ANNOUNCEMENTS holders.
+    """
+    return ANNOUNCE_PERIOD * max(1.0, holders / TEAM_ANNOUNCEMENTS)
 
 
 def heard_report(node: Node, msg: DiagnosticStatus) -> tuple[EstopReport, float] | None:

@@ -136,17 +136,16 @@ class FakeArena(Node):
         self.diag_pub = topics.publisher(self, topics.DIAGNOSTICS)
         self.endpoints = self._endpoints(p, experiment)
         self.estop = None   # behind links, the robot bridges hold the e-stop
-        self.sources = []   # and watch the command sources
+        self.sources: list[CommandSourceWatch] = []   # and watch the command sources
         if self.endpoints:
             self.create_timer(FIRMWARE_POLL, self._on_lines)
         else:
             self.estop = EstopHolder(self, robots=self.n, on_change=self._stop_held)
-            self.sources = [CommandSourceWatch(self, topics.robot_topic(i, topics.CMD_VEL),
-                                               self._stop_held)
-                            for i in range(1, self.n + 1)]
             for i in range(1, self.n + 1):
-                topics.subscription(self, topics.CMD_VEL, lambda msg, i=i: self._on_cmd(i, msg),
-                                    robot=i)
+                reader = topics.subscription(self, topics.CMD_VEL,
+                                             lambda msg, i=i: self._on_cmd(i, msg), robot=i)
+                self.sources.append(CommandSourceWatch(
+                    self, topics.robot_topic(i, topics.CMD_VEL), self._stop_held, reader))
         self.last_poses: float | None = None   # when poses were last published (s)
         self.create_timer(1.0 / p.rate_hz, self._on_timer)
         self.create_timer(1.0, self._publish_diagnostics)

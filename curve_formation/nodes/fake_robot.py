@@ -109,9 +109,9 @@ class FakeRobot(Node):
         topics.subscription(self, topics.CURVE, self._on_curve)
         self.rng = np.random.default_rng(p.seed)
         self.pose_pub = topics.publisher(self, p.pose_topic)
-        topics.subscription(self, topics.CMD_VEL, self._on_cmd)
+        reader = topics.subscription(self, topics.CMD_VEL, self._on_cmd)
         self.estop = EstopHolder(self, robot_name(p.index), on_change=self._stop_if_held)
-        self.source = CommandSourceWatch(self, topics.CMD_VEL, self._stop_if_held)
+        self.source = CommandSourceWatch(self, topics.CMD_VEL, self._stop_if_held, reader)
         self.create_timer(1.0 / p.rate_hz, self._on_timer)
 
     def _on_curve(self, msg: Float64MultiArray) -> None:

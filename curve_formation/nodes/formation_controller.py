@@ -8,6 +8,7 @@ stale input gives a zero Twist and a warning, never a stale command. All the mat
 core.controller.agent.AgentController.
 """
 
+from functools import partial
 from types import SimpleNamespace
 from typing import Any
 
@@ -233,9 +234,9 @@ class FormationController(Node):
         self.controller.set_estop(True, 'e-stop state not heard yet')
         self.estop = EstopHolder(self, robot_name(self.config.index), self.config.agent_count,
                                  self._on_estop)
-        for j, _ in self.config.neighbours:
-            topics.subscription(self, topics.STATE, lambda msg, j=j: self._on_neighbour(j, msg),
-                                robot=j)
+        for j, _ in self.config.neighbours:   # in this process: handed over (shared_readers)
+            shared_readers.subscribe_robot(self, topics.STATE, j,
+                                           partial(self._on_neighbour, j))
         # every robot's latest poses (n, 3), their stamp and when received, for the safety
         # filter at the next tick
         self.others_msg: tuple[np.ndarray, float, float] | None = None
@@ -280,7 +281,7 @@ class FormationController(Node):
     def publish_state(self, state: State) -> None:
         """Tell the out-neighbours this robot's state (on every accepted pose)."""
         self.state_msg = messages.state_to_msg(state, self.params.frame_id, self.state_msg)
-        self.state_pub.publish(self.state_msg)
+        shared_readers.publish_robot(self.state_pub, self.state_msg)
 
     def _on_neighbour(self, j: int, msg: JointState) -> None:
         try:

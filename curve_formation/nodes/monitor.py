@@ -29,7 +29,11 @@ from curve_formation.core.record.sample_log import SampleLog
 from curve_formation.core.record.sampling import LatestValues
 from curve_formation.interface import robot_name
 from curve_formation.nodes import messages, qos, topics
-from curve_formation.nodes.command_source import command_publishers, WATCH_PERIOD
+from curve_formation.nodes.command_source import (
+    command_publishers,
+    publisher_count,
+    WATCH_PERIOD,
+)
 from curve_formation.nodes.readiness import subscribe_to_curve
 from curve_formation.nodes.runtime import now_seconds, WithMessageInfo
 
@@ -121,11 +125,13 @@ class Monitor(Node):
         self.adopted: dict[tuple[int, int], float] = {}
         self.recording = SampleLog(recording_fields(n, ground_truth))
         self.poses_from_all = poses_from_all
+        self.command_readers: list[Subscription] = []   # robot i's cmd_vel at i - 1
         for i in range(1, n + 1 if watch else 1):
             if not poses_from_all:
                 self._subscribe(topics.POSE, lambda m, i=i: self._on_pose(i, m), i)
-            self._subscribe(topics.CMD_VEL,
-                            WithMessageInfo(lambda m, info, i=i: self._on_cmd(i, m, info)), i)
+            self.command_readers.append(self._subscribe(
+                topics.CMD_VEL, WithMessageInfo(lambda m, info, i=i: self._on_cmd(i, m, info)),
+                i))
             self._subscribe(topics.ESTIMATE, lambda m, i=i: self._on_estimate(i, m), i)
             if adoption:
                 self._subscribe(topics.STATE, WithMessageInfo(
@@ -238,7 +244,7 @@ class Monitor(Node):
             episodes = self.command_sources.get(robot_name(i), [])
             open_ = bool(episodes) and episodes[-1][1] is None
             # named only past one publisher (a walk of the graph; the count is a number)
-            if self.count_publishers(topic) <= 1 and not open_:
+            if publisher_count(self, topic, self.command_readers[i - 1]) <= 1 and not open_:
                 continue
             names = command_publishers(self, topic)
             if len(names) > 1 and not open_:

@@ -81,7 +81,9 @@ def main(args: list[str] | None = None) -> int:
     except ParameterError as exc:
         print(f'error: {exc}', file=sys.stderr)
         return 2
-    with readers_shared():   # one subscription per broadcast topic for all its nodes
+    # one subscription per broadcast topic for all its nodes, the states of its robots
+    # handed over in the process
+    with readers_shared(entry['namespace'] for entry in entries):
         return run_nodes([partial(make_node, entry) for entry in entries], argv[2:] or None,
                          priority=priority)
 

@@ -122,9 +122,9 @@ class RobotBridge(Node):
         self.battery: float | None = None   # V, where the firmware's answers say it
         self.latencies: collections.deque[float] = collections.deque(maxlen=LATENCY_WINDOW)
         self.diag_pub = topics.publisher(self, topics.DIAGNOSTICS)
-        topics.subscription(self, topics.CMD_VEL, self._on_cmd)
+        reader = topics.subscription(self, topics.CMD_VEL, self._on_cmd)
         self.estop = EstopHolder(self, self._robot_name(), on_change=self._stop_if_held)
-        self.source = CommandSourceWatch(self, topics.CMD_VEL, self._stop_if_held)
+        self.source = CommandSourceWatch(self, topics.CMD_VEL, self._stop_if_held, reader)
         self.create_timer(1.0 / p.rate_hz, self._on_timer)
         # A command that came too soon after the last line is written as soon as it may be
         # (this timer runs only while one waits), not at the next tick of the timer above:
