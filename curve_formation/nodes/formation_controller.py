@@ -166,13 +166,14 @@ def _avoidance(p: SimpleNamespace) -> Avoidance:
 
 TOPICS = (
     Use('sub', topics.POSE, 'own pose, arena frame (unless pose_from_all)'),
-    Use('sub', topics.STATE, "each in-neighbour's state: e_x, e_y, curve_id, leader_age", '<j>'),
+    Use('sub', topics.STATE, "each in-neighbour's state: e_x, e_y, curve_id, leader_age (in a "
+        'node_group, a neighbour of the same process hands it over, not through DDS)', '<j>'),
     Use('sub', topics.CURVE, 'the active curve'),
     Use('sub', topics.ROBOT_POSES, "every robot's pose (x, y, theta per robot), for the "
         'safety filter (with avoidance) and with pose_from_all its own'),
     Use('pub', topics.CMD_VEL, 'velocity command at rate_hz'),
     Use('pub', topics.STATE, 'own state on every pose, for out-neighbours (names e_x, e_y, '
-        'curve_id, leader_age)'),
+        'curve_id, leader_age); in a node_group, on DDS only while read outside its process'),
     Use('pub', topics.TICK, 'every tick while it has a subscriber: the command sent (v, w) and '
         'the stamps of the inputs it came from (own pose, each in-neighbour state), to trace or '
         'replay a command'),
