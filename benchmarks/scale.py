@@ -3,7 +3,11 @@ the safety filter on, a generated closed curve) in the default mode (controllers
 per core) and in one process.
 
 Run: scripts/bench scale [--sizes 9 25 50 100] [--seconds 30] [--modes grouped single]
-     [--realtime-priority P]
+     [--realtime-priority P] [--busy-neighbour]
+
+--busy-neighbour measures beside a busy neighbour, as the issue's goals are stated and as the
+default test run has its tests without DDS: a Python loop at nice 19, started from this
+process (so in its session) for the whole of each run.
 
 For each N and mode it prints: achieved control rate (Hz) of the slowest controller and the
 1st percentile over the robots, period jitter p99 (ms, worst robot), CPU per robot (% of one
@@ -14,8 +18,11 @@ run's own metrics.json `ticks` (core/record/tick_timing.py).
 """
 
 import argparse
+import contextlib
 import os
 from pathlib import Path
+import subprocess
+import sys
 import tempfile
 import time
 
@@ -54,6 +61,23 @@ def measure(n, mode, seconds, folder, priority=0):
             'first_curve_s': to_first_curve, 'settled': bool(result.get('all_settled'))}
 
 
+@contextlib.contextmanager
+def busy_neighbour(on):
+    """A nice-19 Python loop beside the block (when `on`): one core's worth of work that only
+    takes what the run leaves, at normal scheduling.
+    """
+    if not on:
+        yield
+        return
+    loop = subprocess.Popen(['nice', '-n', '19', sys.executable, '-c',
+                             'while True: sum(i * i for i in range(10000))'])
+    try:
+        yield
+    finally:
+        loop.kill()
+        loop.wait()
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--sizes', type=int, nargs='+', default=[9, 25, 50, 100])
@@ -61,6 +85,8 @@ def main():
     parser.add_argument('--modes', nargs='+', default=list(MODES), choices=list(MODES))
     parser.add_argument('--realtime-priority', type=int, default=0,
                         help="the controllers' SCHED_FIFO priority (run --realtime-priority)")
+    parser.add_argument('--busy-neighbour', action='store_true',
+                        help='measure beside a nice-19 Python loop (as the goals are stated)')
     args = parser.parse_args()
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     print(f'{"N":>4s} {"mode":>8s} {"Hz min":>7s} {"Hz p1":>6s} {"jitter p99 ms":>13s} '
@@ -69,7 +95,8 @@ def main():
         for n in args.sizes:
             for mode in args.modes:
                 try:
-                    r = measure(n, mode, args.seconds, folder, args.realtime_priority)
+                    with busy_neighbour(args.busy_neighbour):
+                        r = measure(n, mode, args.seconds, folder, args.realtime_priority)
                 except (TimeoutError, RuntimeError) as exc:
                     print(f'{n:4d} {mode:>8s} failed: {str(exc).splitlines()[0]}', flush=True)
                     continue
