@@ -196,12 +196,12 @@ def early_report(early):
     start: how many are within the goals, and the worst.
     """
     out = {}
-    for key, goal, unit, scale in (('gain_error', 0.03, '%', 100.0),
-                                   ('dead_band_share', 0.2, 'x', 1.0),
-                                   ('lag_error', 0.015, 'ms', 1000.0)):
+    for key, aim, goal, unit, scale in (('gain_error', 0.0, 0.03, '%', 100.0),
+                                        ('dead_band_share', 1.0, 0.2, 'x', 1.0),
+                                        ('lag_error', 0.0, 0.015, 'ms', 1000.0)):
         values = [v for row in early for v in row[key]]
         taken = [v for v in values if v is not None]
-        off = [abs(v - 1.0) if key == 'dead_band_share' else abs(v) for v in taken]
+        off = [abs(v - aim) for v in taken]
         within = sum(v <= goal + 1e-12 for v in off)
         out[key] = {'robots': len(values), 'taken': len(taken), 'within_goal': within,
                     'worst': max(off, default=None)}

@@ -371,7 +371,7 @@ class FormationController(Node):
         errors = found.gain_errors
         gains = (f'wheel gains {found.gains[0]:.4f} {found.gains[1]:.4f}'
                  + ('' if errors is None else f' +- {errors[0]:.4f} {errors[1]:.4f}'))
-        if not self.controller.robot.check_trusted:
+        if not found.trusted:
             gains += (f' (neither they nor the band used: their standard errors over '
                       f'{GAIN_ERROR:g}; noisy poses? the online fits may tell them)')
         return f'{gains}, dead band {band}, delay {found.delay:.2f} s{again}'

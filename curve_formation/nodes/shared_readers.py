@@ -25,7 +25,7 @@ from typing import Any
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 
-from curve_formation.interface import robot_topic
+from curve_formation.interface import robot_namespace, robot_topic
 from curve_formation.nodes import topics
 from curve_formation.nodes.guard import Guarded
 
@@ -101,7 +101,7 @@ def subscribe_robot(node: Node, name: str, robot: int, callback: Callable[[Any],
     `readers_shared`), else through the node's own DDS subscription. Guarded either way.
     """
     placed = robot_topic(robot, name)
-    if placed.rsplit('/', 1)[0] in _hosted:
+    if robot_namespace(robot) in _hosted:
         _local.setdefault(placed, []).append(Guarded(node, placed, callback))
         return
     topics.subscription(node, name, callback, robot=robot)

@@ -13,7 +13,7 @@ from curve_formation.core.controller.agent_config import AgentConfig
 from curve_formation.core.controller.dead_band_estimate import OnlineDeadBand
 from curve_formation.core.controller.limits import limit_acceleration, saturate, timed_by
 from curve_formation.core.controller.link_estimate import ONLINE_LAGS, OnlineLink
-from curve_formation.core.controller.motor_probe import MotorProbe
+from curve_formation.core.controller.motor_probe import MotorProbe, ProbeResult
 from curve_formation.core.controller.wheel_estimate import OnlineGains, wheel_record
 from curve_formation.core.formation.dynamics import body_from_wheels, wheel_speeds
 
@@ -107,20 +107,18 @@ class RobotModel:
             self.check.restart()
 
     @property
-    def check_trusted(self) -> bool:
-        """Whether the motor check is done and its result trusted (ProbeResult.trusted)."""
+    def trusted_check(self) -> ProbeResult | None:
+        """What the motor check found, once done and trusted (ProbeResult.trusted); else None."""
         found = None if self.check is None else self.check.result
-        return found is not None and found.trusted
+        return found if found is not None and found.trusted else None
 
     @property
     def checked_band(self) -> float | None:
         """m/s: the band the motor check found, where trusted (None: no check, none fitted,
         none seen or not trusted).
         """
-        result = None if self.check is None else self.check.result
-        if result is None or not result.band or not self.check_trusted:
-            return None
-        return result.band
+        found = self.trusted_check
+        return found.band if found is not None and found.band else None
 
     def sent(self, now: float, v: float, w: float) -> None:
         """The command (v m/s, w rad/s) sent at `now`."""
@@ -149,10 +147,8 @@ class RobotModel:
     @property
     def wheel_gains(self) -> tuple[float, float] | None:
         """(left, right) as estimated online, else as the motor check found them where
-        trusted (check_trusted), or None.
+        trusted (trusted_check), or None.
         """
         online = None if self.wheels is None else self.wheels.gains
-        found = None if self.check is None else self.check.result
-        if online is not None or found is None or not self.check_trusted:
-            return online
-        return found.gains
+        found = self.trusted_check
+        return online if online is not None or found is None else found.gains
