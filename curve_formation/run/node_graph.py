@@ -96,6 +96,12 @@ class NodeGraph:
         env = dict(os.environ, PYTHONUNBUFFERED='1')
         if self.publications_dir is not None:   # each node reports what it published
             env[PUBLICATIONS_ENV] = str(self.publications_dir)
+        # A session of its own: a Ctrl-C at the terminal reaches the runner alone, which stops
+        # the nodes in order; and where the kernel shares the cores between sessions
+        # (autogroups), a busy program in another session cannot take the run's share. The
+        # runner's session (a process group each) was measured: better beside a nice-19 job
+        # started from the same terminal, a hundred robots at 4.6 Hz beside one in another
+        # (docs/performance.md, "A session per node process").
         with open(self.logs_dir / f'{key}.log', mode) as log_file:
             self.processes[key] = subprocess.Popen(
                 cmd, env=env, stdout=log_file, stderr=subprocess.STDOUT,
