@@ -58,8 +58,6 @@ from curve_formation.interface import (  # noqa: F401 (the readers, for the node
 MessageError = CodecError
 
 
-
-
 def seconds_to_stamp(seconds: float) -> Time:
     sec = math.floor(seconds)
     return Time(sec=int(sec), nanosec=int(round((seconds - sec) * 1e9)) % 1_000_000_000)
@@ -79,16 +77,6 @@ def curve_to_msg(curve: Curve, curve_id: int, s: Sequence[float] | np.ndarray | 
     return msg
 
 
-
-
-
-
-
-
-
-
-
-
 def pose_to_msg(x: float, y: float, theta: float, stamp_s: float, frame_id: str = 'arena',
                 msg: PoseStamped | None = None) -> PoseStamped:
     """PoseStamped of a planar pose; `msg`: one to fill instead of a new one (a publisher's
@@ -106,8 +94,6 @@ def twist_to_msg(v: float, w: float) -> Twist:
     msg = Twist()
     msg.linear.x, msg.angular.z = float(v), float(w)
     return msg
-
-
 
 
 STATE_FIELDS = ('e_x', 'e_y', 'curve_id', 'leader_age')
@@ -273,7 +259,6 @@ def polygon_from_msg(msg: PolygonStamped) -> tuple[np.ndarray, bool]:
     pts = np.array([[p.x, p.y] for p in msg.polygon.points], dtype=float).reshape(-1, 2)
     closed = len(pts) > 3 and bool(np.array_equal(pts[0], pts[-1]))
     return (pts[:-1] if closed else pts), closed
-
 
 
 def estop_state_to_msg(holder: str, role: str, robot: str, engaged: bool, by: str,

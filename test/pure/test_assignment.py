@@ -66,6 +66,20 @@ def test_rank_deficient_stacked_basis_is_refused():
         check_assumptions(DegenerateBasis(3), np.array([0.0, 0.3, 0.6, 1.0]))
 
 
+def test_a_check_kept_for_the_next_controller_answers_as_a_new_one():
+    """The s that passed are kept (a group's controllers check the same curve message): the
+    same s on a new basis object returns the same read-only G_bar, and a basis of another
+    kind with the same size and s is checked for itself.
+    """
+    s = np.array([0.0, 0.3, 0.6, 1.0])
+    first = check_assumptions(PolynomialBasis(3), s)
+    again = check_assumptions(PolynomialBasis(3), s.copy())
+    np.testing.assert_array_equal(again, PolynomialBasis(3).stacked(s))
+    assert again is first and not again.flags.writeable
+    with pytest.raises(AssignmentError, match='Assumption 1 .* rank'):
+        check_assumptions(DegenerateBasis(3), s)
+
+
 def test_valid_parameters_return_the_stacked_basis():
     g_bar = check_assumptions(FourierBasis(6), uniform_parameters(6, True))
     assert g_bar.shape == (12, 26)
