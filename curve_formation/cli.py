@@ -20,6 +20,7 @@ from curve_formation.core.config.marker_ids import MARKER_IDS
 from curve_formation.core.controller.settings import SETTINGS
 from curve_formation.paths import use_dds_profile
 from curve_formation.results.provenance import command_line
+from curve_formation.scheduling import CONTROLLERS, priority_problem
 
 
 def _allow_missing_option(parser, then):
@@ -67,7 +68,7 @@ def not_negative(text):
 
 
 def _realtime_option(parser):
-    parser.add_argument('--realtime-priority', type=_priority, default=0, metavar='P',
+    parser.add_argument('--realtime-priority', type=_priority, default=CONTROLLERS, metavar='P',
                         help="the controllers' processes take SCHED_FIFO priority P (1-99) so "
                         'that a busy PC cannot delay their ticks (needs root, CAP_SYS_NICE or '
                         'an rtprio limit; else a note in their logs and normal scheduling); '
@@ -76,9 +77,13 @@ def _realtime_option(parser):
 
 
 def _priority(text):
-    value = int(text)
-    if not 0 <= value <= 99:
-        raise argparse.ArgumentTypeError(f'expected 0 to 99, got {value}')
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected an integer, got {text!r}') from None
+    problem = priority_problem(value)
+    if problem:
+        raise argparse.ArgumentTypeError(problem)
     return value
 
 

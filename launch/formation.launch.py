@@ -19,6 +19,7 @@ from launch_ros.actions import Node
 from launch_ros.substitutions import ExecutableInPackage
 
 from curve_formation.run.start_scripts import graph_starts
+from curve_formation.scheduling import CONTROLLERS
 from launch import LaunchDescription
 
 
@@ -31,8 +32,8 @@ ARGUMENTS = (
     ('observer', 'false', 'true: curve-formation run --only observer measures the run'),
     ('controllers_per_process', '', "K controllers share each process ('': one group per "
      'core, at most 25 controllers and 13 groups; 1: a process each)'),
-    ('realtime_priority', '0', "SCHED_FIFO priority (1-99) of the controllers' processes; "
-     '0: normal scheduling (see curve-formation run --help)'),
+    ('realtime_priority', str(CONTROLLERS), "SCHED_FIFO priority (1-99) of the controllers' "
+     'processes; 0: normal scheduling (see curve-formation run --help)'),
 )
 
 
@@ -47,7 +48,7 @@ def _nodes(context):
                           observed=observed,
                           controllers_per_process=int(arg('controllers_per_process') or 0)
                           or None,
-                          realtime_priority=int(arg('realtime_priority') or 0))
+                          realtime_priority=int(arg('realtime_priority') or CONTROLLERS))
     actions = [Node(package='curve_formation', executable=start.executable,
                     arguments=list(start.arguments), output='screen') if start.arguments
                else Node(package='curve_formation', executable=start.executable,

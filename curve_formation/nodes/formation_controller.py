@@ -20,6 +20,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
+from curve_formation import scheduling
 from curve_formation.core.controller.agent import AgentController
 from curve_formation.core.controller.agent_config import AgentConfig
 from curve_formation.core.controller.disturbance import RunTime, varied
@@ -83,11 +84,11 @@ PARAMETERS = (
     Param('compiled_law', 'bool', False, 'run the control step compiled by numba, as the '
           'batch simulator does (the same source): ~15x faster a tick, ~0.7 s and ~65 MB '
           'more to start; the runner sets it when every node shares one process'),
-    Param('realtime_priority', 'int', 0, "SCHED_FIFO priority (1-99) this controller's "
-          'process takes at start (a group of controllers: the highest of theirs), so that '
-          'a busy PC cannot delay its ticks; needs root, CAP_SYS_NICE or an rtprio limit, '
-          'else a note and normal scheduling; 0 = normal scheduling (`run '
-          '--realtime-priority`)', low=0, high=99),
+    Param('realtime_priority', 'int', scheduling.CONTROLLERS, 'SCHED_FIFO priority (1-99) '
+          "this controller's process takes at start (a group of controllers: the highest of "
+          'theirs), so that a busy PC cannot delay its ticks; needs root, CAP_SYS_NICE or an '
+          'rtprio limit, else a note and normal scheduling; 0 = normal scheduling (`run '
+          '--realtime-priority`)', low=scheduling.NORMAL, high=scheduling.HIGHEST),
     *(Param.of(setting) for setting in SETTINGS.values()),
 )
 

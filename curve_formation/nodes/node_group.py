@@ -23,6 +23,7 @@ import yaml
 from curve_formation.nodes.params import ParameterError
 from curve_formation.nodes.runtime import checked_priority, run_nodes
 from curve_formation.nodes.shared_readers import readers_shared
+from curve_formation.scheduling import CONTROLLERS
 
 
 NODE_NAME = 'node_group'   # also its console script's name
@@ -77,7 +78,7 @@ def main(args: list[str] | None = None) -> int:
                for entry in entries]
     try:   # the process's priority: the highest its nodes ask (run_nodes)
         priority = max(checked_priority(PRIORITY, node_parameters(e['params_file']).get(
-            PRIORITY, 0)) for e in entries)
+            PRIORITY, CONTROLLERS)) for e in entries)
     except ParameterError as exc:
         print(f'error: {exc}', file=sys.stderr)
         return 2

@@ -30,6 +30,7 @@ from curve_formation.nodes.command_line import (
 )
 from curve_formation.nodes.params import ParameterError
 from curve_formation.paths import use_dds_profile
+from curve_formation.scheduling import priority_problem, realtime_process
 
 
 SIGNAL_CHECK_PERIOD = 0.2   # s, longest wait before a signal is acted on
@@ -213,40 +214,13 @@ def restart_timers(nodes: Sequence[Node]) -> None:
 
 
 def checked_priority(name: str, value: Any) -> int:
-    """`value` of parameter `name` as a SCHED_FIFO priority 0-99 (0: normal scheduling);
+    """`value` of parameter `name` as a SCHED_FIFO priority (scheduling: 0, normal, to 99);
     ParameterError naming the parameter otherwise.
     """
-    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 99:
-        raise ParameterError(f'parameter {name!r}: expected an integer from 0 (normal '
-                             f'scheduling) to 99, got {value!r}')
+    problem = priority_problem(value)
+    if problem:
+        raise ParameterError(f'parameter {name!r}: {problem}')
     return value
-
-
-def realtime_priority(priority: int, thread: int = 0) -> str | None:
-    """Schedule a thread of this process (its id; 0: the calling one) SCHED_FIFO at
-    `priority` (1-99), so that processes woken around it (a busy PC's other nodes, the
-    kernel's tty work) cannot delay what it does next; threads it starts later inherit it.
-    Returns None, or why not (it needs root, CAP_SYS_NICE or an rtprio limit); priority 0
-    leaves the thread as it is.
-    """
-    if priority <= 0:
-        return None
-    try:
-        os.sched_setscheduler(thread, os.SCHED_FIFO, os.sched_param(priority))
-    except OSError as exc:
-        return exc.strerror or str(exc)
-    return None
-
-
-def realtime_process(priority: int) -> str | None:
-    """realtime_priority for every thread this process has (e.g. the BLAS threads numpy's
-    import starts) and so for every thread started from them later; None, or why not.
-    """
-    for thread in os.listdir('/proc/self/task'):
-        why_not = realtime_priority(priority, int(thread))
-        if why_not and Path(f'/proc/self/task/{thread}').exists():   # not one that ended
-            return why_not
-    return None
 
 
 def _exit_hard_after(seconds: float) -> None:

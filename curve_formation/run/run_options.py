@@ -5,6 +5,7 @@ import math
 import os
 from pathlib import Path
 
+from curve_formation import scheduling
 from curve_formation.bags.bag import DEFAULT_STORAGE
 
 
@@ -75,7 +76,7 @@ class RunOptions:
     physics: str | None = None
     animate: bool = False
     controllers_per_process: int | None = None
-    realtime_priority: int = 0
+    realtime_priority: int = scheduling.CONTROLLERS
     preflight: bool = True
     allow_missing: frozenset[int] = frozenset()
 

@@ -27,6 +27,7 @@ from curve_formation.run.launches import (
     write_group_file,
     write_params_files,
 )
+from curve_formation.scheduling import CONTROLLERS
 
 
 PACKAGE = 'curve_formation'
@@ -193,7 +194,7 @@ class NodeStart:
 
 def graph_launches(experiment_path, folder, with_robots=True, camera=False, bridge=None,
                    rate_hz=None, bag_path=None, observed=False, physics=None,
-                   controllers_per_process=None, realtime_priority=0):
+                   controllers_per_process=None, realtime_priority=CONTROLLERS):
     """(Experiment, [NodeLaunch]) of an experiment file's graph for `params` and the launch
     file, as `run` builds it (launches.node_launches; a bridge's links in folder/links).
     observed: a `curve-formation run --only observer` (with bag_path, its recorder too) will

@@ -13,9 +13,9 @@ import time
 from conftest import DATA_DIR
 from curve_formation import links
 from curve_formation.core.config.loading import load_experiment
-from curve_formation.nodes.runtime import realtime_priority
 from curve_formation.run import launches
 from curve_formation.run.run_options import RunOptions
+from curve_formation.scheduling import realtime_priority
 from link_robot import Robot
 
 

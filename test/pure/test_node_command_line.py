@@ -226,3 +226,23 @@ def test_a_realtime_priority_out_of_range_stops_the_controller_naming_it(capsys)
     assert status == 2
     assert "parameter 'realtime_priority': expected an integer from 0 (normal scheduling) " \
         'to 99, got 120' in capsys.readouterr().err
+
+
+def test_the_realtime_priority_is_declared_once_for_the_command_line_the_run_and_the_node(
+        capsys):
+    """`run --realtime-priority` refuses what the controller's parameter refuses, in the same
+    words, and the run, its command line and the node start from the same default.
+    """
+    from curve_formation import scheduling
+    from curve_formation.cli import build_parser
+    from curve_formation.nodes.formation_controller import PARAMETERS
+    from curve_formation.run.run_options import RunOptions
+    parser = build_parser()
+    for given in ('120', 'ten'):
+        with pytest.raises(SystemExit):
+            parser.parse_args(['run', 'arena_demo', '--realtime-priority', given])
+        err = capsys.readouterr().err
+        assert '--realtime-priority' in err and ('to 99, got 120' in err or "'ten'" in err), err
+    node_default = next(p.default for p in PARAMETERS if p.name == 'realtime_priority')
+    assert (parser.parse_args(['run', 'arena_demo']).realtime_priority == node_default
+            == RunOptions().realtime_priority == scheduling.CONTROLLERS)
