@@ -44,21 +44,23 @@ def group_entries(path: str | Path) -> list[dict[str, str]]:
 
 
 def node_parameters(params_file: str | Path) -> dict[str, Any]:
-    """The parameters a `params`-written file sets (its one `/**/<name>` entry)."""
-    data = yaml.safe_load(Path(params_file).read_text())
-    (entry,) = data.values()
-    return dict(entry['ros__parameters'])
-
-
-def make_node(entry: dict[str, str]) -> Node:
-    """One listed node, in its namespace with its file's parameters (a relative path is
-    read beside the group file).
+    """The parameters a `params`-written file sets (its one `/**/<name>` entry);
+    ParameterError naming the file if it is not such a file.
     """
+    try:
+        (entry,) = yaml.safe_load(Path(params_file).read_text()).values()
+        return dict(entry['ros__parameters'])
+    except (OSError, yaml.YAMLError, AttributeError, TypeError, ValueError, KeyError) as exc:
+        raise ParameterError(f'{params_file}: expected the parameters of one node, '
+                             f'{{/**/<name>: {{ros__parameters: {{...}}}}}} ({exc!r})') from None
+
+
+def make_node(entry: dict[str, str], parameters: dict[str, Any]) -> Node:
+    """One listed node, in its namespace with its file's parameters."""
     try:
         return getattr(importlib.import_module(entry['module']), entry['class'])(
             namespace=entry['namespace'],
-            parameter_overrides=[Parameter(k, value=v) for k, v in
-                                 node_parameters(entry['params_file']).items()])
+            parameter_overrides=[Parameter(k, value=v) for k, v in parameters.items()])
     except ParameterError as exc:
         raise ParameterError(f"{entry['namespace']} {entry['module']}: {exc}") from None
 
@@ -74,18 +76,20 @@ def main(args: list[str] | None = None) -> int:
         print(f'error: {exc}', file=sys.stderr)
         return 2
     folder = Path(argv[1]).resolve().parent
-    entries = [{**entry, 'params_file': str(folder / entry['params_file'])}
-               for entry in entries]
-    try:   # the process's priority: the highest its nodes ask (run_nodes)
-        priority = max(checked_priority(PRIORITY, node_parameters(e['params_file']).get(
-            PRIORITY, CONTROLLERS)) for e in entries)
+    try:   # (a relative parameters file is read beside the group file)
+        parameters = [node_parameters(folder / entry['params_file']) for entry in entries]
+        # the process's priority: the highest its nodes ask (run_nodes)
+        priority = max(checked_priority(PRIORITY, given.get(PRIORITY, CONTROLLERS))
+                       for given in parameters)
     except ParameterError as exc:
         print(f'error: {exc}', file=sys.stderr)
         return 2
     # one subscription per broadcast topic for all its nodes, the states of its robots
     # handed over in the process
     with readers_shared(entry['namespace'] for entry in entries):
-        return run_nodes([partial(make_node, entry) for entry in entries], argv[2:] or None,
+        return run_nodes([partial(make_node, entry, given)
+                          for entry, given in zip(entries, parameters, strict=True)],
+                         argv[2:] or None,
                          priority=priority)
 
 

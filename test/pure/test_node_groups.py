@@ -63,3 +63,19 @@ def test_a_group_file_that_lists_no_nodes_is_refused_naming_it(tmp_path, capsys)
     assert main(['node_group', str(path)]) == 2
     assert f'{path}: expected a list of {{class, module, namespace, params_file}}' in \
         capsys.readouterr().err
+
+
+def test_a_group_whose_parameters_file_is_not_one_is_refused_naming_it(tmp_path, capsys):
+    """A listed node's parameters file that is missing, or not one node's parameters, stops
+    the group before any node starts, naming the file.
+    """
+    from curve_formation.nodes.node_group import main
+    path = tmp_path / 'group.yaml'
+    path.write_text('- {module: curve_formation.nodes.formation_controller, class: '
+                    'FormationController, namespace: /robot_1, params_file: robot_1.yaml}\n')
+    for text in (None, '[1, 2]\n', 'a: {b: 1}\nc: {d: 2}\n', '/**/x: {parameters: {}}\n'):
+        if text is not None:
+            (tmp_path / 'robot_1.yaml').write_text(text)
+        assert main(['node_group', str(path)]) == 2
+        err = capsys.readouterr().err
+        assert f"{tmp_path / 'robot_1.yaml'}: expected the parameters of one node" in err, err
