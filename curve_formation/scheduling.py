@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 
+PARAMETER = 'realtime_priority'   # the parameter of a node that gives its priority
 NORMAL = 0          # normal scheduling
 HIGHEST = 99        # Linux's highest SCHED_FIFO priority (os.sched_get_priority_max)
 CONTROLLERS = NORMAL   # the controllers' processes (run --realtime-priority, their parameter)

@@ -84,7 +84,7 @@ PARAMETERS = (
     Param('compiled_law', 'bool', False, 'run the control step compiled by numba, as the '
           'batch simulator does (the same source): ~15x faster a tick, ~0.7 s and ~65 MB '
           'more to start; the runner sets it when every node shares one process'),
-    Param('realtime_priority', 'int', scheduling.CONTROLLERS, 'SCHED_FIFO priority (1-99) '
+    Param(scheduling.PARAMETER, 'int', scheduling.CONTROLLERS, 'SCHED_FIFO priority (1-99) '
           "this controller's process takes at start (a group of controllers: the highest of "
           'theirs), so that a busy PC cannot delay its ticks; needs root, CAP_SYS_NICE or an '
           'rtprio limit, else a note and normal scheduling; 0 = normal scheduling (`run '
@@ -429,7 +429,7 @@ class FormationController(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    return run_node(FormationController, args, priority_parameter='realtime_priority')
+    return run_node(FormationController, args, priority_parameter=scheduling.PARAMETER)
 
 
 if __name__ == '__main__':

@@ -23,12 +23,11 @@ import yaml
 from curve_formation.nodes.params import ParameterError
 from curve_formation.nodes.runtime import checked_priority, run_nodes
 from curve_formation.nodes.shared_readers import readers_shared
-from curve_formation.scheduling import CONTROLLERS
+from curve_formation.scheduling import CONTROLLERS, PARAMETER
 
 
 NODE_NAME = 'node_group'   # also its console script's name
 FIELDS = {'module', 'class', 'namespace', 'params_file'}   # of each node a group lists
-PRIORITY = 'realtime_priority'   # a node's parameter: its process's SCHED_FIFO priority
 
 
 def group_entries(path: str | Path) -> list[dict[str, str]]:
@@ -79,7 +78,7 @@ def main(args: list[str] | None = None) -> int:
     try:   # (a relative parameters file is read beside the group file)
         parameters = [node_parameters(folder / entry['params_file']) for entry in entries]
         # the process's priority: the highest its nodes ask (run_nodes)
-        priority = max(checked_priority(PRIORITY, given.get(PRIORITY, CONTROLLERS))
+        priority = max(checked_priority(PARAMETER, given.get(PARAMETER, CONTROLLERS))
                        for given in parameters)
     except ParameterError as exc:
         print(f'error: {exc}', file=sys.stderr)

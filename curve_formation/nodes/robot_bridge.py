@@ -38,7 +38,7 @@ from curve_formation.nodes.estop import estop_uses, EstopHolder
 from curve_formation.nodes.params import declare_parameters, Param, ParameterError
 from curve_formation.nodes.runtime import now_seconds, run_node
 from curve_formation.nodes.topics import Use
-from curve_formation.scheduling import BRIDGE, HIGHEST, NORMAL, realtime_priority
+from curve_formation.scheduling import BRIDGE, HIGHEST, NORMAL, PARAMETER, realtime_priority
 
 
 # How the robot's firmware reads its lines (robot_bridge, and fake_arena's emulated robots).
@@ -77,7 +77,7 @@ PARAMETERS = (
     Param('reply_timeout', 'double', 1.0, 'no line from the robot for this long is reported '
           'as a lost link (s); 0 = the robot does not answer', low=0.0),
     Param('stop_repeats', 'int', 3, 'stop lines sent on shutdown', low=1),
-    Param('realtime_priority', 'int', BRIDGE, 'SCHED_FIFO priority (1-99) of the thread that '
+    Param(PARAMETER, 'int', BRIDGE, 'SCHED_FIFO priority (1-99) of the thread that '
           "takes cmd_vel and writes the robot's lines, so that a busy PC does not delay them; "
           '0 = normal scheduling. Needs root, CAP_SYS_NICE or an rtprio limit, else the bridge '
           'warns and runs at normal priority. Not used when the bridge shares a process',

@@ -30,7 +30,7 @@ from curve_formation.nodes.command_line import (
 )
 from curve_formation.nodes.params import ParameterError
 from curve_formation.paths import use_dds_profile
-from curve_formation.scheduling import priority_problem, realtime_process
+from curve_formation.scheduling import NORMAL, priority_problem, realtime_process
 
 
 SIGNAL_CHECK_PERIOD = 0.2   # s, longest wait before a signal is acted on
@@ -112,7 +112,7 @@ def run_node(node_factory: Callable[..., Node], args: list[str] | None = None,
     process's SCHED_FIFO priority, read from the command line before ROS starts (run_nodes).
     """
     module = inspect.getmodule(node_factory)
-    priority = 0
+    priority = NORMAL
     name = getattr(module, 'NODE_NAME', None)   # a node module's (its console script's)
     if name is not None:
         command_line = parse(sys.argv if args is None else args, name)

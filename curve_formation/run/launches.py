@@ -13,6 +13,7 @@ import socket
 
 import yaml
 
+from curve_formation import scheduling
 from curve_formation.core.config.agents import agent_configs
 from curve_formation.core.config.experiment import wheel_radius
 from curve_formation.core.config.loading import control_rate
@@ -97,7 +98,7 @@ def node_launches(experiment, experiment_path, options=DEFAULTS, links_dir=None,
                       'compiled_law': grouped or options.single_process,
                       # a group's poses in one message (a fake arena's, a camera tracker's)
                       'pose_from_all': grouped and all_poses,
-                      'realtime_priority': options.realtime_priority}
+                      scheduling.PARAMETER: options.realtime_priority}
         module = 'curve_formation.nodes.formation_controller'
         launches.append(NodeLaunch(module, ns, 'formation_controller', controller,
                                    (options.node_variants or {}).get(module, '')))
