@@ -29,6 +29,7 @@ import time
 from node_graph import cpu_seconds, experiment_file, quiet_stderr
 import numpy as np
 
+from curve_formation import scheduling
 from curve_formation.run.run_options import RunOptions
 from curve_formation.run.runner import Run
 
@@ -36,7 +37,7 @@ from curve_formation.run.runner import Run
 MODES = {'grouped': {}, 'single': {'single_process': True}}
 
 
-def measure(n, mode, seconds, folder, priority=0):
+def measure(n, mode, seconds, folder, priority=scheduling.CONTROLLERS):
     """One run of n robots in `mode` (its controllers at SCHED_FIFO `priority`, 0: normal
     scheduling): the row this benchmark prints.
     """
@@ -83,8 +84,9 @@ def main():
     parser.add_argument('--sizes', type=int, nargs='+', default=[9, 25, 50, 100])
     parser.add_argument('--seconds', type=float, default=30.0)
     parser.add_argument('--modes', nargs='+', default=list(MODES), choices=list(MODES))
-    parser.add_argument('--realtime-priority', type=int, default=0,
-                        help="the controllers' SCHED_FIFO priority (run --realtime-priority)")
+    parser.add_argument('--realtime-priority', type=int, default=scheduling.CONTROLLERS,
+                        help="the controllers' SCHED_FIFO priority (run --realtime-priority; "
+                        '0: normal scheduling)')
     parser.add_argument('--busy-neighbour', action='store_true',
                         help='measure beside a nice-19 Python loop (as the goals are stated)')
     args = parser.parse_args()

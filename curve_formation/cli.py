@@ -72,8 +72,7 @@ def _realtime_option(parser):
                         help="the controllers' processes take SCHED_FIFO priority P (1-99) so "
                         'that a busy PC cannot delay their ticks (needs root, CAP_SYS_NICE or '
                         'an rtprio limit; else a note in their logs and normal scheduling); '
-                        'for a PC with spare cores: an overloaded one starves the rest of the '
-                        'run (docs/performance.md); default 0, normal scheduling')
+                        f'0: normal scheduling; default {CONTROLLERS} (docs/performance.md)')
 
 
 def _priority(text):

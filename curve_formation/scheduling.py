@@ -11,7 +11,11 @@ from typing import Any
 PARAMETER = 'realtime_priority'   # the parameter of a node that gives its priority
 NORMAL = 0          # normal scheduling
 HIGHEST = 99        # Linux's highest SCHED_FIFO priority (os.sched_get_priority_max)
-CONTROLLERS = NORMAL   # the controllers' processes (run --realtime-priority, their parameter)
+# The controllers' processes (run --realtime-priority, their parameter): SCHED_FIFO, as
+# ros2_control's controller manager takes it by default, so that a busy PC cannot hold their
+# ticks up (docs/performance.md: 50 robots beside a busy program); below a bridge, whose
+# writing thread comes first. Without the permission a process notes it and runs normally.
+CONTROLLERS = 10
 BRIDGE = 20         # a robot_bridge's thread that takes cmd_vel and writes the robot's lines
 
 

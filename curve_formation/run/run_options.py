@@ -49,7 +49,8 @@ class RunOptions:
         component container; nodes.node_group); None: group_size's choice from the team.
     realtime_priority: SCHED_FIFO priority (1-99) of the controllers' processes (their
         `realtime_priority` parameter), so that a busy PC cannot delay their ticks; 0 = normal
-        scheduling. Not for a single-process run (the runner's own process).
+        scheduling; without the permission they note it and run at normal scheduling. Not for
+        a single-process run (the runner's own process).
     preflight: check every robot behind a link before the formation starts (run.preflight;
         runs with robot bridges only). allow_missing: robots (1-based) that may fail it: the
         run then goes on without them (the team renumbered, core.config.team).
