@@ -168,23 +168,22 @@ class Run:
         for launch in ours:   # what cannot move a robot starts while the domain is looked at
             if launch not in moving:
                 self.graph.start(launch)
-        if options.runs('curve_server') and not options.with_robots:
-            # Real robots: none is driven before the domain was looked at for FORMATION_CHECK
-            # s. Simulated ones: looked for until the curve server starts (_wait_ready).
-            try:
-                self.spin_until(self._another_formation, FORMATION_CHECK, 'a curve server')
-            except TimeoutError:
-                pass
-            self._refuse_another_formation()
+        # Real robots: none is driven before the domain was looked at for FORMATION_CHECK s.
+        # Simulated ones start meanwhile, and the curve server after the look.
+        look = options.runs('curve_server') and not (options.isolated and options.with_robots)
+        if look and not options.with_robots:
+            self._look_for_another_formation()
         if self.fleet and options.preflight and options.runs('robots'):
             self._preflight()
         self._start_moving(moving)
-        early = options.runs('curve_server') and options.isolated and options.with_robots
+        early = options.runs('curve_server') and options.with_robots
         if early:
-            # A private domain holds no other formation to look for: the server starts with
-            # the robots and waits for their poses itself, so that its discovery overlaps
-            # theirs (50 robots: the first curve 4 s after the robots were seen, started
-            # after them).
+            if look:
+                self._look_for_another_formation()
+            # The server starts with the simulated robots and waits for their poses itself,
+            # so that its discovery overlaps theirs (50 robots: the first curve 4 s after
+            # the robots were seen, started after them; 9 robots on the lab's domain: started
+            # in 5.5-6.9 s against 7.3 s when the look came first).
             self.graph.start(server, overrides={'wait_for_poses': True})
         if options.runs('curve_server'):
             self._wait_ready(look=not early)
@@ -350,6 +349,16 @@ class Run:
         robots = f' with the controllers of robots {held}' if len(held) > 1 else ''
         self.log(f'node {death.key} died {when} ({death.how}){robots}; the run goes on '
                  f'without it (its log: {self.out / "logs" / (death.key + ".log")})')
+
+    def _look_for_another_formation(self):
+        """Spin FORMATION_CHECK s (less if one is found) looking for another formation on
+        the domain, then refuse to go on if there is one (_refuse_another_formation).
+        """
+        try:
+            self.spin_until(self._another_formation, FORMATION_CHECK, 'a curve server')
+        except TimeoutError:
+            pass
+        self._refuse_another_formation()
 
     def _another_formation(self):
         """Whether a curve server other than ours (not started yet) serves this domain."""
