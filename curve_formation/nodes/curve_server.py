@@ -21,7 +21,6 @@ from typing import Any
 from geometry_msgs.msg import Point, PolygonStamped, PoseStamped
 from nav_msgs.msg import Path
 import numpy as np
-from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.timer import Timer
 from sensor_msgs.msg import JointState
@@ -46,7 +45,7 @@ from curve_formation.nodes.params import (
     Param,
 )
 from curve_formation.nodes.readiness import ReadyCount
-from curve_formation.nodes.runtime import now_seconds, run_node
+from curve_formation.nodes.runtime import LastMessages, now_seconds, run_node
 from curve_formation.nodes.topics import Use
 
 
@@ -214,11 +213,11 @@ class CurveServer(Node):
             publication.curve, publication.curve_id, publication.s, publication.rate,
             publication.clock))
 
-    def on_shutdown(self) -> None:
-        """Wait (0.5 s at most) until the last curve message is acknowledged, so that a
-        recorder misses none of them.
+    def on_shutdown(self) -> LastMessages:
+        """The last curve message, acknowledged (0.5 s at most) so that a recorder misses
+        none of them.
         """
-        self.curve_pub.wait_for_all_acked(Duration(seconds=0.5))
+        return [(self.curve_pub, 0.5)]
 
     def _on_poses(self, msg: JointState) -> None:
         try:

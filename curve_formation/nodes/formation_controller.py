@@ -15,7 +15,6 @@ from typing import Any
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, Twist
 import numpy as np
-from rclpy.duration import Duration
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
@@ -44,7 +43,7 @@ from curve_formation.nodes.params import (
     ParameterError,
 )
 from curve_formation.nodes.readiness import REPORTED, subscribe_to_curve
-from curve_formation.nodes.runtime import now_seconds, run_node
+from curve_formation.nodes.runtime import LastMessages, now_seconds, run_node
 from curve_formation.nodes.topics import Use
 
 
@@ -417,15 +416,13 @@ class FormationController(Node):
         msg.header.stamp = self.get_clock().now().to_msg()
         self.diag_pub.publish(msg)
 
-    def on_shutdown(self) -> None:
-        """Leave the robot stopped: send a zero command and wait (1 s at most) until it is
-        acknowledged, then (0.25 s at most per topic) for the last ticks, so that a recorder
-        misses none of them.
+    def on_shutdown(self) -> LastMessages:
+        """Leave the robot stopped: a zero command, acknowledged (1 s at most), and the last
+        ticks (0.25 s at most), so that a recorder misses none of them.
         """
         self.cmd_pub.publish(Twist())
-        self.cmd_pub.wait_for_all_acked(Duration(seconds=1.0))
-        for publisher in (self.tick_pub, self.state_pub, self.estimate_pub):
-            publisher.wait_for_all_acked(Duration(seconds=0.25))
+        return [(self.cmd_pub, 1.0), *((publisher, 0.25) for publisher in
+                                       (self.tick_pub, self.state_pub, self.estimate_pub))]
 
 
 def main(args: list[str] | None = None) -> int:

@@ -10,7 +10,7 @@ import time
 
 import yaml
 
-from curve_formation.nodes.runtime import PublicationCounter, PUBLICATIONS_ENV
+from curve_formation.nodes.runtime import PublicationCounter, PUBLICATIONS_ENV, shut_down
 from curve_formation.run.launches import CONTROLLER_GROUP, node_class, NODE_GROUP
 
 
@@ -164,10 +164,8 @@ class NodeGraph:
         if not self.in_process:
             return
         self.host.drain()
+        shut_down([node for node, _ in self.in_process])
         for node, counter in self.in_process:
-            hook = getattr(node, 'on_shutdown', None)
-            if hook is not None:
-                hook()
             if counter is not None:
                 counter.save(self.publications_dir, node.get_fully_qualified_name())
         self.in_process = []

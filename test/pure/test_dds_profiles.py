@@ -7,6 +7,7 @@ import xml.etree.ElementTree as ET
 
 import pytest
 
+from curve_formation.nodes.topics import REGISTRY
 from curve_formation.paths import DDS_PROFILE, DDS_PROFILE_ENV, DDS_PROFILE_UDP
 
 
@@ -49,3 +50,17 @@ def transports(path):
 def test_only_the_camera_profile_uses_shared_memory():
     assert transports(DDS_PROFILE) == ['SHM', 'UDPv4']
     assert transports(DDS_PROFILE_UDP) == ['UDPv4']
+
+
+def writer_profiles(path):
+    return sorted(profile.get('profile_name') for profile in
+                  ET.parse(path).getroot().iterfind('p:data_writer', NS))
+
+
+def test_writer_profiles_name_topics_of_the_interface_the_same_in_both_profiles():
+    """A data_writer profile applies to the topic of its name (rmw_fastrtps): a renamed topic
+    would lose it without a word.
+    """
+    names = writer_profiles(DDS_PROFILE_UDP)
+    assert names and names == writer_profiles(DDS_PROFILE)
+    assert set(names) <= set(REGISTRY), names
