@@ -35,7 +35,7 @@ def longest_stand(t, xy, tolerance):
 def test_a_bridged_run_passes_its_preflight_and_the_fleet_status_shows_a_link_cut(
         ros_domain, tmp_path):
     """arena_demo through UDP bridges to the emulated robots, robot 4's firmware hearing
-    nothing for 3 s from 6 s after it first drives: metrics.json's preflight lists 9 robots
+    nothing for 3 s from 5 s after it first drives: metrics.json's preflight lists 9 robots
     passed; the bag carries the pre-flight and the fleet's status; robot 4 stops (its
     firmware's watchdog) and the fleet's events list its link lost, then back, with times;
     the report says so.
@@ -44,7 +44,7 @@ def test_a_bridged_run_passes_its_preflight_and_the_fleet_status_shows_a_link_cu
 
     from curve_formation.run.run_experiment import run_experiment
     bag = tmp_path / 'bag'
-    options = RunOptions(bridge='udp', bag_path=bag, faults={'link_down': [4, 6.0, 3.0]})
+    options = RunOptions(bridge='udp', bag_path=bag, faults={'link_down': [4, 5.0, 3.0]})
     result = run_experiment('arena_demo', tmp_path / 'out', 12.0, options, log=quiet)
     preflight = result['preflight']
     assert preflight['passed'] and len(preflight['robots']) == 9
@@ -85,7 +85,9 @@ def test_a_bridged_run_passes_its_preflight_and_the_fleet_status_shows_a_link_cu
     near = (t > lost[0] - 3.0) & (t < back[0])
     assert longest_stand(t[near], xy[near], 1e-3) >= 1.5, (lost, back)
     assert np.ptp(xy[t < lost[0] - 1.0], axis=0).max() > 3e-3   # driving before the cut,
-    assert np.ptp(xy[t > back[0]], axis=0).max() > 0.01          # and once the link is back
+    # and once the link is back (seen about 0.4-0.8 s after it was, later under load: with
+    # the cut from 6 s a default run once had 6 mm driven in what was left of the 12 s)
+    assert np.ptp(xy[t > back[0]], axis=0).max() > 0.01, (lost, back, t[-1])
     report = (tmp_path / 'out' / 'report.html').read_text()
     assert 'Robot 4: link lost at t =' in report and 'Pre-flight passed for 9 robots' in report
 
