@@ -14,8 +14,6 @@ from dataclasses import dataclass
 import math
 
 import numpy as np
-from scipy.interpolate import BSpline
-from scipy.signal import lfilter
 
 from curve_formation.core.base.shapes import BoolArray, FloatArray, IntArray
 from curve_formation.core.controller import motion_record as record
@@ -197,6 +195,8 @@ def _lagged(u: FloatArray, step: float, lag: float) -> FloatArray:
     """
     if lag <= 0.0:
         return u
+    # imported here: scipy.signal takes 0.3 s to import, for a motor check only
+    from scipy.signal import lfilter
     keep = math.exp(-step / lag)
     return lfilter([1.0 - keep], [1.0, -keep], u, zi=[keep * u[0]])[0]
 
@@ -274,6 +274,8 @@ def check_gains(tc: FloatArray, wheels: FloatArray, starts: FloatArray, ends: Fl
     begin, end = float(starts[0]), float(ends[-1])
     pieces = max(1, round((end - begin) / DRIFT_KNOTS))
     knots = np.concatenate([[begin] * 3, np.linspace(begin, end, pieces + 1), [end] * 3])
+    # imported here: scipy.interpolate takes 0.3 s to import, for a motor check only
+    from scipy.interpolate import BSpline
     drift = BSpline.design_matrix(np.clip(mid, begin, np.nextafter(end, begin)), knots,
                                   3).toarray()
     steady = record.held_means(tc, record.driven_commands(wheels.T),
