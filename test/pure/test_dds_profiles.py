@@ -64,3 +64,14 @@ def test_writer_profiles_name_topics_of_the_interface_the_same_in_both_profiles(
     names = writer_profiles(DDS_PROFILE_UDP)
     assert names and names == writer_profiles(DDS_PROFILE)
     assert set(names) <= set(REGISTRY), names
+
+
+def test_participants_announce_themselves_every_half_second():
+    """A participant that starts discovers the running ones at their next announcement
+    (Fast DDS's default period: 3 s, a run's start waited up to that per node process).
+    """
+    for path in (DDS_PROFILE, DDS_PROFILE_UDP):
+        participant = ET.parse(path).getroot().find('.//p:participant', NS)
+        period = participant.find('.//p:discovery_config/p:leaseAnnouncement', NS)
+        assert (int(period.find('p:sec', NS).text), int(period.find('p:nanosec', NS).text)) \
+            == (0, 500_000_000), path
