@@ -168,17 +168,16 @@ class Run:
         for launch in ours:   # what cannot move a robot starts while the domain is looked at
             if launch not in moving:
                 self.graph.start(launch)
-        # Real robots: none is driven before the domain was looked at for FORMATION_CHECK s.
-        # Simulated ones start meanwhile, and the curve server after the look.
-        look = options.runs('curve_server') and not (options.isolated and options.with_robots)
-        if look and not options.with_robots:
+        if options.runs('curve_server') and not options.with_robots:
+            # Real robots: none is driven before the domain was looked at for
+            # FORMATION_CHECK s.
             self._look_for_another_formation()
         if self.fleet and options.preflight and options.runs('robots'):
             self._preflight()
         self._start_moving(moving)
         early = options.runs('curve_server') and options.with_robots
         if early:
-            if look:
+            if not options.isolated:   # simulated robots have started: no curve before the look
                 self._look_for_another_formation()
             # The server starts with the simulated robots and waits for their poses itself,
             # so that its discovery overlaps theirs (50 robots: the first curve 4 s after
