@@ -18,24 +18,46 @@ CAMERA_STATUS = 'camera_tracker: camera'
 LINK_REPORTER = '/robot_bridge'
 LINK_COUNTS = ('sent', 'failed', 'stops', 'replies', 'malformed', 'dropped_lines')
 # The node name under which each formation_controller reports on /diagnostics, and the
-# values of its report that are its robot as it has estimated it (s, s, 'left right' or '-',
-# m/s of wheel speed or '-')
+# values of its report that are its robot as it holds it (core.controller.robot_model:
+# RobotModel.estimates): each with `<name>_bound` and `<name>_from` beside it; numbers (s, s,
+# 'left right', m/s of wheel speed) or '-' for none
 CONTROLLER_REPORTER = '/formation_controller'
 ESTIMATES = ('command_latency', 'motor_time_constant', 'wheel_gains', 'dead_band')
 
 
+def estimate_values(estimates):
+    """RobotModel.estimates() -> [(key, text)] for a controller's report: numbers as text
+    (a pair space-separated), '-' for None.
+    """
+    def text(value):
+        if value is None:
+            return '-'
+        if isinstance(value, str):
+            return value
+        if isinstance(value, (list, tuple)):
+            return ' '.join(f'{v:.6g}' for v in value)
+        return f'{value:.6g}'
+
+    return [(key, text(estimates.get(key))) for name in ESTIMATES
+            for key in (name, f'{name}_bound', f'{name}_from')]
+
+
 def robot_estimates(values):
     """A controller's report's values {key: text} -> {'command_latency' s,
-    'motor_time_constant' s, 'wheel_gains': [left, right] or None, 'dead_band': m/s or None}
-    (those it has).
+    'motor_time_constant' s, 'wheel_gains': [left, right], 'dead_band': m/s, each with its
+    '<name>_bound' (the same units) and '<name>_from' ('told', 'online', 'check'); None for
+    '-'} (those it has).
     """
     out: dict[str, object] = {}
-    for key in ESTIMATES:
-        text = values.get(key)
-        if text is None:
-            continue
-        out[key] = (None if text == '-' else [float(v) for v in text.split()]
-                    if key == 'wheel_gains' else float(text))
+    for name in ESTIMATES:
+        for key in (name, f'{name}_bound'):
+            text = values.get(key)
+            if text is not None:
+                out[key] = (None if text == '-' else [float(v) for v in text.split()]
+                            if name == 'wheel_gains' else float(text))
+        source = values.get(f'{name}_from')
+        if source is not None:
+            out[f'{name}_from'] = None if source == '-' else source
     return out
 
 

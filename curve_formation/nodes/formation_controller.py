@@ -19,7 +19,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from curve_formation import scheduling
+from curve_formation import diagnostics, scheduling
 from curve_formation.core.controller.agent import AgentController
 from curve_formation.core.controller.agent_config import AgentConfig
 from curve_formation.core.controller.disturbance import RunTime, varied
@@ -179,7 +179,8 @@ TOPICS = (
         'replay a command'),
     Use('pub', topics.ESTIMATE),
     Use('pub', topics.DIAGNOSTICS, 'driving or why stopped; curve id, s_i, estimate, rejected '
-        'inputs'),
+        "inputs; its robot as told or estimated (latency, motors' lag, wheel gains, dead band), "
+        'each with <name>_bound and <name>_from (told, online, check)'),
     REPORTED,
 ) + estop_uses('true: a zero command at once and at every tick until released (latched here, '
                'whoever sent it)')
@@ -395,16 +396,9 @@ class FormationController(Node):
             values=[KeyValue(key='curve_id', value=str(c.curve_id)),
                     KeyValue(key='s', value=f'{c.s}'),
                     KeyValue(key='dhat', value=f'{c.dhat[0]:.6g} {c.dhat[1]:.6g}'),
-                    # s: as told, or as estimated online (estimate_latency)
-                    KeyValue(key='command_latency', value=f'{c.latency:.4f}'),
-                    # s: as told, or as estimated online (estimate_motors)
-                    KeyValue(key='motor_time_constant', value=f'{c.motor_time_constant:.4f}'),
-                    # (left, right) speed per unit of command, estimated online; '-': none yet
-                    KeyValue(key='wheel_gains', value='-' if c.robot.wheel_gains is None
-                             else f'{c.robot.wheel_gains[0]:.4f} {c.robot.wheel_gains[1]:.4f}'),
-                    # m/s of wheel speed: the motors' dead band as told or estimated; '-': none
-                    KeyValue(key='dead_band', value=f'{c.robot.min_wheel_speed:.5f}'
-                             if c.robot.min_wheel_speed > 0.0 else '-'),
+                    # the robot as told or estimated, each with its bound and source
+                    *(KeyValue(key=key, value=text)
+                      for key, text in diagnostics.estimate_values(c.robot.estimates())),
                     # what the motor check found (_checked), 'under way', or '-': none
                     KeyValue(key='motor_check', value=self._check_state()),
                     KeyValue(key='rejected_inputs', value=str(c.rejected)),

@@ -175,9 +175,10 @@ def _fleet_table(result):
 
 def robot_estimates(result):
     """{robot (1-based): {'command_latency' s, 'motor_time_constant' s, 'wheel_gains'
-    [left, right] or None, 'dead_band' m/s or None}} from a run's metrics: a ROS run's
-    `robot_estimates` (its controllers' last reports) or a simulation's estimated_* lists; {}
-    if neither.
+    [left, right] or None, 'dead_band' m/s or None, and where known each '<name>_bound' and
+    '<name>_from'}} from a run's metrics: its `robot_estimates` (a ROS run's controllers'
+    last reports, a pipeline simulation's controllers at the end) or else a simulation's
+    estimated_* lists; {} if neither.
     """
     if result.get('robot_estimates'):
         return {robot_index(name): values for name, values in result['robot_estimates'].items()}
@@ -190,9 +191,22 @@ def robot_estimates(result):
             for i in range(count)}
 
 
+def _estimate_cell(values, name, shown):
+    """One robot's `name` as the report shows it: the value (shown(value) -> text, '-' for
+    none), +- its bound where it has one, and where it came from (told, online, check).
+    """
+    value, bound, source = (values.get(name), values.get(f'{name}_bound'),
+                            values.get(f'{name}_from'))
+    text = shown(value)
+    if value is not None and bound is not None:
+        text += f' &plusmn; {shown(bound)}'
+    return text + (f' ({_e(source)})' if source and value is not None else '')
+
+
 def _estimates_table(result):
     """Each robot's latency, motors' lag, wheel gains and dead band as its controller held
-    them at the end (told or estimated online); '' if the run has none.
+    them at the end (told or estimated online), each with its bound and source where known;
+    '' if the run has none.
     """
     found = robot_estimates(result)
     if not found:
@@ -202,20 +216,24 @@ def _estimates_table(result):
         return '-' if value is None else f'{1000 * value:.0f}'
 
     def mm(value):
-        return '-' if not value else f'{1000 * value:.2f}'
+        return '-' if value is None else f'{1000 * value:.2f}'
 
     def gains(value):
         return '-' if not value else ' / '.join(f'{g:.3f}' for g in value)
 
     rows = ''.join(
-        f"<tr><td>robot {i}</td><td>{ms(v.get('command_latency'))}</td>"
-        f"<td>{ms(v.get('motor_time_constant'))}</td><td>{gains(v.get('wheel_gains'))}</td>"
-        f"<td>{mm(v.get('dead_band'))}</td></tr>" for i, v in sorted(found.items()))
+        f'<tr><td>robot {i}</td>' + ''.join(
+            f'<td>{_estimate_cell(v, name, shown)}</td>' for name, shown in (
+                ('command_latency', ms), ('motor_time_constant', ms), ('wheel_gains', gains),
+                ('dead_band', mm))) + '</tr>' for i, v in sorted(found.items()))
     return ("<table><tr><th>robot</th><th>command latency (ms)</th><th>motors' lag (ms)</th>"
             f'<th>wheel gains (left / right)</th><th>dead band (mm/s)</th></tr>{rows}</table>'
             '<p>As told, or as each controller estimated it online (controller.estimate_latency, '
-            'estimate_motors); a wheel gain is its speed per unit of command, the dead band the '
-            'smallest wheel command that turns a wheel; - where none was told.</p>')
+            'estimate_motors) or in its motor check (controller.motor_check), &plusmn; its '
+            "bound: for the latency and the motors' lag half the range of the fits it was "
+            "taken from, for a wheel gain 3 standard errors, for the dead band its fit's; a "
+            'wheel gain is its speed per unit of command, the dead band the smallest wheel '
+            'command that turns a wheel; - where none was told or found.</p>')
 
 
 def _metrics_table(result, units):

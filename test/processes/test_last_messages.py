@@ -58,7 +58,11 @@ def test_a_last_message_is_acknowledged_within_a_second(ros_domain, topic):
         assert reader.stdout.readline().strip() == 'ready'
         writer = subprocess.run([sys.executable, '-c', WRITER, topic], capture_output=True,
                                 text=True, timeout=60)
-    finally:
+    finally:   # the reader is the test's own: one that hangs as it ends is killed
         reader.terminate()
-        reader.wait(10)
+        try:
+            reader.wait(10)
+        except subprocess.TimeoutExpired:   # once, in a loaded default run
+            reader.kill()
+            reader.wait(10)
     assert writer.stdout.split() == ['True'] * 3, writer.stdout + writer.stderr

@@ -19,11 +19,13 @@ def test_a_run_checks_its_robots_motors_then_drives(ros_domain, tmp_path):
     'motor check' on /diagnostics, then what it found (its `motor_check` value), and only
     before the first curve (the curve server starts
     the schedule once every controller has checked its motors); every controller's last
-    report tells wheel gains within 3 % of the fake robots' (exact wheels: 1, 1) and no dead
-    band beyond 1 % of the fastest wheel speed (they have none; beside the other worker's
-    nodes the jitter of ticks and poses gave one robot 0.7 %, past the check's bound of
-    0.6 %); in the 8 s from the first curve the formation closes in (its error at the end
-    under half the start's).
+    report tells wheel gains within 3 % of the fake robots' (exact wheels: 1, 1), with their
+    bound and source, and no dead band beyond 1 % of the fastest wheel speed (they have none;
+    beside the other worker's nodes the jitter of ticks and poses gave one robot 0.7 %, past
+    the check's bound of 0.6 %), but for one robot at most whose check says it is not
+    trusted (standard errors over 1 %) and whose gains are then not used nor reported (in a
+    loaded default test run one robot's came out 2.3 % off, +- 1.5 %); in the 8 s from the
+    first curve the formation closes in (its error at the end under half the start's).
     """
     from curve_formation.bags.bag import read_messages
     data = yaml.safe_load((DATA_DIR / 'fast_closed.yaml').read_text())
@@ -49,15 +51,24 @@ def test_a_run_checks_its_robots_motors_then_drives(ros_domain, tmp_path):
     assert len(checking) == 6, checking
     # and once done, what it found: the gains with their errors, trusted (exact poses)
     assert sorted(found) == sorted(checking), found
-    assert all(' +- ' in said and 'not used' not in said for said in found.values()), found
+    assert all(' +- ' in said for said in found.values()), found
+    untrusted = {name for name, said in found.items() if 'neither they nor the band used' in said}
+    assert len(untrusted) <= 1, found
     assert all(max(stamps) < first_curve for stamps in checking.values()), (first_curve,
                                                                            checking)
     saved = json.loads((tmp_path / 'out' / 'metrics.json').read_text())
     estimates = saved['robot_estimates']
     assert len(estimates) == 6, estimates
     for name, found in estimates.items():
+        if name in untrusted:
+            assert found['wheel_gains'] is None and found['dead_band'] is None, (name, found)
+            continue
         assert found['wheel_gains'] is not None, (name, found)
         assert all(abs(g - 1.0) <= 0.03 for g in found['wheel_gains']), (name, found)
         assert found['dead_band'] is None or found['dead_band'] <= 0.01 * FASTEST, (name, found)
+        # each with its bound and source, as /diagnostics carried them
+        assert found['wheel_gains_from'] == 'check', (name, found)
+        assert all(0.0 < b <= 0.03 for b in found['wheel_gains_bound']), (name, found)
+        assert found['command_latency_from'] == 'told', (name, found)
     phase = saved['phases'][0]
     assert phase['final_error_norm'] < 0.5 * phase['initial_error_norm']

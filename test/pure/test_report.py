@@ -116,3 +116,15 @@ def test_the_report_lists_each_robot_as_its_controller_found_it(tmp_path):
                 '<tr><td>robot 2</td><td>104</td><td>38</td><td>-</td><td>1.12</td></tr>') in page
     (tmp_path / '0' / 'metrics.json').write_text(json.dumps({'phases': []}))
     assert 'as their controllers found them' not in write_report(tmp_path / '0').read_text()
+    # with bounds and sources (RobotModel.estimates, as /diagnostics and a pipeline carry them)
+    (tmp_path / '0' / 'metrics.json').write_text(json.dumps({'phases': [], 'robot_estimates': {
+        'robot_1': {'command_latency': 0.1, 'command_latency_bound': 0.004,
+                    'command_latency_from': 'online', 'motor_time_constant': 0.04,
+                    'motor_time_constant_bound': None, 'motor_time_constant_from': 'told',
+                    'wheel_gains': [0.95, 1.05], 'wheel_gains_bound': [0.003, 0.006],
+                    'wheel_gains_from': 'check', 'dead_band': 0.0011,
+                    'dead_band_bound': 0.0002, 'dead_band_from': 'online'}}}))
+    page = write_report(tmp_path / '0').read_text()
+    assert ('<tr><td>robot 1</td><td>100 &plusmn; 4 (online)</td><td>40 (told)</td>'
+            '<td>0.950 / 1.050 &plusmn; 0.003 / 0.006 (check)</td>'
+            '<td>1.10 &plusmn; 0.20 (online)</td></tr>') in page

@@ -7,14 +7,12 @@ given): stamps come from other hosts' clocks (the camera PC's, the neighbours'),
 PCs without time sync can differ by more than any timeout. Stamps serve only differences
 between samples of one source (the observer's elapsed time).
 Each tick either computes a command with the paper's local law, or stops the robot (zero
-velocity, at once: never rate-limited) and says why: e-stop, no curve yet, own pose stale,
-outside the geofence, no news from the leader, a neighbour missing, stale or on another
-curve. While stopped the disturbance estimate is frozen (no wind-up); with an acceleration
-limit the robot ramps up from rest. A motor check, where told, comes first, with or without
-a curve (controller.motor_check: it turns in place; core.controller.motor_probe).
-
-Leader heartbeat: every state carries the age of its sender's newest news of the leader, so
-a follower learns when the leader is gone (core.controller.neighbourhood).
+velocity, at once) and says why: e-stop, no curve yet, own pose stale, outside the geofence,
+no news from the leader, a neighbour missing, stale or on another curve; stopped, the
+estimate is frozen. A motor check, where told, comes first, curve or not
+(controller.motor_check: it turns in place; core.controller.motor_probe). Leader heartbeat:
+every state carries the age of its sender's newest news of the leader, so a follower learns
+when the leader is gone (core.controller.neighbourhood).
 """
 
 from collections.abc import Sequence
@@ -423,11 +421,13 @@ class AgentController:
             cfg.index - 1, with_latency(cfg.avoidance, period, self.latency),
             self.robot.min_wheel_speed)
         self.dhat[:] = (dhat_v, dhat_w)
+        # what the wheels give where their gains cut it (as the filter: a change after the law)
+        v, w, ref, shift = self.robot.realised(v, w, (ref_v, ref_w), (shift_v, shift_w))
         if code == STOPPED:
             return self._stop('safety filter: no motion keeps the robots apart', base)
         self.filtered += code != 0
-        self.observer.commanded(v, w, (ref_v, ref_w), (shift_v, shift_w), limited,
-                                self.pose, stamp, now, self.robot.min_wheel_speed)
+        self.observer.commanded(v, w, ref, shift, limited, self.pose, stamp, now,
+                                self.robot.min_wheel_speed)
         self.last_command = (v, w)
         base.v, base.w, base.dhat, base.feedback = v, w, (self.dhat[0], self.dhat[1]), (fx, fy)
         base.pose = pose

@@ -271,6 +271,8 @@ ONLINE_FIRST_EVERY = 0.5
 ONLINE_SPAN = 6.0
 ONLINE_MEMORY = 50.0
 AGREEING = 3
+WINDOWS = 30       # fits alone whose spread is reported (OnlineLink.bounds): the last 30 s
+MIN_WINDOWS = 5    # fewest fits alone a spread is reported from
 AGREEMENT = 0.02
 
 
@@ -313,6 +315,9 @@ class OnlineLink(MotionRecord):
         self.total: FloatArray | None = None   # the remembered residual surface
         self.taken: list[tuple[float, float]] = []   # (when, latency) of each value taken
         self.motor_taken: list[tuple[float, float]] = []   # (when, motor lag) likewise
+        # (latency, motor lag) of each of the last WINDOWS fits alone (s): their spread
+        # tells how far one window's data may place them (bounds)
+        self.windows: deque[tuple[float, float]] = deque(maxlen=WINDOWS)
 
     def update(self, now: float) -> float:
         """The latency to use from `now` on (s; motor_time_constant likewise): new estimates
@@ -337,6 +342,7 @@ class OnlineLink(MotionRecord):
             return self.latency
         self.total = weight * found[0] if self.total is None else (
             fade * self.total + weight * found[0])
+        self.windows.append(_best_pair(found[0], self.lags, self.taus))
         self.recent.append(_best_pair(self.total, self.lags, self.taus))
         if len(self.recent) < AGREEING:
             return self.latency
@@ -350,6 +356,22 @@ class OnlineLink(MotionRecord):
                 self.motor_time_constant = tau
                 self.motor_taken.append((now, tau))
         return self.latency
+
+
+    @property
+    def bounds(self) -> tuple[float, float] | None:
+        """(latency, motor lag) s: how far the last WINDOWS fits alone (each from
+        ONLINE_SPAN s of data) scatter about their median, robustly (1.4826 times the median
+        absolute deviation: a standard deviation that a few windows with little in them do
+        not decide); None before MIN_WINDOWS fits. The estimate, from all of them, came out
+        within it on most robots of arena_demo's MuJoCo world. Not a bound on a bias that
+        every window shares (a servo's delay taken as latency: docs/link.md).
+        """
+        if len(self.windows) < MIN_WINDOWS:
+            return None
+        found = np.array(self.windows)
+        spread = 1.4826 * np.median(np.abs(found - np.median(found, axis=0)), axis=0)
+        return float(spread[0]), float(spread[1])
 
 
 def replay_online(tick_times: ArrayLike, commands: ArrayLike, pose_times: ArrayLike,

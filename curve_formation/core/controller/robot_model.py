@@ -25,6 +25,20 @@ def commands_kept(rate_hz: float, pose_timeout: float, longest: float) -> int:
     return int(math.ceil(rate_hz * (pose_timeout + longest))) + 2
 
 
+# The share of its limits (the larger of its fastest wheel's and its turn's) from which the
+# law's command, as it nears them, is scaled up to what the wheels can give (RobotModel.
+# _scaled): a robot whose wheels are faster than nominal then drives as fast as they let it
+# where the law asks for its fastest (sending each wheel its command divided by its gain
+# alone held such robots to the nominal speed: arena_demo's checked robots settled up to 6 %
+# later than without the gains; docs/link.md).
+FULL_FROM = 0.9
+# What each estimate's bound is (RobotModel.estimates): the latency's and the motors' lag's,
+# how far the online fits alone scatter (link_estimate.OnlineLink.bounds); the wheel
+# gains', GAIN_BOUND standard errors of their fit (a gain came out within 3 of them where
+# tested); the dead band's, its fit's (the grid's step or its two fits' difference).
+GAIN_BOUND = 3.0
+
+
 class RobotModel:
     """latency (s: a command's delay to the wheels), motor_time_constant (s), wheel_gains
     ((left, right) speed per unit of command, or None), min_wheel_speed (m/s: the motors'
@@ -128,21 +142,101 @@ class RobotModel:
     def compensated(self, v: float, w: float, checking: bool = False) -> Command:
         """(v, w) to send (m/s, rad/s) for the motion (v, w): with wheel_gains estimated,
         each wheel's command divided by its gain (a wheel that turns 3 % fast is asked 3 %
-        less), both wheels scaled down together where that would pass max_wheel_speed or
-        max_angular_rate; (v, w) itself otherwise, and for the motor check's commands
-        (`checking`), which measure the wheels as they are.
+        less), then scaled (_scaled): down where that would pass max_wheel_speed or
+        max_angular_rate, up to them where the law asks for nearly its fastest (FULL_FROM);
+        (v, w) itself otherwise, and for the motor check's commands (`checking`), which
+        measure the wheels as they are.
+        """
+        if checking:
+            return v, w
+        cv, cw, _ = self._scaled(v, w)
+        return cv, cw
+
+    def realised(self, v: float, w: float, reference: Command, shift: Command
+                 ) -> tuple[float, float, Command, Command]:
+        """The motion (v m/s, w rad/s) the wheels give for compensated(v, w), as far as the
+        estimated gains tell: (v, w) times compensated's scale; the observer's `reference`
+        and the safety filter's `shift` (agent_command's) each with that change added, so
+        that the observer expects what the wheels give (a slow wheel's missing speed is no
+        disturbance, nor a fast one's extra). Without gains, or unscaled, all as they were.
+        """
+        scale = self._scaled(v, w)[2]
+        if scale == 1.0:
+            return v, w, reference, shift
+        dv, dw = v * scale - v, w * scale - w
+        return (v + dv, w + dw, (reference[0] + dv, reference[1] + dw),
+                (shift[0] + dv, shift[1] + dw))
+
+    def _scaled(self, v: float, w: float) -> tuple[float, float, float]:
+        """(cv, cw, scale): the command for the motion (v, w) with each wheel's divided by
+        its gain and then multiplied by `scale`: at most what keeps it within the limits
+        (both wheels together: the motion's curvature kept), and from FULL_FROM of the
+        limits on, as the law's command nears them, growing to exactly that, so that wheels
+        faster than nominal are used to the full where the law asks for its fastest without
+        a jump in the commands. (v, w, 1.0) without gains.
         """
         gains = self.wheel_gains
-        if gains is None or checking or (v == 0.0 and w == 0.0):
-            return v, w
+        if gains is None or (v == 0.0 and w == 0.0):
+            return v, w, 1.0
         limits = self.limits
         left, right = wheel_speeds(v, w, limits.wheel_base)
+        asked = max(_share(max(abs(left), abs(right)), limits.max_wheel_speed),
+                    _share(abs(w), limits.max_angular_rate))
         left, right = left / gains[0], right / gains[1]
-        v, w = body_from_wheels(left, right, limits.wheel_base)
-        over = max(max(abs(left), abs(right)) / limits.max_wheel_speed
-                   if limits.max_wheel_speed > 0.0 else 0.0,
-                   abs(w) / limits.max_angular_rate if limits.max_angular_rate > 0.0 else 0.0)
-        return (v / over, w / over) if over > 1.0 else (v, w)
+        cv, cw = body_from_wheels(left, right, limits.wheel_base)
+        over = max(_share(max(abs(left), abs(right)), limits.max_wheel_speed),
+                   _share(abs(cw), limits.max_angular_rate))
+        if over <= 0.0:   # no limits
+            return cv, cw, 1.0
+        room = 1.0 / over   # the largest scale within the limits
+        ramp = min(max((asked - FULL_FROM) / (1.0 - FULL_FROM), 0.0), 1.0)
+        scale = min(1.0 + ramp * (room - 1.0), room)
+        return cv * scale, cw * scale, scale
+
+    def estimates(self) -> dict[str, object]:
+        """What this controller holds of its robot, for reports: for each of
+        command_latency (s), motor_time_constant (s), wheel_gains ([left, right]) and
+        dead_band (m/s of wheel speed), its value, `<name>_bound` (+- the same units, GAIN_BOUND's
+        comment; None where told or unknown) and `<name>_from`: 'told' (the experiment's, or
+        its default), 'online' (estimated while driving), 'check' (the motor check's) or
+        None (no value: wheel gains and dead band unknown).
+        """
+        link = self.link
+        bounds = link.bounds if link is not None and link.bounds is not None else None
+        out: dict[str, object] = {
+            'command_latency': float(self.latency),
+            'command_latency_bound': None,
+            'command_latency_from': 'told',
+            'motor_time_constant': float(self.motor_time_constant),
+            'motor_time_constant_bound': None,
+            'motor_time_constant_from': 'told'}
+        if link is not None and link.taken and bounds is not None:
+            out.update(command_latency_bound=bounds[0], command_latency_from='online')
+        if link is not None and link.motor_taken and bounds is not None:
+            out.update(motor_time_constant_bound=bounds[1], motor_time_constant_from='online')
+        online = None if self.wheels is None else self.wheels.found
+        check = self.trusted_check
+        gains, errors, source = None, None, None
+        if online is not None and online.gains is not None:
+            gains, errors, source = online.gains, online.errors, 'online'
+        elif check is not None:
+            gains, errors, source = check.gains, check.gain_errors, 'check'
+        out.update(wheel_gains=None if gains is None else [float(g) for g in gains],
+                   wheel_gains_bound=None if errors is None
+                   else [GAIN_BOUND * float(e) for e in errors], wheel_gains_from=source)
+        band, bound, source = None, None, None
+        learnt = None if self.band is None else self.band.found
+        if self.told_band:
+            band, source = self.min_wheel_speed, 'told'
+        elif check is not None and check.band is not None and (
+                check.band or learnt is None or learnt.band is None):   # a check's 0: none
+            band, bound, source = check.band, check.bound, 'check'
+        elif learnt is not None and learnt.band is not None:
+            band, bound, source = learnt.band, learnt.bound, 'online'
+        out.update(dead_band=None if band is None else float(band),
+                   dead_band_bound=None if bound is None else float(bound),
+                   dead_band_from=source)
+        return out
 
     @property
     def wheel_gains(self) -> tuple[float, float] | None:
@@ -152,3 +246,8 @@ class RobotModel:
         online = None if self.wheels is None else self.wheels.gains
         found = self.trusted_check
         return online if online is not None or found is None else found.gains
+
+
+def _share(value: float, limit: float) -> float:
+    """value over limit, or 0 where the limit is none (0 or infinity)."""
+    return value / limit if 0.0 < limit < math.inf else 0.0

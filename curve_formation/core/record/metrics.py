@@ -359,6 +359,8 @@ def result_metrics(result: Any, tolerance: float | None = None) -> dict[str, Any
     if result.dead_bands is not None:
         out['estimated_dead_band'] = [None if b is None else float(b)
                                       for b in result.dead_bands]
+    if result.estimates is not None:   # as a ROS run's (its controllers' /diagnostics)
+        out['robot_estimates'] = {f'robot_{i + 1}': e for i, e in enumerate(result.estimates)}
     return out
 
 

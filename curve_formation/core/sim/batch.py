@@ -108,6 +108,9 @@ class SimResult:
     # each controller's motors' dead band (m/s of wheel speed) as told or estimated online
     # (estimate_motors; None for one that took none), where estimated
     dead_bands: list[float | None] | None = None
+    # each controller's robot as it held it at the end, each value with its bound and
+    # source (RobotModel.estimates), where the nodes' pipeline ran
+    estimates: list[dict[str, object]] | None = None
 
     @property
     def errors(self) -> FloatArray:

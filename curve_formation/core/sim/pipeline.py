@@ -293,7 +293,8 @@ def simulate_pipeline(experiment: Experiment, engine: Literal['kinematic', 'mujo
                      if spec.controller.estimate_motors else None,
                      [c.robot.wheel_gains for c in pipeline.controllers] if learns else None,
                      [c.robot.min_wheel_speed or None for c in pipeline.controllers]
-                     if learns else None)
+                     if learns else None,
+                     [c.robot.estimates() for c in pipeline.controllers])
 
 
 def simulate_kinematic(experiment: Experiment,
