@@ -186,6 +186,40 @@ def test_the_wheel_gains_told_online_are_within_3_percent():
             assert found[f'{name}_from'] == 'online' and found[f'{name}_bound'] > 0.0, found
 
 
+def test_gains_fitted_through_a_lag_in_doubt_are_not_kept():
+    """mona_arena seed 3's imperfect robots, a link 100 ms late, nothing told, 40 s: two
+    robots first take a lag 20 ms long (its latency as short: the fits trade them) and fitted
+    through it their wheels' gains came out 4 to 6 % high, told with errors under 1 %. Gains
+    are fitted again with the lag and latency traded by the lag's bound either way and told
+    only within GAIN_ERROR of that too; not before the lag has a bound; and those found are
+    dropped once a fit doubts them so or the lag moves by LAG_MOVED: every gain held at the
+    end lies within its reported bound of the drawn one.
+    """
+    from curve_formation.core.controller.wheel_estimate import LAG_MOVED, NO_GAINS, WheelGains
+    from curve_formation.core.record.metrics import result_metrics
+    from curve_formation.core.world.mujoco_world import draw_robots
+    experiment = imperfect_case('mona_arena', 3)
+    robots = draw_robots(experiment)
+    true = robots.wheel_radii / robots.nominal_radius * robots.gains
+    controllers, result = learnt(experiment, 0.1, seconds=40.0)
+    reported = result_metrics(result)['robot_estimates']
+    held = 0
+    for i, found in enumerate(reported.values()):
+        if found['wheel_gains'] is None:
+            continue
+        held += 1
+        off = np.abs(np.subtract(found['wheel_gains'], true[i]))
+        assert (off <= found['wheel_gains_bound']).all(), (i + 1, found, true[i])
+    assert held >= 5, reported
+    # the lag moved from the one the gains were fitted through: dropped
+    wheels = controllers[0].robot.wheels
+    wheels.found, wheels.fitted_with = WheelGains((1.0, 1.0), (0.001, 0.001), 0.0, 50), (0.1, 0.06)
+    wheels.moved(0.1, 0.06 - 0.5 * LAG_MOVED)
+    assert wheels.found.gains == (1.0, 1.0)
+    wheels.moved(0.1, 0.04)
+    assert wheels.found == NO_GAINS
+
+
 def test_the_wheels_are_sent_their_commands_divided_by_their_gains_within_the_limits():
     """Gains estimated (left 1.05, right 0.95): each wheel is asked its speed over its gain,
     so the motion is the one wanted; where that would pass the wheel or turn limits both
@@ -324,9 +358,10 @@ def test_the_motors_dead_band_is_found_online_within_20_percent(swinging):
     """arena_demo's imperfect robots (a dead band of 5 % of the fastest wheel speed among
     the rest), a link 100 ms late, nothing told, 70 s: with the file's drift constant, about
     half the controllers take a dead band (two fits in a row agreeing), each within 20 % of
-    the drawn one but for one robot at most, within 2x (over 20 starts of each arena file 5
-    and 15 of the bands taken were outside 20 %, up to 1.9x: docs/link.md; here robot 5
-    takes 1.5x at 55 s, its fit's least squares there clearly at 1.4-1.5x); under a drift
+    the drawn one but for one robot at most, within 2x (over 20 starts of each arena file 6
+    and 12 of the bands taken were outside 20 %, up to 1.9x: docs/link.md; on this start,
+    as the other robots' use of their gains changed, robot 5 once took 1.5x at 55 s, its
+    fit's least squares there clearly at 1.4-1.5x); under a drift
     swinging +-50 % while the robots stand (which the fit cannot follow) none that is off by
     more; the metrics carry each.
     """
@@ -334,7 +369,7 @@ def test_the_motors_dead_band_is_found_online_within_20_percent(swinging):
     experiment, controllers, result, _ = banded_run(swinging)
     band = experiment.spec.physics.imperfections.dead_band * experiment.limits.max_wheel_speed
     taken = {c.config.index: c.robot.band.taken for c in controllers if c.robot.band.taken}
-    if not swinging:   # 6 of 9 on this start (7 on seed 3)
+    if not swinging:   # 4 to 6 of 9 on this start as the runs changed (7 on seed 3)
         assert len(taken) >= 4, taken
     off = {i: found for i, found in taken.items()
            if any(abs(value - band) > 0.2 * band + 1e-12 for _, value in found)}

@@ -86,11 +86,28 @@ class RobotModel:
             self.latency = self.link.update(now)
             self.motor_time_constant = self.link.motor_time_constant
         if self.wheels is not None:
+            self.wheels.trade = self._trade()
+            self.wheels.moved(self.latency, self.motor_time_constant)
             self.wheels.update(now, self.latency, self.motor_time_constant)
         if self.band is not None:
             self.band.update(now, self.latency, self.motor_time_constant)
             if self.band.band is not None and self.checked_band is None:
                 self.min_wheel_speed = self.band.band
+
+    def _trade(self) -> tuple[float, float]:
+        """(latency, motors' lag) s: how far the wheel gains' fit lets them be traded, one
+        longer and the other shorter (the fits trade them: docs/link.md): the lag's bound
+        where estimated online (link_estimate.OnlineLink.bounds), the latency moved as far
+        where it is estimated too; (0, 0) where the lag is told; infinite while it is
+        estimated but not yet taken with a bound.
+        """
+        link = self.link
+        if link is None or len(link.taus) <= 1:   # the lag told
+            return 0.0, 0.0
+        if not link.motor_taken or link.bounds is None:
+            return math.inf, math.inf
+        lag = link.bounds[1]
+        return (lag if len(link.lags) > 1 else 0.0), lag
 
     @property
     def checking(self) -> bool:
