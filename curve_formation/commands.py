@@ -231,16 +231,17 @@ def cmd_measure_link(args):
               'lag (limits.motor_time_constant)')
     print(f'{"robot":>5s} {"latency (ms)":>12s} {"spread (ms)":>11s} {"windows":>7s} '
           f'{"commands":>8s} {"poses":>6s}' + (f' {"motor lag (ms)":>14s}' if estimated
-                                                 else '') + f' {"wheel gains (l, r)":>18s}'
+                                                 else '') + f' {"wheel gains (l, r)":>30s}'
           + f' {"dead band (mm/s)":>16s}')
     for i, row in found['robots'].items():
         told = row['latency'] is not None
-        gains = row['wheel_gains']
+        gains, errors, band = row['wheel_gains'], row['wheel_gain_errors'], row['dead_band']
+        band_text = _mm(band) + ('' if band is None else f' +- {_mm(row["dead_band_bound"])}')
         print(f'{i:5d} {_ms(row["latency"]):>12s} {_ms(row["spread"]):>11s} '
               f'{row["windows"]:7d} {row["commands"]:8d} {row["poses"]:6d}'
               + (f' {_ms(row["motor_time_constant"]):>14s}' if estimated else '')
-              + f' {"-" if gains is None else f"{gains[0]:.3f}, {gains[1]:.3f}":>18s}'
-              + f' {_mm(row["dead_band"]):>16s}'
+              + f' {_gains(gains, errors):>30s}'
+              + f' {band_text:>16s}'
               + ('' if told else '  (its commands hardly changed: nothing to time)'))
     for i, row in found['robots'].items():
         check = row['check']
@@ -260,8 +261,9 @@ def cmd_measure_link(args):
         print('no robot told its latency: record a run in which the robots drive')
         return 1
     print('spread: how much the latency of 4 s windows varies (the jitter, and the '
-          "estimate's own noise); wheel gains: each wheel's speed per unit of command, - where "
-          "the commands did not tell it (within 1 %) or the experiment gives no wheel base")
+          "estimate's own noise); wheel gains: each wheel's speed per unit of command +- "
+          "3 standard errors, - where the commands did not tell it (within 1 %) or the "
+          "experiment gives no wheel base; dead band +- its fit's bound")
     print(f'to tell the controllers (the median over the robots, s):\ncontroller: '
           f'{{command_latency: {found["latency"]:.3f}, estimate_latency: false}}\n'
           '(with estimate_latency: true they estimate it online, starting from '
@@ -282,6 +284,18 @@ def cmd_measure_link(args):
 
 def _ms(value):
     return '-' if value is None else f'{1000 * value:.1f}'
+
+
+def _gains(gains, errors):
+    """Wheel gains (left, right) +- GAIN_BOUND standard errors, as the controllers report
+    them (RobotModel.estimates); '-' for none.
+    """
+    from curve_formation.core.controller.robot_model import GAIN_BOUND
+    if gains is None:
+        return '-'
+    return (f'{gains[0]:.3f}, {gains[1]:.3f}' if errors is None else
+            f'{gains[0]:.3f}, {gains[1]:.3f} +- {GAIN_BOUND * errors[0]:.3f}, '
+            f'{GAIN_BOUND * errors[1]:.3f}')
 
 
 def _mm(value):

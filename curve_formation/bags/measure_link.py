@@ -42,7 +42,8 @@ def measure_bag(path, motor_time_constant=None):
     """{'robots': {i: {'latency', 'spread', 'windows', 'residual', 'motor_time_constant',
     'wheel_gains' ([left, right] or None: core.controller.wheel_estimate, with the
     experiment's wheel base and speed), 'wheel_gain_errors', 'dead_band' (m/s of wheel
-    speed or None: core.controller.dead_band_estimate), 'check' (where the bag holds a motor
+    speed or None: core.controller.dead_band_estimate) and its 'dead_band_bound' (m/s),
+    'check' (where the bag holds a motor
     check, controller.motor_check: {'wheel_gains', 'dead_band' m/s or 0, 'bound' m/s,
     'repeated': stages run again},
     else None), 'commands', 'poses'}},
@@ -100,6 +101,7 @@ def measure_bag(path, motor_time_constant=None):
                   'wheel_gains': None if gains.gains is None else list(gains.gains),
                   'wheel_gain_errors': None if gains.errors is None else list(gains.errors),
                   'dead_band': band.band,
+                  'dead_band_bound': band.bound if band.band is not None else None,
                   'check': None if check is None or check.gains is None else {
                       'wheel_gains': list(check.gains), 'dead_band': check.band,
                       'bound': check.bound, 'repeated': check.repeated,

@@ -417,7 +417,7 @@ def test_measure_link_finds_the_dead_band_in_a_bag_and_prints_the_line(tmp_path,
     """The commands and poses of the dead band test's robots (constant drift, 70 s) written
     to a bag with arena_demo's experiment: measure-link finds a band for most robots, each
     within 20 % of the drawn one but for one robot at most, within 2x (as online: the test
-    above), and prints the limits line to tell it.
+    above), each with its bound, and prints the limits line to tell it.
     """
     import json
 
@@ -432,7 +432,12 @@ def test_measure_link_finds_the_dead_band_in_a_bag_and_prints_the_line(tmp_path,
     assert len(bands) >= 4, found['robots']
     off = {i: value for i, value in bands.items() if abs(value - band) > 0.2 * band + 1e-12}
     assert len(off) <= 1 and all(v <= 2.0 * band for v in off.values()), (off, band)
-    assert 'limits: {min_wheel_speed: 0.001' in capsys.readouterr().out
+    # each with its bound, in the JSON and the table
+    assert all(0.0 < found['robots'][i]['dead_band_bound'] < 0.5 * v for i, v in bands.items())
+    out = capsys.readouterr().out
+    assert 'limits: {min_wheel_speed: 0.001' in out
+    rows = [line.split() for line in out.splitlines() if line[:5].strip() in bands]
+    assert len(rows) == len(bands) and all(row[-2] == '+-' for row in rows), out
 
 
 def logged_bag(path, experiment, controllers, logs):

@@ -149,8 +149,8 @@ def estimate_gains(command_times: ArrayLike, commands: ArrayLike, pose_times: Ar
 
 # Online: how often (s) a controller fits its wheels' gains, over how much of the past (s)
 GAINS_EVERY = 5.0
-LAG_MOVED = 0.005   # s the motors' lag may move from the one gains were fitted through
 GAINS_SPAN = 60.0
+LAG_MOVED = 0.005   # s the motors' lag may move from the one gains were fitted through
 
 
 def wheel_record(rate_hz: float) -> record.MotionRecord:
