@@ -230,8 +230,9 @@ def _estimates_table(result):
             f'<th>wheel gains (left / right)</th><th>dead band (mm/s)</th></tr>{rows}</table>'
             '<p>As told, or as each controller estimated it online (controller.estimate_latency, '
             'estimate_motors) or in its motor check (controller.motor_check), &plusmn; its '
-            "bound: for the latency and the motors' lag half the range of the fits it was "
-            "taken from, for a wheel gain 3 standard errors, for the dead band its fit's; a "
+            "bound: for the latency and the motors' lag how far the last 30 fits of 6 s alone "
+            "scatter (robustly), for a wheel gain 3 standard errors, for the dead band its "
+            "fit's; a "
             'wheel gain is its speed per unit of command, the dead band the smallest wheel '
             'command that turns a wheel; - where none was told or found.</p>')
 

@@ -19,6 +19,7 @@ motor_time_constant None, OnlineLink with estimate_motor).
 Times in s (one clock for commands and poses), speeds in m/s and rad/s.
 """
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 import math
 
@@ -271,12 +272,12 @@ ONLINE_FIRST_EVERY = 0.5
 ONLINE_SPAN = 6.0
 ONLINE_MEMORY = 50.0
 AGREEING = 3
-WINDOWS = 30       # fits alone whose spread is reported (OnlineLink.bounds): the last 30 s
-MIN_WINDOWS = 5    # fewest fits alone a spread is reported from
 AGREEMENT = 0.02
 
 
 MOTOR_AGREEMENT = 0.01   # s: the motor lags of the AGREEING estimates, as AGREEMENT
+WINDOWS = 30       # fits alone whose spread is reported (OnlineLink.bounds): the last 30 s
+MIN_WINDOWS = 5    # fewest fits alone a spread is reported from
 # Least variation of the commands (m/s, as MIN_EXCITATION) over ONLINE_SPAN for a fit that
 # estimates the motors' lag: a robot creeping about its target at a few mm/s does so in its
 # motors' dead band and command steps, which a lag fits better than the motors' response.
@@ -318,6 +319,9 @@ class OnlineLink(MotionRecord):
         # (latency, motor lag) of each of the last WINDOWS fits alone (s): their spread
         # tells how far one window's data may place them (bounds)
         self.windows: deque[tuple[float, float]] = deque(maxlen=WINDOWS)
+        # (latency, motor lag) s: how far the last WINDOWS fits alone scatter about their
+        # median, robustly (window_spread); None before MIN_WINDOWS fits
+        self.bounds: tuple[float, float] | None = None
 
     def update(self, now: float) -> float:
         """The latency to use from `now` on (s; motor_time_constant likewise): new estimates
@@ -343,6 +347,7 @@ class OnlineLink(MotionRecord):
         self.total = weight * found[0] if self.total is None else (
             fade * self.total + weight * found[0])
         self.windows.append(_best_pair(found[0], self.lags, self.taus))
+        self.bounds = window_spread(self.windows)
         self.recent.append(_best_pair(self.total, self.lags, self.taus))
         if len(self.recent) < AGREEING:
             return self.latency
@@ -358,20 +363,19 @@ class OnlineLink(MotionRecord):
         return self.latency
 
 
-    @property
-    def bounds(self) -> tuple[float, float] | None:
-        """(latency, motor lag) s: how far the last WINDOWS fits alone (each from
-        ONLINE_SPAN s of data) scatter about their median, robustly (1.4826 times the median
-        absolute deviation: a standard deviation that a few windows with little in them do
-        not decide); None before MIN_WINDOWS fits. The estimate, from all of them, came out
-        within it on most robots of arena_demo's MuJoCo world. Not a bound on a bias that
-        every window shares (a servo's delay taken as latency: docs/link.md).
-        """
-        if len(self.windows) < MIN_WINDOWS:
-            return None
-        found = np.array(self.windows)
-        spread = 1.4826 * np.median(np.abs(found - np.median(found, axis=0)), axis=0)
-        return float(spread[0]), float(spread[1])
+def window_spread(windows: Sequence[tuple[float, float]]) -> tuple[float, float] | None:
+    """(latency, motor lag) s: how far fits alone (`windows`, each from ONLINE_SPAN s of
+    data) scatter about their median, robustly (1.4826 times the median absolute deviation:
+    a standard deviation that a few windows with little in them do not decide); None for
+    fewer than MIN_WINDOWS. The estimate, from all of them, came out within it on most
+    robots of arena_demo's MuJoCo world. Not a bound on a bias that every window shares (a
+    servo's delay taken as latency: docs/link.md).
+    """
+    if len(windows) < MIN_WINDOWS:
+        return None
+    found = np.array(windows)
+    spread = 1.4826 * np.median(np.abs(found - np.median(found, axis=0)), axis=0)
+    return float(spread[0]), float(spread[1])
 
 
 def replay_online(tick_times: ArrayLike, commands: ArrayLike, pose_times: ArrayLike,

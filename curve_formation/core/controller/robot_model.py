@@ -219,7 +219,7 @@ class RobotModel:
         None (no value: wheel gains and dead band unknown).
         """
         link = self.link
-        bounds = link.bounds if link is not None and link.bounds is not None else None
+        bounds = None if link is None else link.bounds
         out: dict[str, object] = {
             'command_latency': float(self.latency),
             'command_latency_bound': None,
@@ -231,13 +231,8 @@ class RobotModel:
             out.update(command_latency_bound=bounds[0], command_latency_from='online')
         if link is not None and link.motor_taken and bounds is not None:
             out.update(motor_time_constant_bound=bounds[1], motor_time_constant_from='online')
-        online = None if self.wheels is None else self.wheels.found
         check = self.trusted_check
-        gains, errors, source = None, None, None
-        if online is not None and online.gains is not None:
-            gains, errors, source = online.gains, online.errors, 'online'
-        elif check is not None:
-            gains, errors, source = check.gains, check.gain_errors, 'check'
+        gains, errors, source = self._gains_found()
         out.update(wheel_gains=None if gains is None else [float(g) for g in gains],
                    wheel_gains_bound=None if errors is None
                    else [GAIN_BOUND * float(e) for e in errors], wheel_gains_from=source)
@@ -260,9 +255,20 @@ class RobotModel:
         """(left, right) as estimated online, else as the motor check found them where
         trusted (trusted_check), or None.
         """
-        online = None if self.wheels is None else self.wheels.gains
-        found = self.trusted_check
-        return online if online is not None or found is None else found.gains
+        return self._gains_found()[0]
+
+    def _gains_found(self) -> tuple[tuple[float, float] | None,
+                                    tuple[float, float] | None, str | None]:
+        """(gains, their standard errors, 'online' or 'check'): wheel_gains' with where they
+        came from; (None, None, None) without any.
+        """
+        online = None if self.wheels is None else self.wheels.found
+        if online is not None and online.gains is not None:
+            return online.gains, online.errors, 'online'
+        check = self.trusted_check
+        if check is not None:
+            return check.gains, check.gain_errors, 'check'
+        return None, None, None
 
 
 def _share(value: float, limit: float) -> float:
