@@ -27,7 +27,7 @@ def commands_kept(rate_hz: float, pose_timeout: float, longest: float) -> int:
 
 # The share of its limits (the larger of its fastest wheel's and its turn's) from which the
 # law's command, as it nears them, is scaled up to what the wheels can give (RobotModel.
-# _scaled): a robot whose wheels are faster than nominal then drives as fast as they let it
+# realised): a robot whose wheels are faster than nominal then drives as fast as they let it
 # where the law asks for its fastest (sending each wheel its command divided by its gain
 # alone held such robots to the nominal speed: arena_demo's checked robots settled up to 6 %
 # later than without the gains; docs/link.md).
@@ -159,42 +159,50 @@ class RobotModel:
     def compensated(self, v: float, w: float, checking: bool = False) -> Command:
         """(v, w) to send (m/s, rad/s) for the motion (v, w): with wheel_gains estimated,
         each wheel's command divided by its gain (a wheel that turns 3 % fast is asked 3 %
-        less), then scaled (_scaled): down where that would pass max_wheel_speed or
-        max_angular_rate, up to them where the law asks for nearly its fastest (FULL_FROM);
-        (v, w) itself otherwise, and for the motor check's commands (`checking`), which
-        measure the wheels as they are.
+        less), scaled down (curvature kept) only where that would pass max_wheel_speed or
+        max_angular_rate; (v, w) itself otherwise, and for the motor check's commands
+        (`checking`), which measure the wheels as they are. The motion is realised's: any
+        use of the wheels' spare speed is decided there, once.
         """
         if checking:
             return v, w
-        cv, cw, _ = self._scaled(v, w)
-        return cv, cw
+        cv, cw, _, over = self._divided(v, w)
+        scale = 1.0 / over if over > 1.0 else 1.0
+        return cv * scale, cw * scale
 
     def realised(self, v: float, w: float, reference: Command, shift: Command
                  ) -> tuple[float, float, Command, Command]:
-        """The motion (v m/s, w rad/s) the wheels give for compensated(v, w), as far as the
-        estimated gains tell: (v, w) times compensated's scale; the observer's `reference`
-        and the safety filter's `shift` (agent_command's) each with that change added, so
-        that the observer expects what the wheels give (a slow wheel's missing speed is no
-        disturbance, nor a fast one's extra). Without gains, or unscaled, all as they were.
+        """The motion (v m/s, w rad/s) the wheels give for the law's (v, w), as far as the
+        estimated gains tell, scaled (curvature kept): down to what keeps the divided
+        command (compensated) within the limits, and from FULL_FROM of the limits on, as
+        the law's command nears them, up to exactly those limits, so that wheels faster
+        than nominal are used to the full where the law asks for its fastest without a jump
+        in the commands. The observer's `reference` and the safety filter's `shift`
+        (agent_command's) each with that change added, so that the observer expects what
+        the wheels give. Without gains, or unscaled, all as they were.
         """
-        scale = self._scaled(v, w)[2]
+        _, _, asked, over = self._divided(v, w)
+        if over <= 0.0:   # no gains, no motion or no limits
+            return v, w, reference, shift
+        room = 1.0 / over   # the largest scale within the limits
+        ramp = min(max((asked - FULL_FROM) / (1.0 - FULL_FROM), 0.0), 1.0)
+        scale = min(1.0 + ramp * (room - 1.0), room)
         if scale == 1.0:
             return v, w, reference, shift
         dv, dw = v * scale - v, w * scale - w
         return (v + dv, w + dw, (reference[0] + dv, reference[1] + dw),
                 (shift[0] + dv, shift[1] + dw))
 
-    def _scaled(self, v: float, w: float) -> tuple[float, float, float]:
-        """(cv, cw, scale): the command for the motion (v, w) with each wheel's divided by
-        its gain and then multiplied by `scale`: at most what keeps it within the limits
-        (both wheels together: the motion's curvature kept), and from FULL_FROM of the
-        limits on, as the law's command nears them, growing to exactly that, so that wheels
-        faster than nominal are used to the full where the law asks for its fastest without
-        a jump in the commands. (v, w, 1.0) without gains.
+    def _divided(self, v: float, w: float) -> tuple[float, float, float, float]:
+        """(cv, cw, asked, over) for the motion (v, w): the command with each wheel's
+        divided by its gain; `asked`, the motion's share of the limits (the larger of the
+        fastest wheel's share of max_wheel_speed and |w|'s of max_angular_rate); `over`,
+        the command's share of them (above 1: past them; 0 with no limits). (v, w, 0, 0)
+        without gains or with no motion.
         """
         gains = self.wheel_gains
         if gains is None or (v == 0.0 and w == 0.0):
-            return v, w, 1.0
+            return v, w, 0.0, 0.0
         limits = self.limits
         left, right = wheel_speeds(v, w, limits.wheel_base)
         asked = max(_share(max(abs(left), abs(right)), limits.max_wheel_speed),
@@ -203,12 +211,7 @@ class RobotModel:
         cv, cw = body_from_wheels(left, right, limits.wheel_base)
         over = max(_share(max(abs(left), abs(right)), limits.max_wheel_speed),
                    _share(abs(cw), limits.max_angular_rate))
-        if over <= 0.0:   # no limits
-            return cv, cw, 1.0
-        room = 1.0 / over   # the largest scale within the limits
-        ramp = min(max((asked - FULL_FROM) / (1.0 - FULL_FROM), 0.0), 1.0)
-        scale = min(1.0 + ramp * (room - 1.0), room)
-        return cv * scale, cw * scale, scale
+        return cv, cw, asked, over
 
     def estimates(self) -> dict[str, object]:
         """What this controller holds of its robot, for reports: for each of
