@@ -16,7 +16,7 @@ command may lie in the motors' dead band, which a gain would not describe.
 Times in s (one clock for commands and poses), speeds in m/s.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import math
 
 import numpy as np
@@ -53,13 +53,17 @@ def thinned(tp: FloatArray, poses: FloatArray, interval: float
 @dataclass(frozen=True)
 class WheelGains:
     """gains (left, right; None if not told) and their standard errors, the fit's residual
-    (rms m/s) and the intervals fitted.
+    (rms m/s) and the intervals fitted; online (OnlineGains.fit): the (latency, motors' lag)
+    it was fitted through (s), and whether it told gains alone but not once they were
+    traded (`doubted`: those found before are dropped too).
     """
 
     gains: tuple[float, float] | None
     errors: tuple[float, float] | None
     residual: float | None
     intervals: int
+    through: tuple[float, float] | None = None
+    doubted: bool = False
 
 
 NO_GAINS = WheelGains(None, None, None, 0)
@@ -178,8 +182,6 @@ class OnlineGains(record.PeriodicFit):
         # estimates' bounds: RobotModel sets it before each update; 0, 0: as told;
         # infinite: not known yet, and no gains are told)
         self.trade = (0.0, 0.0)
-        self._fitting: tuple[float, float] = (0.0, 0.0)   # the fit's (latency, lag), s
-        self._doubted = False   # the last fit told gains alone, not with the trade
         self.fitted_with: tuple[float, float] | None = None   # the found gains' likewise
 
     def fit(self, command_times: FloatArray, commands: FloatArray, pose_times: FloatArray,
@@ -189,14 +191,15 @@ class OnlineGains(record.PeriodicFit):
         as short, had made a robot's gains 4 % high with errors of 1.2 %): told only if
         they stay within GAIN_ERROR.
         """
-        self._fitting, self._doubted = (latency, motor_time_constant), False
-        found = estimate_gains(command_times, commands, pose_times, poses, self.wheel_base,
-                               self.max_wheel_speed, latency, motor_time_constant)
+        through = (latency, motor_time_constant)
+        found = replace(estimate_gains(command_times, commands, pose_times, poses,
+                                       self.wheel_base, self.max_wheel_speed, latency,
+                                       motor_time_constant), through=through)
         late, lag = self.trade
         if found.gains is None or (late <= 0.0 and lag <= 0.0):
             return found
         if not math.isfinite(lag):   # the lag estimated, its bound not known yet
-            return WheelGains(None, found.errors, found.residual, found.intervals)
+            return replace(found, gains=None)
         assert found.errors is not None
         moved = np.zeros(2)
         for way in (-1.0, 1.0):
@@ -210,15 +213,15 @@ class OnlineGains(record.PeriodicFit):
                   float(np.hypot(found.errors[1], moved[1])))
         # told on its own but not once traded: the lag and latency are now known to be too
         # uncertain for gains, those found before them too (took drops them)
-        self._doubted = not told(errors)
-        return WheelGains(found.gains if told(errors) else None, errors, found.residual,
-                          found.intervals)
+        doubted = not told(errors)
+        return replace(found, gains=None if doubted else found.gains, errors=errors,
+                       doubted=doubted)
 
     def took(self, now: float, found: WheelGains) -> None:
         if found.gains is not None:
-            self.found, self.fitted_with = found, self._fitting
+            self.found, self.fitted_with = found, found.through
             self.taken.append((now, found.gains))
-        elif self._doubted:
+        elif found.doubted:
             self.found, self.fitted_with = NO_GAINS, None
 
     def moved(self, latency: float, motor_time_constant: float) -> None:
