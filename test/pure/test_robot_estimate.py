@@ -69,9 +69,9 @@ def imperfect_case(name, seed, swinging=False, told=None):
     return with_start(case, seeded_start(case, seed))
 
 
-def learnt(experiment, latency, seconds=20.0):
+def learnt(experiment, latency, seconds=20.0, noise=(0.0, 0.0)):
     """The pipeline's controllers after `seconds` of the experiment with a link `latency`
-    s late (told nobody), and the result.
+    s late (told nobody), its poses off by Gaussian `noise` (m, rad), and the result.
     """
     made = []
 
@@ -84,7 +84,8 @@ def learnt(experiment, latency, seconds=20.0):
     pipeline.Pipeline = Recorded
     try:
         result = pipeline.simulate_pipeline(experiment, 'mujoco', duration=seconds,
-                                            link=pipeline.Link(command_latency=latency))
+                                            link=pipeline.Link(command_latency=latency,
+                                                              pose_noise=noise))
     finally:
         pipeline.Pipeline = original
     return made[0].controllers, result
@@ -123,6 +124,33 @@ def test_each_controller_learns_its_motors_lag_and_latency_within_10_s(swinging)
         whole = c.latency + c.motor_time_constant
         assert abs(whole - (0.1 + MOTOR_LAG)) <= 0.015, (c.config.index, whole)
     assert result.motor_lags == [c.motor_time_constant for c in controllers]
+
+
+def test_a_cameras_noise_leaves_the_online_estimates_true_or_untold():
+    """As above with a camera's noise on the poses (0.2 mm, 3 mrad at 30 Hz), 40 s: every
+    controller that took a lag holds one within 15 ms of the motors' and a latency within
+    20 ms of the link's; wheel gains and dead bands are told only where right (within 3 %,
+    20 %). Measured: none is told at that noise (their standard errors 3 to 9 % over 60 s;
+    docs/limitations.md), so the observer goes on taking the wheels' spread as drift.
+    """
+    from curve_formation.core.world.mujoco_world import draw_robots
+    experiment = imperfect_case('arena_demo', 1)
+    robots = draw_robots(experiment)
+    true = robots.wheel_radii / robots.nominal_radius * robots.gains
+    band = experiment.spec.physics.imperfections.dead_band * experiment.limits.max_wheel_speed
+    controllers, _ = learnt(experiment, 0.1, seconds=40.0, noise=(0.0002, 0.003))
+    took = [c for c in controllers if c.robot.link.motor_taken]
+    assert len(took) >= 7, [c.config.index for c in took]
+    for c in took:
+        assert abs(c.motor_time_constant - FIRST_ORDER) <= 0.015, (c.config.index,
+                                                                  c.robot.link.motor_taken)
+        assert abs(c.latency - 0.1) <= 0.02, (c.config.index, c.robot.link.taken)
+    for c in controllers:
+        i = c.config.index
+        if c.robot.wheel_gains is not None:
+            np.testing.assert_allclose(c.robot.wheel_gains, true[i - 1], rtol=0.03)
+        for _, value in c.robot.band.taken:
+            assert abs(value - band) <= 0.2 * band, (i, c.robot.band.taken, band)
 
 
 def test_a_told_motor_lag_wins_over_the_estimate():
