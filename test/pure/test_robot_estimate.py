@@ -246,7 +246,7 @@ def test_gains_fitted_through_a_lag_in_doubt_are_not_kept():
     assert held >= 5, reported
     # the lag moved from the one the gains were fitted through: dropped
     wheels = controllers[0].robot.wheels
-    wheels.found, wheels.fitted_with = WheelGains((1.0, 1.0), (0.001, 0.001), 0.0, 50), (0.1, 0.06)
+    wheels.found = WheelGains((1.0, 1.0), (0.001, 0.001), 0.0, 50, through=(0.1, 0.06))
     wheels.moved(0.1, 0.06 - 0.5 * LAG_MOVED)
     assert wheels.found.gains == (1.0, 1.0)
     wheels.moved(0.1, 0.04)

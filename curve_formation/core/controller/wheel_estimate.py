@@ -182,7 +182,6 @@ class OnlineGains(record.PeriodicFit):
         # estimates' bounds: RobotModel sets it before each update; 0, 0: as told;
         # infinite: not known yet, and no gains are told)
         self.trade = (0.0, 0.0)
-        self.fitted_with: tuple[float, float] | None = None   # the found gains' likewise
 
     def fit(self, command_times: FloatArray, commands: FloatArray, pose_times: FloatArray,
             poses: FloatArray, latency: float, motor_time_constant: float) -> WheelGains:
@@ -219,19 +218,19 @@ class OnlineGains(record.PeriodicFit):
 
     def took(self, now: float, found: WheelGains) -> None:
         if found.gains is not None:
-            self.found, self.fitted_with = found, found.through
+            self.found = found
             self.taken.append((now, found.gains))
         elif found.doubted:
-            self.found, self.fitted_with = NO_GAINS, None
+            self.found = NO_GAINS
 
     def moved(self, latency: float, motor_time_constant: float) -> None:
         """The latency and the motors' lag (s) held now: gains fitted through a lag more
         than LAG_MOVED s away are dropped until a fit tells them again (a robot's lag first
         taken 20 ms long, then corrected, had kept gains 5 % high from it).
         """
-        if (self.fitted_with is not None
-                and abs(motor_time_constant - self.fitted_with[1]) > LAG_MOVED):
-            self.found, self.fitted_with = NO_GAINS, None
+        through = self.found.through
+        if through is not None and abs(motor_time_constant - through[1]) > LAG_MOVED:
+            self.found = NO_GAINS
 
     @property
     def gains(self) -> tuple[float, float] | None:
