@@ -274,12 +274,36 @@ def cmd_measure_link(args):
               '(or controller: {estimate_motors: true} to estimate it online)')
     if found['dead_band'] is not None:
         print("the motors' dead band, the smallest wheel command that turns a wheel (the median "
-              "over the robots, each its motor check's where it has one, m/s):"
+              "over the robots, each its motor check's where that is used, m/s):"
               f'\nlimits: {{min_wheel_speed: {found["dead_band"]:.5f}}}\n'
               '(or controller: {motor_check: true} to measure it as each run begins)')
+    _print_own(found)
     if args.json:
         write_json(Path(args.json), found)
     return 0
+
+
+def _print_own(found):
+    """measure-link's lines for each robot's own dead band: the bag's robots.fleet with it
+    put in, or, where it lists none, one line per robot.
+    """
+    import yaml
+
+    from curve_formation.bags.measure_link import fleet_with_own, own_settings
+    own = own_settings(found)
+    if not own:
+        return
+    fleet = fleet_with_own(found)
+    print("or each robot's own dead band (its entry in robots.fleet wins over limits):")
+    if fleet is None:
+        for i, settings in own.items():
+            print(f'robot {i}: ' + yaml.safe_dump(settings, default_flow_style=True,
+                                                  sort_keys=False).strip())
+        return
+    print('robots:\n  fleet:')
+    for entry in fleet:
+        print('    - ' + yaml.safe_dump(entry, default_flow_style=True, sort_keys=False,
+                                        width=1000).strip())
 
 
 def _ms(value):

@@ -23,10 +23,8 @@ from curve_formation.interface import CMD_VEL, POSE, pose_from_msg, robot_of, tw
 MEASURED = (POSE, CMD_VEL)
 
 
-def bag_limits(path):
-    """The `limits` section of the experiment the bag carries ({} if none, or no
-    experiment).
-    """
+def bag_experiment(path):
+    """The experiment the bag carries, as parsed from its YAML ({} if none)."""
     from curve_formation.bags.analysis import EXPERIMENT_KEY
     from curve_formation.bags.bag import bag_info
     from curve_formation.core.config.loading import parse_experiment_text
@@ -34,8 +32,52 @@ def bag_limits(path):
     if EXPERIMENT_KEY not in custom:
         return {}
     data = parse_experiment_text(custom[EXPERIMENT_KEY], f'{path} (metadata)')
-    limits = data.get('limits') if isinstance(data, dict) else None
-    return limits if isinstance(limits, dict) else {}
+    return data if isinstance(data, dict) else {}
+
+
+def _section(data, *keys):
+    """data[keys[0]][keys[1]]..., or None where a level is missing or of another type."""
+    for key in keys:
+        data = data.get(key) if isinstance(data, dict) else None
+    return data
+
+
+def own_settings(found):
+    """{agent i: {'min_wheel_speed': m/s}} from measure_bag's result: each robot's own dead
+    band (its motor check's where that is used, else the band its commands told), as
+    robots.fleet takes it; robots with none left out. Not the motors' lag: a robot's lag
+    trades with its latency (20 ms either way on arena_demo's MuJoCo robots: docs/link.md),
+    more than robots' lags differ, and the latency is told for all robots at once.
+    """
+    out = {}
+    for i, row in found['robots'].items():
+        band = _band(row)
+        if band is not None:
+            out[i] = {'min_wheel_speed': round(float(band), 5)}
+    return out
+
+
+def fleet_with_own(found):
+    """The bag's experiment's robots.fleet (a list of its entries as written, agent 1
+    first) with each robot's own settings (own_settings) put in; None where the experiment
+    lists no fleet, or not one entry per robot measured.
+    """
+    fleet = found.get('fleet')
+    if not isinstance(fleet, list) or not fleet or max(found['robots']) > len(fleet):
+        return None
+    own = own_settings(found)
+    return [{**entry, **own.get(i, {})} if isinstance(entry, dict) else entry
+            for i, entry in enumerate(fleet, start=1)]
+
+
+def _band(row):
+    """A robot's dead band (m/s) as measured: its motor check's where the check is used
+    (trusted), else the band its commands told (None if neither).
+    """
+    check = row['check']
+    if check is not None and check['used'] and check['dead_band'] is not None:
+        return check['dead_band']
+    return row['dead_band']
 
 
 def measure_bag(path, motor_time_constant=None):
@@ -50,11 +92,13 @@ def measure_bag(path, motor_time_constant=None):
     'latency': the median over the robots that told one (s, or None), 'motor_time_constant':
     the motors' lag (s) the fit took the commands through (the median of the robots' where
     estimated, None if none told one), 'motor_estimated': whether it was, 'dead_band': the
-    median of the robots' (each its check's where it has one)} of a bag;
+    median of the robots' (each its check's where that is used), 'fleet': the bag's
+    experiment's robots.fleet as written (None if it lists none)} of a bag;
     motor_time_constant None: the bag's experiment's, so that the motors' lag is not read as
     latency, or where it tells none, estimated with the latency.
     """
-    limits = bag_limits(path)
+    experiment = bag_experiment(path)
+    limits = _section(experiment, 'limits') or {}
     if motor_time_constant is None:
         motor_time_constant = float(limits.get('motor_time_constant') or 0.0) or None
     estimated = motor_time_constant is None
@@ -114,9 +158,8 @@ def measure_bag(path, motor_time_constant=None):
         lags = [r['motor_time_constant'] for r in out.values()
                 if r['motor_time_constant'] is not None]
         motor_time_constant = float(np.median(lags)) if lags else None
-    bands = [r['check']['dead_band'] if r['check'] and r['check']['dead_band'] is not None
-             else r['dead_band'] for r in out.values()]
-    bands = [b for b in bands if b]
+    bands = [b for b in (_band(r) for r in out.values()) if b]
     return {'robots': out, 'latency': float(np.median(told)) if told else None,
             'motor_time_constant': motor_time_constant, 'motor_estimated': estimated,
-            'dead_band': float(np.median(bands)) if bands else None}
+            'dead_band': float(np.median(bands)) if bands else None,
+            'fleet': _section(experiment, 'robots', 'fleet')}

@@ -487,8 +487,49 @@ def test_measure_link_finds_the_dead_band_in_a_bag_and_prints_the_line(tmp_path,
     assert counted >= 7, counted   # of 18
 
 
-def logged_bag(path, experiment, controllers, logs):
-    """A bag at `path` of logged_run's commands and poses with the experiment: path."""
+def test_measure_link_prints_each_robots_own_band_into_its_fleet(tmp_path, capsys):
+    """The dead band test's bag (arena_demo start 1, 70 s) with a robots.fleet in its
+    experiment: measure-link prints that fleet, each entry as written with its robot's own
+    dead band (as in its table and JSON) put in where it found one, ready to paste; where
+    the experiment lists no fleet, one line per robot that has a band instead.
+    """
+    import json
+
+    from curve_formation.cli import main
+    experiment, controllers, _, logs = banded_run(False)
+    data = yaml.safe_load(Path(experiment.source).read_text())
+    links = [{'marker': i, 'link': f'udp:127.0.0.1:{9000 + i}', 'replies': False}
+             for i in range(1, 10)]
+    data['robots']['fleet'] = links
+    bag = logged_bag(tmp_path / 'bag', experiment, controllers, logs, yaml.safe_dump(data))
+    capsys.readouterr()
+    assert main(['measure-link', str(bag), '--json', str(tmp_path / 'link.json')]) == 0
+    out = capsys.readouterr().out
+    robots = json.loads((tmp_path / 'link.json').read_text())['robots']
+    printed = yaml.safe_load(out[out.index('robots:\n  fleet:'):])['robots']['fleet']
+    assert len(printed) == 9
+    banded = 0
+    for i, (entry, written) in enumerate(zip(printed, links, strict=True), start=1):
+        assert {k: entry[k] for k in written} == written   # the entry as written
+        band = robots[str(i)]['dead_band']
+        if band is None:
+            assert entry == written
+            continue
+        banded += 1   # rounded to 0.01 mm/s
+        assert entry['min_wheel_speed'] == pytest.approx(band, abs=1e-5)
+    assert banded >= 1
+    # no fleet in the experiment: a line per robot with a band
+    plain = logged_bag(tmp_path / 'plain', experiment, controllers, logs)
+    assert main(['measure-link', str(plain)]) == 0
+    lines = [line for line in capsys.readouterr().out.splitlines()
+             if line.startswith('robot ') and 'min_wheel_speed' in line]
+    assert len(lines) == banded, lines
+
+
+def logged_bag(path, experiment, controllers, logs, text=None):
+    """A bag at `path` of logged_run's commands and poses with the experiment (its file's
+    text, or `text`): path.
+    """
     from geometry_msgs.msg import Twist
     from rclpy.serialization import serialize_message
 
@@ -509,5 +550,5 @@ def logged_bag(path, experiment, controllers, logs):
             for t, x, y, theta in poses:
                 writer.write(f'/robot_{i}/pose', (start + t + 0.01) * 1e9,
                              serialize_message(pose_to_msg(x, y, theta, start + t)))
-        writer.set_custom(EXPERIMENT_KEY, Path(experiment.source).read_text())
+        writer.set_custom(EXPERIMENT_KEY, text or Path(experiment.source).read_text())
     return path
