@@ -392,6 +392,7 @@ def logged_run(experiment, seconds):
     return experiment, controllers, result, logs
 
 
+@pytest.mark.xdist_group('banded_run')   # one worker: banded_run's cache shared
 @pytest.mark.parametrize('swinging', [False, True], ids=['constant', 'swinging'])
 def test_the_motors_dead_band_is_found_online_within_20_percent(swinging):
     """arena_demo's imperfect robots (a dead band of 5 % of the fastest wheel speed among
@@ -452,6 +453,7 @@ def test_the_estimate_of_a_robot_commanded_within_its_dead_band_does_not_wind_up
     assert held > 0.0 and estimate_after('observer', 0.0, 60.0) == pytest.approx(held)
 
 
+@pytest.mark.xdist_group('banded_run')   # one worker: banded_run's cache shared
 def test_measure_link_finds_the_dead_band_in_a_bag_and_prints_the_line(tmp_path, capsys):
     """The commands and poses of the dead band test's robots (constant drift, 70 s, starts 1
     and 2) written to a bag with arena_demo's experiment: measure-link finds a band for
@@ -487,6 +489,7 @@ def test_measure_link_finds_the_dead_band_in_a_bag_and_prints_the_line(tmp_path,
     assert counted >= 7, counted   # of 18
 
 
+@pytest.mark.xdist_group('banded_run')   # one worker: banded_run's cache shared
 def test_measure_link_prints_each_robots_own_band_into_its_fleet(tmp_path, capsys):
     """The dead band test's bag (arena_demo start 1, 70 s) with a robots.fleet in its
     experiment: measure-link prints that fleet, each entry as written with its robot's own
