@@ -265,7 +265,7 @@ def cmd_measure_link(args):
           "3 standard errors, - where the commands did not tell it (within 1 %) or the "
           "experiment gives no wheel base; dead band +- its fit's bound")
     print(f'to tell the controllers (the median over the robots, s):\ncontroller: '
-          f'{{command_latency: {found["latency"]:.3f}, estimate_latency: false}}\n'
+          f'{{command_latency: {max(found["latency"], 0.0):.3f}, estimate_latency: false}}\n'
           '(with estimate_latency: true they estimate it online, starting from '
           'command_latency)')
     if estimated and found['motor_time_constant'] is not None:
