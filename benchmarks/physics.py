@@ -103,7 +103,7 @@ def early_estimates(case):
     result = simulate_pipeline(case, 'mujoco', duration=2.0)
     data = metrics.result_metrics(result)
     robots = draw_robots(case)
-    drawn = robots.wheel_radii / robots.nominal_radius * robots.gains
+    drawn = robots.wheel_gains
     band = IMPERFECTIONS['dead_band'] * result.limits.max_wheel_speed
     first_order = PhysicsSpec().motor_time_constant - 2.0 * SERVO_LAG
     return {

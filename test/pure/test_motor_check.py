@@ -287,7 +287,7 @@ def checked_run(swinging):
         'controller': spec.controller.model_copy(update={'motor_check': True})})
     experiment = dataclasses.replace(experiment, spec=spec)
     robots = draw_robots(experiment)
-    true = robots.wheel_radii / robots.nominal_radius * robots.gains
+    true = robots.wheel_gains
     band = IMPERFECTIONS['dead_band'] * experiment.limits.max_wheel_speed
     return logged_run(experiment, 2.0), true, band
 

@@ -136,7 +136,7 @@ def test_a_cameras_noise_leaves_the_online_estimates_true_or_untold():
     from curve_formation.core.world.mujoco_world import draw_robots
     experiment = imperfect_case('arena_demo', 1)
     robots = draw_robots(experiment)
-    true = robots.wheel_radii / robots.nominal_radius * robots.gains
+    true = robots.wheel_gains
     band = experiment.spec.physics.imperfections.dead_band * experiment.limits.max_wheel_speed
     controllers, _ = learnt(experiment, 0.1, seconds=40.0, noise=(0.0002, 0.003))
     took = [c for c in controllers if c.robot.link.motor_taken]
@@ -194,7 +194,7 @@ def test_the_wheel_gains_told_online_are_within_3_percent():
     for seed in (1, 2, 3):
         experiment = imperfect_case('arena_demo', seed)
         robots = draw_robots(experiment)
-        true = robots.wheel_radii / robots.nominal_radius * robots.gains
+        true = robots.wheel_gains
         controllers, result = learnt(experiment, 0.1, seconds=40.0)
         told = {c.config.index: c.robot.wheel_gains for c in controllers
                 if c.robot.wheel_gains is not None}
@@ -233,7 +233,7 @@ def test_gains_fitted_through_a_lag_in_doubt_are_not_kept():
     from curve_formation.core.world.mujoco_world import draw_robots
     experiment = imperfect_case('mona_arena', 3)
     robots = draw_robots(experiment)
-    true = robots.wheel_radii / robots.nominal_radius * robots.gains
+    true = robots.wheel_gains
     controllers, result = learnt(experiment, 0.1, seconds=40.0)
     reported = result_metrics(result)['robot_estimates']
     held = 0

@@ -83,6 +83,13 @@ class Robots:
     gains: FloatArray
     nominal_radius: float
 
+    @property
+    def wheel_gains(self) -> FloatArray:
+        """(n, 2) each wheel's speed per unit of command (left, right): its radius over the
+        nominal one times its motor's gain, the battery full (what the controllers estimate).
+        """
+        return self.wheel_radii / self.nominal_radius * self.gains
+
 
 def draw_robots(experiment: 'Experiment') -> Robots:
     """The per-robot wheel radius mismatch and motor gains of physics.imperfections."""
