@@ -45,6 +45,7 @@ CMD_VEL = 'cmd_vel'
 STATE = 'formation_state'
 ESTIMATE = 'disturbance_estimate'
 TICK = 'control_tick'
+TOP_SPEED = 'top_speed'
 
 # Which bags record a topic (nodes/recorder.py).
 EVERY_BAG = 'every bag'
@@ -152,6 +153,11 @@ TOPICS = {t.name: t for t in (
     TopicSpec(TICK, 'sensor_msgs/msg/JointState', 'STATE',
               'every tick: the command sent (v, w) and the stamps of the inputs it came from',
               EVERY_BAG),
+    TopicSpec(TOP_SPEED, 'std_msgs/msg/Float64', 'LATCHED',
+              "a robot's fastest straight drive (m/s) as its controller knows its wheels: "
+              "the wheels' limit times the slower wheel's gain (its motor check's or "
+              'learnt online; 1 where none); after its motor check, where it runs one. The '
+              'curve server assigns targets by trip time with it', EVERY_BAG),
     TopicSpec(CAMERA_IMAGE, 'sensor_msgs/msg/Image', 'IMAGE', 'overhead camera frames',
               WITH_IMAGES),
     TopicSpec(CAMERA_POSES, 'geometry_msgs/msg/PoseArray', 'SENSOR',

@@ -12,10 +12,15 @@ curve's targets). The current curve is published again every `refresh_period` s 
 readers that missed it; with `reassign_every`, the current curve is published again (same id)
 whenever re-assigning its targets among the robots, from their poses on /formation/robot_poses,
 shortens their squared trips by 10 %; the next scheduled curve is then assigned from the targets as
-re-assigned (Phase.assigned_from), as the simulator does. What is published when is
+re-assigned (Phase.assigned_from), as the simulator does. Where the controllers have measured
+their robots' wheels (each robot's top_speed), a curve switched to is assigned by trip time
+where that shortens the longest trip enough (assignment.timed_order), the first from where the
+robots are at the start (with the motor check, which measures them, the start waits for every
+robot's). What is published when is
 core.schedule.curve_schedule's, which the nodes' pipeline steps too.
 """
 
+import math
 from typing import Any
 
 from geometry_msgs.msg import Point, PolygonStamped, PoseStamped
@@ -24,7 +29,7 @@ import numpy as np
 from rclpy.node import Node
 from rclpy.timer import Timer
 from sensor_msgs.msg import JointState
-from std_msgs.msg import ColorRGBA
+from std_msgs.msg import ColorRGBA, Float64
 from visualization_msgs.msg import Marker, MarkerArray
 
 from curve_formation.core.config.checks import points_outside_arena
@@ -98,7 +103,11 @@ TOPICS = (
     Use('sub', topics.OBSERVED_CURVE, 'a newly observed curve as ordered points, fitted and '
         'published as the next curve'),
     Use('sub', topics.ROBOT_POSES, "every robot's pose, to re-assign targets (with "
-        'reassign_every)'),
+        'reassign_every) and to assign the first curve from where the robots are once their '
+        'top speeds are known'),
+    Use('sub', topics.TOP_SPEED, 'how fast each robot drives, its wheels measured: curves '
+        'are assigned by trip time (with controller.motor_check the start waits for every '
+        "robot's)", robot='<i>'),
     Use('sub', topics.READY, 'names of the nodes that receive the curve, counted before the '
         'first curve (wait_for_ready)'),
     Use('sub', topics.POSE, 'before the first curve only (wait_for_poses): has every robot a '
@@ -138,8 +147,14 @@ class CurveServer(Node):
         if every < 0:
             every = self.experiment.spec.agents.reassign_every or 0.0
         self.reassign_every = every
-        if every > 0:
-            topics.subscription(self, topics.ROBOT_POSES, self._on_poses)
+        topics.subscription(self, topics.ROBOT_POSES, self._on_poses)
+        # each robot's top speed (m/s; NaN until heard, or refused: taken at the wheels'
+        # limit), as its controller measured it; the robots heard from (1-based)
+        self.speeds = np.full(self.experiment.n, np.nan)
+        self.speeds_heard: set[int] = set()
+        for i in range(1, self.experiment.n + 1):
+            topics.subscription(self, topics.TOP_SPEED, lambda msg, i=i: self._on_speed(i, msg),
+                                i)
         # Polls for subscribers every WAIT_POLL s until the start, then wakes at each switch.
         self.ready = ReadyCount(self)
         self.unposed = set(range(1, self.experiment.n + 1)) if self.params.wait_for_poses \
@@ -172,9 +187,17 @@ class CurveServer(Node):
                     f'{", ".join(map(str, sorted(self.unposed)))} (/robot_<i>/pose)',
                     skip_first=True, throttle_duration_sec=5.0)
                 return
+            unmeasured = sorted(set(range(1, self.experiment.n + 1)) - self.speeds_heard)
+            if self.experiment.spec.controller.motor_check and unmeasured:
+                self.get_logger().warn(
+                    'waiting for the top speeds of robots '
+                    f'{", ".join(map(str, unmeasured))} (/robot_<i>/top_speed, sent once '
+                    'their motor check is done)', skip_first=True, throttle_duration_sec=5.0)
+                return
             for subscription in self.pose_waits:
                 self.destroy_subscription(subscription)
             self.pose_waits = []
+            self.schedule.robots_now(self._points(), self.speeds)
             self.start = now_seconds(self)
             self.schedule.begin(self.start)
             if self.reassign_every > 0:
@@ -225,18 +248,40 @@ class CurveServer(Node):
         except messages.MessageError:
             self.poses = None
 
+    def _on_speed(self, i: int, msg: Float64) -> None:
+        """Robot i's top speed (m/s): curves switched to from now are assigned with it (one
+        that is no speed is refused: the robot taken at the wheels' limit).
+        """
+        speed = float(msg.data)
+        self.speeds_heard.add(i)
+        if not (math.isfinite(speed) and speed > 0.0):
+            self.get_logger().error(f'robot {i} top speed refused: {speed} m/s (expected a '
+                                    "positive number; taken at the wheels' limit)",
+                                    throttle_duration_sec=5.0)
+            speed = math.nan
+        self.speeds[i - 1] = speed
+        self.schedule.robots_now(None, self.speeds)
+
+    def _points(self) -> np.ndarray | None:
+        """The robots' control points (n, 2; m, arena frame) from their latest poses, if every
+        robot is in them and they are fresh (pose_timeout); else None.
+        """
+        if self.poses is None:
+            return None
+        poses, stamp = self.poses
+        if (len(poses) != self.experiment.n or not np.isfinite(poses).all()
+                or now_seconds(self) - stamp > self.params.pose_timeout):
+            return None
+        return offset_points(poses, self.experiment.gains.offset)
+
     def _reassign(self) -> None:
         """Give robots whose ways have come to cross each other's targets (the curve as it
         is, same id, with the agents' parameters permuted).
         """
-        if self.poses is None:
+        points = self._points()
+        if points is None:
             return
-        poses, stamp = self.poses
-        if (len(poses) != self.experiment.n or not np.isfinite(poses).all()
-                or now_seconds(self) - stamp > self.params.pose_timeout):
-            return
-        publication = self.schedule.reassign(
-            offset_points(poses, self.experiment.gains.offset), now_seconds(self))
+        publication = self.schedule.reassign(points, now_seconds(self))
         if publication is not None:
             self.publish_curve(publication)
             self.get_logger().info(f'curve {publication.curve_id}: targets re-assigned')

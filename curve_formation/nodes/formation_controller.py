@@ -3,12 +3,15 @@
 Subscribes: pose (own, PoseStamped, arena frame), /robot_<j>/formation_state of each
 in-neighbour j, /formation/curve. Publishes at `rate_hz`: cmd_vel (Twist), and on every pose
 its formation_state (target error e_i for out-neighbours), and every tick its
-disturbance_estimate (stamped with the pose that tick used) and /diagnostics. Any missing or
+disturbance_estimate (stamped with the pose that tick used) and /diagnostics, and its robot's
+top_speed whenever that changes (its wheels' gains measured: the curve server's assignment
+weighs trips by it). Any missing or
 stale input gives a zero Twist and a warning, never a stale command. All the maths is
 core.controller.agent.AgentController.
 """
 
 from functools import partial
+import math
 from types import SimpleNamespace
 from typing import Any
 
@@ -17,7 +20,7 @@ from geometry_msgs.msg import PoseStamped, Twist
 import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray
+from std_msgs.msg import Float64, Float64MultiArray
 
 from curve_formation import diagnostics, scheduling
 from curve_formation.core.controller.agent import AgentController
@@ -225,6 +228,8 @@ class FormationController(Node):
         self.state_pub = topics.publisher(self, topics.STATE)
         self.estimate_pub = topics.publisher(self, topics.ESTIMATE)
         self.tick_pub = topics.publisher(self, topics.TICK)
+        self.speed_pub = topics.publisher(self, topics.TOP_SPEED)
+        self._top_speed: float | None = None   # m/s, as last published
         self.state_msg = None   # the state message, filled anew for every pose
         self.diag_pub = topics.publisher(self, topics.DIAGNOSTICS)
         if not self.params.pose_from_all:
@@ -359,6 +364,18 @@ class FormationController(Node):
             elif check is not None and check.done:   # else stopped: it starts again
                 self.get_logger().info(f'motor check done: {self._checked()}')
             self._publish_diagnostics()
+        self._publish_top_speed()
+
+    def _publish_top_speed(self) -> None:
+        """The robot's top speed (RobotModel.top_speed) on top_speed whenever it changes, from
+        when its motor check (if any) is done: the curve server waits for that one.
+        """
+        robot = self.controller.robot
+        speed = robot.top_speed
+        if robot.checking or math.isnan(speed) or speed == self._top_speed:
+            return
+        self._top_speed = speed
+        self.speed_pub.publish(Float64(data=speed))
 
     def _checked(self) -> str:
         """What the motor check found, in a line."""

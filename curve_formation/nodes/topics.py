@@ -42,6 +42,7 @@ from curve_formation.interface import (  # noqa: F401 (the names, for the nodes)
     robot_topic,
     STATE,
     TICK,
+    TOP_SPEED,
     TOPICS,
     TopicSpec,
     TRUE_POSE,

@@ -373,6 +373,57 @@ def test_a_switch_after_a_re_assignment_assigns_from_the_re_assigned_targets(ros
     np.testing.assert_allclose(next(s for cid, s in received if cid == 1), expected)
 
 
+def test_the_server_waits_for_the_checked_robots_top_speeds_and_assigns_by_trip_time(
+        ros, tmp_path, arena_dict):
+    """With controller.motor_check the server starts the schedule only once every robot's
+    top_speed has come (sent when its check is done), then assigns the first curve by trip
+    time from where the robots are (timed_order over their poses' control points, each trip
+    over its robot's top speed), which here differs from the order by distance; a speed
+    that is no speed is refused (that robot taken at the wheels' limit).
+    """
+    from std_msgs.msg import Float64
+    arena_dict['controller']['motor_check'] = True
+    path = tmp_path / 'arena.yaml'
+    path.write_text(yaml.safe_dump(arena_dict))
+    experiment = load_experiment(path)
+    first = experiment.phases[0]
+    limit = experiment.limits.max_wheel_speed
+    rng = np.random.default_rng(1)
+    poses = np.column_stack([rng.uniform(0.3, 1.5, 9), rng.uniform(0.2, 0.8, 9),
+                             rng.uniform(-np.pi, np.pi, 9)])
+    speeds = limit * rng.uniform(0.6, 1.0, 9)
+    told = speeds.copy()
+    told[4] = -1.0   # refused: robot 5 taken at the limit
+    speeds[4] = limit
+    from curve_formation.core.formation.assignment import nearest_order, timed_order
+    from curve_formation.core.formation.dynamics import offset_points
+    points = offset_points(poses, experiment.gains.offset)
+    expected = first.s[timed_order(points, first.targets, speeds)]
+    assert not np.array_equal(expected, first.s[nearest_order(points, first.targets)])
+    context, add, spin_until = ros
+    probe = add(rclpy.create_node('observer', context=context))
+    received = []
+    probe.create_subscription(Float64MultiArray, topics.CURVE, lambda m: received.append(
+        messages.agent_parameters_from_msg(m)), qos.LATCHED)
+    pub = topics.publisher(probe, topics.ROBOT_POSES)
+    probe.create_timer(0.05, lambda: pub.publish(messages.robot_poses_to_msg(
+        poses, probe.get_clock().now().nanoseconds * 1e-9)))
+    speed_pubs = [topics.publisher(probe, topics.TOP_SPEED, i) for i in range(1, 10)]
+    server = add(CurveServer(context=context,
+                             parameter_overrides=overrides(experiment=str(path))))
+    for i in range(8):   # all but robot 9's
+        speed_pubs[i].publish(Float64(data=float(told[i])))
+    deadline = time.monotonic() + 1.5
+    spin_until(lambda: time.monotonic() > deadline)
+    assert received == [] and server.start is None
+    speed_pubs[8].publish(Float64(data=float(told[8])))
+    spin_until(lambda: received)
+    np.testing.assert_allclose(server.speeds[[0, 1, 2, 3, 5, 6, 7, 8]],
+                               speeds[[0, 1, 2, 3, 5, 6, 7, 8]])
+    assert np.isnan(server.speeds[4])
+    np.testing.assert_allclose(received[0], expected)
+
+
 # The kinematic world's pushes are tested without ROS (test_dynamics.py); over DDS in -m slow.
 @pytest.mark.parametrize('physics', [pytest.param('kinematic', marks=pytest.mark.slow),
                                      'mujoco'])

@@ -4,6 +4,7 @@ first, report what they found on /diagnostics and in metrics.json, then drive.
 
 import json
 
+import pytest
 import yaml
 
 from conftest import DATA_DIR, quiet
@@ -24,8 +25,10 @@ def test_a_run_checks_its_robots_motors_then_drives(ros_domain, tmp_path):
     beside the other worker's nodes the jitter of ticks and poses gave one robot 0.7 %, past
     the check's bound of 0.6 %), but for one robot at most whose check says it is not
     trusted (standard errors over 1 %) and whose gains are then not used nor reported (in a
-    loaded default test run one robot's came out 2.3 % off, +- 1.5 %); in the 8 s from the
-    first curve the formation closes in (its error at the end under half the start's).
+    loaded default test run one robot's came out 2.3 % off, +- 1.5 %); each robot's
+    top_speed (the limit times its slower wheel's gain, the limit where untrusted) is
+    recorded before the first curve; in the 8 s from the first curve the formation closes
+    in (its error at the end under half the start's).
     """
     from curve_formation.bags.bag import read_messages
     data = yaml.safe_load((DATA_DIR / 'fast_closed.yaml').read_text())
@@ -35,11 +38,16 @@ def test_a_run_checks_its_robots_motors_then_drives(ros_domain, tmp_path):
     path.write_text(yaml.safe_dump(data))
     run_experiment(path, tmp_path / 'out', 8.0,
                    RunOptions(single_process=True, bag_path=tmp_path / 'bag'), log=quiet)
-    first_curve, checking, found = None, {}, {}
+    first_curve, checking, found, speeds = None, {}, {}, {}
+    speed_topics = [f'/robot_{i}/top_speed' for i in range(1, 7)]
     for topic, _, stamp, msg in read_messages(tmp_path / 'bag', ['/diagnostics',
-                                                                 '/formation/curve']):
+                                                                 '/formation/curve',
+                                                                 *speed_topics]):
         if topic == '/formation/curve':
             first_curve = stamp if first_curve is None else first_curve
+            continue
+        if topic in speed_topics:
+            speeds.setdefault(topic.split('/')[1], (stamp, msg.data))
             continue
         for status in msg.status:
             if status.message == 'motor check':
@@ -56,6 +64,10 @@ def test_a_run_checks_its_robots_motors_then_drives(ros_domain, tmp_path):
     assert len(untrusted) <= 1, found
     assert all(max(stamps) < first_curve for stamps in checking.values()), (first_curve,
                                                                            checking)
+    # each robot's top speed crossed DDS once its check was done, before the first curve
+    # (the curve server waits for them): the limit times its slower wheel's gain as found
+    assert sorted(speeds) == sorted(checking), speeds
+    assert all(stamp < first_curve for stamp, _ in speeds.values()), (first_curve, speeds)
     saved = json.loads((tmp_path / 'out' / 'metrics.json').read_text())
     estimates = saved['robot_estimates']
     assert len(estimates) == 6, estimates
@@ -70,5 +82,9 @@ def test_a_run_checks_its_robots_motors_then_drives(ros_domain, tmp_path):
         assert found['wheel_gains_from'] == 'check', (name, found)
         assert all(0.0 < b <= 0.03 for b in found['wheel_gains_bound']), (name, found)
         assert found['command_latency_from'] == 'told', (name, found)
+        assert speeds[name][1] == pytest.approx(FASTEST * min(found['wheel_gains']),
+                                                rel=1e-4), name   # metrics: 5 digits
+    for name in untrusted:
+        assert speeds[name][1] == FASTEST, (name, speeds[name])
     phase = saved['phases'][0]
     assert phase['final_error_norm'] < 0.5 * phase['initial_error_norm']

@@ -11,6 +11,9 @@ from curve_formation.core.formation.assignment import (
     nearest_order,
     REASSIGN_LONGEST,
     reassigned,
+    TIMED_GAIN,
+    timed_order,
+    top_speeds,
     uniform_parameters,
 )
 from curve_formation.core.formation.curve_sources import expression_samples
@@ -86,22 +89,69 @@ def test_valid_parameters_return_the_stacked_basis():
     np.testing.assert_allclose(g_bar @ np.linalg.pinv(g_bar), np.eye(12), atol=1e-10)
 
 
+@pytest.mark.parametrize('weighed', [False, True], ids=['distances', 'times'])
 @pytest.mark.parametrize('seed', range(12))
-def test_nearest_order_is_the_bottleneck_optimum_then_the_shortest(seed):
-    """Against every permutation of 6 agents: no order has a shorter longest distance, and
-    none with the same longest distance is shorter in total.
+def test_nearest_order_is_the_bottleneck_optimum_then_the_shortest(seed, weighed):
+    """Against every permutation of 6 agents: no order has a shorter longest trip, and none
+    with the same longest trip is shorter in total distance; a trip its distance, or its
+    time (distance over the agent's speed) where speeds (0.8 to 1.2) are given.
     """
     rng = np.random.default_rng(seed)
     points, targets = rng.uniform(-1, 1, (6, 2)), rng.uniform(-1, 1, (6, 2))
-    dist = np.linalg.norm(points[:, None] - targets[None], axis=2)
-    perm = nearest_order(points, targets)
+    speeds = rng.uniform(0.8, 1.2, 6) if weighed else None
+    trip = np.linalg.norm(points[:, None] - targets[None], axis=2)
+    if weighed:
+        trip = trip / speeds[:, None]
+    perm = nearest_order(points, targets, speeds)
     assert sorted(perm) == list(range(6))
-    chosen = dist[np.arange(6), perm]
-    best = min(max(dist[np.arange(6), p]) for p in itertools.permutations(range(6)))
+    chosen = trip[np.arange(6), perm]
+    best = min(max(trip[np.arange(6), p]) for p in itertools.permutations(range(6)))
     assert chosen.max() == pytest.approx(best)
+    dist = np.linalg.norm(points[:, None] - targets[None], axis=2)
     shortest = min(dist[np.arange(6), p].sum() for p in itertools.permutations(range(6))
-                   if max(dist[np.arange(6), p]) <= best + 1e-12)
-    assert chosen.sum() == pytest.approx(shortest)
+                   if max(trip[np.arange(6), p]) <= best + 1e-12)
+    assert dist[np.arange(6), perm].sum() == pytest.approx(shortest)
+
+
+def test_a_slower_robot_is_sent_the_shorter_way():
+    """On a line, A at 0 m and B at 0.1 m, targets at 0.5 and 1.0 m: by distance A takes the
+    near target (longest trip 0.9 m, B's, against 1.0 m); B at half A's speed would take 1.8
+    s to the far one, so by time B takes the near one (longest 1.0 s, A's).
+    """
+    points = np.array([[0.0, 0.0], [0.1, 0.0]])
+    targets = np.array([[0.5, 0.0], [1.0, 0.0]])
+    np.testing.assert_array_equal(nearest_order(points, targets), [0, 1])
+    np.testing.assert_array_equal(nearest_order(points, targets, [1.0, 1.0]), [0, 1])
+    np.testing.assert_array_equal(nearest_order(points, targets, [0.05, 0.025]), [1, 0])
+
+
+@pytest.mark.parametrize('slower', [0.5, 0.88])
+def test_the_order_by_time_is_taken_only_where_it_shortens_the_longest_trip_enough(slower):
+    """A and B as above, B at `slower` times A's speed (1 m/s). By distance the longest trip
+    is B's 0.9 m, 0.9 / slower s; by time B takes the near target and the longest is A's 1 s:
+    1.8 s -> 1.0 s at half speed, taken; 1.023 s -> 1.0 s at 0.88, 2.2 % shorter, under
+    TIMED_GAIN, and the order by distance is kept.
+    """
+    points = np.array([[0.0, 0.0], [0.1, 0.0]])
+    targets = np.array([[0.5, 0.0], [1.0, 0.0]])
+    speeds = [1.0, slower]
+    np.testing.assert_array_equal(nearest_order(points, targets, speeds), [1, 0])
+    gain = 1.0 - 1.0 / (0.9 / slower)
+    assert (gain >= TIMED_GAIN) == (slower == 0.5)
+    np.testing.assert_array_equal(timed_order(points, targets, speeds),
+                                  [1, 0] if slower == 0.5 else [0, 1])
+    np.testing.assert_array_equal(timed_order(points, targets, None), [0, 1])
+
+
+def test_top_speeds_take_an_unknown_robot_as_nominal_and_alike_ones_as_none():
+    """A robot not heard from drives at the wheels' limit; speeds all alike, or no finite
+    limit, weigh nothing (None: trips are distances).
+    """
+    np.testing.assert_array_equal(top_speeds([0.04, np.nan, 0.06], 0.05), [0.04, 0.05, 0.06])
+    assert top_speeds([0.05, np.nan, 0.05], 0.05) is None
+    assert top_speeds(None, 0.05) is None
+    assert top_speeds([0.04, 0.05], np.inf) is None
+    assert top_speeds([0.04, 0.0], 0.05).tolist() == [0.04, 0.05]   # 0: not a speed
 
 
 def test_nearest_assignment_keeps_the_set_of_parameters():

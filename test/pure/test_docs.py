@@ -32,7 +32,7 @@ def test_a_reference_table_is_the_generated_one(page, marker, generated, command
 def test_a_run_records_every_robots_topics_once_with_their_registered_types():
     recorded = topics.recorded(3)
     names = [t.name for t in recorded]
-    assert len(names) == len(set(names)) == 9 + 5 * 3   # markers, robot_poses, fleet, preflight
+    assert len(names) == len(set(names)) == 9 + 6 * 3   # markers, robot_poses, fleet, preflight
     assert '/robot_3/cmd_vel' in names and '/formation/curve' in names
     assert topics.REGISTRY['cmd_vel'].type_name == 'geometry_msgs/msg/Twist'
     with_images = [t.name for t in topics.recorded(3, images=True)]

@@ -8,6 +8,7 @@ import pytest
 from conftest import DATA_DIR
 from curve_formation.core.config.experiment import ANNOUNCE_AHEAD
 from curve_formation.core.config.loading import load_experiment
+from curve_formation.core.formation.assignment import nearest_order, timed_order
 from curve_formation.core.schedule.curve_schedule import CurveSchedule
 
 
@@ -100,3 +101,32 @@ def test_an_observed_curve_takes_over_with_the_next_id_and_stops_a_moving_one(be
     observed = schedule.observed(begins_to_move.phases[0].curve, begins_to_move.phases[0].s,
                                  2.5)
     assert observed.curve_id == 2 and schedule.renewal(3.0) is None
+
+
+def test_known_top_speeds_assign_each_curve_by_trip_time_from_where_the_robots_are():
+    """Told the robots' control points and top speeds before the start, the first curve goes
+    to them by trip time from there (timed_order: here much shorter than by distance; a
+    robot not heard from at the wheels' limit); told points but no speeds, or speeds all
+    alike, it is as loaded (from the file's start); the second curve is assigned from the
+    first's targets through timed_order too.
+    """
+    experiment = load_experiment(DATA_DIR / 'nearest_switch.yaml')
+    first, second = experiment.phases
+    rng = np.random.default_rng(3)
+    points = rng.uniform(-4.0, 4.0, (6, 2))
+    speeds = np.array([2.0, 0.6, np.nan, 1.2, 2.0, 0.9])   # m/s; the limit is 2
+    weighed = np.where(np.isnan(speeds), 2.0, speeds)
+    for told, expected in ((None, first.s), (np.full(6, 1.5), first.s),
+                           (speeds, first.s[timed_order(points, first.targets, weighed)])):
+        schedule = CurveSchedule(experiment)
+        schedule.robots_now(points, told)
+        schedule.begin(0.0)
+        published, = schedule.due(0.0)
+        np.testing.assert_array_equal(published.s, expected)
+    # the speeds decide here: by distance from the same points the order differs
+    assert not np.array_equal(expected, first.s[nearest_order(points, first.targets)])
+    schedule.robots_now(rng.uniform(-4.0, 4.0, (6, 2)), speeds)   # points unused: too late
+    then, = schedule.due(second.start)
+    there = first.curve.points(expected)
+    np.testing.assert_array_equal(
+        then.s, second.s[timed_order(there, second.targets, weighed)])

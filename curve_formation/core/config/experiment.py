@@ -24,9 +24,7 @@ from curve_formation.core.controller.disturbance import disturbance_at, Variatio
 from curve_formation.core.controller.gains import Gains
 from curve_formation.core.controller.limits import WheelLimits
 from curve_formation.core.controller.safety import Avoidance, AVOIDANCE_OFF
-from curve_formation.core.formation.assignment import (
-    nearest_order,
-)
+from curve_formation.core.formation.assignment import timed_order
 from curve_formation.core.formation.curves import Curve, Fit
 from curve_formation.core.formation.graph import DirectedGraph
 from curve_formation.core.formation.motion import CurveMotion
@@ -67,13 +65,16 @@ class Phase:
         return self.curve if self.motion is None else self.motion.curve(self.curve,
                                                                          t - self.start)
 
-    def assigned_from(self, points: FloatArray) -> 'Phase':
+    def assigned_from(self, points: FloatArray, speeds: FloatArray | None = None
+                      ) -> 'Phase':
         """The phase with its targets permuted among the agents so that the agents headed for
-        `points` (n, 2; arena frame, m) take the nearest of them (assignment.nearest_order):
-        at a switch after the previous curve's targets were re-assigned, the agents are not
-        where the assignment made at load time assumed.
+        `points` (n, 2; arena frame, m) take the nearest of them (assignment.nearest_order;
+        in time where their top `speeds` (n,; m/s) are given and that shortens the longest
+        trip enough: assignment.timed_order): at a switch after the
+        previous curve's targets were re-assigned, the agents are not where the assignment
+        made at load time assumed, nor, their speeds known, as fast as it assumed.
         """
-        order = nearest_order(points, self.targets)
+        order = timed_order(points, self.targets, speeds)
         if np.array_equal(order, np.arange(len(order))):
             return self
         s = self.s[order]
@@ -114,28 +115,33 @@ class Experiment:
     def name(self) -> str:
         return self.spec.name
 
-    def switched_to(self, phase: Phase, reassigned: bool, targets: FloatArray) -> Phase:
+    def switched_to(self, phase: Phase, reassigned: bool, targets: FloatArray,
+                    speeds: FloatArray | None = None) -> Phase:
         """The phase a scheduled switch starts: as assigned at load time, or, with `nearest`
-        assignment after the previous curve's targets were re-assigned on the way, assigned
-        from those targets (n, 2; arena frame, m) as last sent (Phase.assigned_from). The
-        curve server and the simulator both switch through here.
+        assignment, assigned again (Phase.assigned_from) from `targets` (n, 2; arena frame,
+        m: the previous curve's targets as last sent, the robots' control points before the
+        first curve) where the previous curve's targets were re-assigned on the way or the
+        robots' top `speeds` (n,; m/s, assignment.top_speeds) are known. The curve server and
+        the simulator both switch through here.
         """
-        if reassigned and self.spec.agents.assignment == 'nearest':
-            return phase.assigned_from(targets)
+        if self.spec.agents.assignment == 'nearest' and (reassigned or speeds is not None):
+            return phase.assigned_from(targets, speeds)
         return phase
 
     def announce_lead(self, k: int, current: tuple[Curve, FloatArray] | None, moving: bool,
                       reassigned: bool, targets: FloatArray,
-                      ahead: float = ANNOUNCE_AHEAD) -> float:
+                      ahead: float = ANNOUNCE_AHEAD, speeds: FloatArray | None = None
+                      ) -> float:
         """How long (s) before its start phase k is published: `ahead` if it only sets the
         current curve moving (its switched curve and s those of `current`, the (curve, s)
         last published, nothing moving now), so that every controller has it before it
-        begins to move; else 0. The curve server and the nodes' pipeline both ask here.
+        begins to move; else 0 (switched_to's speeds). The curve server and the nodes'
+        pipeline both ask here.
         """
         phase = self.phases[k]
         if ahead <= 0 or phase.motion is None or current is None or moving:
             return 0.0
-        switched = self.switched_to(phase, reassigned, targets)
+        switched = self.switched_to(phase, reassigned, targets, speeds)
         curve, s = current
         same = (curve.matches(switched.curve)
                 and np.allclose(s, switched.s, rtol=0.0, atol=1e-9))

@@ -260,6 +260,17 @@ class RobotModel:
         """
         return self._gains_found()[0]
 
+    @property
+    def top_speed(self) -> float:
+        """m/s: the robot's fastest straight drive, its slower wheel's gain (wheel_gains;
+        1 where none are known) times max_wheel_speed; NaN without a finite wheel limit.
+        """
+        limit = self.limits.max_wheel_speed
+        if not 0.0 < limit < math.inf:
+            return math.nan
+        gains = self.wheel_gains
+        return limit * (1.0 if gains is None else min(gains))
+
     def _gains_found(self) -> tuple[tuple[float, float] | None,
                                     tuple[float, float] | None, str | None]:
         """(gains, their standard errors, 'online' or 'check'): wheel_gains' with where they

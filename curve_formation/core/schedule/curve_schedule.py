@@ -1,7 +1,9 @@
 """The curve schedule of a run as the curve server keeps it, without ROS: which curve is
 published when (a curve that only begins to move announced ahead), its id and the agents'
 parameters it carries, a moving curve renewed where it is, the targets re-assigned among the
-robots, an observed curve taking over, and the phases as they were followed.
+robots, an observed curve taking over, and the phases as they were followed. Where the caller
+knows the robots' top speeds (`robots_now`: their controllers measured their wheels), a curve
+switched to is assigned by trip time rather than distance (assignment.nearest_order).
 
 The curve server (nodes/curve_server.py) publishes what it returns on /formation/curve and the
 nodes' pipeline (core/sim/pipeline.py) hands the same to its controllers: one schedule for both.
@@ -10,9 +12,11 @@ Times are on the caller's clock (s); the run's t = 0 is when `begin` was called.
 
 from dataclasses import dataclass, replace
 
+import numpy as np
+
 from curve_formation.core.base.shapes import FloatArray
 from curve_formation.core.config.experiment import ANNOUNCE_AHEAD, Experiment, Phase
-from curve_formation.core.formation.assignment import reassigned
+from curve_formation.core.formation.assignment import reassigned, top_speeds
 from curve_formation.core.formation.curve_codec import CurveClock
 from curve_formation.core.formation.curves import Curve
 from curve_formation.core.formation.dynamics import offset_points
@@ -51,6 +55,7 @@ class CurveSchedule:
         self.last: Publication | None = None
         self._start_points = offset_points(experiment.initial_poses, experiment.gains.offset)
         self.reassigned = False   # targets re-assigned since the last scheduled switch
+        self.speeds: FloatArray | None = None   # the robots' top speeds (robots_now)
         self.changes: list[tuple[float, FloatArray, FloatArray]] = []
         self.followed: list[Phase] = []
 
@@ -61,6 +66,16 @@ class CurveSchedule:
         """
         last = self.last
         return self._start_points if last is None else last.curve.points(last.s)
+
+    def robots_now(self, points: FloatArray | None, speeds: FloatArray | None) -> None:
+        """What the caller knows of the robots now: their control points (n, 2; m, arena
+        frame; None: not known), from which the first curve is assigned while none has been
+        published, and their top speeds (n,; m/s, NaN where unknown: the wheels' limit),
+        by which each curve switched to from then is assigned (assignment.top_speeds).
+        """
+        if points is not None and self.last is None:
+            self._start_points = np.asarray(points, float)
+        self.speeds = top_speeds(speeds, self.experiment.limits.max_wheel_speed)
 
     def begin(self, now: float) -> None:
         """The run's t = 0 is `now`: the schedule's times count from here."""
@@ -74,7 +89,8 @@ class CurveSchedule:
         current = None if self.last is None else (self.last.curve, self.last.s)
         return self.experiment.announce_lead(k, current, self.moving_since is not None,
                                              self.reassigned, self.targets,
-                                             self.announce_ahead if ahead is None else ahead)
+                                             self.announce_ahead if ahead is None else ahead,
+                                             self.speeds)
 
     def next_due(self) -> float | None:
         """When (s, the schedule's clock) the next scheduled curve is due; None when none is
@@ -95,7 +111,8 @@ class CurveSchedule:
             lead = self.lead(k)
             if self.t0 + self.phases[k].start - lead > now:
                 break
-            phase = self.experiment.switched_to(self.phases[k], self.reassigned, self.targets)
+            phase = self.experiment.switched_to(self.phases[k], self.reassigned, self.targets,
+                                                self.speeds)
             self._close()
             self.next_phase, self.reassigned, self.phase = k + 1, False, phase
             # A moving curve begins to move when it is published, or, announced ahead, at

@@ -109,8 +109,12 @@ class Pipeline:
 
     def publish_due(self, now: float) -> None:
         """The curve server's scheduled curves due by `now` (s), a curve that only begins to
-        move ANNOUNCE_AHEAD before its start (core.schedule.curve_schedule).
+        move ANNOUNCE_AHEAD before its start (core.schedule.curve_schedule), each assigned
+        by the robots' top speeds as their controllers know them then (the topic they
+        publish them on has no delay here).
         """
+        self.schedule.robots_now(self._points(),
+                                 np.array([c.robot.top_speed for c in self.controllers]))
         for publication in self.schedule.due(now):
             self._hand_out(now, publication)
 
@@ -122,10 +126,15 @@ class Pipeline:
 
     def reassign(self, now: float) -> None:
         """The curve server's re-assignment from the robots' poses (same id)."""
-        points = dynamics.offset_points(self.world.poses(), self.experiment.gains.offset)
-        publication = self.schedule.reassign(points, now)
+        publication = self.schedule.reassign(self._points(), now)
         if publication is not None:
             self._hand_out(now, publication)
+
+    def _points(self) -> FloatArray:
+        """The robots' control points now (n, 2; m, arena frame), as the curve server has
+        them from /formation/robot_poses.
+        """
+        return dynamics.offset_points(self.world.poses(), self.experiment.gains.offset)
 
     def _hand_out(self, now: float, publication: Publication) -> None:
         """A curve message reaches every controller at `now` (s)."""
