@@ -103,7 +103,7 @@ def timed_order(points: FloatArray, targets: FloatArray, speeds: FloatArray | No
 
 
 def top_speeds(speeds: FloatArray | None, nominal: float) -> FloatArray | None:
-    """Robots' top speeds (n,; m/s, NaN where unknown) as nearest_order weighs trips by:
+    """Robots' top speeds (n,; m/s, NaN where unknown) as timed_order weighs trips by:
     an unknown one `nominal` (m/s, the wheels' limit); None where none is known or all are
     alike (trips weighed as distances).
     """

@@ -3,7 +3,8 @@ published when (a curve that only begins to move announced ahead), its id and th
 parameters it carries, a moving curve renewed where it is, the targets re-assigned among the
 robots, an observed curve taking over, and the phases as they were followed. Where the caller
 knows the robots' top speeds (`robots_now`: their controllers measured their wheels), a curve
-switched to is assigned by trip time rather than distance (assignment.nearest_order).
+switched to is assigned by trip time where that shortens the longest trip enough
+(assignment.timed_order).
 
 The curve server (nodes/curve_server.py) publishes what it returns on /formation/curve and the
 nodes' pipeline (core/sim/pipeline.py) hands the same to its controllers: one schedule for both.
