@@ -174,7 +174,8 @@ TOPICS = {t.name: t for t in (
     TopicSpec(FLEET, 'diagnostic_msgs/msg/DiagnosticArray', 'LATCHED',
               "the fleet's status, 1 Hz: one status per robot (name robot_<i>, hardware_id its "
               'link), values seen, pose_age_s, link, reply_age_s, battery, estopped, motion, '
-              'controller, lost (when its marker or link was lost, s since t = 0)', EVERY_BAG),
+              'controller, top_speed_mps (as its controller measured the wheels), lost (when its '
+              'marker or link was lost, s since t = 0)', EVERY_BAG),
     TopicSpec(PREFLIGHT, 'diagnostic_msgs/msg/DiagnosticArray', 'LATCHED',
               "the pre-flight's result: one status per robot (seen, link, reply age, stop "
               'confirmed, problems), and one for the whole fleet', EVERY_BAG),

@@ -1,9 +1,10 @@
 """The fleet's status, as a lab watches it during a run: per robot whether its marker is seen,
 whether its link answers (and how long ago), its battery where the firmware reports it, the
-e-stop, whether it drives or stands and whether its controller is alive. Published latched on
-/formation/fleet every STATUS_PERIOD s from the runner's monitor; a robot whose marker or
-link is lost, or comes back, is an event with its time (s since t = 0) for metrics.json and
-the report.
+e-stop, whether it drives or stands, whether its controller is alive and how fast the robot
+drives as its controller measured its wheels (top_speed: a weak motor or battery shows).
+Published latched on /formation/fleet every STATUS_PERIOD s from the runner's monitor; a
+robot whose marker or link is lost, or comes back, is an event with its time (s since t = 0)
+for metrics.json and the report.
 """
 
 from dataclasses import dataclass
@@ -12,6 +13,7 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
+from std_msgs.msg import Float64
 
 from curve_formation import diagnostics
 from curve_formation.interface import robot_index, robot_name
@@ -27,7 +29,8 @@ SILENT_AFTER = 1.0     # s without a command: the controller is not alive
 @dataclass
 class RobotStatus:
     """One robot now: seen (pose age, s), link (None: no bridge reports it), reply age (s),
-    battery (V), e-stopped, driving, controller alive.
+    battery (V), e-stopped, driving, controller alive, top speed (m/s, its controller's
+    top_speed; NaN: none heard).
     """
 
     robot: int
@@ -39,6 +42,7 @@ class RobotStatus:
     estopped: bool
     driving: bool
     controller: bool
+    top_speed: float = math.nan
 
     def values(self) -> dict[str, str]:
         link = {None: 'no bridge', True: 'up', False: 'down'}[self.link]
@@ -47,7 +51,9 @@ class RobotStatus:
                 'link': link, 'reply_age_s': self.reply_age, 'battery': self.battery,
                 'estopped': str(self.estopped).lower(),
                 'motion': 'driving' if self.driving else 'standing',
-                'controller': 'alive' if self.controller else 'silent'}
+                'controller': 'alive' if self.controller else 'silent',
+                'top_speed_mps': ('unknown' if math.isnan(self.top_speed)
+                                  else f'{self.top_speed:.4f}')}
 
 
 class FleetStatus:
@@ -65,8 +71,15 @@ class FleetStatus:
         self.events: list[tuple[float, int, str]] = []
         self._last: dict[int, RobotStatus] = {}
         self.publisher = topics.publisher(monitor, topics.FLEET)
+        self.top_speeds = np.full(self.n, np.nan)   # m/s, each robot's controller's
+        for i in range(1, self.n + 1):
+            topics.subscription(monitor, topics.TOP_SPEED,
+                                lambda msg, i=i: self._on_top_speed(i, msg), i)
         topics.subscription(monitor, topics.DIAGNOSTICS, self._on_diagnostics)
         monitor.create_timer(STATUS_PERIOD, self.publish)
+
+    def _on_top_speed(self, i: int, msg: Float64) -> None:
+        self.top_speeds[i - 1] = float(msg.data)
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
@@ -98,7 +111,8 @@ class FleetStatus:
                 reply_age='-' if report is None else report[1],
                 battery='unknown' if report is None else report[2], estopped=held,
                 driving=bool(np.isfinite(command).all() and np.abs(command).max() > 0.0),
-                controller=not math.isnan(commanded) and now - commanded <= SILENT_AFTER))
+                controller=not math.isnan(commanded) and now - commanded <= SILENT_AFTER,
+                top_speed=float(self.top_speeds[i - 1])))
         return out
 
     def publish(self) -> None:

@@ -36,7 +36,8 @@ def test_a_bridged_run_passes_its_preflight_and_the_fleet_status_shows_a_link_cu
         ros_domain, tmp_path):
     """arena_demo through UDP bridges to the emulated robots, robot 4's firmware hearing
     nothing for 3 s from 5 s after it first drives: metrics.json's preflight lists 9 robots
-    passed; the bag carries the pre-flight and the fleet's status; robot 4 stops (its
+    passed; the bag carries the pre-flight and the fleet's status (each robot's top speed
+    in it); robot 4 stops (its
     firmware's watchdog) and the fleet's events list its link lost, then back, with times;
     the report says so.
     """
@@ -72,6 +73,8 @@ def test_a_bridged_run_passes_its_preflight_and_the_fleet_status_shows_a_link_cu
     assert any(status['robot_4']['link'] == 'down' for status in statuses)
     assert all(v['seen'] == 'true' and v['link'] == 'up' and v['controller'] == 'alive'
                for v in statuses[-1].values()), statuses[-1]
+    # each controller's top speed crossed DDS: the wheels' limit (arena_demo measures none)
+    assert all(v['top_speed_mps'] == '0.0225' for v in statuses[-1].values()), statuses[-1]
     events = [(e['robot'], e['what'], e['t']) for e in result['fleet']['events']]
     lost = [t for robot, what, t in events if robot == 4 and what == 'link lost']
     back = [t for robot, what, t in events if robot == 4 and what == 'link back']
