@@ -37,7 +37,11 @@ from curve_formation.core.config.experiment import ANNOUNCE_AHEAD
 from curve_formation.core.controller.motor_probe import CHECK_SECONDS
 from curve_formation.core.controller.plausibility import MAX_COORDINATE
 from curve_formation.core.controller.settings import default
-from curve_formation.core.formation.assignment import AssignmentError, phase_parameters
+from curve_formation.core.formation.assignment import (
+    AssignmentError,
+    phase_parameters,
+    TIMED_GAIN,
+)
 from curve_formation.core.formation.curve_sources import fit_points
 from curve_formation.core.formation.curves import Curve, CurveError, make_basis
 from curve_formation.core.formation.dynamics import offset_points
@@ -198,6 +202,12 @@ class CurveServer(Node):
                 self.destroy_subscription(subscription)
             self.pose_waits = []
             self.schedule.robots_now(self._points(), self.speeds)
+            if self.schedule.speeds is not None:
+                slowest = int(np.argmin(self.schedule.speeds))
+                self.get_logger().info(
+                    "robots' top speeds known: curves assigned by trip time where that "
+                    f'shortens the longest by {100 * TIMED_GAIN:g} % (slowest robot '
+                    f'{slowest + 1}, {self.schedule.speeds[slowest]:.4f} m/s)')
             self.start = now_seconds(self)
             self.schedule.begin(self.start)
             if self.reassign_every > 0:
