@@ -143,6 +143,14 @@ def test_the_order_by_time_is_taken_only_where_it_shortens_the_longest_trip_enou
     np.testing.assert_array_equal(timed_order(points, targets, None), [0, 1])
 
 
+def test_agents_beyond_any_distance_are_refused_not_assigned():
+    """Points so far off that their distances overflow: refused with an AssignmentError (as
+    loading turns into a ConfigError naming the curve), not a solver's infeasible matrix.
+    """
+    with pytest.raises(AssignmentError, match='not finite'):
+        nearest_order(np.array([[1e200, 1e200], [0.0, 0.0]]), np.zeros((2, 2)))
+
+
 def test_top_speeds_take_an_unknown_robot_as_nominal_and_alike_ones_as_none():
     """A robot not heard from drives at the wheels' limit; speeds all alike, or no finite
     limit, weigh nothing (None: trips are distances).

@@ -39,6 +39,10 @@ BROKEN = [
     ('negative gain', ('controller', 'k1'), -1.0, 'controller.k1', 'greater than 0'),
     ('gain as text', ('controller', 'k2'), 'fast', 'controller.k2', 'valid number'),
     ('zero offset', ('controller', 'offset'), 0.0, 'controller.offset', 'non-zero'),
+    # (an offset of 1.3e154 m, drawn by test_config_properties, overflowed the distances
+    # of the nearest assignment)
+    ('offset beyond any arena', ('controller', 'offset'), 1.3e154, 'controller.offset',
+     'less than or equal to 10000'),
     ('missing duration', ('simulation', 'duration'), DELETE, 'simulation.duration', 'required'),
     ('unknown law', ('controller', 'law'), 'magic', 'controller.law', "'paper'"),
     ('edge to missing agent', ('graph', 'edges', 0, 'to'), 9, 'graph', 'numbered 1..6'),

@@ -15,6 +15,8 @@ from dataclasses import dataclass
 import math
 from typing import Any
 
+from curve_formation.core.controller.plausibility import MAX_COORDINATE
+
 
 @dataclass(frozen=True)
 class Setting:
@@ -94,7 +96,8 @@ SETTINGS = _settings(
     Setting('controller.k2', 'k2', 'double', 1.0, '', 'estimator gain; 0 = estimator off '
             '(every law estimates d / k2, as the paper)', low=0.0, required=True),
     Setting('controller.offset', 'offset', 'double', 0.01, 'm',
-            'offset l of the control point ahead of the axle, non-zero', required=True),
+            'offset l of the control point ahead of the axle, non-zero', required=True,
+            low=-MAX_COORDINATE, high=MAX_COORDINATE),
     Setting('controller.law', 'law', 'string', 'paper', '',
             "disturbance estimator: 'paper' (the paper's adaptive law), 'adaptive' "
             "(per-channel gains `adaptation`), 'observer' (from the measured motion)",

@@ -54,7 +54,11 @@ def nearest_order(points: FloatArray, targets: FloatArray,
     # and only experiment loading (nearest assignment) needs it.
     from scipy.optimize import linear_sum_assignment
     points, targets = np.asarray(points, float), np.asarray(targets, float)
-    dist = np.linalg.norm(points[:, None, :] - targets[None, :, :], axis=2)
+    with np.errstate(over='ignore', invalid='ignore'):
+        dist = np.linalg.norm(points[:, None, :] - targets[None, :, :], axis=2)
+    if not np.isfinite(dist).all():
+        raise AssignmentError('the distances from the agents to their targets are not finite '
+                              f'(agents up to {np.abs(points).max():.3g} m from the origin)')
     trip = dist if speeds is None else dist / np.asarray(speeds, float)[:, None]
     values = np.unique(trip)
     low, high = 0, len(values) - 1
