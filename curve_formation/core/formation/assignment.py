@@ -50,16 +50,33 @@ def nearest_order(points: FloatArray, targets: FloatArray,
     bisection over the trips), the one with the shortest distance in total. points and
     targets (n, 2), arena frame.
     """
-    # Imported here: scipy.optimize is 60 % of a node process's start-up imports (0.35 s),
-    # and only experiment loading (nearest assignment) needs it.
-    from scipy.optimize import linear_sum_assignment
+    dist = _distances(points, targets)
+    return _bottleneck(dist, dist if speeds is None else _times(dist, speeds))
+
+
+def _distances(points: FloatArray, targets: FloatArray) -> FloatArray:
+    """(n, n) m from each agent at `points` to each of `targets` (n, 2); AssignmentError where
+    they overflow.
+    """
     points, targets = np.asarray(points, float), np.asarray(targets, float)
     with np.errstate(over='ignore', invalid='ignore'):
         dist = np.linalg.norm(points[:, None, :] - targets[None, :, :], axis=2)
     if not np.isfinite(dist).all():
         raise AssignmentError('the distances from the agents to their targets are not finite '
                               f'(agents up to {np.abs(points).max():.3g} m from the origin)')
-    trip = dist if speeds is None else dist / np.asarray(speeds, float)[:, None]
+    return dist
+
+
+def _times(dist: FloatArray, speeds: FloatArray) -> FloatArray:
+    """(n, n) s: each agent's distances (m) over its top speed (n,; m/s)."""
+    return dist / np.asarray(speeds, float)[:, None]
+
+
+def _bottleneck(dist: FloatArray, trip: FloatArray) -> IntArray:
+    """nearest_order's perm for the distances `dist` (n, n) and trips `trip` (n, n)."""
+    # Imported here: scipy.optimize is 60 % of a node process's start-up imports (0.35 s),
+    # and only experiment loading (nearest assignment) needs it.
+    from scipy.optimize import linear_sum_assignment
     values = np.unique(trip)
     low, high = 0, len(values) - 1
     while low < high:   # smallest threshold that still admits a full assignment
@@ -93,13 +110,12 @@ def timed_order(points: FloatArray, targets: FloatArray, speeds: FloatArray | No
     the longest trip's time by TIMED_GAIN against the order by distance; else by distance.
     points and targets (n, 2), arena frame.
     """
-    by_distance = nearest_order(points, targets)
+    dist = _distances(points, targets)
+    by_distance = _bottleneck(dist, dist)
     if speeds is None:
         return by_distance
-    by_time = nearest_order(points, targets, speeds)
-    dist = np.linalg.norm(np.asarray(points, float)[:, None, :]
-                          - np.asarray(targets, float)[None, :, :], axis=2)
-    trip = dist / np.asarray(speeds, float)[:, None]
+    trip = _times(dist, speeds)
+    by_time = _bottleneck(dist, trip)
     rows = np.arange(len(trip))
     if trip[rows, by_time].max() <= (1.0 - TIMED_GAIN) * trip[rows, by_distance].max():
         return by_time
