@@ -275,6 +275,13 @@ def test_the_check_needs_the_wheel_limits():
         check_rules(spec, 'arena_demo.yaml')
 
 
+def with_check(experiment):
+    """The experiment with controller.motor_check on."""
+    spec = experiment.spec
+    return dataclasses.replace(experiment, spec=spec.model_copy(update={
+        'controller': spec.controller.model_copy(update={'motor_check': True})}))
+
+
 @functools.cache
 def checked_run(swinging):
     """logged_run of arena_demo seed 1 on imperfect MuJoCo robots (nothing told, the drift
@@ -282,11 +289,7 @@ def checked_run(swinging):
     and 2 s of it; and the true gains (robots, 2) and band (m/s).
     """
     from curve_formation.core.world.mujoco_world import draw_robots
-    experiment = imperfect_case('arena_demo', 1, swinging)
-    spec = experiment.spec
-    spec = spec.model_copy(update={
-        'controller': spec.controller.model_copy(update={'motor_check': True})})
-    experiment = dataclasses.replace(experiment, spec=spec)
+    experiment = with_check(imperfect_case('arena_demo', 1, swinging))
     robots = draw_robots(experiment)
     true = robots.wheel_gains
     band = IMPERFECTIONS['dead_band'] * experiment.limits.max_wheel_speed
@@ -360,11 +363,8 @@ def test_sim_of_a_file_with_the_check_runs_the_nodes_pipeline():
     from curve_formation.core.config.loading import load_experiment
     from curve_formation.core.sim.pipeline import simulate_kinematic
     from curve_formation.paths import resolve_config
-    experiment = load_experiment(resolve_config('arena_demo'))
-    spec = experiment.spec
-    spec = spec.model_copy(update={
-        'controller': spec.controller.model_copy(update={'motor_check': True})})
-    result, why = simulate_kinematic(dataclasses.replace(experiment, spec=spec), duration=1.0)
+    experiment = with_check(load_experiment(resolve_config('arena_demo')))
+    result, why = simulate_kinematic(experiment, duration=1.0)
     assert why is not None and 'controller.motor_check' in why
     for gains in result.wheel_gains:
         np.testing.assert_allclose(gains, (1.0, 1.0), rtol=0.03)
@@ -381,10 +381,7 @@ def test_the_first_curve_goes_to_the_checked_robots_by_trip_time():
     """
     from curve_formation.core.formation.assignment import nearest_order, timed_order
     from curve_formation.core.formation.dynamics import offset_points
-    experiment = imperfect_case('arena_demo', 20, False)
-    spec = experiment.spec
-    experiment = dataclasses.replace(experiment, spec=spec.model_copy(update={
-        'controller': spec.controller.model_copy(update={'motor_check': True})}))
+    experiment = with_check(imperfect_case('arena_demo', 20, False))
     controllers, result = learnt(experiment, 0.1, seconds=0.2)
     speeds = np.array([c.robot.top_speed for c in controllers])
     np.testing.assert_allclose(speeds, [experiment.limits.max_wheel_speed
